@@ -1,0 +1,22 @@
+"""surfidx: a database for textured 3D scans represented as surfels.
+
+Data flow: files -> :class:`SurfelSet` -> spheres-of-influence graph and geodesics -> spherical
+parameterization -> icosahedral resampling -> KLT + lifted butterfly wavelets -> zerotree and
+arithmetic coding -> container; descriptors from the same spherical representation; SQLite store.
+"""
+
+from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError, SurfidxError,
+                      TopologyError)
+from ._tolerance import TOL, Tolerances
+from .io import read_mesh, read_surfels, write_ply
+from .mesh import TriangleMesh
+from .pointcloud import points_to_surfels
+from .surfels import SurfelSet
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
+    "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
+    "DatabaseError", "TOL", "Tolerances", "__version__",
+]

@@ -1,0 +1,33 @@
+"""The one tolerance object of surfidx: every numeric threshold used for validation and tests."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["Tolerances", "TOL"]
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Numeric tolerances, in one place.
+
+    Attributes
+    ----------
+    unit_normal : float
+        Largest allowed ``| |n| - 1 |`` of a normal given to :class:`~surfidx.SurfelSet`
+        (normals are renormalised after the check).
+    degenerate_area : float
+        Triangles whose area is below this fraction of the mean triangle area count as degenerate.
+    reconstruction : float
+        Largest absolute error of a perfect-reconstruction transform (lifting, KLT).
+    psnr_agreement : float
+        dB within which two implementations of the same distortion measure must agree.
+    """
+
+    unit_normal: float = 1e-3
+    degenerate_area: float = 1e-12
+    reconstruction: float = 1e-10
+    psnr_agreement: float = 0.5
+
+
+TOL = Tolerances()

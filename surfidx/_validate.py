@@ -1,0 +1,78 @@
+"""The boundary validation helper: every public function converts its array arguments through
+:func:`as_array`, so that messages are uniform and name the bad value and the fix."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._errors import InputError
+
+__all__ = ["as_array", "check_positive_int"]
+
+
+def as_array(value, name: str, *, dtype=np.float64, shape=None, finite: bool = True,
+             min_len: int = 0, path=None) -> np.ndarray:
+    """Convert ``value`` to a contiguous array and check it.
+
+    Parameters
+    ----------
+    value : array_like
+        The data.
+    name : str
+        Its name in messages (``"positions"``).
+    dtype : numpy dtype
+        Target dtype; integer targets reject non-integral floats.
+    shape : tuple of (int or None), optional
+        Expected shape; ``None`` entries match any length.
+    finite : bool
+        Reject NaN and infinity.
+    min_len : int
+        Smallest allowed length of the first axis.
+    path : str, optional
+        File the data came from, for the message.
+
+    Returns
+    -------
+    numpy.ndarray
+        C-contiguous array of ``dtype``.
+
+    Raises
+    ------
+    InputError
+        When conversion, shape, finiteness or length checks fail.
+    """
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # pragma: no cover - numpy rarely fails here
+        raise InputError(f"{name} cannot be converted to an array ({exc})", path=path) from exc
+    if arr.dtype == object:
+        raise InputError(f"{name} must be numeric, got ragged or object data", path=path)
+    if shape is not None:
+        ok = arr.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, arr.shape))
+        if not ok:
+            want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+            raise InputError(f"{name} must have shape {want}, got {arr.shape}", path=path)
+    target = np.dtype(dtype)
+    if np.issubdtype(target, np.integer) and arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)) \
+                or not np.all(arr == np.round(arr)):
+            raise InputError(f"{name} must hold integers", path=path)
+    if finite and arr.size and np.issubdtype(arr.dtype, np.floating):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            first = int(np.argwhere(bad)[0][0])
+            raise InputError(
+                f"{name} contains {int(bad.sum())} NaN or infinite values (first at index {first});"
+                " remove or repair them", path=path)
+    if arr.ndim and arr.shape[0] < min_len:
+        raise InputError(f"{name} needs at least {min_len} entries, got {arr.shape[0]}", path=path)
+    return np.ascontiguousarray(arr, dtype=target)
+
+
+def check_positive_int(value, name: str, *, minimum: int = 1) -> int:
+    """Return ``value`` as int, raising :class:`InputError` unless it is an integer ≥ ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InputError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise InputError(f"{name} must be at least {minimum}, got {value}")
+    return int(value)

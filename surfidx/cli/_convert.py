@@ -1,0 +1,67 @@
+"""``surfidx convert`` and ``surfidx info``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from . import cli
+from ._common import command_errors, echo_json, input_options, read_input
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Surfel PLY to write (binary little-endian).")
+@input_options
+@click.option("--ascii", "text", is_flag=True, help="Write ASCII PLY instead of binary.")
+@command_errors
+def convert(input, output, texture, samples, text):
+    """Convert a mesh, point cloud or surfel file to a surfel PLY."""
+    from ..io import write_ply
+
+    s = read_input(input, texture, samples)
+    write_ply(s, output, text=text)
+    click.echo(f"{output}: {len(s)} surfels{' with colour' if s.has_color else ''}")
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@input_options
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def info(input, texture, samples, as_json):
+    """Surfel count, bounding box, colour and (for meshes) closedness and genus."""
+    from ..io import read_mesh
+
+    s = read_input(input, texture, samples)
+    lo, hi = s.bounds
+    out = {"file": str(input), "surfels": len(s), "color": s.has_color,
+           "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "diagonal": s.diagonal,
+           "mean_radius": float(s.radii.mean())}
+    if Path(input).suffix.lower() in (".obj", ".off") or s.faces is not None:
+        topo = read_mesh(input).topology() if s.faces is None else _topology_of(s)
+        out.update({"mesh": True, "faces": topo.faces, "closed": topo.closed,
+                    "components": topo.components, "boundary_edges": topo.boundary_edges,
+                    "nonmanifold_vertices": topo.nonmanifold_vertices, "euler": topo.euler,
+                    "genus": topo.genus})
+    else:
+        out["mesh"] = False
+    if as_json:
+        echo_json(out)
+        return
+    for key, val in out.items():
+        if isinstance(val, list):
+            val = " ".join(f"{x:.6g}" for x in val)
+        elif isinstance(val, float):
+            val = f"{val:.6g}"
+        elif val is None:
+            val = "-"
+        click.echo(f"{key:22s} {val}")
+
+
+def _topology_of(surfels):
+    from ..mesh import TriangleMesh
+
+    return TriangleMesh(surfels.positions, surfels.faces).topology()

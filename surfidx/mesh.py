@@ -1,0 +1,399 @@
+"""Triangle meshes: topology checks and conversion to surfels.
+
+Surfels are placed at the used vertices, in the mesh's vertex order, or sampled uniformly over the
+surface. Normals are area-weighted face normals oriented outward, radii the smallest that let the
+disks cover every incident triangle, colours come from vertex colours or from the texture.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from ._errors import InputError
+from ._validate import as_array
+from .surfels import SurfelSet
+
+__all__ = ["TriangleMesh", "Topology", "sample_texture", "spacing_radii"]
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Topological summary of a triangle mesh.
+
+    Attributes
+    ----------
+    vertices, faces, edges : int
+        Counts over used vertices and non-degenerate faces.
+    components : int
+        Connected components (by shared vertices).
+    boundary_edges : int
+        Edges with one incident face.
+    nonmanifold_edges : int
+        Edges with more than two incident faces.
+    nonmanifold_vertices : int
+        Vertices whose incident faces form more than one fan (pinched vertices).
+    euler : int
+        V - E + F.
+    closed : bool
+        Every edge has exactly two faces.
+    genus : int or None
+        (2 - euler) / 2 for a closed, connected, manifold mesh; None otherwise.
+    """
+
+    vertices: int
+    faces: int
+    edges: int
+    components: int
+    boundary_edges: int
+    nonmanifold_edges: int
+    nonmanifold_vertices: int
+    euler: int
+    closed: bool
+    genus: int | None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+class TriangleMesh:
+    """A triangle mesh with optional vertex colours or a UV texture.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+        Indices into ``vertices``; winding gives the face orientation.
+    vertex_colors : (n, 3) uint8, optional
+    uv : (k, 2) float64, optional
+        Texture coordinates; ``uv_faces`` indexes them per face corner.
+    uv_faces : (m, 3) int64, optional
+    texture : (h, w, 3) uint8, optional
+        Texture image, row 0 at the top (v = 1).
+    name : str, optional
+    """
+
+    def __init__(self, vertices, faces, *, vertex_colors=None, uv=None, uv_faces=None,
+                 texture=None, name=None):
+        self.vertices = as_array(vertices, "vertices", shape=(None, 3))
+        self.faces = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
+        n = len(self.vertices)
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= n):
+            raise InputError(f"faces index vertices outside 0..{n - 1}")
+        self.vertex_colors = None
+        if vertex_colors is not None:
+            self.vertex_colors = np.ascontiguousarray(vertex_colors, dtype=np.uint8)
+        self.uv = None if uv is None else as_array(uv, "uv", shape=(None, 2))
+        self.uv_faces = None if uv_faces is None else as_array(
+            uv_faces, "uv_faces", dtype=np.int64, shape=self.faces.shape)
+        if self.uv is not None and self.uv_faces is not None and self.uv_faces.size and (
+                self.uv_faces.min() < 0 or self.uv_faces.max() >= len(self.uv)):
+            raise InputError("texture-coordinate indices out of range")
+        self.texture = texture
+        self.name = name
+
+    # ------------------------------------------------------------------ geometry
+    def face_normals(self, *, unit: bool = True) -> np.ndarray:
+        """(m, 3) float64 face normals (cross product; its length is twice the area)."""
+        v = self.vertices[self.faces]
+        nrm = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        if unit:
+            nrm = nrm / np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+        return nrm
+
+    def face_areas(self) -> np.ndarray:
+        """(m,) float64 triangle areas."""
+        return 0.5 * np.linalg.norm(self.face_normals(unit=False), axis=1)
+
+    def signed_volume(self) -> float:
+        """Signed enclosed volume (positive when faces wind counter-clockwise seen from outside)."""
+        v = self.vertices[self.faces]
+        return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+    def used_vertices(self) -> np.ndarray:
+        """(k,) int64 sorted indices of vertices referenced by a face."""
+        used = np.zeros(len(self.vertices), bool)
+        used[self.faces.ravel()] = True
+        return np.flatnonzero(used)
+
+    # ------------------------------------------------------------------ topology
+    def topology(self) -> Topology:
+        """Counts, closedness and genus of the mesh (degenerate index triples are ignored)."""
+        f = self.faces
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        used = np.unique(f)
+        nv, nf = len(used), len(f)
+        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        ekeys, ecount = np.unique(e, axis=0, return_counts=True)
+        ne = len(ekeys)
+        n = len(self.vertices)
+        if nf:
+            adj = sp.coo_matrix((np.ones(len(ekeys)), (ekeys[:, 0], ekeys[:, 1])), shape=(n, n))
+            ncomp, lab = connected_components(adj, directed=False)
+            ncomp = len(np.unique(lab[used]))
+        else:
+            ncomp = 0
+        boundary = int((ecount == 1).sum())
+        nonman_e = int((ecount > 2).sum())
+        nonman_v = self._pinched_vertices(f, n)
+        euler = nv - ne + nf
+        closed = nf > 0 and boundary == 0 and nonman_e == 0
+        genus = None
+        if closed and ncomp == 1 and nonman_v == 0 and (2 - euler) % 2 == 0:
+            genus = (2 - euler) // 2
+        return Topology(nv, nf, ne, ncomp, boundary, nonman_e, nonman_v, euler, closed, genus)
+
+    @staticmethod
+    def _pinched_vertices(f: np.ndarray, n: int) -> int:
+        """Vertices whose incident faces form more than one edge-connected fan."""
+        if not len(f):
+            return 0
+        m = len(f)
+        # corners: (face, vertex); two corners of one vertex are fan-adjacent when their faces
+        # share the edge from that vertex to a common other vertex.
+        corner_v = f.ravel()
+        corner_f = np.repeat(np.arange(m), 3)
+        nxt = np.roll(f, -1, axis=1).ravel()
+        prv = np.roll(f, 1, axis=1).ravel()
+        # half-edge keys (v, other) for both edges of a corner
+        keys = np.concatenate([corner_v * n + nxt, corner_v * n + prv])
+        cid = np.concatenate([np.arange(3 * m), np.arange(3 * m)])
+        order = np.argsort(keys, kind="stable")
+        ks, cs = keys[order], cid[order]
+        same = ks[1:] == ks[:-1]
+        a, b = cs[:-1][same], cs[1:][same]
+        g = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * m, 3 * m))
+        _, lab = connected_components(g, directed=False)
+        fans = np.unique(np.stack([corner_v, lab], axis=1), axis=0)
+        per_v = np.bincount(fans[:, 0], minlength=n)
+        del corner_f
+        return int((per_v > 1).sum())
+
+    # ------------------------------------------------------------------ conversion
+    def to_surfels(self, *, samples: int | None = None, seed: int = 0) -> SurfelSet:
+        """Convert to surfels.
+
+        Parameters
+        ----------
+        samples : int, optional
+            Sample this many surfels uniformly over the surface (colours and normals interpolated)
+            instead of placing one surfel per used vertex.
+        seed : int
+            Random seed of the uniform sampling.
+
+        Returns
+        -------
+        SurfelSet
+            Per-vertex surfels keep the mesh's vertex order with unused vertices dropped (a
+            ``UserWarning`` says how many); ``faces`` then index the surfels.
+
+        Raises
+        ------
+        InputError
+            When the mesh has no faces or zero total area.
+        """
+        if not len(self.faces):
+            raise InputError("the mesh has no faces; read it as a point cloud instead")
+        areas = self.face_areas()
+        if not areas.sum() > 0:
+            raise InputError("the mesh has zero surface area")
+        vnormals = self._vertex_normals(areas)
+        if samples is not None:
+            return self._sample(int(samples), seed, areas, vnormals)
+        used = self.used_vertices()
+        if len(used) < len(self.vertices):
+            warnings.warn(f"{len(self.vertices) - len(used)} vertices referenced by no face were "
+                          "dropped; surfel indices follow the remaining vertices' order",
+                          UserWarning, stacklevel=2)
+        remap = np.full(len(self.vertices), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        radii = self._cover_radii()[used]
+        nrm = vnormals[used]
+        colors = self._vertex_colors()
+        colors = None if colors is None else colors[used]
+        return SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
+                         name=self.name)
+
+    def _orientation_sign(self) -> float:
+        """-1 when the mesh is closed and its winding encloses negative volume (inward), else +1.
+
+        An open mesh keeps the orientation its winding gives.
+        """
+        e = np.sort(np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]],
+                                    self.faces[:, [2, 0]]]), axis=1)
+        _, count = np.unique(e, axis=0, return_counts=True)
+        if np.any(count != 2):
+            return 1.0
+        return -1.0 if self.signed_volume() < 0 else 1.0
+
+    def _vertex_normals(self, areas: np.ndarray) -> np.ndarray:
+        fn = self.face_normals(unit=False) * self._orientation_sign()  # length = 2 * area
+        n = len(self.vertices)
+        acc = np.zeros((n, 3))
+        for k in range(3):
+            for d in range(3):
+                acc[:, d] += np.bincount(self.faces[:, k], weights=fn[:, d], minlength=n)
+        length = np.linalg.norm(acc, axis=1)
+        bad = length <= np.finfo(float).tiny
+        if bad.any():  # vertex whose incident normals cancel: take any incident face normal
+            fu = fn / np.maximum(np.linalg.norm(fn, axis=1), np.finfo(float).tiny)[:, None]
+            for k in range(3):
+                acc[self.faces[:, k]] += np.where(bad[self.faces[:, k]][:, None], fu, 0.0)
+            length = np.linalg.norm(acc, axis=1)
+            still = length <= np.finfo(float).tiny
+            acc[still] = (0.0, 0.0, 1.0)
+            length[still] = 1.0
+        return acc / length[:, None]
+
+    def _cover_radii(self) -> np.ndarray:
+        """(n,) radius per vertex: the largest coverage radius of its incident triangles.
+
+        The coverage radius of a triangle is the largest distance from a point of the triangle to
+        its nearest corner: the circumradius for a non-obtuse triangle, otherwise the distance from
+        an end of the longest edge to where the perpendicular bisector of an adjacent edge meets
+        it. Disks of these radii cover every triangle, so neighbouring disks overlap without holes.
+        """
+        v = self.vertices[self.faces]
+        e = np.stack([v[:, 2] - v[:, 1], v[:, 0] - v[:, 2], v[:, 1] - v[:, 0]], axis=1)
+        L = np.linalg.norm(e, axis=2)  # L[:, k] is the edge opposite corner k
+        # cosine of the angle at each corner
+        cos = np.empty_like(L)
+        for k in range(3):
+            a, b = e[:, (k + 2) % 3], -e[:, (k + 1) % 3]
+            cos[:, k] = np.einsum("ij,ij->i", a, b) / np.maximum(L[:, (k + 2) % 3] * L[:, (k + 1) % 3],
+                                                                 np.finfo(float).tiny)
+        cos = np.clip(cos, -1.0, 1.0)
+        sin = np.sqrt(1.0 - cos ** 2)
+        obtuse = cos.min(axis=1) < 0
+        circum = L[:, 0] / np.maximum(2.0 * sin[:, 0], np.finfo(float).tiny)
+        c = circum.copy()
+        if obtuse.any():
+            k = np.argmin(cos[obtuse], axis=1)  # obtuse corner
+            rows = np.flatnonzero(obtuse)
+            i1, i2 = (k + 1) % 3, (k + 2) % 3
+            # edge from corner i1 to the obtuse corner k is the edge opposite i2, and vice versa
+            r1 = L[rows, i2] / np.maximum(2.0 * cos[rows, i1], np.finfo(float).tiny)
+            r2 = L[rows, i1] / np.maximum(2.0 * cos[rows, i2], np.finfo(float).tiny)
+            c[rows] = np.maximum(r1, r2)
+        c = np.minimum(c, L.max(axis=1))  # a sliver's bound never exceeds its longest edge
+        out = np.zeros(len(self.vertices))
+        for k in range(3):
+            np.maximum.at(out, self.faces[:, k], c)
+        pos = out > 0
+        if not pos.all():
+            out[~pos] = out[pos].min() if pos.any() else 1.0
+        return out
+
+    def _vertex_colors(self) -> np.ndarray | None:
+        if self.vertex_colors is not None:
+            return self.vertex_colors
+        if self.texture is None or self.uv is None or self.uv_faces is None:
+            return None
+        # Average the texture over the part of each incident triangle nearest the vertex,
+        # area-weighted, so colours are filtered rather than point-sampled.
+        bary = np.array([[1.0, 0, 0], [2 / 3, 1 / 6, 1 / 6], [2 / 3, 1 / 3, 0], [2 / 3, 0, 1 / 3]])
+        areas = self.face_areas()
+        uvt = self.uv[self.uv_faces]  # (m, 3, 2)
+        n = len(self.vertices)
+        acc = np.zeros((n, 3))
+        wsum = np.zeros(n)
+        for k in range(3):
+            perm = [k, (k + 1) % 3, (k + 2) % 3]
+            tri = uvt[:, perm]
+            for b in bary:
+                uv = b[0] * tri[:, 0] + b[1] * tri[:, 1] + b[2] * tri[:, 2]
+                col = sample_texture(self.texture, uv)
+                for d in range(3):
+                    acc[:, d] += np.bincount(self.faces[:, k], weights=areas * col[:, d],
+                                             minlength=n)
+                wsum += np.bincount(self.faces[:, k], weights=areas, minlength=n)
+        acc /= np.maximum(wsum, np.finfo(float).tiny)[:, None]
+        return np.clip(np.round(acc), 0, 255).astype(np.uint8)
+
+    def _sample(self, count: int, seed: int, areas: np.ndarray, vnormals: np.ndarray) -> SurfelSet:
+        if count < 4:
+            raise InputError(f"samples must be at least 4, got {count}")
+        rng = np.random.default_rng(seed)
+        cdf = np.cumsum(areas)
+        tri = np.searchsorted(cdf, rng.random(count) * cdf[-1], side="right")
+        tri = np.minimum(tri, len(areas) - 1)
+        r1, r2 = np.sqrt(rng.random(count)), rng.random(count)
+        b = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], axis=1)
+        f = self.faces[tri]
+        pos = np.einsum("ij,ijk->ik", b, self.vertices[f])
+        nrm = np.einsum("ij,ijk->ik", b, vnormals[f])
+        ln = np.linalg.norm(nrm, axis=1)
+        fn = self.face_normals()[tri] * self._orientation_sign()
+        bad = ln < 1e-6
+        nrm[bad] = fn[bad]
+        nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+        colors = None
+        if self.vertex_colors is not None:
+            colors = np.einsum("ij,ijk->ik", b, self.vertex_colors[f].astype(float))
+            colors = np.clip(np.round(colors), 0, 255).astype(np.uint8)
+        elif self.texture is not None and self.uv is not None and self.uv_faces is not None:
+            uv = np.einsum("ij,ijk->ik", b, self.uv[self.uv_faces[tri]])
+            colors = np.clip(np.round(sample_texture(self.texture, uv)), 0, 255).astype(np.uint8)
+        radii = spacing_radii(pos)
+        return SurfelSet(pos, nrm, radii, colors, name=self.name)
+
+
+def spacing_radii(points: np.ndarray, *, k: int = 6) -> np.ndarray:
+    """Radii from neighbour spacing: the distance to the ``k``-th nearest neighbour.
+
+    For a uniform random sampling a disk of this radius holds ``k`` other samples on average, so a
+    point of the surface is left uncovered with probability about ``exp(-k)`` (0.25% at k = 6).
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    k : int
+
+    Returns
+    -------
+    (n,) float64
+    """
+    from scipy.spatial import cKDTree
+
+    points = as_array(points, "points", shape=(None, 3), min_len=2)
+    kk = min(k, len(points) - 1)
+    d, _ = cKDTree(points).query(points, k=kk + 1)
+    r = d[:, kk]
+    pos = r > 0
+    if not pos.any():
+        raise InputError("all points coincide; cannot derive radii from their spacing")
+    r[~pos] = r[pos].min()
+    return r
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear texture look-up.
+
+    Parameters
+    ----------
+    texture : (h, w, 3) uint8
+        Row 0 is the top of the image (v = 1), as in OBJ/MTL conventions.
+    uv : (k, 2) float64
+        Texture coordinates; wrapped into [0, 1).
+
+    Returns
+    -------
+    (k, 3) float64
+        Colours in 0..255.
+    """
+    h, w = texture.shape[:2]
+    u = np.mod(uv[:, 0], 1.0) * w - 0.5
+    v = (1.0 - np.mod(uv[:, 1], 1.0)) * h - 0.5
+    x0 = np.floor(u).astype(np.int64)
+    y0 = np.floor(v).astype(np.int64)
+    fx, fy = (u - x0)[:, None], (v - y0)[:, None]
+    x0c, x1c = np.clip(x0, 0, w - 1), np.clip(x0 + 1, 0, w - 1)
+    y0c, y1c = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
+    t = texture[..., :3].astype(np.float64)
+    top = t[y0c, x0c] * (1 - fx) + t[y0c, x1c] * fx
+    bot = t[y1c, x0c] * (1 - fx) + t[y1c, x1c] * fx
+    return top * (1 - fy) + bot * fy

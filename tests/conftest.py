@@ -1,0 +1,64 @@
+"""Shared fixtures: the real data beside the repository, small synthetic models."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "data"
+EXAMPLES = REPO / "examples" / "models"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """``../shared/data`` (skips the test when it is absent)."""
+    if not SHARED.is_dir():
+        pytest.skip("../shared/data is not present")
+    return SHARED
+
+
+@pytest.fixture(scope="session")
+def models(shared_data) -> Path:
+    return shared_data / "models"
+
+
+def icosphere_mesh(level: int = 3):
+    """A unit-sphere triangle mesh (vertices, faces) by subdividing an icosahedron."""
+    t = (1 + 5 ** 0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+                  [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+                  [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+                  [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    for _ in range(level):
+        verts = list(v)
+        cache = {}
+
+        def mid(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in cache:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                cache[key] = len(verts) - 1
+            return cache[key]
+
+        nf = []
+        for a, b, c in f:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+        v, f = np.array(verts), np.array(nf)
+    return v, f
+
+
+@pytest.fixture
+def sphere_surfels():
+    """A unit-sphere SurfelSet (level-3 icosphere, 642 surfels) with a colour gradient."""
+    from surfidx import TriangleMesh
+
+    v, f = icosphere_mesh(3)
+    col = np.clip((v + 1) * 127.5, 0, 255).astype(np.uint8)
+    return TriangleMesh(v, f, vertex_colors=col, name="sphere").to_surfels()
