@@ -50,7 +50,8 @@ def as_array(value, name: str, *, dtype=np.float64, shape=None, finite: bool = T
     if shape is not None:
         ok = arr.ndim == len(shape) and all(s is None or s == d for s, d in zip(shape, arr.shape))
         if not ok:
-            want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+            parts = ["n" if s is None else str(s) for s in shape]
+            want = "(" + ", ".join(parts) + (",)" if len(parts) == 1 else ")")
             raise InputError(f"{name} must have shape {want}, got {arr.shape}", path=path)
     target = np.dtype(dtype)
     if np.issubdtype(target, np.integer) and arr.size and not np.issubdtype(arr.dtype, np.integer):

@@ -52,6 +52,9 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
     path = Path(path)
     try:
         mesh = read_mesh(path, texture=texture, _allow_points=True)
+        if isinstance(mesh, _PlyPoints) and mesh.faces is not None and samples is not None:
+            mesh = TriangleMesh(np.stack([mesh.vertex[a] for a in "xyz"], axis=1), mesh.faces,
+                                vertex_colors=_ply_colors(mesh.vertex), name=path.stem)
         if isinstance(mesh, TriangleMesh):
             with warnings.catch_warnings():
                 warnings.simplefilter("default")
@@ -195,8 +198,9 @@ def read_texture(path) -> np.ndarray:
 class _PlyPoints:
     """Vertex data of a PLY with no faces (surfels or a point cloud)."""
 
-    def __init__(self, vertex):
+    def __init__(self, vertex, faces=None):
         self.vertex = vertex
+        self.faces = faces
 
 
 def _read_ply(path: Path):
@@ -225,9 +229,10 @@ def _read_ply(path: Path):
         faces = _faces_from_lists(ply["face"].data, path)
     elif "tristrips" in names and len(ply["tristrips"].data):
         faces = _faces_from_strips(ply["tristrips"].data, path)
-    if faces is not None:
+    is_surfel = all(p in props for p in ("nx", "ny", "nz", "radius"))
+    if faces is not None and not is_surfel:
         return TriangleMesh(positions, faces, vertex_colors=colors, name=path.stem)
-    return _PlyPoints(vertex)
+    return _PlyPoints(vertex, faces)
 
 
 def _ply_colors(vertex):
@@ -313,7 +318,7 @@ def _points_from_ply_data(points: _PlyPoints, path: Path) -> SurfelSet:
         normals = np.stack([v[p] for p in ("nx", "ny", "nz")], axis=1).astype(np.float64)
     if "radius" in props and normals is not None:
         return SurfelSet(pos, normals, np.asarray(v["radius"], np.float64), colors,
-                         name=path.stem)
+                         faces=points.faces, name=path.stem)
     return points_to_surfels(pos, normals=normals, colors=colors, name=path.stem)
 
 

@@ -41,7 +41,8 @@ def estimate_normals(points, *, k: int = 16) -> np.ndarray:
 
 @njit(cache=True)
 def _propagate_signs(order, pred, flip):  # pragma: no cover - compiled
-    sign = np.ones(order.shape[0], np.float64)
+    """Walk the tree in breadth-first ``order``: sign[v] = sign[parent] * flip[v] (node ids)."""
+    sign = np.ones(flip.shape[0], np.float64)
     for i in range(order.shape[0]):
         v = order[i]
         p = pred[v]
@@ -90,7 +91,7 @@ def orient_normals(points, normals, *, k: int = 12) -> np.ndarray:
         flip[has] = np.sign(np.einsum("ij,ij->i", normals[has], normals[pred[has]]))
         flip[flip == 0] = 1.0
         sign = _propagate_signs(order.astype(np.int64), pred, flip)
-        out[order] *= sign[:, None]
+        out[order] *= sign[order][:, None]
         centre = points[order].mean(axis=0)
         if np.einsum("ij,ij->", points[order] - centre, out[order]) < 0:
             out[order] *= -1.0
