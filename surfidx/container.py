@@ -1,0 +1,198 @@
+"""The ``.sfz`` container: magic, format version, header, checksums, embedded stream.
+
+The layout is specified in ``data_schema/bitstream.md``. Every field is little-endian. A prefix of
+the embedded stream is itself a valid stream, so :func:`truncate` serves a stored asset at a lower
+rate by cutting the stream and rewriting its length and checksum.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._errors import BitstreamError, InputError
+
+__all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size"]
+
+MAGIC = b"\x89SFZ"
+FORMAT_VERSION = 1
+
+FLAG_COLOR = 1
+FLAG_LIFTED = 2
+
+# magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
+_FIXED = struct.Struct("<4sBBBBIBBH")
+_TAIL = struct.Struct("<III")  # stream length, header crc (of everything before it), stream crc
+
+
+@dataclass
+class Header:
+    """What a decoder needs besides the stream.
+
+    Attributes
+    ----------
+    n_surfels : int
+        Surfels of the encoder's input (the rate denominator; also the decoder's default count).
+    level : int
+        Icosahedral grid level.
+    color : bool
+        Whether layers 3..5 of the KLT input were colour.
+    lifted : bool
+        Whether the wavelets used the lifting (update) step.
+    map_method : int
+        Code of the spherical map that produced the grid (informational).
+    mean : (k,) float32
+        KLT mean.
+    basis : (k, k) float32
+        KLT basis (rows are the principal directions).
+    weights : (k,) float32
+        Per-layer unit weights applied before the KLT (geometry 1, colour ``w``).
+    coder : bytes
+        The zerotree coder's own small header (top bit plane, step, ...).
+    """
+
+    n_surfels: int
+    level: int
+    color: bool
+    lifted: bool
+    mean: np.ndarray
+    basis: np.ndarray
+    weights: np.ndarray
+    coder: bytes = b""
+    map_method: int = 0
+    version: int = FORMAT_VERSION
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def layers(self) -> int:
+        return 6 if self.color else 3
+
+
+def header_size(layers: int, coder_bytes: int) -> int:
+    """Bytes of a container's header for ``layers`` KLT layers and a coder header of given size."""
+    k = layers
+    return _FIXED.size + 4 * (k + k * k + k) + coder_bytes + _TAIL.size
+
+
+def pack(header: Header, stream: bytes) -> bytes:
+    """Serialise a header and an embedded stream into a container file.
+
+    Parameters
+    ----------
+    header : Header
+    stream : bytes
+
+    Returns
+    -------
+    bytes
+    """
+    k = header.layers
+    mean = np.asarray(header.mean, "<f4").reshape(k)
+    basis = np.asarray(header.basis, "<f4").reshape(k, k)
+    weights = np.asarray(header.weights, "<f4").reshape(k)
+    if not (0 <= header.level <= 12):
+        raise InputError(f"grid level must be 0..12, got {header.level}")
+    if not (0 < header.n_surfels < 2 ** 32):
+        raise InputError(f"n_surfels must be 1..2^32-1, got {header.n_surfels}")
+    flags = (FLAG_COLOR if header.color else 0) | (FLAG_LIFTED if header.lifted else 0)
+    if len(header.coder) > 0xFFFF:
+        raise InputError("coder header longer than 65535 bytes")
+    body = _FIXED.pack(MAGIC, FORMAT_VERSION, flags, header.level, k, header.n_surfels,
+                       header.map_method, 0, len(header.coder))
+    body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder)
+    body += struct.pack("<I", len(stream))
+    return body + struct.pack("<II", zlib.crc32(body), zlib.crc32(stream)) + bytes(stream)
+
+
+def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
+    """Parse and verify a container.
+
+    Parameters
+    ----------
+    data : bytes
+    path : str, optional
+        File name for error messages.
+
+    Returns
+    -------
+    header : Header
+    stream : bytes
+
+    Raises
+    ------
+    BitstreamError
+        Foreign file (bad magic), unknown version, truncated header or stream, checksum mismatch.
+    """
+    data = bytes(data)
+    if len(data) < _FIXED.size:
+        if len(data) >= 4 and data[:4] == MAGIC:
+            raise BitstreamError(f"truncated header ({len(data)} bytes)", path=path)
+        raise BitstreamError("not a surfidx .sfz file (too short)", path=path)
+    magic, version, flags, level, k, n, method, _, clen = _FIXED.unpack_from(data, 0)
+    if magic != MAGIC:
+        raise BitstreamError("not a surfidx .sfz file (bad magic number)", path=path)
+    if version != FORMAT_VERSION:
+        raise BitstreamError(f"unsupported format version {version} (this surfidx reads "
+                             f"version {FORMAT_VERSION}); upgrade surfidx", path=path)
+    nf = k + k * k + k
+    tail_off = _FIXED.size + 4 * nf + clen
+    if len(data) < tail_off + _TAIL.size:
+        raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
+                             path=path)
+    s_len, hcrc, scrc = _TAIL.unpack_from(data, tail_off)
+    if zlib.crc32(data[:tail_off + 4]) != hcrc:
+        raise BitstreamError("header checksum mismatch: the file is damaged", path=path)
+    if k not in (3, 6) or (k == 6) != bool(flags & FLAG_COLOR) or level > 12:
+        raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
+                             path=path)
+    stream = data[tail_off + _TAIL.size:]
+    if len(stream) < s_len:
+        raise BitstreamError(f"truncated stream ({len(stream)} of {s_len} bytes); to lower the "
+                             "rate, truncate the complete file with surfidx instead of cutting "
+                             "it", path=path)
+    if len(stream) > s_len:
+        raise BitstreamError(f"{len(stream) - s_len} unexpected bytes after the stream", path=path)
+    if zlib.crc32(stream) != scrc:
+        raise BitstreamError("stream checksum mismatch: the file is damaged", path=path)
+    floats = np.frombuffer(data, "<f4", nf, _FIXED.size).astype(np.float32)
+    if not np.all(np.isfinite(floats)):
+        raise BitstreamError("corrupt header (non-finite KLT values)", path=path)
+    header = Header(
+        n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
+        mean=floats[:k].copy(), basis=floats[k:k + k * k].reshape(k, k).copy(),
+        weights=floats[k + k * k:].copy(), coder=bytes(data[tail_off - clen:tail_off]),
+        map_method=method, version=version)
+    return header, stream
+
+
+def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
+    """Cut a container's embedded stream so that the whole file is at most ``max_bytes``.
+
+    Parameters
+    ----------
+    data : bytes
+        A complete container.
+    max_bytes : int
+        Byte budget of the result (header included).
+
+    Returns
+    -------
+    bytes
+        A valid container whose stream is a prefix of the original.
+
+    Raises
+    ------
+    InputError
+        When the budget does not even hold the header.
+    """
+    header, stream = unpack(data, path=path)
+    hsize = len(data) - len(stream)
+    if max_bytes < hsize:
+        raise InputError(f"a budget of {max_bytes} bytes does not hold the {hsize}-byte header; "
+                         "ask for a higher rate")
+    if max_bytes >= len(data):
+        return bytes(data)
+    return pack(header, stream[: max_bytes - hsize])

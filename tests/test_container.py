@@ -1,0 +1,97 @@
+"""Container: round trip, truncation to a budget, and every kind of damage."""
+
+import numpy as np
+import pytest
+
+from surfidx import BitstreamError, InputError
+from surfidx.container import FORMAT_VERSION, MAGIC, Header, header_size, pack, truncate, unpack
+
+
+def _header(color=True):
+    k = 6 if color else 3
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(k, k)))
+    return Header(n_surfels=1234, level=5, color=color, lifted=True, mean=rng.normal(size=k),
+                  basis=q, weights=np.ones(k), coder=b"\x07\x01abc", map_method=2)
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_round_trip(color):
+    h = _header(color)
+    stream = bytes(range(256)) * 10
+    data = pack(h, stream)
+    assert data[:4] == MAGIC and len(data) == header_size(h.layers, len(h.coder)) + len(stream)
+    h2, s2 = unpack(data)
+    assert s2 == stream
+    assert (h2.n_surfels, h2.level, h2.color, h2.lifted, h2.coder, h2.map_method, h2.version) == (
+        1234, 5, color, True, b"\x07\x01abc", 2, FORMAT_VERSION)
+    np.testing.assert_array_equal(h2.basis, np.float32(h.basis))
+    np.testing.assert_array_equal(h2.mean, np.float32(h.mean))
+
+
+def test_truncate_keeps_a_valid_prefix():
+    data = pack(_header(), bytes(range(200)))
+    cut = truncate(data, len(data) - 50)
+    assert len(cut) == len(data) - 50
+    h, s = unpack(cut)
+    assert s == bytes(range(150))
+    assert truncate(data, 10 ** 6) == data
+    with pytest.raises(InputError, match="does not hold the .*-byte header"):
+        truncate(data, 10)
+
+
+def test_damage_is_detected():
+    data = pack(_header(), bytes(range(200)))
+    with pytest.raises(BitstreamError, match="bad magic"):
+        unpack(b"PK\x03\x04" + data[4:])
+    with pytest.raises(BitstreamError, match="too short"):
+        unpack(b"ab")
+    with pytest.raises(BitstreamError, match="truncated header"):
+        unpack(data[:30], path="x.sfz")
+    with pytest.raises(BitstreamError, match="x.sfz: truncated stream"):
+        unpack(data[:-1], path="x.sfz")
+    with pytest.raises(BitstreamError, match="unexpected bytes after the stream"):
+        unpack(data + b"\0")
+    flipped = bytearray(data)
+    flipped[-5] ^= 0x10
+    with pytest.raises(BitstreamError, match="stream checksum mismatch"):
+        unpack(bytes(flipped))
+    flipped = bytearray(data)
+    flipped[20] ^= 0x01
+    with pytest.raises(BitstreamError, match="header checksum mismatch"):
+        unpack(bytes(flipped))
+    newer = bytearray(data)
+    newer[4] = FORMAT_VERSION + 1
+    with pytest.raises(BitstreamError, match="unsupported format version"):
+        unpack(bytes(newer))
+
+
+def test_random_garbage_never_crashes():
+    rng = np.random.default_rng(1)
+    data = pack(_header(), bytes(100))
+    for _ in range(200):
+        d = bytearray(data)
+        for i in rng.integers(0, len(d), size=3):
+            d[i] = rng.integers(0, 256)
+        if bytes(d) == data:
+            continue
+        with pytest.raises(BitstreamError):
+            unpack(bytes(d))
+
+
+def test_pack_validates():
+    h = _header()
+    h.level = 40
+    with pytest.raises(InputError, match="grid level must be 0..12"):
+        pack(h, b"")
+    h = _header()
+    h.n_surfels = 0
+    with pytest.raises(InputError, match="n_surfels must be"):
+        pack(h, b"")
+
+
+def test_coder_header_limit():
+    h = _header()
+    h.coder = bytes(70000)
+    with pytest.raises(InputError, match="coder header longer than 65535"):
+        pack(h, b"")
