@@ -8,7 +8,9 @@ arithmetic coding -> container; descriptors from the same spherical representati
 from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError, SurfidxError,
                       TopologyError)
 from ._tolerance import TOL, Tolerances
+from .icosphere import Icosphere, choose_level, icosphere
 from .io import read_mesh, read_surfels, write_ply
+from .klt import KLT
 from .mesh import TriangleMesh
 from .pointcloud import points_to_surfels
 from .surfels import SurfelSet
@@ -19,4 +21,5 @@ __all__ = [
     "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
     "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
     "DatabaseError", "TOL", "Tolerances", "__version__",
+    "Icosphere", "icosphere", "choose_level", "KLT",
 ]
