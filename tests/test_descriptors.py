@@ -1,0 +1,69 @@
+"""Descriptors: invariances by construction and the distance."""
+
+import numpy as np
+import pytest
+
+from surfidx import InputError
+from surfidx.descriptors import describe_grid, descriptor_distance
+from surfidx.icosphere import icosphere
+
+
+def _shape(v):
+    return v * (1 + 0.3 * v[:, [0]] ** 2 + 0.2 * v[:, [1]] * v[:, [2]]) * [1.0, 1.6, 2.3]
+
+
+def _rot(seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q
+
+
+def test_object_rotation_translation_scale_invariance():
+    v = icosphere(5).vertices
+    s = _shape(v)
+    col = np.clip((v + 1) * 120, 0, 255)
+    a = describe_grid(np.c_[s, col], 5)
+    b = describe_grid(np.c_[2.7 * s @ _rot(1).T + [4, -1, 9], col], 5)
+    for k in a.vectors:
+        np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
+    assert set(a.vectors) == {"shape", "texture", "spectrum"}
+    assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
+
+
+def test_sphere_rotation_invariance():
+    """The map is canonical up to a rotation of the sphere: energies must not depend on it."""
+    v = icosphere(6).vertices
+    a = describe_grid(_shape(v), 6)
+    b = describe_grid(_shape(v @ _rot(2).T), 6)
+    rel = np.linalg.norm(a.vectors["shape"] - b.vectors["shape"]) / np.linalg.norm(a.vectors["shape"])
+    assert rel < 0.01
+    other = describe_grid(v * [1.0, 1.0, 3.0], 6)
+    assert descriptor_distance(a.vectors, b.vectors) < 0.1 * descriptor_distance(a.vectors, other.vectors)
+
+
+def test_distance_weights_and_errors():
+    v = icosphere(4).vertices
+    a = describe_grid(np.c_[_shape(v), np.full((len(v), 3), 200.0)], 4).vectors
+    b = describe_grid(np.c_[_shape(v), np.full((len(v), 3), 20.0)], 4).vectors
+    assert descriptor_distance(a, b, shape_weight=1.0) == pytest.approx(0.0, abs=1e-6)
+    assert descriptor_distance(a, b, shape_weight=0.0) > 0.5
+    g = {k: x for k, x in a.items() if k != "texture"}
+    assert descriptor_distance(g, b) == pytest.approx(0.0, abs=1e-6)  # texture dropped
+    with pytest.raises(InputError, match="shape_weight must lie in"):
+        descriptor_distance(a, b, shape_weight=2)
+    with pytest.raises(InputError, match="lacks its 'shape' vector"):
+        descriptor_distance({}, b)
+    c = describe_grid(_shape(v), 4, lmax=8).vectors
+    with pytest.raises(InputError, match="descriptor dimensions differ"):
+        descriptor_distance(a, c)
+
+
+def test_bad_input():
+    v = icosphere(3).vertices
+    with pytest.raises(InputError, match="values must have shape"):
+        describe_grid(v[:10], 3)
+    with pytest.raises(InputError, match="3 or 6 columns"):
+        describe_grid(np.c_[v, v[:, :1]], 3)
+    with pytest.raises(InputError, match="zero variance"):
+        describe_grid(np.zeros_like(v), 3)
+    with pytest.raises(InputError, match="lmax must be an integer"):
+        describe_grid(v, 3, lmax=1)
