@@ -1,0 +1,93 @@
+-- surfidx model database: the one source of truth of the schema (current schema version 1).
+--
+-- surfidx.database creates a new database by executing this file in one transaction and then
+-- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION. Older databases are brought
+-- here by the migration functions in surfidx/database.py (_MIGRATIONS), which must produce the
+-- same tables as this file. The copy in surfidx/data/schema.sql is what an installed surfidx
+-- reads, and tests/test_database.py checks that both files are identical.
+--
+-- Plain tables with readable column names, foreign keys and indexes, so that the file can be
+-- browsed as it is with sqlite-utils or Datasette. Times are ISO 8601 UTC text, JSON is text,
+-- descriptor vectors are float32 little-endian BLOBs. Statements must not contain semicolons
+-- inside comments or strings (the file is split on statement boundaries).
+
+-- Key/value facts about the database itself: schema_version, created_by, created_at.
+CREATE TABLE meta (
+    key   TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+
+-- One row per model: what was read and how it was processed.
+CREATE TABLE models (
+    id           INTEGER PRIMARY KEY,
+    name         TEXT    NOT NULL,                      -- file stem
+    source       TEXT    NOT NULL,                      -- absolute path read at ingest time
+    content_hash TEXT    NOT NULL,                      -- SHA-256 hex of file (+ texture) bytes
+    n_surfels    INTEGER NOT NULL CHECK (n_surfels >= 0),
+    has_color    INTEGER NOT NULL CHECK (has_color IN (0, 1)),
+    bbox_min_x   REAL    NOT NULL,
+    bbox_min_y   REAL    NOT NULL,
+    bbox_min_z   REAL    NOT NULL,
+    bbox_max_x   REAL    NOT NULL,
+    bbox_max_y   REAL    NOT NULL,
+    bbox_max_z   REAL    NOT NULL,
+    ingested_at  TEXT    NOT NULL,                      -- ISO 8601 UTC
+    params       TEXT    NOT NULL DEFAULT '{}'          -- JSON: parameters that made the record
+);
+CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
+CREATE INDEX models_name ON models (name);
+
+-- The compressed asset of a model: one container file holding the embedded bitstream, and its
+-- size and quality at its full rate.
+CREATE TABLE assets (
+    model_id        INTEGER PRIMARY KEY REFERENCES models (id) ON DELETE CASCADE,
+    stream          BLOB    NOT NULL,                   -- complete container file
+    format_version  INTEGER NOT NULL,                   -- container format version of stream
+    bits_per_surfel REAL    NOT NULL,                   -- full rate: 8 * bytes / n_surfels
+    bytes           INTEGER NOT NULL CHECK (bytes >= 0),
+    psnr_d1         REAL,                               -- dB at full rate, NULL if unknown
+    psnr_d2         REAL,
+    psnr_y          REAL                                -- NULL without colour
+);
+
+-- Descriptor vectors by kind (shape, texture, spectrum, ...), one row per model and kind.
+CREATE TABLE descriptors (
+    model_id   INTEGER NOT NULL REFERENCES models (id) ON DELETE CASCADE,
+    kind       TEXT    NOT NULL,
+    dimension  INTEGER NOT NULL CHECK (dimension >= 0),
+    vector     BLOB    NOT NULL,                        -- dimension float32 little-endian
+    convention TEXT    NOT NULL DEFAULT '{}',           -- JSON: models.params -> descriptors
+    PRIMARY KEY (model_id, kind)
+);
+CREATE INDEX descriptors_kind ON descriptors (kind);
+
+-- A PNG picture of the decoded model.
+CREATE TABLE thumbnails (
+    model_id INTEGER PRIMARY KEY REFERENCES models (id) ON DELETE CASCADE,
+    png      BLOB NOT NULL
+);
+
+-- Bulk ingestion runs (surfidx ingest), for bookkeeping and resuming.
+CREATE TABLE ingest_runs (
+    id              INTEGER PRIMARY KEY,
+    started_at      TEXT    NOT NULL,
+    finished_at     TEXT,                               -- NULL while running or if killed
+    paths           TEXT    NOT NULL DEFAULT '[]',      -- JSON list of the paths given
+    workers         INTEGER NOT NULL DEFAULT 1,
+    bits_per_surfel REAL,
+    stored          INTEGER NOT NULL DEFAULT 0,
+    skipped         INTEGER NOT NULL DEFAULT 0,
+    failed          INTEGER NOT NULL DEFAULT 0,
+    status          TEXT    NOT NULL DEFAULT 'running'
+                    CHECK (status IN ('running', 'finished', 'interrupted', 'failed'))
+);
+
+-- Files a run could not store, with the error message.
+CREATE TABLE ingest_errors (
+    id     INTEGER PRIMARY KEY,
+    run_id INTEGER NOT NULL REFERENCES ingest_runs (id) ON DELETE CASCADE,
+    path   TEXT    NOT NULL,
+    error  TEXT    NOT NULL,
+    at     TEXT    NOT NULL                             -- ISO 8601 UTC
+);
+CREATE INDEX ingest_errors_run_id ON ingest_errors (run_id);

@@ -1,0 +1,721 @@
+"""The SQLite model store: one file holding every model's record, compressed asset, descriptors and
+thumbnail, plus the bookkeeping of bulk ingestion runs.
+
+The schema is ``data_schema/schema.sql`` (shipped as ``surfidx/data/schema.sql``): plain tables
+with readable columns, foreign keys and indexes, so the file can be browsed as it is with
+``sqlite-utils`` or Datasette. The schema version is ``PRAGMA user_version``; opening an older
+database runs the migration functions of :data:`_MIGRATIONS` in one transaction; a database of a
+newer surfidx, or an SQLite file of another application, raises :class:`DatabaseError`. The
+database runs in WAL mode, so readers (``surfidx query``) see a consistent state while an ingest
+writes, and every model is written in one transaction (never half a model).
+
+Example
+-------
+>>> with Database("surfidx.db") as db:                                   # doctest: +SKIP
+...     model_id = db.add(processed_model)
+...     ids, matrix = db.descriptor_matrix("shape")
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import json
+import sqlite3
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import DatabaseError, InputError
+from ._validate import as_array
+
+__all__ = ["Database", "SCHEMA_VERSION", "schema_sql", "utc_now"]
+
+#: Schema version written to ``PRAGMA user_version`` by this surfidx.
+SCHEMA_VERSION = 1
+
+#: Tables every surfidx database holds (used to tell a surfidx database from a foreign one).
+_TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs", "ingest_errors")
+
+#: Migration functions: ``_MIGRATIONS[k - 1](conn)`` upgrades a version-``k`` database to
+#: version ``k + 1`` (so ``len(_MIGRATIONS) == SCHEMA_VERSION - 1``). They run inside the
+#: transaction :meth:`Database._migrate` opens and must leave the tables ``schema.sql`` creates.
+_MIGRATIONS: list = []
+
+_QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
+_MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min_x",
+                  "bbox_min_y", "bbox_min_z", "bbox_max_x", "bbox_max_y", "bbox_max_z",
+                  "ingested_at", "params")
+
+
+def schema_sql() -> str:
+    """The SQL text that creates a current-version database (``surfidx/data/schema.sql``).
+
+    Returns
+    -------
+    str
+    """
+    return resources.files("surfidx").joinpath("data", "schema.sql").read_text(encoding="utf-8")
+
+
+def utc_now() -> str:
+    """The current UTC time as ISO 8601 text with a ``Z`` suffix (the database's time format)."""
+    now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)
+    return now.isoformat(timespec="milliseconds") + "Z"
+
+
+def _statements(script: str):
+    """Split an SQL script into complete statements (``sqlite3.complete_statement``)."""
+    buf = ""
+    for line in script.splitlines(keepends=True):
+        buf += line
+        if sqlite3.complete_statement(buf):
+            stmt = buf.strip()
+            buf = ""
+            if stmt.rstrip(";").strip() and not all(
+                    ln.strip().startswith("--") or not ln.strip() for ln in stmt.splitlines()):
+                yield stmt
+    if buf.strip() and not all(ln.strip().startswith("--") or not ln.strip()
+                               for ln in buf.splitlines()):
+        raise DatabaseError("schema.sql ends with an incomplete statement")  # pragma: no cover
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def _to_json(value, name: str) -> str:
+    try:
+        return json.dumps(value, default=_json_default, sort_keys=True, allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be JSON-serialisable ({exc})") from exc
+
+
+class Database:
+    """A surfidx model database (an SQLite file), built on ``sqlite_utils.Database``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The database file.
+    create : bool
+        Create the file (and the schema) when it does not exist. With ``False`` a missing file
+        raises :class:`DatabaseError`.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    db : sqlite_utils.Database
+        The underlying connection wrapper, for ad-hoc queries (``db.db["models"].rows``).
+
+    Raises
+    ------
+    DatabaseError
+        The file is missing (``create=False``), is not an SQLite database, belongs to another
+        application, or was written by a newer surfidx (higher schema version).
+
+    Notes
+    -----
+    Use it as a context manager (``with Database(path) as db:``) or call :meth:`close`. Writes
+    are explicit transactions (:meth:`transaction`); the connection runs in autocommit mode
+    otherwise. Matrices from :meth:`descriptor_matrix` are cached until this connection or any
+    other connection writes (``PRAGMA data_version``).
+    """
+
+    def __init__(self, path, *, create: bool = True):
+        import sqlite_utils
+
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise DatabaseError("is a directory, not a database file", path=self.path)
+        if not self.path.exists() and not create:
+            raise DatabaseError("no such database; create it with `surfidx ingest`",
+                                path=self.path)
+        try:
+            conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None,
+                                   check_same_thread=False)
+        except sqlite3.Error as exc:
+            raise DatabaseError(f"cannot open ({exc})", path=self.path) from exc
+        self._conn = conn
+        self._cache: dict = {}
+        self._cache_version = None
+        try:
+            self._check_and_prepare()
+            self.db = sqlite_utils.Database(conn)
+        except BaseException:
+            conn.close()
+            raise
+
+    # ------------------------------------------------------------------ opening
+    def _check_and_prepare(self) -> None:
+        conn = self._conn
+        try:
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            tables = {r[0] for r in conn.execute(
+                "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        except sqlite3.DatabaseError as exc:
+            raise DatabaseError(f"not an SQLite database ({exc})", path=self.path) from exc
+        tables = {t for t in tables if not t.startswith("sqlite_")}
+        if version > SCHEMA_VERSION:
+            raise DatabaseError(
+                f"schema version {version} was written by a newer surfidx (this one reads up to "
+                f"version {SCHEMA_VERSION}); upgrade surfidx", path=self.path)
+        if tables and (version == 0 or not {"meta", "models"} <= tables):
+            raise DatabaseError(
+                "not a surfidx database (it holds other tables: "
+                + ", ".join(sorted(tables)[:5]) + (", ..." if len(tables) > 5 else "")
+                + "); choose another --db file", path=self.path)
+        if version > 0 and not tables:
+            raise DatabaseError(f"not a surfidx database (user_version {version} but no tables)",
+                                path=self.path)
+        conn.execute("PRAGMA busy_timeout = 30000")
+        conn.execute("PRAGMA foreign_keys = ON")
+        try:
+            conn.execute("PRAGMA journal_mode = WAL")
+        except sqlite3.OperationalError as exc:  # pragma: no cover - read-only media
+            raise DatabaseError(f"cannot switch to WAL mode ({exc})", path=self.path) from exc
+        if version < SCHEMA_VERSION:
+            self._migrate()
+
+    def _migrate(self) -> None:
+        """Create the schema (empty file) or run the migrations, in one transaction."""
+        conn = self._conn
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            # Re-read inside the write lock: another process may have done it meanwhile.
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            if version == 0:
+                for stmt in _statements(schema_sql()):
+                    conn.execute(stmt)
+                from . import __version__
+
+                conn.executemany("INSERT INTO meta (key, value) VALUES (?, ?)",
+                                 [("created_by", f"surfidx {__version__}"),
+                                  ("created_at", utc_now())])
+            else:
+                for k in range(version, SCHEMA_VERSION):
+                    _MIGRATIONS[k - 1](conn)
+            conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)",
+                         (str(SCHEMA_VERSION),))
+            conn.execute(f"PRAGMA user_version = {int(SCHEMA_VERSION)}")
+            conn.execute("COMMIT")
+        except BaseException as exc:
+            conn.execute("ROLLBACK")
+            if isinstance(exc, sqlite3.Error):
+                raise DatabaseError(f"upgrading the schema to version {SCHEMA_VERSION} failed "
+                                    f"({exc}); the file is unchanged", path=self.path) from exc
+            raise
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        """Close the connection (idempotent)."""
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def __repr__(self):
+        return f"Database({str(self.path)!r})"
+
+    @property
+    def conn(self) -> sqlite3.Connection:
+        """The open ``sqlite3.Connection``."""
+        if self._conn is None:
+            raise DatabaseError("the database is closed", path=self.path)
+        return self._conn
+
+    @property
+    def schema_version(self) -> int:
+        """``PRAGMA user_version`` of the file."""
+        return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
+
+    @contextlib.contextmanager
+    def transaction(self):
+        """One write transaction (``BEGIN IMMEDIATE`` ... ``COMMIT``); nested calls are savepoints.
+
+        Everything written in the block is committed together or, on any exception (including
+        ``KeyboardInterrupt``), rolled back. Invalidates the descriptor-matrix cache.
+        """
+        conn = self.conn
+        self._cache.clear()
+        if conn.in_transaction:
+            conn.execute("SAVEPOINT surfidx_nested")
+            try:
+                yield self
+            except BaseException:
+                conn.execute("ROLLBACK TO SAVEPOINT surfidx_nested")
+                conn.execute("RELEASE SAVEPOINT surfidx_nested")
+                raise
+            else:
+                conn.execute("RELEASE SAVEPOINT surfidx_nested")
+            return
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield self
+        except BaseException:
+            if conn.in_transaction:
+                conn.execute("ROLLBACK")
+            raise
+        else:
+            conn.execute("COMMIT")
+        finally:
+            self._cache.clear()
+
+    # ------------------------------------------------------------------ writing models
+    def add(self, model) -> int:
+        """Store one processed model: its row, asset, descriptors and thumbnail, in one transaction.
+
+        Parameters
+        ----------
+        model : surfidx.pipeline.ProcessedModel
+
+        Returns
+        -------
+        int
+            The new model's id.
+
+        Raises
+        ------
+        InputError
+            A field of ``model`` is invalid (bbox shape, non-finite descriptor, non-JSON params).
+        DatabaseError
+            A model with the same content hash is already stored.
+
+        Notes
+        -----
+        The descriptor conventions (``model.params["descriptors"]``, a dict, e.g. lmax and
+        normalisation) are copied to every descriptor row's ``convention`` column so that
+        :meth:`descriptor_matrix` can refuse to mix incompatible vectors.
+        """
+        row, asset, descs, png = self._rows_of(model)
+        with self.transaction():
+            existing = self.conn.execute("SELECT id, name FROM models WHERE content_hash = ?",
+                                         (row["content_hash"],)).fetchone()
+            if existing is not None:
+                raise DatabaseError(
+                    f"model {row['name']!r} is already stored as id {existing[0]} "
+                    f"({existing[1]!r}, same content hash {row['content_hash'][:12]}...)",
+                    path=self.path)
+            cols = list(row)
+            cur = self.conn.execute(
+                f"INSERT INTO models ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
+                [row[c] for c in cols])
+            model_id = int(cur.lastrowid)
+            self.conn.execute(
+                "INSERT INTO assets (model_id, stream, format_version, bits_per_surfel, bytes, "
+                "psnr_d1, psnr_d2, psnr_y) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (model_id, *asset))
+            self.conn.executemany(
+                "INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
+                "VALUES (?, ?, ?, ?, ?)", [(model_id, *d) for d in descs])
+            self.conn.execute("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
+                              (model_id, png))
+        return model_id
+
+    @staticmethod
+    def _rows_of(model):
+        name = str(model.name)
+        if not name:
+            raise InputError("model name must not be empty")
+        h = str(model.content_hash)
+        if not h:
+            raise InputError(f"model {name!r}: content_hash must not be empty")
+        bbox = as_array(model.bbox, f"model {name!r} bbox", shape=(2, 3))
+        n = int(model.n_surfels)
+        if n < 0:
+            raise InputError(f"model {name!r}: n_surfels must be >= 0, got {n}")
+        for what in ("stream", "thumbnail"):
+            if not isinstance(getattr(model, what), (bytes, bytearray, memoryview)):
+                raise InputError(f"model {name!r}: {what} must be bytes, "
+                                 f"got {type(getattr(model, what)).__name__}")
+        params = dict(model.params or {})
+        row = {"name": name, "source": str(model.source), "content_hash": h, "n_surfels": n,
+               "has_color": int(bool(model.has_color)),
+               **{f"bbox_{c}_{a}": float(bbox[i, j])
+                  for i, c in enumerate(("min", "max")) for j, a in enumerate("xyz")},
+               "ingested_at": utc_now(), "params": _to_json(params, f"model {name!r} params")}
+        quality = dict(model.quality or {})
+        q = []
+        for key in _QUALITY_KEYS:
+            v = quality.get(key)
+            q.append(None if v is None or not np.isfinite(float(v)) else float(v))
+        stream = bytes(model.stream)
+        asset = (stream, int(model.format_version), float(model.rate), len(stream), *q)
+        convention = _to_json(params.get("descriptors", {}), f"model {name!r} params['descriptors']")
+        descs = []
+        for kind, vec in sorted((model.descriptors or {}).items()):
+            v = as_array(vec, f"model {name!r} descriptor {kind!r}", dtype=np.float32,
+                         shape=(None,))
+            descs.append((str(kind), int(v.size), v.astype("<f4").tobytes(), convention))
+        return row, asset, descs, bytes(model.thumbnail)
+
+    def delete(self, model_id: int) -> None:
+        """Delete a model with its asset, descriptors and thumbnail.
+
+        Raises
+        ------
+        DatabaseError
+            No model has this id.
+        """
+        model_id = self._check_id(model_id)
+        with self.transaction():
+            if self.conn.execute("DELETE FROM models WHERE id = ?", (model_id,)).rowcount == 0:
+                raise DatabaseError(f"no model with id {model_id}", path=self.path)
+
+    # ------------------------------------------------------------------ reading models
+    def has_hash(self, content_hash: str) -> bool:
+        """Whether a model with this content hash is stored."""
+        return self.conn.execute("SELECT 1 FROM models WHERE content_hash = ?",
+                                 (str(content_hash),)).fetchone() is not None
+
+    def hashes(self) -> set:
+        """The content hashes of all stored models (one query, for bulk skipping)."""
+        return {r[0] for r in self.conn.execute("SELECT content_hash FROM models")}
+
+    def _check_id(self, model_id) -> int:
+        if isinstance(model_id, bool) or not isinstance(model_id, (int, np.integer)):
+            raise InputError(f"model id must be an integer, got {model_id!r}")
+        return int(model_id)
+
+    def resolve(self, id_or_name) -> int:
+        """The id of a model given by id (int) or by name (str).
+
+        Raises
+        ------
+        DatabaseError
+            No such model, or the name is shared by several models.
+        """
+        if isinstance(id_or_name, str):
+            rows = self.conn.execute("SELECT id FROM models WHERE name = ? ORDER BY id",
+                                     (id_or_name,)).fetchall()
+            if not rows:
+                raise DatabaseError(f"no model named {id_or_name!r}", path=self.path)
+            if len(rows) > 1:
+                ids = ", ".join(str(r[0]) for r in rows)
+                raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"
+                                    " give the id", path=self.path)
+            return int(rows[0][0])
+        model_id = self._check_id(id_or_name)
+        if self.conn.execute("SELECT 1 FROM models WHERE id = ?", (model_id,)).fetchone() is None:
+            raise DatabaseError(f"no model with id {model_id}", path=self.path)
+        return model_id
+
+    def get_model(self, id_or_name) -> dict:
+        """One model's record with its asset figures and descriptor kinds.
+
+        Parameters
+        ----------
+        id_or_name : int or str
+            Model id, or model name (which must be unique).
+
+        Returns
+        -------
+        dict
+            The ``models`` row (``params`` decoded, ``has_color`` bool, ``bbox`` a (2, 3) float64
+            array instead of the six columns), plus ``"asset"`` (``format_version``,
+            ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``) and
+            ``"descriptors"`` (kind -> dimension).
+
+        Raises
+        ------
+        DatabaseError
+            No such model, or an ambiguous name.
+        """
+        model_id = self.resolve(id_or_name)
+        conn = self.conn
+        cur = conn.execute(f"SELECT {', '.join(_MODEL_COLUMNS)} FROM models WHERE id = ?",
+                           (model_id,))
+        rec = dict(zip(_MODEL_COLUMNS, cur.fetchone()))
+        rec["has_color"] = bool(rec["has_color"])
+        rec["params"] = json.loads(rec["params"])
+        rec["bbox"] = np.array([[rec.pop(f"bbox_{c}_{a}") for a in "xyz"] for c in ("min", "max")])
+        a = conn.execute("SELECT format_version, bits_per_surfel, bytes, psnr_d1, psnr_d2, psnr_y "
+                         "FROM assets WHERE model_id = ?", (model_id,)).fetchone()
+        rec["asset"] = None if a is None else dict(zip(
+            ("format_version", "bits_per_surfel", "bytes", *_QUALITY_KEYS), a))
+        rec["descriptors"] = dict(conn.execute(
+            "SELECT kind, dimension FROM descriptors WHERE model_id = ? ORDER BY kind",
+            (model_id,)).fetchall())
+        return rec
+
+    def get_stream(self, id_or_name) -> bytes:
+        """The stored compressed asset (a complete container file) of a model.
+
+        Raises
+        ------
+        DatabaseError
+            No such model (or it has no asset).
+        """
+        model_id = self.resolve(id_or_name)
+        row = self.conn.execute("SELECT stream FROM assets WHERE model_id = ?",
+                                (model_id,)).fetchone()
+        if row is None:
+            raise DatabaseError(f"model {model_id} has no stored stream", path=self.path)
+        return bytes(row[0])
+
+    def get_thumbnail(self, id_or_name) -> bytes:
+        """The stored PNG thumbnail of a model.
+
+        Raises
+        ------
+        DatabaseError
+            No such model (or it has no thumbnail).
+        """
+        model_id = self.resolve(id_or_name)
+        row = self.conn.execute("SELECT png FROM thumbnails WHERE model_id = ?",
+                                (model_id,)).fetchone()
+        if row is None:
+            raise DatabaseError(f"model {model_id} has no thumbnail", path=self.path)
+        return bytes(row[0])
+
+    def get_descriptors(self, id_or_name) -> dict:
+        """A model's descriptor vectors.
+
+        Returns
+        -------
+        dict of str -> (d,) float32
+        """
+        model_id = self.resolve(id_or_name)
+        return {kind: np.frombuffer(blob, "<f4").astype(np.float32)
+                for kind, blob in self.conn.execute(
+                    "SELECT kind, vector FROM descriptors WHERE model_id = ? ORDER BY kind",
+                    (model_id,))}
+
+    def load(self, id_or_name):
+        """Read a stored model back as a :class:`surfidx.pipeline.ProcessedModel`.
+
+        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
+        """
+        from .pipeline import ProcessedModel
+
+        rec = self.get_model(id_or_name)
+        a = rec["asset"]
+        return ProcessedModel(
+            name=rec["name"], source=rec["source"], content_hash=rec["content_hash"],
+            n_surfels=rec["n_surfels"], has_color=rec["has_color"], bbox=rec["bbox"],
+            stream=self.get_stream(rec["id"]), format_version=a["format_version"],
+            rate=a["bits_per_surfel"], quality={k: a[k] for k in _QUALITY_KEYS},
+            descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
+            params=rec["params"], timings={})
+
+    def list_models(self) -> list:
+        """All models, by id, with their asset figures (no blobs).
+
+        Returns
+        -------
+        list of dict
+            Keys ``id``, ``name``, ``source``, ``content_hash``, ``n_surfels``, ``has_color``,
+            ``ingested_at``, ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``.
+        """
+        keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
+                "bits_per_surfel", "bytes", *_QUALITY_KEYS)
+        cur = self.conn.execute(
+            "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
+            "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y "
+            "FROM models m LEFT JOIN assets a ON a.model_id = m.id ORDER BY m.id")
+        out = [dict(zip(keys, r)) for r in cur]
+        for r in out:
+            r["has_color"] = bool(r["has_color"])
+        return out
+
+    def count(self) -> int:
+        """Number of stored models."""
+        return int(self.conn.execute("SELECT count(*) FROM models").fetchone()[0])
+
+    def color_mask(self, ids) -> np.ndarray:
+        """``has_color`` of the given model ids.
+
+        Parameters
+        ----------
+        ids : (m,) int64
+
+        Returns
+        -------
+        (m,) bool
+        """
+        ids = as_array(ids, "ids", dtype=np.int64, shape=(None,))
+        table = dict(self.conn.execute("SELECT id, has_color FROM models"))
+        return np.fromiter((bool(table.get(int(i), 0)) for i in ids), bool, ids.size)
+
+    # ------------------------------------------------------------------ descriptors
+    def descriptor_matrix(self, kinds) -> tuple:
+        """The stored descriptor vectors of one kind, or of several kinds side by side.
+
+        Parameters
+        ----------
+        kinds : str or sequence of str
+            ``"shape"``, or e.g. ``("shape", "texture")``: then only models holding every kind
+            are returned and their vectors are concatenated in the order given.
+
+        Returns
+        -------
+        ids : (m,) int64
+            Model ids, ascending.
+        matrix : (m, d) float32
+            One row per model (read-only; cached until the database is written).
+
+        Raises
+        ------
+        DatabaseError
+            Vectors of one kind differ in dimension or in convention (``params["descriptors"]``
+            at ingest time): re-ingest those models with the same parameters.
+        InputError
+            ``kinds`` is empty.
+        """
+        kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+        if not kinds:
+            raise InputError("kinds must name at least one descriptor kind")
+        version = self.conn.execute("PRAGMA data_version").fetchone()[0]
+        if version != self._cache_version:
+            self._cache.clear()
+            self._cache_version = version
+        if kinds not in self._cache:
+            per_kind = [self._kind_matrix(k) for k in kinds]
+            ids = per_kind[0][0]
+            for other, _ in per_kind[1:]:
+                ids = np.intersect1d(ids, other, assume_unique=True)
+            mats = [m[np.searchsorted(i, ids)] if len(ids) else m[:0] for i, m in per_kind]
+            matrix = np.ascontiguousarray(np.hstack(mats), dtype=np.float32)
+            ids = ids.astype(np.int64)
+            ids.flags.writeable = False
+            matrix.flags.writeable = False
+            self._cache[kinds] = (ids, matrix)
+        return self._cache[kinds]
+
+    def _kind_matrix(self, kind: str):
+        rows = self.conn.execute(
+            "SELECT model_id, dimension, convention, vector FROM descriptors WHERE kind = ? "
+            "ORDER BY model_id", (kind,)).fetchall()
+        if not rows:
+            return np.zeros(0, np.int64), np.zeros((0, 0), np.float32)
+        dims = {r[1] for r in rows}
+        if len(dims) > 1:
+            raise DatabaseError(f"descriptors of kind {kind!r} have different dimensions "
+                                f"{sorted(dims)}; re-ingest with one descriptor setting",
+                                path=self.path)
+        conventions = {r[2] for r in rows}
+        if len(conventions) > 1:
+            raise DatabaseError(f"descriptors of kind {kind!r} were made with different "
+                                f"conventions {sorted(conventions)[:2]}; re-ingest with one "
+                                "descriptor setting", path=self.path)
+        d = dims.pop()
+        ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
+        matrix = np.frombuffer(b"".join(r[3] for r in rows), "<f4").reshape(len(rows), d)
+        return ids, matrix.astype(np.float32)
+
+    def descriptor_kinds(self) -> dict:
+        """Stored descriptor kinds with their number of models: ``{kind: count}``."""
+        return dict(self.conn.execute(
+            "SELECT kind, count(*) FROM descriptors GROUP BY kind ORDER BY kind"))
+
+    # ------------------------------------------------------------------ ingest runs
+    def start_run(self, paths, *, workers: int = 1, bits_per_surfel=None) -> int:
+        """Record the start of an ingest run.
+
+        Parameters
+        ----------
+        paths : sequence of str or os.PathLike
+            The files and folders given.
+        workers : int
+        bits_per_surfel : float, optional
+
+        Returns
+        -------
+        int
+            The run id.
+        """
+        with self.transaction():
+            cur = self.conn.execute(
+                "INSERT INTO ingest_runs (started_at, paths, workers, bits_per_surfel, status) "
+                "VALUES (?, ?, ?, ?, 'running')",
+                (utc_now(), json.dumps([str(p) for p in paths]), int(workers),
+                 None if bits_per_surfel is None else float(bits_per_surfel)))
+        return int(cur.lastrowid)
+
+    def record_error(self, run_id: int, path, message: str) -> None:
+        """Record a file a run could not store (joins an open transaction if there is one)."""
+        with self.transaction():
+            self.conn.execute("INSERT INTO ingest_errors (run_id, path, error, at) "
+                              "VALUES (?, ?, ?, ?)", (int(run_id), str(path), str(message),
+                                                      utc_now()))
+
+    def update_run(self, run_id: int, *, stored: int, skipped: int, failed: int) -> None:
+        """Update a running run's counts (so a killed run still shows how far it came)."""
+        with self.transaction():
+            self.conn.execute("UPDATE ingest_runs SET stored = ?, skipped = ?, failed = ? "
+                              "WHERE id = ?", (int(stored), int(skipped), int(failed),
+                                               int(run_id)))
+
+    def finish_run(self, run_id: int, *, stored: int, skipped: int, failed: int,
+                   status: str = "finished") -> None:
+        """Record the end of a run: its counts and ``status``.
+
+        Parameters
+        ----------
+        status : {"finished", "interrupted", "failed"}
+
+        Raises
+        ------
+        InputError
+            Unknown status.
+        DatabaseError
+            No run with this id.
+        """
+        if status not in ("finished", "interrupted", "failed"):
+            raise InputError(f"status must be 'finished', 'interrupted' or 'failed', "
+                             f"got {status!r}")
+        with self.transaction():
+            cur = self.conn.execute(
+                "UPDATE ingest_runs SET finished_at = ?, stored = ?, skipped = ?, failed = ?, "
+                "status = ? WHERE id = ?",
+                (utc_now(), int(stored), int(skipped), int(failed), status, int(run_id)))
+            if cur.rowcount == 0:
+                raise DatabaseError(f"no ingest run with id {run_id}", path=self.path)
+
+    def runs(self) -> list:
+        """All ingest runs, oldest first, as dicts (``paths`` decoded)."""
+        keys = ("id", "started_at", "finished_at", "paths", "workers", "bits_per_surfel",
+                "stored", "skipped", "failed", "status")
+        out = [dict(zip(keys, r)) for r in self.conn.execute(
+            f"SELECT {', '.join(keys)} FROM ingest_runs ORDER BY id")]
+        for r in out:
+            r["paths"] = json.loads(r["paths"])
+        return out
+
+    def last_run(self):
+        """The most recent ingest run (dict as in :meth:`runs`), or None."""
+        runs = self.runs()
+        return runs[-1] if runs else None
+
+    def errors(self, run_id=None) -> list:
+        """Recorded ingest failures, oldest first.
+
+        Parameters
+        ----------
+        run_id : int, optional
+            Only this run's failures.
+
+        Returns
+        -------
+        list of dict
+            Keys ``run_id``, ``path``, ``error``, ``at``.
+        """
+        sql = "SELECT run_id, path, error, at FROM ingest_errors"
+        args = ()
+        if run_id is not None:
+            sql += " WHERE run_id = ?"
+            args = (int(run_id),)
+        return [dict(zip(("run_id", "path", "error", "at"), r))
+                for r in self.conn.execute(sql + " ORDER BY id", args)]

@@ -1,0 +1,238 @@
+"""Query by example: rank the stored models by descriptor distance to a query.
+
+The stored vectors are read once into dense float32 matrices (:class:`SearchIndex`, built from
+:meth:`surfidx.database.Database.descriptor_matrix`) and every query is one vectorised scan
+followed by ``np.argpartition`` for the top ``k``: about 10 ms for 100 000 models on one core
+(``benchmarks/query_latency.py``).
+
+Distance
+--------
+The default, :func:`weighted_l2`, combines the Euclidean distances of the ``"shape"`` and
+``"texture"`` descriptors with the shape weight ``w`` in [0, 1]::
+
+    d = w * ||shape_q - shape_m|| + (1 - w) * ||texture_q - texture_m||   both coloured
+    d = ||shape_q - shape_m||                                              otherwise
+
+The texture term counts only when the query and the stored model both have colour (both carry a
+``"texture"`` descriptor and the model's ``has_color`` is set); a pair without it is compared by
+shape alone, at full weight, so ``w = 1`` is pure shape distance for every pair. Any function with
+the signature of :func:`weighted_l2` can be passed as ``distance=`` instead (e.g. one from
+``surfidx.descriptors``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._errors import InputError
+from ._validate import as_array, check_positive_int
+
+__all__ = ["SearchIndex", "search", "weighted_l2"]
+
+
+def weighted_l2(query, stored, present, *, shape_weight: float = 0.5) -> np.ndarray:
+    """Weighted L2 distance of a query to every stored model (the default search distance).
+
+    Parameters
+    ----------
+    query : dict of str -> (d_k,) float32
+        The query's descriptors; ``"shape"`` is required, ``"texture"`` marks a coloured query.
+    stored : dict of str -> (m, d_k) float32
+        The stored descriptors, one row per model (rows of absent kinds are zeros).
+    present : dict of str -> (m,) bool
+        Which rows of ``stored[kind]`` hold a descriptor (for ``"texture"``: the model has
+        colour and a texture descriptor).
+    shape_weight : float
+        ``w`` in [0, 1].
+
+    Returns
+    -------
+    (m,) float64
+        ``w * ||Δshape|| + (1 - w) * ||Δtexture||`` where both have colour, else ``||Δshape||``.
+    """
+    d = _l2(stored["shape"], query["shape"])
+    if "texture" in query and "texture" in stored and shape_weight < 1.0:
+        both = present["texture"]
+        if both.any():
+            dt = _l2(stored["texture"], query["texture"])
+            d = np.where(both, shape_weight * d + (1.0 - shape_weight) * dt, d)
+    return d
+
+
+def _l2(matrix, vec) -> np.ndarray:
+    """Row-wise Euclidean distance of ``matrix`` (m, d) float32 to ``vec`` (d,), as float64."""
+    diff = matrix - vec
+    return np.sqrt(np.einsum("ij,ij->i", diff, diff, dtype=np.float64))
+
+
+class SearchIndex:
+    """The stored descriptors of a database as dense matrices, built once and queried many times.
+
+    Parameters
+    ----------
+    db : surfidx.database.Database
+    kinds : sequence of str
+        Descriptor kinds to load; the first (``"shape"``) is required of every model that takes
+        part, the others are optional per model.
+
+    Attributes
+    ----------
+    ids : (m,) int64
+        Ids of the models holding ``kinds[0]``, ascending.
+    stored : dict of str -> (m, d_k) float32
+    present : dict of str -> (m,) bool
+    """
+
+    def __init__(self, db, *, kinds=("shape", "texture")):
+        kinds = tuple(kinds)
+        if not kinds:
+            raise InputError("kinds must name at least one descriptor kind")
+        self.kinds = kinds
+        self._norms = {}
+        self.ids, first = db.descriptor_matrix(kinds[0])
+        m = self.ids.size
+        self.stored = {kinds[0]: first}
+        self.present = {kinds[0]: np.ones(m, bool)}
+        color = db.color_mask(self.ids) if m else np.zeros(0, bool)
+        for kind in kinds[1:]:
+            kid, mat = db.descriptor_matrix(kind)
+            full = np.zeros((m, mat.shape[1]), np.float32)
+            has = np.zeros(m, bool)
+            if m and kid.size:
+                pos = np.minimum(np.searchsorted(self.ids, kid), m - 1)
+                ok = self.ids[pos] == kid
+                full[pos[ok]] = mat[ok]
+                has[pos[ok]] = True
+            if kind == "texture":
+                has &= color
+            self.stored[kind] = full
+            self.present[kind] = has
+
+    def __len__(self):
+        return int(self.ids.size)
+
+    def query(self, descriptors, *, k: int = 10, shape_weight: float = 0.5, distance=None,
+              exclude=None) -> tuple:
+        """The ``k`` stored models nearest to a query.
+
+        Parameters
+        ----------
+        descriptors : dict of str -> (d_k,) array_like
+            The query's descriptors (``kinds[0]`` required; leave out ``"texture"`` for a query
+            without colour).
+        k : int
+            Number of results (fewer when fewer models are stored).
+        shape_weight : float
+            ``w`` in [0, 1] of :func:`weighted_l2`.
+        distance : callable, optional
+            ``distance(query, stored, present, *, shape_weight) -> (m,) float``; default
+            :func:`weighted_l2`.
+        exclude : sequence of int, optional
+            Model ids to leave out (e.g. the query's own id).
+
+        Returns
+        -------
+        ids : (k,) int64
+            Nearest first; ties broken by ascending id.
+        distances : (k,) float64
+
+        Raises
+        ------
+        InputError
+            Missing or mis-sized query descriptor, ``k < 1``, ``shape_weight`` outside [0, 1],
+            or a distance function returning the wrong shape.
+        """
+        k = check_positive_int(k, "k")
+        w = float(shape_weight)
+        if not 0.0 <= w <= 1.0:
+            raise InputError(f"shape_weight must be in [0, 1], got {shape_weight!r}")
+        q = {}
+        for kind, vec in descriptors.items():
+            if kind not in self.stored or (kind != self.kinds[0] and not self.present[kind].any()):
+                continue
+            v = as_array(vec, f"query descriptor {kind!r}", dtype=np.float32, shape=(None,))
+            want = self.stored[kind].shape[1]
+            if len(self) and v.size != want:
+                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
+                                 f"ones have {want}; use the same descriptor settings")
+            q[kind] = v
+        first = self.kinds[0]
+        if distance is None and first != "shape":
+            raise InputError(f"the default distance compares 'shape' descriptors; with kinds "
+                             f"{self.kinds} pass distance=")
+        if first not in q:
+            raise InputError(f"the query has no {first!r} descriptor")
+        m = len(self)
+        if m == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        if distance is None:
+            # Fast screen by ||a - b||^2 = ||a||^2 - 2 a.b + ||b||^2 (one BLAS mat-vec per kind),
+            # then the exact weighted_l2 on a generous candidate set, so rounding of the
+            # expansion cannot change the result.
+            d = self._screen(q, w)
+        else:
+            d = np.asarray(distance(q, self.stored, self.present, shape_weight=w),
+                           dtype=np.float64)
+            if d.shape != (m,):
+                raise InputError(f"the distance function returned shape {d.shape}, "
+                                 f"expected ({m},)")
+        if exclude is not None:
+            d = d.copy()
+            d[np.isin(self.ids, np.asarray(list(exclude), np.int64))] = np.inf
+        kk = min(k, m)
+        if distance is None:
+            nc = min(m, max(4 * kk, kk + 64))
+            cand = np.argpartition(d, nc - 1)[:nc] if nc < m else np.arange(m)
+            exact = weighted_l2(q, {kd: s[cand] for kd, s in self.stored.items()},
+                                {kd: p[cand] for kd, p in self.present.items()}, shape_weight=w)
+            d = np.full(m, np.inf)
+            if exclude is not None:
+                keep = ~np.isin(self.ids[cand], np.asarray(list(exclude), np.int64))
+                cand, exact = cand[keep], exact[keep]
+            d[cand] = exact
+        else:
+            cand = np.argpartition(d, kk - 1)[:kk] if kk < m else np.arange(m)
+        order = cand[np.lexsort((self.ids[cand], d[cand]))][:kk]
+        order = order[np.isfinite(d[order])]
+        return self.ids[order].copy(), d[order]
+
+    def _sqnorms(self, kind):
+        if kind not in self._norms:
+            s = self.stored[kind]
+            self._norms[kind] = np.einsum("ij,ij->i", s, s, dtype=np.float64)
+        return self._norms[kind]
+
+    def _screen(self, q, w) -> np.ndarray:
+        """Approximate :func:`weighted_l2` of every stored model (expansion of the square)."""
+        def dist(kind):
+            v = q[kind]
+            sq = self._sqnorms(kind) - 2.0 * np.einsum("ij,j->i", self.stored[kind], v) \
+                + float(v @ v)
+            return np.sqrt(np.maximum(sq, 0.0))
+
+        d = dist("shape")
+        if "texture" in q and "texture" in self.stored and w < 1.0 and self.present["texture"].any():
+            d = np.where(self.present["texture"], w * d + (1.0 - w) * dist("texture"), d)
+        return d
+
+
+def search(db, descriptors, *, k: int = 10, shape_weight: float = 0.5, distance=None,
+           exclude=None) -> tuple:
+    """One query by example against a database (builds, or reuses cached, matrices).
+
+    Parameters
+    ----------
+    db : surfidx.database.Database
+    descriptors : dict of str -> (d_k,) array_like
+        The query's descriptors, e.g. ``ProcessedModel.descriptors`` (drop ``"texture"`` when the
+        query has no colour) or :meth:`Database.get_descriptors`.
+    k, shape_weight, distance, exclude
+        As in :meth:`SearchIndex.query`.
+
+    Returns
+    -------
+    ids : (k,) int64
+    distances : (k,) float64
+    """
+    return SearchIndex(db).query(descriptors, k=k, shape_weight=shape_weight, distance=distance,
+                                 exclude=exclude)

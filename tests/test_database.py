@@ -1,0 +1,513 @@
+"""surfidx.database and surfidx.search: schema, round trips, migrations, foreign files, queries."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import shutil
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import surfidx
+from surfidx import DatabaseError, InputError
+from surfidx import database as dbmod
+from surfidx.database import SCHEMA_VERSION, Database, schema_sql
+from surfidx.pipeline import ProcessedModel
+from surfidx.search import SearchIndex, search, weighted_l2
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------------- test doubles
+def tiny_png(seed: int = 0, size: int = 8) -> bytes:
+    """A small solid-colour PNG made with Pillow."""
+    from PIL import Image
+
+    rgb = tuple(int(c) for c in np.random.default_rng(seed).integers(0, 256, 3))
+    buf = io.BytesIO()
+    Image.new("RGB", (size, size), rgb).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def make_model(seed: int = 0, *, name=None, color: bool = True, shape_dim: int = 16,
+               texture_dim: int = 8, content_hash=None, source=None) -> ProcessedModel:
+    """A real ProcessedModel with random descriptors, a random-byte stream and a tiny PNG."""
+    rng = np.random.default_rng(seed)
+    descriptors = {"shape": rng.standard_normal(shape_dim).astype(np.float32),
+                   "spectrum": rng.random(5).astype(np.float32)}
+    if color:
+        descriptors["texture"] = rng.standard_normal(texture_dim).astype(np.float32)
+    lo = rng.standard_normal(3)
+    stream = rng.integers(0, 256, int(rng.integers(16, 200)), dtype=np.uint8).tobytes()
+    n = int(rng.integers(100, 10_000))
+    return ProcessedModel(
+        name=name or f"model{seed}", source=source or f"/data/model{seed}.ply",
+        content_hash=content_hash or hashlib.sha256(f"model {seed}".encode()).hexdigest(),
+        n_surfels=n, has_color=color, bbox=np.stack([lo, lo + rng.random(3) + 0.1]),
+        stream=stream, format_version=1, rate=8.0 * len(stream) / n,
+        quality={"psnr_d1": float(rng.uniform(30, 80)), "psnr_d2": float(rng.uniform(30, 80)),
+                 "psnr_y": float(rng.uniform(20, 50)) if color else None},
+        descriptors=descriptors, thumbnail=tiny_png(seed),
+        params={"level": 5, "descriptors": {"lmax": 8, "normalisation": "ortho"}},
+        timings={"encode": 0.5})
+
+
+@pytest.fixture
+def db(tmp_path):
+    with Database(tmp_path / "test.db") as d:
+        yield d
+
+
+def assert_same(a: ProcessedModel, b: ProcessedModel):
+    for f in ("name", "source", "content_hash", "n_surfels", "has_color", "stream",
+              "format_version", "thumbnail", "params"):
+        assert getattr(a, f) == getattr(b, f), f
+    assert b.rate == pytest.approx(a.rate, rel=0, abs=0)
+    np.testing.assert_array_equal(a.bbox, b.bbox)
+    assert set(a.descriptors) == set(b.descriptors)
+    for k, v in a.descriptors.items():
+        assert b.descriptors[k].dtype == np.float32
+        np.testing.assert_array_equal(np.asarray(v, np.float32), b.descriptors[k])
+    for k in ("psnr_d1", "psnr_d2", "psnr_y"):
+        assert b.quality[k] == a.quality.get(k)
+
+
+# ---------------------------------------------------------------------- schema and packaging
+def test_packaged_schema_is_identical_to_canonical():
+    canonical = (REPO / "data_schema" / "schema.sql").read_text(encoding="utf-8")
+    assert (REPO / "surfidx" / "data" / "schema.sql").read_text(encoding="utf-8") == canonical
+    assert schema_sql() == canonical
+
+
+def test_pyproject_ships_schema_as_package_data():
+    import tomllib
+
+    conf = tomllib.loads((REPO / "pyproject.toml").read_text())
+    patterns = conf["tool"]["setuptools"]["package-data"]["surfidx"]
+    assert "data/*.sql" in patterns
+
+
+@pytest.mark.slow
+def test_built_package_finds_schema(tmp_path):
+    """A non-editable build (setuptools build_py, as a wheel does) ships surfidx/data/schema.sql
+    and the built package reads it through importlib.resources."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, src / name)
+    ignore = shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc", "*.db")
+    for pkg in ("surfidx", "ingest"):
+        shutil.copytree(REPO / pkg, src / pkg, ignore=ignore)
+    out = tmp_path / "build"
+    proc = subprocess.run([sys.executable, "-c", "from setuptools import setup; setup()", "-q",
+                           "build_py", "--build-lib", str(out)], cwd=src, capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (out / "surfidx" / "data" / "schema.sql").read_text() == schema_sql()
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import surfidx.database as d; "
+            "assert d.__file__.startswith(sys.argv[1]), d.__file__; "
+            "print(len(d.schema_sql()))")
+    proc = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True,
+                          cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert int(proc.stdout) == len(schema_sql())
+
+
+def test_new_database_layout(db):
+    assert db.schema_version == SCHEMA_VERSION
+    assert set(db.db.table_names()) == set(dbmod._TABLES)
+    assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
+    meta = dict(db.conn.execute("SELECT key, value FROM meta"))
+    assert meta["schema_version"] == str(SCHEMA_VERSION)
+    assert meta["created_by"] == f"surfidx {surfidx.__version__}"
+    indexed = {tuple(ix.columns) for t in ("models", "descriptors")
+               for ix in db.db[t].indexes}
+    assert {("content_hash",), ("name",), ("kind",)} <= indexed
+    fks = {(fk.table, fk.other_table) for t in ("assets", "descriptors", "thumbnails",
+                                                "ingest_errors") for fk in db.db[t].foreign_keys}
+    assert fks == {("assets", "models"), ("descriptors", "models"), ("thumbnails", "models"),
+                   ("ingest_errors", "ingest_runs")}
+    assert len(dbmod._MIGRATIONS) == SCHEMA_VERSION - 1
+
+
+def test_reopen_keeps_data(tmp_path):
+    path = tmp_path / "a.db"
+    with Database(path) as d:
+        mid = d.add(make_model(1))
+    with Database(path, create=False) as d:
+        assert d.get_model(mid)["name"] == "model1"
+
+
+# ---------------------------------------------------------------------- round trips
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), color=st.booleans(),
+       shape_dim=st.integers(0, 40), texture_dim=st.integers(1, 12),
+       name=st.text(min_size=1, max_size=20),
+       vec=st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), max_size=10))
+def test_round_trip(tmp_path_factory, seed, color, shape_dim, texture_dim, name, vec):
+    path = tmp_path_factory.mktemp("rt") / "rt.db"
+    model = make_model(seed, name=name, color=color, shape_dim=shape_dim, texture_dim=texture_dim)
+    model.descriptors["extra"] = np.array(vec, np.float32)
+    with Database(path) as d:
+        mid = d.add(model)
+        back = d.load(mid)
+        assert_same(model, back)
+        assert d.get_stream(mid) == model.stream
+        assert d.get_thumbnail(mid) == model.thumbnail
+        rec = d.get_model(mid)
+        assert rec["descriptors"] == {k: v.size for k, v in model.descriptors.items()}
+        assert rec["asset"]["bytes"] == len(model.stream)
+        ids, mat = d.descriptor_matrix("shape")
+        np.testing.assert_array_equal(mat[ids == mid][0], model.descriptors["shape"])
+
+
+def test_descriptor_blob_is_float32_little_endian(db):
+    m = make_model(3)
+    mid = db.add(m)
+    blob, dim = db.conn.execute("SELECT vector, dimension FROM descriptors WHERE model_id = ? "
+                                "AND kind = 'shape'", (mid,)).fetchone()
+    assert dim == 16 and len(blob) == 64
+    np.testing.assert_array_equal(np.frombuffer(blob, "<f4"), m.descriptors["shape"])
+    conv = db.conn.execute("SELECT convention FROM descriptors WHERE model_id = ?",
+                           (mid,)).fetchone()[0]
+    assert conv == '{"lmax": 8, "normalisation": "ortho"}'
+
+
+def test_add_is_atomic(db):
+    bad = make_model(1)
+    bad.descriptors["shape"] = np.array([1.0, np.nan], np.float32)
+    with pytest.raises(InputError, match="descriptor 'shape' contains 1 NaN"):
+        db.add(bad)
+    bad = make_model(2)
+    bad.thumbnail = None
+    with pytest.raises(InputError, match="thumbnail must be bytes"):
+        db.add(bad)
+    # A failure inside the transaction (after the models row) leaves nothing behind.
+    m = make_model(4)
+    m.descriptors = {"shape": np.ones(3, np.float32)}
+    orig = db._rows_of
+
+    def broken(model):
+        row, asset, descs, png = orig(model)
+        return row, asset, descs + [descs[0]], png        # duplicate (model_id, kind)
+
+    db._rows_of = broken
+    with pytest.raises(sqlite3.IntegrityError):
+        db.add(m)
+    db._rows_of = orig
+    for table in ("models", "assets", "descriptors", "thumbnails"):
+        assert db.db[table].count == 0
+
+
+def test_add_validation_errors(db):
+    for field, value, msg in [("name", "", "name must not be empty"),
+                              ("content_hash", "", "content_hash must not be empty"),
+                              ("bbox", np.zeros(3), r"bbox must have shape \(2, 3\)"),
+                              ("n_surfels", -1, "n_surfels must be >= 0"),
+                              ("stream", "text", "stream must be bytes"),
+                              ("params", {"x": object()}, "params must be JSON-serialisable")]:
+        m = make_model(7)
+        setattr(m, field, value)
+        with pytest.raises(InputError, match=msg):
+            db.add(m)
+    assert db.count() == 0
+
+
+def test_duplicate_hash_rejected(db):
+    mid = db.add(make_model(1))
+    with pytest.raises(DatabaseError, match=f"already stored as id {mid}"):
+        db.add(make_model(2, content_hash=make_model(1).content_hash))
+    assert db.count() == 1 and db.has_hash(make_model(1).content_hash)
+    assert not db.has_hash("nope")
+
+
+def test_get_by_name_and_errors(db):
+    a = db.add(make_model(1, name="bunny"))
+    db.add(make_model(2, name="twin"))
+    db.add(make_model(3, name="twin"))
+    assert db.get_model("bunny")["id"] == a
+    with pytest.raises(DatabaseError, match="no model named 'nobody'"):
+        db.get_model("nobody")
+    with pytest.raises(DatabaseError, match=r"'twin' matches 2 models \(ids 2, 3\)"):
+        db.get_model("twin")
+    with pytest.raises(DatabaseError, match="no model with id 99"):
+        db.get_stream(99)
+    with pytest.raises(InputError, match="model id must be an integer"):
+        db.get_model(1.5)
+    db.conn.execute("DELETE FROM thumbnails WHERE model_id = ?", (a,))
+    db.conn.execute("DELETE FROM assets WHERE model_id = ?", (a,))
+    with pytest.raises(DatabaseError, match="has no thumbnail"):
+        db.get_thumbnail(a)
+    with pytest.raises(DatabaseError, match="has no stored stream"):
+        db.get_stream(a)
+
+
+def test_list_and_delete(db):
+    ids = [db.add(make_model(i)) for i in range(3)]
+    rows = db.list_models()
+    assert [r["id"] for r in rows] == ids
+    assert rows[0]["bytes"] == len(make_model(0).stream)
+    db.delete(ids[1])
+    assert [r["id"] for r in db.list_models()] == [ids[0], ids[2]]
+    for table in ("assets", "descriptors", "thumbnails"):
+        assert db.conn.execute(f"SELECT count(*) FROM {table} WHERE model_id = ?",
+                               (ids[1],)).fetchone()[0] == 0
+    with pytest.raises(DatabaseError, match=f"no model with id {ids[1]}"):
+        db.delete(ids[1])
+
+
+def test_descriptor_matrix_cache_and_kinds(db):
+    for i in range(4):
+        db.add(make_model(i, color=i % 2 == 0))
+    ids, shape = db.descriptor_matrix("shape")
+    assert ids.tolist() == [1, 2, 3, 4] and shape.shape == (4, 16) and shape.dtype == np.float32
+    assert db.descriptor_matrix("shape")[1] is shape                     # cached
+    both_ids, both = db.descriptor_matrix(["shape", "texture"])
+    assert both_ids.tolist() == [1, 3] and both.shape == (2, 24)
+    np.testing.assert_array_equal(both[1, 16:], make_model(2).descriptors["texture"])
+    db.add(make_model(10))
+    ids2, shape2 = db.descriptor_matrix("shape")                          # invalidated on write
+    assert ids2.tolist() == [1, 2, 3, 4, 5]
+    assert db.descriptor_kinds() == {"shape": 5, "spectrum": 5, "texture": 3}
+    empty_ids, empty = db.descriptor_matrix("nothing")
+    assert empty_ids.size == 0 and empty.shape == (0, 0)
+    with pytest.raises(InputError, match="at least one descriptor kind"):
+        db.descriptor_matrix([])
+
+
+def test_descriptor_matrix_sees_other_connections(tmp_path):
+    path = tmp_path / "two.db"
+    with Database(path) as a, Database(path) as b:
+        a.add(make_model(1))
+        assert a.descriptor_matrix("shape")[0].tolist() == [1]
+        b.add(make_model(2))
+        assert a.descriptor_matrix("shape")[0].tolist() == [1, 2]
+
+
+def test_descriptor_matrix_refuses_mixed_settings(db):
+    db.add(make_model(1))
+    db.add(make_model(2, shape_dim=9))
+    with pytest.raises(DatabaseError, match=r"kind 'shape' have different dimensions \[9, 16\]"):
+        db.descriptor_matrix("shape")
+    other = make_model(3)
+    other.params = {"descriptors": {"lmax": 4}}
+    db.delete(2)
+    db.add(other)
+    with pytest.raises(DatabaseError, match="kind 'shape' were made with different conventions"):
+        db.descriptor_matrix("shape")
+
+
+def test_runs_and_errors(db):
+    rid = db.start_run(["a", Path("b")], workers=3, bits_per_surfel=2.0)
+    db.record_error(rid, "a/x.ply", "broken file")
+    db.update_run(rid, stored=1, skipped=0, failed=1)
+    assert db.last_run()["status"] == "running" and db.last_run()["stored"] == 1
+    db.finish_run(rid, stored=2, skipped=1, failed=1)
+    run = db.last_run()
+    assert run["paths"] == ["a", "b"] and run["workers"] == 3 and run["status"] == "finished"
+    assert run["finished_at"] is not None and (run["stored"], run["skipped"]) == (2, 1)
+    assert [e["error"] for e in db.errors(rid)] == ["broken file"]
+    assert db.errors(rid + 1) == [] and len(db.errors()) == 1
+    with pytest.raises(InputError, match="status must be 'finished'"):
+        db.finish_run(rid, stored=0, skipped=0, failed=0, status="done")
+    with pytest.raises(DatabaseError, match="no ingest run with id 99"):
+        db.finish_run(99, stored=0, skipped=0, failed=0)
+
+
+def test_transaction_rolls_back_everything_on_interrupt(db):
+    db.add(make_model(0))
+    with pytest.raises(KeyboardInterrupt):
+        with db.transaction():
+            db.add(make_model(1))
+            db.add(make_model(2))
+            raise KeyboardInterrupt
+    assert db.count() == 1
+    with db.transaction():                       # a failing nested add only undoes itself
+        db.add(make_model(3))
+        with pytest.raises(DatabaseError, match="already stored"):
+            db.add(make_model(3))
+    assert db.count() == 2
+
+
+# ---------------------------------------------------------------------- opening: errors, migrations
+def test_missing_file_without_create(tmp_path):
+    with pytest.raises(DatabaseError, match=r"nope\.db: no such database"):
+        Database(tmp_path / "nope.db", create=False)
+    assert not (tmp_path / "nope.db").exists()
+
+
+def test_directory_and_garbage_files(tmp_path):
+    with pytest.raises(DatabaseError, match="is a directory"):
+        Database(tmp_path)
+    junk = tmp_path / "junk.db"
+    junk.write_bytes(b"this is not sqlite at all" * 100)
+    with pytest.raises(DatabaseError, match=r"junk\.db: not an SQLite database"):
+        Database(junk)
+
+
+def test_foreign_database(tmp_path):
+    path = tmp_path / "other.db"
+    conn = sqlite3.connect(path)
+    conn.execute("CREATE TABLE customers (id INTEGER PRIMARY KEY, name TEXT)")
+    conn.commit()
+    conn.close()
+    with pytest.raises(DatabaseError, match=r"other\.db: not a surfidx database .*customers"):
+        Database(path)
+    conn = sqlite3.connect(path)          # untouched: still its own journal mode and table
+    assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == 0
+    conn.close()
+    conn = sqlite3.connect(tmp_path / "v.db")
+    conn.execute("PRAGMA user_version = 1")
+    conn.close()
+    with pytest.raises(DatabaseError, match=r"user_version 1 but no tables"):
+        Database(tmp_path / "v.db")
+
+
+def test_future_version(tmp_path):
+    path = tmp_path / "future.db"
+    Database(path).close()
+    conn = sqlite3.connect(path)
+    conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    conn.close()
+    with pytest.raises(DatabaseError, match=rf"future\.db: schema version {SCHEMA_VERSION + 1} "
+                                            "was written by a newer surfidx"):
+        Database(path)
+
+
+def test_version0_empty_file_is_upgraded(tmp_path):
+    path = tmp_path / "v0.db"
+    sqlite3.connect(path).close()                       # an empty SQLite file: version 0
+    with Database(path) as d:
+        assert d.schema_version == SCHEMA_VERSION and d.count() == 0
+
+
+def _v1_database(path):
+    """A version-1 database made by hand (the schema file executed with plain sqlite3)."""
+    conn = sqlite3.connect(path)
+    conn.executescript(schema_sql())
+    conn.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    conn.execute("INSERT INTO models (name, source, content_hash, n_surfels, has_color, "
+                 "bbox_min_x, bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, "
+                 "ingested_at) VALUES ('old', '/o.ply', 'h', 3, 0, 0, 0, 0, 1, 1, 1, 'then')")
+    conn.execute("PRAGMA user_version = 1")
+    conn.commit()
+    conn.close()
+
+
+def test_migration_from_older_version(tmp_path, monkeypatch):
+    path = tmp_path / "v1.db"
+    _v1_database(path)
+
+    def to_v2(conn):
+        conn.execute("ALTER TABLE models ADD COLUMN license TEXT NOT NULL DEFAULT 'unknown'")
+
+    monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
+    monkeypatch.setattr(dbmod, "_MIGRATIONS", [to_v2])
+    with Database(path) as d:
+        assert d.schema_version == 2
+        assert d.conn.execute("SELECT name, license FROM models").fetchall() == [("old", "unknown")]
+        assert dict(d.conn.execute("SELECT key, value FROM meta"))["schema_version"] == "2"
+    with Database(path) as d:                        # opening again runs nothing
+        assert d.schema_version == 2
+
+
+def test_failing_migration_leaves_file_unchanged(tmp_path, monkeypatch):
+    path = tmp_path / "v1.db"
+    _v1_database(path)
+
+    def half(conn):
+        conn.execute("ALTER TABLE models ADD COLUMN license TEXT")
+        conn.execute("SELECT * FROM no_such_table")
+
+    monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
+    monkeypatch.setattr(dbmod, "_MIGRATIONS", [half])
+    with pytest.raises(DatabaseError, match=r"upgrading the schema to version 2 failed .*unchanged"):
+        Database(path)
+    conn = sqlite3.connect(path)
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == 1
+    cols = [r[1] for r in conn.execute("PRAGMA table_info(models)")]
+    assert "license" not in cols
+    conn.close()
+
+
+def test_closed_database(tmp_path):
+    d = Database(tmp_path / "c.db")
+    d.close()
+    d.close()
+    with pytest.raises(DatabaseError, match="the database is closed"):
+        d.count()
+
+
+# ---------------------------------------------------------------------- search
+def test_weighted_l2_definition():
+    rng = np.random.default_rng(0)
+    stored = {"shape": rng.standard_normal((5, 4)).astype(np.float32),
+              "texture": rng.standard_normal((5, 3)).astype(np.float32)}
+    present = {"shape": np.ones(5, bool), "texture": np.array([1, 0, 1, 0, 1], bool)}
+    q = {"shape": rng.standard_normal(4).astype(np.float32),
+         "texture": rng.standard_normal(3).astype(np.float32)}
+    ds = np.linalg.norm(stored["shape"] - q["shape"], axis=1)
+    dt = np.linalg.norm(stored["texture"] - q["texture"], axis=1)
+    d = weighted_l2(q, stored, present, shape_weight=0.3)
+    np.testing.assert_allclose(d, np.where(present["texture"], 0.3 * ds + 0.7 * dt, ds), rtol=1e-6)
+    np.testing.assert_allclose(weighted_l2({"shape": q["shape"]}, stored, present,
+                                           shape_weight=0.3), ds, rtol=1e-6)
+
+
+def test_search_example_first_and_matches_brute_force(db):
+    models = [make_model(i, color=i % 3 != 0) for i in range(40)]
+    for m in models:
+        db.add(m)
+    index = SearchIndex(db)
+    for i in (0, 1, 17):
+        q = models[i].descriptors
+        if not models[i].has_color:
+            q = {k: v for k, v in q.items() if k != "texture"}
+        ids, dist = index.query(q, k=5, shape_weight=0.4)
+        assert ids[0] == i + 1 and dist[0] == pytest.approx(0, abs=1e-6)
+        full = weighted_l2({k: np.asarray(v, np.float32) for k, v in q.items()
+                            if k in ("shape", "texture")},
+                           index.stored, index.present, shape_weight=0.4)
+        brute = np.lexsort((index.ids, full))[:5]
+        assert ids.tolist() == index.ids[brute].tolist()
+        np.testing.assert_allclose(dist, full[brute], rtol=1e-9)
+    ids, _ = search(db, models[5].descriptors, k=3, exclude=[6])
+    assert 6 not in ids.tolist() and len(ids) == 3
+    ids, _ = search(db, models[5].descriptors, k=100)
+    assert len(ids) == 40
+    custom = lambda q, s, p, *, shape_weight: np.arange(len(s["shape"]), 0, -1.0)  # noqa: E731
+    assert search(db, models[0].descriptors, k=2, distance=custom)[0].tolist() == [40, 39]
+
+
+def test_search_errors_and_empty(db):
+    assert search(db, {"shape": np.ones(16)}, k=3)[0].size == 0
+    db.add(make_model(1))
+    with pytest.raises(InputError, match="query has no 'shape' descriptor"):
+        search(db, {"texture": np.ones(8)})
+    with pytest.raises(InputError, match="has 3 values but the stored ones have 16"):
+        search(db, {"shape": np.ones(3)})
+    with pytest.raises(InputError, match=r"shape_weight must be in \[0, 1\]"):
+        search(db, {"shape": np.ones(16)}, shape_weight=1.5)
+    with pytest.raises(InputError, match="k must be at least 1"):
+        search(db, {"shape": np.ones(16)}, k=0)
+    with pytest.raises(InputError, match="distance function returned shape"):
+        search(db, {"shape": np.ones(16)}, distance=lambda q, s, p, shape_weight: np.zeros(7))
+    with pytest.raises(InputError, match="default distance compares 'shape'"):
+        SearchIndex(db, kinds=("spectrum",)).query({"spectrum": np.ones(5)})
+    with pytest.raises(InputError, match="at least one descriptor kind"):
+        SearchIndex(db, kinds=())
+    # No texture stored anywhere: a coloured query is compared by shape only.
+    d2 = Database(db.path.with_name("nocolor.db"))
+    d2.add(make_model(2, color=False))
+    ids, dist = search(d2, make_model(2, color=True).descriptors)
+    assert ids.tolist() == [1]
+    d2.close()
