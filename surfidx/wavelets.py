@@ -31,7 +31,8 @@ Normalisation (``normalized=True``)
 -----------------------------------
 Coefficient ``v`` is multiplied by ``level_norms(L)[level_of[v]]``, the root-mean-square
 Euclidean norm (over the grid samples) of the synthesis of a unit coefficient of that level
-(measured on a deterministic sample of up to :data:`NORM_SAMPLES` coefficients per level). A
+(measured on a deterministic sample of up to :data:`NORM_SAMPLES` coefficients per level, and
+stored as a constant table so that it is identical for encoder and decoder). A
 quantisation error ``ε`` on any normalised coefficient then gives a grid error of Euclidean norm
 ``≈ |ε|`` whatever its level, so equal quantisation steps give equal distortion everywhere.
 
@@ -219,8 +220,45 @@ def scaling_integrals(level: int, coarse_level: int = 0) -> np.ndarray:
     return _operators(lev).integrals[j].copy()
 
 
-@functools.lru_cache(maxsize=2 * 10)
-def _level_norms(level: int, lifted: bool) -> np.ndarray:
+# level_norms(L) for L = 0 … 9, measured by _measure_level_norms (9 significant digits).
+# A constant table, so encoder and decoder use bit-identical scales on every platform;
+# tests/test_wavelets.py checks it against a fresh measurement.
+_NORM_TABLE = {
+    True: (
+        (1.0,),
+        (1.5385667, 0.906357798,),
+        (2.9331646, 1.37675998, 0.915275119,),
+        (5.81399929, 2.66119893, 1.40680945, 0.917526566,),
+        (11.605129, 5.3063524, 2.72502509, 1.41419047, 0.918231854,),
+        (23.199302, 10.6095474, 5.43600504, 2.7406278, 1.41645767, 0.918188984,),
+        (46.3931915, 21.2182078, 10.8698546, 5.46767703, 2.74541445, 1.41633485, 0.918040747,),
+        (92.7836854, 42.436065, 21.7393208, 10.9334352, 5.47734736, 2.74514381, 1.41586706,
+         0.918051759,),
+        (185.566023, 84.8719669, 43.4785396, 21.8666004, 10.9528183, 5.47679325, 2.74412891,
+         1.41589466, 0.918027763,),
+        (371.131373, 169.743854, 86.9570401, 43.7331578, 21.9053867, 10.9517037, 5.47473327,
+         2.74418357, 1.41581925, 0.917929209,),
+    ),
+    False: (
+        (1.0,),
+        (1.5385667, 1.0,),
+        (2.9331646, 1.625, 1.0,),
+        (5.81399929, 3.1769702, 1.625, 1.0,),
+        (11.605129, 6.34273662, 3.17513975, 1.625, 1.0,),
+        (23.199302, 12.6839106, 6.33881576, 3.17468318, 1.625, 1.0,),
+        (46.3931915, 25.3676132, 12.6760393, 6.33783818, 3.17460597, 1.625, 1.0,),
+        (92.7836854, 50.7351994, 25.3518678, 12.6740768, 6.33767247, 3.17460567, 1.625, 1.0,),
+        (185.566023, 101.470395, 50.7037085, 25.3479421, 12.6737441, 6.33767172, 3.17460567,
+         1.625, 1.0,),
+        (371.131373, 202.94079, 101.407413, 50.6958569, 25.3472766, 12.6737426, 6.33767172,
+         3.17460567, 1.625, 1.0,),
+    ),
+}
+
+
+@functools.lru_cache(maxsize=4)
+def _measure_level_norms(level: int, lifted: bool) -> np.ndarray:
+    """Measure the scale table (what :data:`_NORM_TABLE` holds); seconds at level 8, ~20 s at 9."""
     ico = icosphere(level)
     counts = ico.counts
     n = int(counts[-1])
@@ -250,7 +288,8 @@ def level_norms(level: int, *, lifted: bool = True) -> np.ndarray:
     :data:`NORM_SAMPLES` coefficients of level ``j``, of the Euclidean norm (over the level-``L``
     grid samples) of :func:`inverse` of a unit coefficient. Entry 0 is the level-0 scaling
     coefficients, entry ``j ≥ 1`` the details born at level ``j``. Normalised coefficients are
-    ``raw · level_norms(L)[level_of]``.
+    ``raw · level_norms(L)[level_of]``. The values are a constant table in this module (9
+    significant digits of that measurement), part of the coefficient convention.
 
     Parameters
     ----------
@@ -262,6 +301,5 @@ def level_norms(level: int, *, lifted: bool = True) -> np.ndarray:
     Returns
     -------
     (L + 1,) float64
-        Computed once per ``(L, lifted)`` and cached.
     """
-    return _level_norms(_check_level(level), bool(lifted)).copy()
+    return np.array(_NORM_TABLE[bool(lifted)][_check_level(level)], dtype=np.float64)

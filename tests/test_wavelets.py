@@ -10,7 +10,8 @@ import pytest
 
 from surfidx import TOL, InputError
 from surfidx.icosphere import icosphere
-from surfidx.wavelets import forward, inverse, level_norms, scaling_integrals
+from surfidx.wavelets import (_measure_level_norms, forward, inverse, level_norms,
+                              scaling_integrals)
 
 
 def _band(ico, j):
@@ -142,6 +143,13 @@ def test_equal_error_normalisation(lifted):
     raw = [np.linalg.norm(inverse(np.eye(ico.n_vertices, 1, -int(ico.counts[j - 1]) if j else 0)
                                   [:, 0], level, lifted=lifted)) for j in range(level + 1)]
     assert max(raw) / min(raw) > 20
+
+
+@pytest.mark.parametrize("lifted", [True, False])
+def test_norm_table_matches_measurement(lifted):
+    for level in range(0, 7):
+        np.testing.assert_allclose(level_norms(level, lifted=lifted),
+                                   _measure_level_norms(level, lifted), rtol=1e-7)
 
 
 def test_normalized_is_scaled_raw():
