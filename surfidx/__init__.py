@@ -12,6 +12,7 @@ from .icosphere import Icosphere, choose_level, icosphere
 from .io import read_mesh, read_surfels, write_ply
 from .klt import KLT
 from .mesh import TriangleMesh
+from .metrics import evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
 from .pointcloud import points_to_surfels
 from .surfels import SurfelSet
 
@@ -21,5 +22,6 @@ __all__ = [
     "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
     "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
     "DatabaseError", "TOL", "Tolerances", "__version__",
+    "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
     "Icosphere", "icosphere", "choose_level", "KLT",
 ]
