@@ -20,7 +20,7 @@ Per-vertex tables (all ``int64``, indexed by vertex id, rows of level-0 vertices
 ``level_of[v]``
     The level at which ``v`` is born (0 for the 12 icosahedron vertices).
 ``edge_parents[v] = (a, b)``
-    The level-``(j)`` edge that vertex ``v`` born at level ``j + 1`` splits, ``a < b``.
+    The level-``j`` edge that vertex ``v`` born at level ``j + 1`` splits, ``a < b``.
 ``butterfly[v] = (a, b, c, d, e1, e2, e3, e4)``
     The 8-point butterfly stencil (Dyn, Levin & Gregory 1990; Schröder & Sweldens 1995) of ``v`` in
     the level-``j`` mesh, with weights :data:`BUTTERFLY_WEIGHTS`

@@ -137,8 +137,7 @@ class KLT:
         order = np.argsort(-evals, kind="stable")
         evals = np.clip(evals[order], 0.0, None)
         basis = evecs[:, order].T.copy()
-        pivot = np.argmax(np.abs(basis) >= np.abs(basis).max(axis=1, keepdims=True)
-                          * (1 - 1e-12), axis=1)
+        pivot = np.argmax(np.abs(basis), axis=1)  # first one on exact ties
         signs = np.sign(basis[np.arange(k), pivot])
         signs[signs == 0] = 1.0
         basis *= signs[:, None]
