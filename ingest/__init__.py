@@ -1,0 +1,15 @@
+"""Bulk ingestion of model files into a surfidx database (``surfidx ingest``).
+
+>>> import ingest                                                         # doctest: +SKIP
+>>> summary = ingest.run(["scans/"], db="surfidx.db", workers=4, bits_per_surfel=8.0)
+>>> print(summary)                                                        # doctest: +SKIP
+run 1: stored 41, skipped 0, failed 1 in 312.4 s
+
+See :mod:`ingest._run` for the data flow, the executor abstraction and the texture discovery.
+"""
+
+from ._run import (IngestSummary, Outcome, ProcessPool, Task, discover, error_message,
+                   find_texture, make_tasks, process_task, resolve_processor, run, serial)
+
+__all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
+           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message"]

@@ -1,0 +1,505 @@
+"""Bulk ingestion: files and folders → processed models → one surfidx database.
+
+Data flow of :func:`run`:
+
+1. :func:`discover` lists the model files (folders recursively, every suffix of
+   ``surfidx.io.SUPPORTED_SUFFIXES``, sorted), and :func:`find_texture` pairs a textured OBJ whose
+   UVs name no texture with a PNG beside it.
+2. Every file's content hash (file bytes, then texture bytes) is computed first; files already
+   stored (or seen earlier in the same run) are skipped, so re-running an interrupted ingest
+   resumes where it stopped.
+3. The remaining :class:`Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
+   yields ``fn(task)`` for every task, in completion order. :class:`ProcessPool` runs them in
+   worker processes (restarting the pool when a worker dies), :func:`serial` in-process; a
+   dask.distributed executor only needs the same signature. ``fn`` is :func:`process_task`
+   bound to the processor and rate: one picklable per-model function for every executor.
+4. Results are written by this process alone, in batched transactions (every ``batch`` models or
+   ``flush_seconds``), each model inside its own savepoint: a model is stored whole or not at all,
+   and a SIGINT or SIGKILL at any moment leaves a consistent database (WAL mode).
+5. A failing file is recorded in ``ingest_errors`` with its message and the run goes on; the run
+   ends with an :class:`IngestSummary`.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import functools
+import os
+import time
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from surfidx._errors import InputError, SurfidxError
+from surfidx._validate import check_positive_int
+
+__all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
+           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message"]
+
+
+# ---------------------------------------------------------------------- discovery
+def discover(paths) -> list:
+    """The model files named by ``paths``, absolute, deduplicated and sorted.
+
+    Parameters
+    ----------
+    paths : sequence of str or os.PathLike
+        Files (taken as given, whatever their suffix) and folders (searched recursively for every
+        suffix in ``surfidx.io.SUPPORTED_SUFFIXES``, case-insensitively; hidden entries skipped).
+
+    Returns
+    -------
+    list of pathlib.Path
+
+    Raises
+    ------
+    InputError
+        A path does not exist, or ``paths`` is empty.
+    """
+    from surfidx.io import SUPPORTED_SUFFIXES
+
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    paths = list(paths)
+    if not paths:
+        raise InputError("give at least one model file or folder to ingest")
+    found = set()
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            for root, dirs, files in os.walk(p):
+                dirs[:] = [d for d in dirs if not d.startswith(".")]
+                for f in files:
+                    if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
+                        found.add(Path(root, f).resolve())
+        elif p.is_file():
+            found.add(p.resolve())
+        else:
+            raise InputError("no such file or folder", path=p)
+    return sorted(found)
+
+
+def _obj_needs_texture(path: Path) -> bool:
+    """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``."""
+    has_vt, mtllibs = False, []
+    with open(path, "rb") as fh:
+        for line in fh:
+            if line.startswith(b"vt "):
+                has_vt = True
+            elif line.startswith(b"mtllib "):
+                mtllibs.append(line[7:].decode("utf-8", "replace").strip())
+    if not has_vt:
+        return False
+    for lib in mtllibs:
+        mtl = path.parent / lib
+        try:
+            text = mtl.read_text(errors="replace")
+        except OSError:
+            continue
+        if any(ln.strip().split()[:1] == ["map_Kd"] for ln in text.splitlines()):
+            return False
+    return True
+
+
+def find_texture(path):
+    """The texture image of a textured OBJ whose UVs name none (like Keenan Crane's spot).
+
+    For an OBJ with texture coordinates and no ``map_Kd`` in its material libraries, the first of
+    these beside it is the texture: ``<stem>_texture.png``, ``<stem>.png``, or the only PNG of the
+    folder. Any other file gets None.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    pathlib.Path or None
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".obj" or not _obj_needs_texture(path):
+        return None
+    for name in (f"{path.stem}_texture.png", f"{path.stem}.png"):
+        if (path.parent / name).is_file():
+            return path.parent / name
+    pngs = [p for p in path.parent.iterdir() if p.suffix.lower() == ".png" and p.is_file()]
+    return pngs[0] if len(pngs) == 1 else None
+
+
+# ---------------------------------------------------------------------- tasks and outcomes
+@dataclass(frozen=True)
+class Task:
+    """One model file to process.
+
+    Attributes
+    ----------
+    path : str
+        Absolute path of the model file.
+    texture : str or None
+        Texture image found by :func:`find_texture`.
+    content_hash : str
+        SHA-256 hex of the file's bytes and then the texture's (``surfidx.pipeline.content_hash``).
+    """
+
+    path: str
+    texture: str | None
+    content_hash: str
+
+
+@dataclass
+class Outcome:
+    """What processing one task produced: a model, or an error message."""
+
+    task: Task
+    model: object = None
+    error: str | None = None
+    seconds: float = 0.0
+
+
+def error_message(exc: BaseException) -> str:
+    """The message recorded for a failure: a ``SurfidxError``'s own message, otherwise
+    ``"TypeName: message"``."""
+    if isinstance(exc, SurfidxError):
+        return str(exc)
+    text = str(exc)
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def resolve_processor(processor=None):
+    """``processor``, or :func:`surfidx.pipeline.process_model` when None (imported now).
+
+    Raises
+    ------
+    SurfidxError
+        ``surfidx.pipeline.process_model`` is not available.
+    """
+    if processor is not None:
+        return processor
+    try:
+        from surfidx.pipeline import process_model
+    except ImportError as exc:
+        raise SurfidxError(f"the model processor surfidx.pipeline.process_model is not "
+                           f"available ({exc})") from exc
+    return process_model
+
+
+def process_task(task: Task, *, processor, bits_per_surfel: float) -> Outcome:
+    """Run the processor on one task, catching its errors (the per-model function of every
+    executor; picklable when ``processor`` is a module-level function).
+
+    ``processor(path, bits_per_surfel=B, texture=T)`` must return a
+    ``surfidx.pipeline.ProcessedModel``; its ``content_hash`` is set to the task's so that a re-run
+    recognises the model. ``KeyboardInterrupt`` and ``SystemExit`` propagate.
+    """
+    t0 = time.perf_counter()
+    try:
+        model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture)
+        model.content_hash = task.content_hash
+        return Outcome(task, model=model, seconds=time.perf_counter() - t0)
+    except Exception as exc:
+        return Outcome(task, error=error_message(exc), seconds=time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------- executors
+def serial(fn, tasks):
+    """The in-process executor: yield ``fn(task)`` for each task in order."""
+    for task in tasks:
+        yield fn(task)
+
+
+class ProcessPool:
+    """A process-pool executor (``concurrent.futures.ProcessPoolExecutor``) that survives crashes.
+
+    Calling it, ``pool(fn, tasks)``, yields ``fn(task)`` for every task in completion order,
+    keeping at most ``2 * workers`` tasks in flight. When a worker process dies
+    (``BrokenProcessPool``), the tasks that were in flight are re-run one at a time in a fresh
+    single-worker pool so that the culprit is identified: it yields an :class:`Outcome` with the
+    error ``"worker process crashed (...)"``, the innocent ones their normal results; then the
+    main pool is restarted and the run continues.
+
+    Parameters
+    ----------
+    workers : int
+    """
+
+    def __init__(self, workers: int):
+        self.workers = check_positive_int(workers, "workers")
+        self._pool = None
+
+    def _new_pool(self, n):
+        return cf.ProcessPoolExecutor(max_workers=n)
+
+    def shutdown(self):
+        """Stop the workers, cancelling queued tasks."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def __call__(self, fn, tasks):
+        pending = list(tasks)[::-1]
+        try:
+            while pending:
+                self._pool = self._new_pool(self.workers)
+                in_flight = {}
+                broken = []
+                while pending or in_flight:
+                    while pending and len(in_flight) < 2 * self.workers and not broken:
+                        task = pending.pop()
+                        try:
+                            in_flight[self._pool.submit(fn, task)] = task
+                        except BrokenProcessPool:
+                            broken.append(task)
+                    if not in_flight:
+                        break
+                    done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+                    for fut in done:
+                        task = in_flight.pop(fut)
+                        try:
+                            yield fut.result()
+                        except BrokenProcessPool:
+                            broken.append(task)
+                    if broken:
+                        # Every remaining future fails as well; collect them.
+                        for fut, task in list(in_flight.items()):
+                            try:
+                                res = fut.result()
+                            except BrokenProcessPool:
+                                broken.append(task)
+                            else:
+                                yield res
+                        in_flight.clear()
+                        break
+                self.shutdown()
+                for task in broken:
+                    yield self._isolated(fn, task)
+        finally:
+            self.shutdown()
+
+    def _isolated(self, fn, task):
+        pool = self._new_pool(1)
+        try:
+            return pool.submit(fn, task).result()
+        except BrokenProcessPool as exc:
+            return Outcome(task, error=f"worker process crashed (BrokenProcessPool: {exc})")
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+# ---------------------------------------------------------------------- run
+@dataclass
+class IngestSummary:
+    """The outcome of an ingest run.
+
+    Attributes
+    ----------
+    run_id : int
+    stored, skipped, failed : int
+    ids : list of int
+        Ids of the models stored by this run.
+    errors : list of (str, str)
+        ``(path, message)`` of every failed file.
+    seconds : float
+    status : str
+        ``"finished"`` or ``"interrupted"``.
+    """
+
+    run_id: int
+    stored: int = 0
+    skipped: int = 0
+    failed: int = 0
+    ids: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    seconds: float = 0.0
+    status: str = "finished"
+
+    def __str__(self):
+        return (f"run {self.run_id}: stored {self.stored}, skipped {self.skipped}, "
+                f"failed {self.failed} in {self.seconds:.1f} s")
+
+
+def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) -> list:
+    """Hash the files (with their textures) and make a :class:`Task` for each new one.
+
+    Parameters
+    ----------
+    files : sequence of pathlib.Path
+    known_hashes : set of str
+        Hashes already stored: those files are skipped.
+    on_error : callable, optional
+        ``on_error(path, message)`` for files that cannot be read.
+    on_skip : callable, optional
+        ``on_skip(path)`` for files already stored or repeated in ``files``.
+
+    Returns
+    -------
+    list of Task
+    """
+    from surfidx.pipeline import content_hash
+
+    seen = set(known_hashes)
+    tasks = []
+    for f in files:
+        try:
+            tex = find_texture(f)
+            h = content_hash(f, texture=tex)
+        except OSError as exc:
+            if on_error is not None:
+                on_error(f, f"cannot read ({exc.strerror or exc})")
+            continue
+        if h in seen:
+            if on_skip is not None:
+                on_skip(f)
+            continue
+        seen.add(h)
+        tasks.append(Task(str(f), None if tex is None else str(tex), h))
+    return tasks
+
+
+def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
+        progress: bool = True, executor=None, batch: int = 8,
+        flush_seconds: float = 2.0) -> IngestSummary:
+    """Ingest model files and folders into a database, skipping models already stored.
+
+    Parameters
+    ----------
+    paths : sequence of str or os.PathLike
+        Model files and folders (see :func:`discover`).
+    db : surfidx.database.Database or str or os.PathLike
+        An open database, or the path of one (created when missing).
+    workers : int
+        Worker processes; ``1`` processes in this process.
+    bits_per_surfel : float
+        Coding rate passed to the processor.
+    processor : callable, optional
+        ``processor(path, *, bits_per_surfel, texture) -> ProcessedModel``; default
+        ``surfidx.pipeline.process_model``. With ``workers > 1`` it must be picklable (a
+        module-level function).
+    progress : bool
+        Show a tqdm progress bar (rate, ETA) on stderr.
+    executor : callable, optional
+        ``executor(fn, tasks)`` yielding ``fn(task)`` per task as they complete; default
+        :func:`serial` for one worker, else :class:`ProcessPool` ``(workers)``.
+    batch : int
+        Models per write transaction.
+    flush_seconds : float
+        Longest time a finished model waits before it is written.
+
+    Returns
+    -------
+    IngestSummary
+
+    Raises
+    ------
+    InputError
+        A path does not exist, or bad ``workers``/``bits_per_surfel``/``batch``.
+    DatabaseError
+        The database cannot be opened or written.
+
+    Notes
+    -----
+    ``KeyboardInterrupt`` writes the models finished so far, marks the run ``interrupted`` and
+    propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
+    committed is whole.
+    """
+    from surfidx.database import Database
+
+    workers = check_positive_int(workers, "workers")
+    batch = check_positive_int(batch, "batch")
+    bits_per_surfel = float(bits_per_surfel)
+    if not bits_per_surfel > 0:
+        raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
+    files = discover(paths)
+    processor = resolve_processor(processor)
+    if not isinstance(db, Database):
+        with Database(db) as opened:
+            return run(paths, db=opened, workers=workers, bits_per_surfel=bits_per_surfel,
+                       processor=processor, progress=progress, executor=executor, batch=batch,
+                       flush_seconds=flush_seconds)
+
+    t_start = time.perf_counter()
+    summary = IngestSummary(run_id=db.start_run([str(p) for p in paths], workers=workers,
+                                                bits_per_surfel=bits_per_surfel))
+    pending_errors = []
+
+    def fail(path, message):
+        summary.failed += 1
+        summary.errors.append((str(path), message))
+        pending_errors.append((str(path), message))
+
+    def skip(_path):
+        summary.skipped += 1
+
+    buffer = []
+    last_flush = time.monotonic()
+
+    def flush():
+        nonlocal last_flush
+        with db.transaction():
+            for outcome in buffer:
+                if db.has_hash(outcome.task.content_hash):     # stored meanwhile by another run
+                    summary.skipped += 1
+                    continue
+                try:
+                    summary.ids.append(db.add(outcome.model))
+                    summary.stored += 1
+                except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
+                    fail(outcome.task.path, error_message(exc))
+            for path, message in pending_errors:
+                db.record_error(summary.run_id, path, message)
+            db.update_run(summary.run_id, stored=summary.stored, skipped=summary.skipped,
+                          failed=summary.failed)
+        buffer.clear()
+        pending_errors.clear()
+        last_flush = time.monotonic()
+
+    bar = None
+    status = "failed"
+    try:
+        tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip)
+        flush()
+        if executor is None:
+            executor = serial if workers == 1 else ProcessPool(workers)
+        fn = functools.partial(process_task, processor=processor,
+                               bits_per_surfel=bits_per_surfel)
+        if progress and tasks:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(tasks), unit="model", desc="ingest", dynamic_ncols=True)
+        results = executor(fn, tasks)
+        try:
+            for outcome in results:
+                if outcome.error is not None:
+                    fail(outcome.task.path, outcome.error)
+                else:
+                    buffer.append(outcome)
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(stored=summary.stored + len(buffer), failed=summary.failed,
+                                    refresh=False)
+                if len(buffer) >= batch or time.monotonic() - last_flush >= flush_seconds:
+                    flush()
+        finally:
+            close = getattr(results, "close", None)
+            if close is not None:
+                close()
+        flush()
+        status = "finished"
+    except KeyboardInterrupt:
+        status = "interrupted"
+        try:
+            flush()
+        except BaseException:  # pragma: no cover - second interrupt while writing
+            pass
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        summary.status = status
+        summary.seconds = time.perf_counter() - t_start
+        try:
+            db.finish_run(summary.run_id, stored=summary.stored, skipped=summary.skipped,
+                          failed=summary.failed, status=status)
+        except BaseException:  # pragma: no cover - database gone while unwinding
+            if status == "finished":
+                raise
+    return summary

@@ -1,0 +1,340 @@
+"""ingest: discovery, texture pairing, skipping, failures, crashes, interruption and resuming."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ingest
+from surfidx import DatabaseError, InputError, SurfidxError
+from surfidx.database import Database
+from surfidx.pipeline import ProcessedModel, content_hash
+
+from test_database import tiny_png
+
+TESTS = Path(__file__).resolve().parent
+_PYTEST_PID = os.getpid()
+
+
+# ---------------------------------------------------------------------- processor doubles
+def fake_processor(path, *, bits_per_surfel=8.0, texture=None, samples=None, level=None):
+    """A deterministic stand-in for surfidx.pipeline.process_model, driven by the file's text.
+
+    ``FAIL`` raises InputError, ``BOOM`` RuntimeError, ``CRASH`` kills the worker process,
+    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s; ``color`` (or a texture)
+    gives colour. Descriptors, stream and thumbnail derive from the content hash.
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    if b"FAIL" in data:
+        raise InputError("deliberately unusable model", path=path)
+    if b"BOOM" in data:
+        raise RuntimeError("kaboom")
+    if b"CRASH" in data:
+        if os.getpid() == _PYTEST_PID:           # never end the test process itself
+            raise RuntimeError("CRASH double called in-process")
+        os._exit(3)
+    if b"INTERRUPT" in data:
+        raise KeyboardInterrupt
+    if b"SLOW" in data:
+        time.sleep(0.3)
+    h = content_hash(path, texture=texture)
+    seed = int(h[:8], 16)
+    rng = np.random.default_rng(seed)
+    color = texture is not None or b"color" in data
+    desc = {"shape": rng.standard_normal(12).astype(np.float32)}
+    if color:
+        desc["texture"] = rng.standard_normal(6).astype(np.float32)
+    stream = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()
+    n = 100 + seed % 1000
+    return ProcessedModel(
+        name=path.stem, source=str(path.resolve()), content_hash=h, n_surfels=n,
+        has_color=color, bbox=np.array([[0.0, 0, 0], [1, 1, 1]]), stream=stream,
+        format_version=1, rate=8.0 * len(stream) / n,
+        quality={"psnr_d1": 50.0, "psnr_d2": 60.0, "psnr_y": 30.0 if color else None},
+        descriptors=desc, thumbnail=tiny_png(seed), params={"bits_per_surfel": bits_per_surfel,
+                                                            "texture": texture},
+        timings={})
+
+
+def make_tree(root: Path, n: int = 6, *, extra: dict | None = None) -> Path:
+    """A folder of ``n`` small model files (.ply/.obj/.off, nested), plus ``extra`` name->text."""
+    root.mkdir(parents=True, exist_ok=True)
+    suffixes = [".ply", ".obj", ".off"]
+    for i in range(n):
+        sub = root / ("sub" if i % 2 else "")
+        sub.mkdir(exist_ok=True)
+        (sub / f"m{i}{suffixes[i % 3]}").write_text(f"model {i}\n" + ("color\n" if i % 2 else ""))
+    (root / "notes.txt").write_text("not a model")
+    (root / ".hidden.ply").write_text("hidden")
+    for name, text in (extra or {}).items():
+        (root / name).write_text(text)
+    return root
+
+
+def count_rows(path):
+    with Database(path) as d:
+        return {t: d.db[t].count for t in ("models", "assets", "descriptors", "thumbnails")}
+
+
+# ---------------------------------------------------------------------- discovery
+def test_discover(tmp_path):
+    root = make_tree(tmp_path / "data", 4)
+    explicit = tmp_path / "x.weird"
+    explicit.write_text("model x")
+    found = ingest.discover([root, explicit, root / "m0.ply"])
+    assert found == sorted(found)
+    names = [p.name for p in found]
+    assert sorted(names) == ["m0.ply", "m1.obj", "m2.off", "m3.ply", "x.weird"]
+    assert all(p.is_absolute() for p in found)
+    with pytest.raises(InputError, match=r"missing\.ply: no such file or folder"):
+        ingest.discover([root, tmp_path / "missing.ply"])
+    with pytest.raises(InputError, match="at least one model file or folder"):
+        ingest.discover([])
+
+
+def test_find_texture(tmp_path):
+    obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+    a = tmp_path / "a"
+    a.mkdir()
+    (a / "cow.obj").write_text(obj)
+    assert ingest.find_texture(a / "cow.obj") is None                 # no PNG
+    (a / "single.png").write_bytes(tiny_png())
+    assert ingest.find_texture(a / "cow.obj") == a / "single.png"     # the only PNG
+    (a / "other.png").write_bytes(tiny_png(1))
+    assert ingest.find_texture(a / "cow.obj") is None                 # ambiguous
+    (a / "cow.png").write_bytes(tiny_png(2))
+    assert ingest.find_texture(a / "cow.obj") == a / "cow.png"
+    (a / "cow_texture.png").write_bytes(tiny_png(3))
+    assert ingest.find_texture(a / "cow.obj") == a / "cow_texture.png"
+    (a / "plain.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")  # no UVs
+    assert ingest.find_texture(a / "plain.obj") is None
+    (a / "named.obj").write_text("mtllib named.mtl\n" + obj)
+    (a / "named.mtl").write_text("newmtl m\nmap_Kd cow.png\n")
+    assert ingest.find_texture(a / "named.obj") is None               # the MTL names one
+    (a / "m.ply").write_text("ply")
+    assert ingest.find_texture(a / "m.ply") is None
+
+
+def test_spot_example_gets_its_texture():
+    spot = TESTS.parent / "examples" / "models" / "spot" / "spot_triangulated.obj"
+    tex = ingest.find_texture(spot)
+    assert tex is not None and tex.name == "spot_texture.png"
+    task, = ingest.make_tasks([spot])
+    assert task.texture == str(tex)
+    assert task.content_hash == content_hash(spot, texture=tex) != content_hash(spot)
+
+
+def test_texture_bytes_change_the_hash(tmp_path, monkeypatch):
+    (tmp_path / "cow.obj").write_text("v 0 0 0\nvt 0 0\nf 1/1 1/1 1/1\n")
+    (tmp_path / "cow.png").write_bytes(tiny_png(1))
+    db = tmp_path / "t.db"
+    s1 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False)
+    assert s1.stored == 1
+    with Database(db) as d:
+        m = d.get_model("cow")
+        assert m["has_color"] and m["params"]["texture"] == str(tmp_path / "cow.png")
+    (tmp_path / "cow.png").write_bytes(tiny_png(2))                  # new texture: new model
+    s2 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False)
+    assert (s2.stored, s2.skipped) == (1, 0)
+
+
+# ---------------------------------------------------------------------- runs
+def test_ingest_folder_counts_failures_and_rerun(tmp_path):
+    root = make_tree(tmp_path / "data", 6, extra={"bad.ply": "FAIL", "boom.obj": "BOOM",
+                                                   "zdup.ply": "model 0\n"})
+    db = tmp_path / "s.db"
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False, batch=3)
+    # zdup.ply has m0.ply's bytes: skipped as a duplicate within the run
+    assert (s.stored, s.skipped, s.failed, s.status) == (6, 1, 2, "finished")
+    errors = dict(s.errors)
+    assert errors[str(root / "bad.ply")] == f"{root / 'bad.ply'}: deliberately unusable model"
+    assert errors[str(root / "boom.obj")] == "RuntimeError: kaboom"
+    with Database(db) as d:
+        assert sorted(m["name"] for m in d.list_models()) == [f"m{i}" for i in range(6)]
+        run = d.last_run()
+        assert (run["stored"], run["skipped"], run["failed"], run["status"]) == (6, 1, 2,
+                                                                                  "finished")
+        assert {e["path"]: e["error"] for e in d.errors(run["id"])} == errors
+        assert sorted(s.ids) == [m["id"] for m in d.list_models()]
+    again = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    assert (again.stored, again.skipped, again.failed) == (0, 7, 2)
+    assert count_rows(db)["models"] == 6
+
+
+def test_stored_model_hash_is_the_task_hash(tmp_path):
+    def other_hash(path, **kw):
+        m = fake_processor(path, **kw)
+        m.content_hash = "something else"
+        return m
+
+    (tmp_path / "a.ply").write_text("model a")
+    db = tmp_path / "h.db"
+    ingest.run([tmp_path], db=db, processor=other_hash, progress=False)
+    assert ingest.run([tmp_path], db=db, processor=other_hash, progress=False).skipped == 1
+
+
+def test_parallel_workers_and_crash(tmp_path):
+    root = make_tree(tmp_path / "data", 5, extra={"crash.ply": "CRASH", "bad.off": "FAIL"})
+    db = tmp_path / "p.db"
+    s = ingest.run([root], db=db, workers=2, processor=fake_processor, progress=False)
+    assert (s.stored, s.skipped, s.failed) == (5, 0, 2)
+    errors = dict(s.errors)
+    assert errors[str(root / "crash.ply")].startswith("worker process crashed (BrokenProcessPool")
+    assert "deliberately unusable" in errors[str(root / "bad.off")]
+    # Same records as a serial run (without the crasher: it would end this very process).
+    (root / "crash.ply").unlink()
+    serial_db = tmp_path / "serial.db"
+    ingest.run([root], db=serial_db, workers=1, processor=fake_processor, progress=False)
+    with Database(db) as a, Database(serial_db) as b:
+        key = lambda d: sorted((m["name"], m["content_hash"]) for m in d.list_models())  # noqa
+        assert key(a) == key(b)
+
+
+def test_custom_executor(tmp_path):
+    make_tree(tmp_path / "data", 3)
+    calls = []
+
+    def executor(fn, tasks):
+        calls.append(len(tasks))
+        for task in reversed(tasks):
+            yield fn(task)
+
+    s = ingest.run([tmp_path / "data"], db=tmp_path / "e.db", processor=fake_processor,
+                   executor=executor, progress=False)
+    assert s.stored == 3 and calls == [3]
+
+
+def test_keyboard_interrupt_then_resume(tmp_path):
+    root = make_tree(tmp_path / "data", 6, extra={"m2z.off": "INTERRUPT"})
+    db = tmp_path / "i.db"
+    with pytest.raises(KeyboardInterrupt):
+        ingest.run([root], db=db, processor=fake_processor, progress=False, batch=100)
+    with Database(db) as d:
+        run = d.last_run()
+        assert run["status"] == "interrupted"
+        done = {m["name"] for m in d.list_models()}
+    assert done == {"m0", "m2"}              # finished before the interrupt, written on the way out
+    rows = count_rows(db)
+    assert rows["models"] == rows["assets"] == rows["thumbnails"] == 2
+    (root / "m2z.off").write_text("model fixed")
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    assert (s.stored, s.skipped, s.failed) == (5, 2, 0)
+    with Database(db) as d:
+        names = [m["name"] for m in d.list_models()]
+    assert sorted(names) == sorted(set(names)) == sorted([f"m{i}" for i in range(6)] + ["m2z"])
+
+
+_KILL_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+import ingest, test_ingest
+ingest.run([{root!r}], db={db!r}, processor=test_ingest.fake_processor, progress=False,
+           batch=1)
+"""
+
+
+def test_sigkill_mid_run_then_resume(tmp_path):
+    root = tmp_path / "data"
+    root.mkdir()
+    for i in range(12):
+        (root / f"s{i:02d}.ply").write_text(f"model {i} SLOW")
+    db = tmp_path / "k.db"
+    script = _KILL_SCRIPT.format(tests=str(TESTS), root=str(root), db=str(db))
+    proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    try:
+        while time.monotonic() < deadline:
+            time.sleep(0.2)
+            if db.exists():
+                try:
+                    with Database(db, create=False) as d:
+                        if d.count() >= 3:
+                            break
+                except DatabaseError:
+                    pass
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    rows = count_rows(db)
+    assert 3 <= rows["models"] < 12
+    assert rows["models"] == rows["assets"] == rows["thumbnails"]
+    assert rows["descriptors"] == rows["models"]
+    with Database(db) as d:
+        assert d.last_run()["status"] == "running"           # killed: never finished
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    assert s.skipped == rows["models"] and s.stored == 12 - rows["models"] and s.failed == 0
+    with Database(db) as d:
+        names = [m["name"] for m in d.list_models()]
+    assert sorted(names) == [f"s{i:02d}" for i in range(12)]
+
+
+def test_progress_bar_goes_to_stderr(tmp_path, capsys):
+    make_tree(tmp_path / "data", 2)
+    ingest.run([tmp_path / "data"], db=tmp_path / "b.db", processor=fake_processor,
+               progress=True)
+    out, err = capsys.readouterr()
+    assert out == "" and "ingest" in err and "2/2" in err
+
+
+def test_run_argument_errors(tmp_path):
+    make_tree(tmp_path / "data", 1)
+    kw = dict(db=tmp_path / "x.db", processor=fake_processor, progress=False)
+    with pytest.raises(InputError, match="workers must be at least 1"):
+        ingest.run([tmp_path / "data"], workers=0, **kw)
+    with pytest.raises(InputError, match="bits_per_surfel must be positive"):
+        ingest.run([tmp_path / "data"], bits_per_surfel=0, **kw)
+    with pytest.raises(InputError, match="batch must be at least 1"):
+        ingest.run([tmp_path / "data"], batch=0, **kw)
+    with pytest.raises(InputError, match="no such file or folder"):
+        ingest.run([tmp_path / "nothing"], **kw)
+
+
+def test_default_processor_is_resolved_lazily(monkeypatch):
+    import surfidx.pipeline as pipeline
+
+    sentinel = object()
+    monkeypatch.setattr(pipeline, "process_model", sentinel, raising=False)
+    assert ingest.resolve_processor(None) is sentinel
+    assert ingest.resolve_processor(fake_processor) is fake_processor
+    monkeypatch.delattr(pipeline, "process_model")
+    with pytest.raises(SurfidxError, match="process_model is not available"):
+        ingest.resolve_processor(None)
+
+
+def test_error_message():
+    assert ingest.error_message(InputError("bad", path="a.ply")) == "a.ply: bad"
+    assert ingest.error_message(ValueError("nope")) == "ValueError: nope"
+    assert ingest.error_message(MemoryError()) == "MemoryError"
+
+
+def test_unreadable_file_is_recorded(tmp_path):
+    (tmp_path / "ok.ply").write_text("model ok")
+    locked = tmp_path / "locked.ply"
+    locked.write_text("model locked")
+    locked.chmod(0)
+    try:
+        if os.access(locked, os.R_OK):
+            pytest.skip("running as a user who can read anything")
+        s = ingest.run([tmp_path], db=tmp_path / "u.db", processor=fake_processor,
+                       progress=False)
+    finally:
+        locked.chmod(0o644)
+    assert (s.stored, s.failed) == (1, 1)
+    assert s.errors[0][1].startswith("cannot read (Permission denied")
+
+
+def test_sha_of_hash_matches_pipeline(tmp_path):
+    f = tmp_path / "a.ply"
+    f.write_bytes(b"abc")
+    task, = ingest.make_tasks([f])
+    assert task.content_hash == hashlib.sha256(b"abc").hexdigest()
