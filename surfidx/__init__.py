@@ -25,3 +25,15 @@ __all__ = [
     "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
     "Icosphere", "icosphere", "choose_level", "KLT",
 ]
+
+# The SQLite store is imported on first use (sqlite-utils costs ~0.5 s to import).
+_LAZY = {"Database": "database", "SearchIndex": "search"}
+__all__ += list(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

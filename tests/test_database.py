@@ -511,3 +511,13 @@ def test_search_errors_and_empty(db):
     ids, dist = search(d2, make_model(2, color=True).descriptors)
     assert ids.tolist() == [1]
     d2.close()
+
+
+def test_package_exports_lazily():
+    code = ("import sys, surfidx; assert 'sqlite_utils' not in sys.modules; "
+            "from surfidx import Database, SearchIndex; "
+            "assert Database.__module__ == 'surfidx.database'; "
+            "assert SearchIndex.__module__ == 'surfidx.search'")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+    with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
+        surfidx.nothing_here

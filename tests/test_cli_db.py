@@ -1,0 +1,224 @@
+"""The database commands: ingest, query, get, ls, show, errors (click.testing.CliRunner)."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from surfidx import SurfelSet, read_surfels
+from surfidx.cli import cli
+from surfidx.cli._db import parse_model_ref
+from surfidx.database import Database
+
+from test_ingest import fake_processor, make_tree
+
+DECODED = []
+
+
+def fake_decode(stream: bytes, *, bits_per_surfel=None) -> SurfelSet:
+    """A stand-in for surfidx.codec.decode: a surfel set built from the stream's bytes; a lower
+    rate keeps a prefix (one surfel per 4 bytes, at least 3)."""
+    DECODED.append((len(stream), bits_per_surfel))
+    data = np.frombuffer(stream, np.uint8).astype(np.float64)
+    n = len(data) // 4 if bits_per_surfel is None else max(3, int(bits_per_surfel))
+    n = min(n, len(data) // 4)
+    pos = data[: 3 * n].reshape(n, 3)
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return SurfelSet(pos, normals, np.full(n, 0.5), name="decoded")
+
+
+OBJ = {"processor": fake_processor, "decoder": fake_decode}
+
+
+def invoke(args, obj=OBJ):
+    return CliRunner().invoke(cli, [str(a) for a in args], obj=obj)
+
+
+@pytest.fixture
+def filled(tmp_path):
+    """A database holding the 6 models of make_tree (one failing file recorded)."""
+    root = make_tree(tmp_path / "data", 6, extra={"bad.ply": "FAIL"})
+    db = tmp_path / "s.db"
+    r = invoke(["ingest", root, "--db", db, "--no-progress"])
+    assert r.exit_code == 0, r.output
+    return root, db
+
+
+def test_ingest_summary_and_rerun(filled, tmp_path):
+    root, db = filled
+    r = invoke(["ingest", root, "--db", db, "--workers", 2, "--json", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert (out["stored"], out["skipped"], out["failed"]) == (0, 6, 1)
+    assert out["errors"][0]["error"].endswith("deliberately unusable model")
+    r = invoke(["ingest", root / "m0.ply", "--db", tmp_path / "new.db", "--no-progress"])
+    assert r.exit_code == 0 and "stored 1, skipped 0, failed 0" in r.stdout
+
+
+def test_ingest_prints_failures(tmp_path):
+    root = make_tree(tmp_path / "data", 1, extra={"bad.ply": "FAIL"})
+    r = invoke(["ingest", root, "--db", tmp_path / "x.db", "--no-progress"])
+    assert r.exit_code == 0
+    assert f"failed: {root / 'bad.ply'}: deliberately unusable model" in r.stderr
+    assert "stored 1, skipped 0, failed 1" in r.stdout
+
+
+def test_query_by_file_returns_example_first(filled, tmp_path):
+    root, db = filled
+    r = invoke(["query", root / "sub" / "m3.ply", "--db", db, "-k", 3, "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert list(out) == ["results"] and len(out["results"]) == 3
+    first = out["results"][0]
+    assert set(first) == {"id", "name", "source", "distance"}
+    assert (first["name"], first["distance"]) == ("m3", pytest.approx(0.0, abs=1e-6))
+    assert isinstance(first["id"], int) and isinstance(first["distance"], float)
+    assert first["source"] == str(root / "sub" / "m3.ply")
+    d = [x["distance"] for x in out["results"]]
+    assert d == sorted(d)
+    with Database(db) as database:                    # the example was not stored
+        assert database.count() == 6
+
+
+def test_query_by_id_table_and_weights(filled):
+    _, db = filled
+    r = invoke(["query", "id:4", "--db", db, "-k", 10])          # m1, coloured
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert lines[0].split() == ["rank", "id", "name", "distance", "source"]
+    assert lines[1].split()[:3] == ["1", "4", "m1"] and len(lines) == 7
+    shape_only = json.loads(invoke(["query", "id:4", "--db", db, "--json",
+                                    "--shape-weight", 1]).stdout)["results"]
+    tex_heavy = json.loads(invoke(["query", "id:4", "--db", db, "--json",
+                                   "--shape-weight", 0]).stdout)["results"]
+    assert shape_only[0]["id"] == tex_heavy[0]["id"] == 4
+    assert [x["distance"] for x in shape_only] != [x["distance"] for x in tex_heavy]
+
+
+def test_query_sheet(filled, tmp_path):
+    _, db = filled
+    out = tmp_path / "sheet.png"
+    r = invoke(["query", "id:1", "--db", db, "-k", 4, "--sheet", out])
+    assert r.exit_code == 0, r.output
+    im = Image.open(out)
+    assert im.size == (5 * 160, 190)
+    # The query tile holds the stored thumbnail's solid colour.
+    with Database(db) as d:
+        import io
+        colour = Image.open(io.BytesIO(d.get_thumbnail(1))).convert("RGB").getpixel((0, 0))
+    assert im.convert("RGB").getpixel((80, 80)) == colour
+
+
+def test_get_writes_ply_at_rate(filled, tmp_path):
+    _, db = filled
+    DECODED.clear()
+    out = tmp_path / "m.ply"
+    r = invoke(["get", "m4", "--db", db, "-o", out])
+    assert r.exit_code == 0, r.output
+    assert len(read_surfels(out)) == 16 and DECODED[-1] == (64, None)
+    r = invoke(["get", "id:1", "--db", db, "-o", out, "--bits-per-surfel", 5])
+    assert r.exit_code == 0 and "5 surfels of model 1 (m0) at 5 bits/surfel" in r.stdout
+    assert len(read_surfels(out)) == 5 and DECODED[-1] == (64, 5.0)
+
+
+def test_ls_show_errors(filled):
+    root, db = filled
+    r = invoke(["ls", "--db", db, "--json"])
+    models = json.loads(r.stdout)["models"]
+    assert [m["name"] for m in models] == ["m0", "m2", "m4", "m1", "m3", "m5"]
+    r = invoke(["ls", "--db", db])
+    assert r.exit_code == 0 and r.stdout.splitlines()[0].startswith("id")
+    assert len(r.stdout.splitlines()) == 7
+    r = invoke(["show", "m1", "--db", db, "--json"])
+    out = json.loads(r.stdout)
+    assert out["model"]["name"] == "m1" and out["model"]["has_color"] is True
+    assert out["model"]["descriptors"] == {"shape": 12, "texture": 6}
+    assert out["model"]["asset"]["bytes"] == 64 and out["model"]["bbox_max"] == [1, 1, 1]
+    assert out["last_run"]["failed"] == 1
+    assert out["last_run"]["errors"][0]["path"] == str(root / "bad.ply")
+    r = invoke(["show", "4", "--db", db])
+    assert r.exit_code == 0 and "descriptors      shape (12), texture (6)" in r.stdout
+    assert "deliberately unusable model" in r.stdout
+    for args in (["errors"], ["ls", "--errors"]):
+        r = invoke(args + ["--db", db])
+        assert r.exit_code == 0 and "bad.ply" in r.stdout and "deliberately" in r.stdout
+    errs = json.loads(invoke(["errors", "--db", db, "--json", "--run", 1]).stdout)["errors"]
+    assert len(errs) == 1 and errs[0]["run_id"] == 1
+    r = invoke(["errors", "--db", db, "--run", 1])
+    assert r.exit_code == 0
+
+
+def test_no_errors_and_empty_db(tmp_path):
+    root = make_tree(tmp_path / "d", 1)
+    db = tmp_path / "e.db"
+    invoke(["ingest", root, "--db", db, "--no-progress"])
+    r = invoke(["errors", "--db", db])
+    assert r.exit_code == 0 and r.stdout.strip() == "no ingest failures"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["query", "id:1"], "nothing.db: no such database"),
+    (["get", "1", "-o", "x.ply"], "nothing.db: no such database"),
+    (["ls"], "nothing.db: no such database"),
+])
+def test_missing_database(tmp_path, args, message):
+    db = tmp_path / "nothing.db"
+    r = invoke(args + ["--db", db])
+    assert r.exit_code == 1 and message in r.output
+    assert r.output.startswith("Error: ") and len(r.output.strip().splitlines()) == 1
+    assert not db.exists()
+
+
+def test_cli_errors(filled, tmp_path):
+    root, db = filled
+    cases = [
+        (["get", "99", "-o", tmp_path / "x.ply"], "no model with id 99"),
+        (["get", "nobody", "-o", tmp_path / "x.ply"], "no model named 'nobody'"),
+        (["show", "id:77"], "no model with id 77"),
+        (["query", "id:x"], "'id:x' is not a model id"),
+        (["query", tmp_path / "none.ply"], "none.ply: no such model file"),
+        (["errors", "--run", 9], "no ingest run with id 9"),
+    ]
+    for args, message in cases:
+        r = invoke(args + ["--db", db])
+        assert r.exit_code == 1, (args, r.output)
+        assert r.output.startswith("Error: ") and message in r.output, r.output
+    r = invoke(["ingest", tmp_path / "missing", "--db", db])
+    assert r.exit_code == 1 and "missing: no such file or folder" in r.output
+
+
+def test_foreign_database_cli(tmp_path):
+    path = tmp_path / "shop.db"
+    conn = sqlite3.connect(path)
+    conn.execute("CREATE TABLE orders (id INTEGER)")
+    conn.commit()
+    conn.close()
+    for args in (["ls"], ["ingest", tmp_path]):
+        r = invoke(args + ["--db", path, "--no-progress"] if args[0] == "ingest"
+                   else args + ["--db", path])
+        assert r.exit_code == 1
+        assert r.output.startswith(f"Error: {path}: not a surfidx database")
+
+
+def test_missing_processor_and_decoder(filled, tmp_path, monkeypatch):
+    import surfidx.pipeline as pipeline
+
+    root, db = filled
+    monkeypatch.delattr(pipeline, "process_model", raising=False)
+    r = invoke(["query", root / "m0.ply", "--db", db], obj={})
+    assert r.exit_code == 1 and "process_model is not available" in r.output
+    monkeypatch.setitem(__import__("sys").modules, "surfidx.codec", None)
+    r = invoke(["get", "1", "--db", db, "-o", tmp_path / "x.ply"], obj={})
+    assert r.exit_code == 1 and "surfidx.codec.decode is not available" in r.output
+
+
+def test_parse_model_ref():
+    assert parse_model_ref("12") == 12 and parse_model_ref("id:7") == 7
+    assert parse_model_ref("bunny") == "bunny"
+    with pytest.raises(Exception, match="'id:q' is not a model id"):
+        parse_model_ref("id:q")
