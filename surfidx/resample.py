@@ -1,0 +1,262 @@
+"""Resampling mapped surfels on the icosahedral grid, and reconstruction from grid values.
+
+The layers (x, y, z and, with colour, r, g, b) are interpolated at the grid vertices with
+barycentric coordinates in the spherical Delaunay triangulation of the mapped surfels (their convex
+hull). Point location is exact: every query walks from the triangle of its nearest site across the
+edge it lies beyond (a numba kernel over all queries); a query a walk cannot settle (cycling on
+degenerate input) falls back to a scan of all triangles, so every grid vertex finds its triangle.
+
+Barycentric coordinates are those of the central (gnomonic) projection of the query onto the
+plane of its chord triangle: they are non-negative inside, sum to 1, reproduce constants exactly
+and reproduce exactly any function that is affine on each chord triangle.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ._errors import InputError
+from ._validate import as_array
+from .icosphere import icosphere
+from .mesh import TriangleMesh
+from .parameterize import _check_points, hull_triangles
+from .surfels import SurfelSet
+
+__all__ = ["locate", "resample", "grid_to_surfels", "grid_to_mesh", "layer_names"]
+
+
+def layer_names(has_color: bool) -> tuple[str, ...]:
+    """Names of the resampled layers: ``("x", "y", "z")`` plus ``("r", "g", "b")`` with colour."""
+    return ("x", "y", "z", "r", "g", "b") if has_color else ("x", "y", "z")
+
+
+@numba.njit(cache=True)
+def _bary(q, a, b, c):
+    # solve q = l0 a + l1 b + l2 c, then normalise (central projection onto the chord plane)
+    m00, m01, m02 = a[0], b[0], c[0]
+    m10, m11, m12 = a[1], b[1], c[1]
+    m20, m21, m22 = a[2], b[2], c[2]
+    det = (m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20)
+           + m02 * (m10 * m21 - m11 * m20))
+    l0 = (q[0] * (m11 * m22 - m12 * m21) - m01 * (q[1] * m22 - m12 * q[2])
+          + m02 * (q[1] * m21 - m11 * q[2])) / det
+    l1 = (m00 * (q[1] * m22 - m12 * q[2]) - q[0] * (m10 * m22 - m12 * m20)
+          + m02 * (m10 * q[2] - q[1] * m20)) / det
+    l2 = (m00 * (m11 * q[2] - q[1] * m21) - m01 * (m10 * q[2] - q[1] * m20)
+          + q[0] * (m10 * m21 - m11 * m20)) / det
+    s = l0 + l1 + l2
+    return l0 / s, l1 / s, l2 / s, s
+
+
+@numba.njit(cache=True)
+def _walk(queries, pts, tri, nbr, start, eps):
+    nq = queries.shape[0]
+    out_t = np.empty(nq, np.int64)
+    out_b = np.empty((nq, 3))
+    for k in range(nq):
+        q = queries[k]
+        t = start[k]
+        found = False
+        for _ in range(4 * tri.shape[0] + 10):
+            i0, i1, i2 = tri[t, 0], tri[t, 1], tri[t, 2]
+            l0, l1, l2, s = _bary(q, pts[i0], pts[i1], pts[i2])
+            if s > 0 and l0 >= -eps and l1 >= -eps and l2 >= -eps:
+                found = True
+                break
+            # cross the edge opposite the most negative coordinate
+            if s <= 0:
+                j = 0
+            elif l0 <= l1 and l0 <= l2:
+                j = 0
+            elif l1 <= l2:
+                j = 1
+            else:
+                j = 2
+            t = nbr[t, j]
+            if t < 0:
+                break
+        if not found:  # exhaustive fallback: the triangle with the largest smallest coordinate
+            best = -np.inf
+            for tt in range(tri.shape[0]):
+                l0, l1, l2, s = _bary(q, pts[tri[tt, 0]], pts[tri[tt, 1]], pts[tri[tt, 2]])
+                if s > 0:
+                    m = min(l0, min(l1, l2))
+                    if m > best:
+                        best = m
+                        t = tt
+        l0, l1, l2, s = _bary(q, pts[tri[t, 0]], pts[tri[t, 1]], pts[tri[t, 2]])
+        out_t[k] = t
+        out_b[k, 0] = l0
+        out_b[k, 1] = l1
+        out_b[k, 2] = l2
+    return out_t, out_b
+
+
+def _neighbors(tri: np.ndarray) -> np.ndarray:
+    """nbr[t, j]: the triangle across the edge opposite corner j of triangle t."""
+    m = len(tri)
+    n = int(tri.max()) + 1
+    a = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0]])
+    b = np.concatenate([tri[:, 2], tri[:, 0], tri[:, 1]])
+    owner = np.tile(np.arange(m), 3)
+    corner = np.repeat(np.arange(3), m)
+    key = a * n + b
+    twin = b * n + a
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], twin)
+    pos = np.minimum(pos, len(key) - 1)
+    ok = key[order][pos] == twin
+    nbr = np.full((m, 3), -1, np.int64)
+    nbr[owner[ok], corner[ok]] = owner[order][pos[ok]]
+    return nbr
+
+
+def locate(sphere_points, queries, *, triangles=None):
+    """Exact point location in the spherical Delaunay triangulation.
+
+    Parameters
+    ----------
+    sphere_points : (n, 3) float64
+        Unit vectors (the sites).
+    queries : (q, 3) float64
+        Unit vectors to locate.
+    triangles : (m, 3) int64, optional
+        Counter-clockwise triangulation of the sites (default: their convex hull).
+
+    Returns
+    -------
+    triangles : (m, 3) int64
+        The triangulation used.
+    index : (q,) int64
+        Triangle of each query.
+    bary : (q, 3) float64
+        Barycentric coordinates (≥ −1e-12 up to round-off, summing to 1).
+    """
+    from scipy.spatial import cKDTree
+
+    pts = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=4)
+    qs = as_array(queries, "queries", shape=(None, 3))
+    tri = hull_triangles(pts) if triangles is None else as_array(
+        triangles, "triangles", dtype=np.int64, shape=(None, 3))
+    nbr = _neighbors(tri)
+    # a triangle incident to every site
+    inc = np.full(len(pts), -1, np.int64)
+    inc[tri.ravel()] = np.repeat(np.arange(len(tri)), 3)
+    _, near = cKDTree(pts).query(qs)
+    start = inc[near]
+    start[start < 0] = 0
+    idx, bary = _walk(qs, pts, tri, nbr, start, 1e-12)
+    return tri, idx, bary
+
+
+def resample(surfels: SurfelSet, sphere_points, level: int) -> np.ndarray:
+    """The surfel layers at the vertices of the level-``level`` icosahedral grid.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+    sphere_points : (n, 3) float64
+        The surfels' positions on the unit sphere (:func:`surfidx.parameterize.parameterize`).
+    level : int
+        Grid level, 0 … :data:`surfidx.icosphere.MAX_LEVEL`.
+
+    Returns
+    -------
+    (10·4^level + 2, 3 or 6) float64
+        Columns :func:`layer_names`: x, y, z and, with colour, r, g, b in 0..255.
+    """
+    pts = _check_points(surfels, sphere_points)
+    grid = icosphere(level)
+    tri, idx, bary = locate(pts, grid.vertices)
+    layers = surfels.positions
+    if surfels.has_color:
+        layers = np.hstack([layers, surfels.colors.astype(np.float64)])
+    corners = tri[idx]
+    return np.einsum("qk,qkl->ql", bary, layers[corners])
+
+
+def _grid_level(values) -> tuple[np.ndarray, int]:
+    vals = as_array(values, "values", shape=(None, None))
+    if vals.shape[1] not in (3, 6):
+        raise InputError(f"values must have 3 (x, y, z) or 6 (x, y, z, r, g, b) columns, got "
+                         f"{vals.shape[1]}")
+    n = len(vals)
+    level = 0
+    while 10 * 4 ** level + 2 < n:
+        level += 1
+    if 10 * 4 ** level + 2 != n:
+        raise InputError(f"values must have 10·4^L + 2 rows (one per grid vertex), got {n}")
+    return vals, level
+
+
+def _colors(vals):
+    if vals.shape[1] == 6:
+        return np.clip(np.round(vals[:, 3:6]), 0, 255).astype(np.uint8)
+    return None
+
+
+def grid_to_mesh(values, *, name=None) -> TriangleMesh:
+    """Triangle mesh of grid values on the grid's faces.
+
+    Parameters
+    ----------
+    values : (10·4^L + 2, 3 or 6) float64
+        Output of :func:`resample`.
+    name : str, optional
+
+    Returns
+    -------
+    TriangleMesh
+    """
+    vals, level = _grid_level(values)
+    grid = icosphere(level)
+    return TriangleMesh(vals[:, :3], np.array(grid.faces), vertex_colors=_colors(vals), name=name)
+
+
+def grid_to_surfels(values, *, name=None) -> SurfelSet:
+    """Surfels reconstructed from grid values.
+
+    Positions are the x, y, z layers; normals the area-weighted normals of the grid surface
+    (oriented outward by the sign of the enclosed volume); radii the longest incident grid edge
+    divided by √3 (the circumradius of an equilateral triangle of that edge), so the disks cover
+    the grid surface; colours the rounded r, g, b layers.
+
+    Parameters
+    ----------
+    values : (10·4^L + 2, 3 or 6) float64
+    name : str, optional
+
+    Returns
+    -------
+    SurfelSet
+    """
+    vals, level = _grid_level(values)
+    grid = icosphere(level)
+    p = vals[:, :3]
+    f = np.asarray(grid.faces)
+    fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    vol = np.einsum("ij,ij->", p[f[:, 0]], np.cross(p[f[:, 1]], p[f[:, 2]]))
+    if vol < 0:
+        fn = -fn
+    nrm = np.zeros_like(p)
+    for k in range(3):
+        np.add.at(nrm, f[:, k], fn)
+    ln = np.linalg.norm(nrm, axis=1)
+    bad = ln <= 0
+    if bad.any():  # collapsed spots: fall back to the direction from the centroid
+        d = p[bad] - p.mean(axis=0)
+        dl = np.linalg.norm(d, axis=1)
+        d[dl <= 0] = (0.0, 0.0, 1.0)
+        nrm[bad] = d
+        ln = np.linalg.norm(nrm, axis=1)
+    nrm /= ln[:, None]
+    ptr, nb = grid.neighbor_indptr, grid.neighbor_indices
+    owner = np.repeat(np.arange(len(p)), np.diff(ptr))
+    el = np.linalg.norm(p[nb] - p[owner], axis=1)
+    rad = np.zeros(len(p))
+    np.maximum.at(rad, owner, el)
+    rad /= np.sqrt(3.0)
+    floor = max(rad.max(), 1e-300) * 1e-6
+    rad = np.maximum(rad, floor)
+    return SurfelSet(p, nrm, rad, _colors(vals), faces=f, name=name)
