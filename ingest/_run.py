@@ -9,7 +9,8 @@ Data flow of :func:`run`:
    stored (or seen earlier in the same run) are skipped, so re-running an interrupted ingest
    resumes where it stopped.
 3. The remaining :class:`Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
-   yields ``fn(task)`` for every task, in completion order. :class:`ProcessPool` runs them in
+   yields ``fn(task)`` for every task, in completion order (and may yield ``None`` as a
+   heartbeat while it waits). :class:`ProcessPool` runs them in
    worker processes (restarting the pool when a worker dies), :func:`serial` in-process; a
    dask.distributed executor only needs the same signature. ``fn`` is :func:`process_task`
    bound to the processor and rate: one picklable per-model function for every executor.
@@ -201,6 +202,13 @@ def process_task(task: Task, *, processor, bits_per_surfel: float) -> Outcome:
 
 
 # ---------------------------------------------------------------------- executors
+def _ignore_sigint():
+    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def serial(fn, tasks):
     """The in-process executor: yield ``fn(task)`` for each task in order."""
     for task in tasks:
@@ -211,28 +219,39 @@ class ProcessPool:
     """A process-pool executor (``concurrent.futures.ProcessPoolExecutor``) that survives crashes.
 
     Calling it, ``pool(fn, tasks)``, yields ``fn(task)`` for every task in completion order,
-    keeping at most ``2 * workers`` tasks in flight. When a worker process dies
+    keeping at most ``2 * workers`` tasks in flight, and ``None`` every ``heartbeat`` seconds
+    without a completion (so the caller can write finished models by time). When a worker process dies
     (``BrokenProcessPool``), the tasks that were in flight are re-run one at a time in a fresh
     single-worker pool so that the culprit is identified: it yields an :class:`Outcome` with the
     error ``"worker process crashed (...)"``, the innocent ones their normal results; then the
     main pool is restarted and the run continues.
 
+    Workers ignore SIGINT; on ``KeyboardInterrupt`` in the parent (or when the caller stops
+    iterating) running workers are terminated.
+
     Parameters
     ----------
     workers : int
+    heartbeat : float
+        Seconds between ``None`` yields while waiting.
     """
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, *, heartbeat: float = 1.0):
         self.workers = check_positive_int(workers, "workers")
+        self.heartbeat = float(heartbeat)
         self._pool = None
 
     def _new_pool(self, n):
-        return cf.ProcessPoolExecutor(max_workers=n)
+        return cf.ProcessPoolExecutor(max_workers=n, initializer=_ignore_sigint)
 
-    def shutdown(self):
-        """Stop the workers, cancelling queued tasks."""
+    def shutdown(self, *, kill: bool = False):
+        """Stop the workers, cancelling queued tasks (``kill``: terminate running ones too)."""
         if self._pool is not None:
+            procs = list((getattr(self._pool, "_processes", None) or {}).values())
             self._pool.shutdown(wait=False, cancel_futures=True)
+            if kill:
+                for proc in procs:
+                    proc.terminate()
             self._pool = None
 
     def __call__(self, fn, tasks):
@@ -251,7 +270,11 @@ class ProcessPool:
                             broken.append(task)
                     if not in_flight:
                         break
-                    done, _ = cf.wait(in_flight, return_when=cf.FIRST_COMPLETED)
+                    done, _ = cf.wait(in_flight, timeout=self.heartbeat,
+                                      return_when=cf.FIRST_COMPLETED)
+                    if not done:
+                        yield None                  # heartbeat: lets the caller flush by time
+                        continue
                     for fut in done:
                         task = in_flight.pop(fut)
                         try:
@@ -272,6 +295,9 @@ class ProcessPool:
                 self.shutdown()
                 for task in broken:
                     yield self._isolated(fn, task)
+        except (KeyboardInterrupt, GeneratorExit):
+            self.shutdown(kill=True)
+            raise
         finally:
             self.shutdown()
 
@@ -377,7 +403,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     progress : bool
         Show a tqdm progress bar (rate, ETA) on stderr.
     executor : callable, optional
-        ``executor(fn, tasks)`` yielding ``fn(task)`` per task as they complete; default
+        ``executor(fn, tasks)`` yielding ``fn(task)`` per task as they complete (and optionally
+        ``None`` as a heartbeat while waiting); default
         :func:`serial` for one worker, else :class:`ProcessPool` ``(workers)``.
     batch : int
         Models per write transaction.
@@ -468,6 +495,10 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         results = executor(fn, tasks)
         try:
             for outcome in results:
+                if outcome is None:                         # executor heartbeat
+                    if buffer and time.monotonic() - last_flush >= flush_seconds:
+                        flush()
+                    continue
                 if outcome.error is not None:
                     fail(outcome.task.path, outcome.error)
                 else:

@@ -347,6 +347,8 @@ def test_missing_file_without_create(tmp_path):
 def test_directory_and_garbage_files(tmp_path):
     with pytest.raises(DatabaseError, match="is a directory"):
         Database(tmp_path)
+    with pytest.raises(DatabaseError, match=r"no/such/dir/x\.db: cannot open"):
+        Database(tmp_path / "no" / "such" / "dir" / "x.db")
     junk = tmp_path / "junk.db"
     junk.write_bytes(b"this is not sqlite at all" * 100)
     with pytest.raises(DatabaseError, match=r"junk\.db: not an SQLite database"):

@@ -29,7 +29,7 @@ def fake_processor(path, *, bits_per_surfel=8.0, texture=None, samples=None, lev
     """A deterministic stand-in for surfidx.pipeline.process_model, driven by the file's text.
 
     ``FAIL`` raises InputError, ``BOOM`` RuntimeError, ``CRASH`` kills the worker process,
-    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s; ``color`` (or a texture)
+    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s, ``HANG`` 60 s; ``color`` (or a texture)
     gives colour. Descriptors, stream and thumbnail derive from the content hash.
     """
     path = Path(path)
@@ -46,6 +46,8 @@ def fake_processor(path, *, bits_per_surfel=8.0, texture=None, samples=None, lev
         raise KeyboardInterrupt
     if b"SLOW" in data:
         time.sleep(0.3)
+    if b"HANG" in data:
+        time.sleep(60)
     h = content_hash(path, texture=texture)
     seed = int(h[:8], 16)
     rng = np.random.default_rng(seed)
@@ -338,3 +340,39 @@ def test_sha_of_hash_matches_pipeline(tmp_path):
     f.write_bytes(b"abc")
     task, = ingest.make_tasks([f])
     assert task.content_hash == hashlib.sha256(b"abc").hexdigest()
+
+
+def test_heartbeat_flushes_by_time(tmp_path):
+    make_tree(tmp_path / "data", 2)
+    db = tmp_path / "hb.db"
+    seen = []
+
+    def executor(fn, tasks):
+        yield fn(tasks[0])
+        yield None                                   # waiting: the finished model is written
+        with Database(db) as d:
+            seen.append(d.count())
+        yield fn(tasks[1])
+
+    s = ingest.run([tmp_path / "data"], db=db, processor=fake_processor, executor=executor,
+                   progress=False, batch=100, flush_seconds=0.0)
+    assert s.stored == 2 and seen == [1]
+
+
+def test_process_pool_heartbeat_and_stop(tmp_path):
+    import functools
+
+    f = tmp_path / "hang.ply"
+    f.write_text("HANG")
+    task, = ingest.make_tasks([f])
+    pool = ingest.ProcessPool(1, heartbeat=0.05)
+    gen = pool(functools.partial(ingest.process_task, processor=fake_processor,
+                                 bits_per_surfel=8.0), [task])
+    assert next(gen) is None                         # nothing finished yet: a heartbeat
+    procs = list(pool._pool._processes.values())
+    t0 = time.monotonic()
+    gen.close()                                      # the caller stops: workers are terminated
+    for p in procs:
+        p.join(5)
+        assert not p.is_alive()
+    assert time.monotonic() - t0 < 5
