@@ -33,7 +33,7 @@ from ._errors import FileFormatError, InputError
 from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
 
-__all__ = ["VIEWS", "render", "save_png", "camera_basis"]
+__all__ = ["VIEWS", "render", "save_png", "camera_basis", "read_polyline"]
 
 #: Named views as (azimuth, elevation) in degrees.
 VIEWS = {
@@ -374,6 +374,56 @@ def save_png(image, path) -> None:
     except OSError as exc:
         tmp.unlink(missing_ok=True)
         raise FileFormatError(f"cannot write the PNG ({exc.strerror or exc})", path=path) from exc
+
+
+def read_polyline(path) -> np.ndarray:
+    """Read a polyline from a PLY whose ``vertex`` element holds ``x y z`` in path order.
+
+    Other properties and elements are ignored (``surfidx geodesic ... -o PATH.ply`` writes such
+    files; so does :func:`surfidx.write_ply` for a set of surfels in order).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    (k, 3) float64
+        The points, ``k >= 1``.
+
+    Raises
+    ------
+    FileFormatError
+        When the file is missing, not a readable PLY, or lacks vertices or ``x y z``.
+    InputError
+        When a coordinate is NaN or infinite.
+    """
+    from plyfile import PlyData
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileFormatError("no such file" if not path.exists() else "is not a file",
+                              path=path)
+    if path.suffix.lower() != ".ply":
+        raise FileFormatError("a path must be a PLY file (vertex element with x y z)", path=path)
+    try:
+        ply = PlyData.read(str(path))
+        vertex = ply["vertex"].data
+    except KeyError as exc:
+        raise FileFormatError("PLY has no 'vertex' element", path=path) from exc
+    except Exception as exc:  # plyfile raises many kinds on damaged input
+        msg = str(exc).strip() or type(exc).__name__
+        raise FileFormatError(f"not a readable PLY file ({msg}); the file may be truncated or "
+                              "corrupt", path=path) from exc
+    props = vertex.dtype.names or ()
+    missing = [a for a in "xyz" if a not in props]
+    if missing:
+        raise FileFormatError(f"PLY vertex element lacks {' '.join(missing)}; a path needs x y z",
+                              path=path)
+    if len(vertex) == 0:
+        raise FileFormatError("the path PLY has no vertices", path=path)
+    pts = np.stack([np.asarray(vertex[a], np.float64) for a in "xyz"], axis=1)
+    return as_array(pts, "path points", shape=(None, 3), path=path)
 
 
 # ---------------------------------------------------------------------- helpers
