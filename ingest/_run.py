@@ -220,8 +220,8 @@ class ProcessPool:
 
     Calling it, ``pool(fn, tasks)``, yields ``fn(task)`` for every task in completion order,
     keeping at most ``2 * workers`` tasks in flight, and ``None`` every ``heartbeat`` seconds
-    without a completion (so the caller can write finished models by time). When a worker process dies
-    (``BrokenProcessPool``), the tasks that were in flight are re-run one at a time in a fresh
+    without a completion (so the caller can write finished models by time). When a worker
+    process dies (``BrokenProcessPool``), the tasks that were in flight are re-run one at a time in a fresh
     single-worker pool so that the culprit is identified: it yields an :class:`Outcome` with the
     error ``"worker process crashed (...)"``, the innocent ones their normal results; then the
     main pool is restarted and the run continues.
@@ -309,6 +309,16 @@ class ProcessPool:
             return Outcome(task, error=f"worker process crashed (BrokenProcessPool: {exc})")
         finally:
             pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _check_picklable(processor):
+    import pickle
+
+    try:
+        pickle.dumps(processor)
+    except Exception as exc:
+        raise InputError(f"with workers > 1 the processor must be picklable (a module-level "
+                         f"function), got {processor!r} ({exc})") from exc
 
 
 # ---------------------------------------------------------------------- run
@@ -418,7 +428,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     Raises
     ------
     InputError
-        A path does not exist, or bad ``workers``/``bits_per_surfel``/``batch``.
+        A path does not exist, bad ``workers``/``bits_per_surfel``/``batch``, or a processor
+        that cannot be sent to worker processes.
     DatabaseError
         The database cannot be opened or written.
 
@@ -437,6 +448,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
     files = discover(paths)
     processor = resolve_processor(processor)
+    if executor is None and workers > 1:
+        _check_picklable(processor)
     if not isinstance(db, Database):
         with Database(db) as opened:
             return run(paths, db=opened, workers=workers, bits_per_surfel=bits_per_surfel,
@@ -484,10 +497,10 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     try:
         tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip)
         flush()
-        if executor is None:
-            executor = serial if workers == 1 else ProcessPool(workers)
         fn = functools.partial(process_task, processor=processor,
                                bits_per_surfel=bits_per_surfel)
+        if executor is None:
+            executor = serial if workers == 1 else ProcessPool(workers)
         if progress and tasks:
             from tqdm import tqdm
 

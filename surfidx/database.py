@@ -353,7 +353,8 @@ class Database:
             q.append(None if v is None or not np.isfinite(float(v)) else float(v))
         stream = bytes(model.stream)
         asset = (stream, int(model.format_version), float(model.rate), len(stream), *q)
-        convention = _to_json(params.get("descriptors", {}), f"model {name!r} params['descriptors']")
+        convention = _to_json(params.get("descriptors", {}),
+                              f"model {name!r} params['descriptors']")
         descs = []
         for kind, vec in sorted((model.descriptors or {}).items()):
             v = as_array(vec, f"model {name!r} descriptor {kind!r}", dtype=np.float32,

@@ -211,7 +211,8 @@ class SearchIndex:
             return np.sqrt(np.maximum(sq, 0.0))
 
         d = dist("shape")
-        if "texture" in q and "texture" in self.stored and w < 1.0 and self.present["texture"].any():
+        if ("texture" in q and "texture" in self.stored and w < 1.0
+                and self.present["texture"].any()):
             d = np.where(self.present["texture"], w * d + (1.0 - w) * dist("texture"), d)
         return d
 

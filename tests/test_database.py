@@ -147,7 +147,8 @@ def test_reopen_keeps_data(tmp_path):
 
 
 # ---------------------------------------------------------------------- round trips
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=25, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 2**32 - 1), color=st.booleans(),
        shape_dim=st.integers(0, 40), texture_dim=st.integers(1, 12),
        name=st.text(min_size=1, max_size=20),
@@ -432,7 +433,8 @@ def test_failing_migration_leaves_file_unchanged(tmp_path, monkeypatch):
 
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
     monkeypatch.setattr(dbmod, "_MIGRATIONS", [half])
-    with pytest.raises(DatabaseError, match=r"upgrading the schema to version 2 failed .*unchanged"):
+    with pytest.raises(DatabaseError,
+                       match=r"upgrading the schema to version 2 failed .*unchanged"):
         Database(path)
     conn = sqlite3.connect(path)
     assert conn.execute("PRAGMA user_version").fetchone()[0] == 1

@@ -29,8 +29,8 @@ def fake_processor(path, *, bits_per_surfel=8.0, texture=None, samples=None, lev
     """A deterministic stand-in for surfidx.pipeline.process_model, driven by the file's text.
 
     ``FAIL`` raises InputError, ``BOOM`` RuntimeError, ``CRASH`` kills the worker process,
-    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s, ``HANG`` 60 s; ``color`` (or a texture)
-    gives colour. Descriptors, stream and thumbnail derive from the content hash.
+    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s, ``HANG`` 60 s; ``color`` (or
+    a texture) gives colour. Descriptors, stream and thumbnail derive from the content hash.
     """
     path = Path(path)
     data = path.read_bytes()
@@ -299,6 +299,10 @@ def test_run_argument_errors(tmp_path):
         ingest.run([tmp_path / "data"], batch=0, **kw)
     with pytest.raises(InputError, match="no such file or folder"):
         ingest.run([tmp_path / "nothing"], **kw)
+    kw["processor"] = lambda path, **k: fake_processor(path, **k)
+    with pytest.raises(InputError, match="processor must be picklable"):
+        ingest.run([tmp_path / "data"], workers=2, **kw)
+    assert not (tmp_path / "x.db").exists()           # argument errors come before any write
 
 
 def test_default_processor_is_resolved_lazily(monkeypatch):
