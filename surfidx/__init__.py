@@ -14,7 +14,6 @@ from .klt import KLT
 from .mesh import TriangleMesh
 from .metrics import evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
 from .pointcloud import points_to_surfels
-from .render import render, save_png
 from .surfels import SurfelSet
 
 __version__ = "0.1.0"
@@ -23,7 +22,7 @@ __all__ = [
     "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
     "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
     "DatabaseError", "TOL", "Tolerances", "__version__",
-    "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff", "render", "save_png",
+    "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
     "Icosphere", "icosphere", "choose_level", "KLT",
 ]
 
