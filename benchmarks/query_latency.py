@@ -1,12 +1,13 @@
 """Query-by-example latency of surfidx.search at 10k and 100k stored models (synthetic rows).
 
-Fills a temporary surfidx database with random "shape" (64 floats) and "texture" (64 floats,
-70 % of the models coloured) descriptors by bulk SQL inserts, then times:
+Fills a temporary surfidx database with random descriptors of the sizes surfidx.descriptors makes
+at lmax = 24 ("shape" 75 floats, "spectrum" 3, "texture" 78 for the 70 % coloured models) by bulk
+SQL inserts, then times:
 
 * load: ``SearchIndex(db)`` (reading the descriptor matrices from SQLite),
 * top-10: one ``SearchIndex.query(..., k=10)`` (median and worst of 50 random queries).
 
-Run: ``python benchmarks/query_latency.py [--dim 64] [--sizes 10000 100000]``.
+Run: ``python benchmarks/query_latency.py [--lmax 24] [--sizes 10000 100000]``.
 """
 
 from __future__ import annotations
@@ -22,9 +23,11 @@ from surfidx.database import Database, utc_now
 from surfidx.search import SearchIndex
 
 
-def fill(db: Database, m: int, dim: int, rng) -> None:
+def fill(db: Database, m: int, lmax: int, rng) -> None:
+    dim = 3 * (lmax + 1)
     shape = rng.standard_normal((m, dim)).astype("<f4")
-    texture = rng.standard_normal((m, dim)).astype("<f4")
+    spectrum = rng.random((m, 3)).astype("<f4")
+    texture = rng.standard_normal((m, dim + 3)).astype("<f4")
     color = rng.random(m) < 0.7
     now = utc_now()
     with db.transaction():
@@ -39,18 +42,22 @@ def fill(db: Database, m: int, dim: int, rng) -> None:
             ((i + 1, "shape", dim, shape[i].tobytes()) for i in range(m)))
         db.conn.executemany(
             "INSERT INTO descriptors (model_id, kind, dimension, vector) VALUES (?, ?, ?, ?)",
-            ((i + 1, "texture", dim, texture[i].tobytes()) for i in range(m) if color[i]))
+            ((i + 1, "spectrum", 3, spectrum[i].tobytes()) for i in range(m)))
+        db.conn.executemany(
+            "INSERT INTO descriptors (model_id, kind, dimension, vector) VALUES (?, ?, ?, ?)",
+            ((i + 1, "texture", dim + 3, texture[i].tobytes()) for i in range(m) if color[i]))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--dim", type=int, default=64)
+    ap.add_argument("--lmax", type=int, default=24)
     ap.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     ap.add_argument("--queries", type=int, default=50)
     args = ap.parse_args()
     rng = np.random.default_rng(0)
-    print(f"descriptors: shape {args.dim} + texture {args.dim} float32, 70 % coloured; "
-          f"{args.queries} queries, k = 10")
+    d = 3 * (args.lmax + 1)
+    print(f"descriptors: shape {d} + spectrum 3 + texture {d + 3} float32, 70 % coloured; "
+          f"{args.queries} queries, k = 10, default shape weight")
     print(f"{'models':>8} {'fill s':>8} {'load ms':>8} {'top-10 median ms':>17} "
           f"{'top-10 max ms':>14}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,7 +65,7 @@ def main() -> None:
             path = Path(tmp) / f"bench{m}.db"
             with Database(path) as db:
                 t0 = time.perf_counter()
-                fill(db, m, args.dim, rng)
+                fill(db, m, args.lmax, rng)
                 t_fill = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 index = SearchIndex(db)
@@ -67,11 +74,12 @@ def main() -> None:
                 times = []
                 for _ in range(args.queries):
                     i = int(rng.integers(m))
-                    q = {"shape": index.stored["shape"][i]}
+                    q = {"shape": index.stored["shape"][i],
+                         "spectrum": index.stored["spectrum"][i]}
                     if index.present["texture"][i]:
                         q["texture"] = index.stored["texture"][i]
                     t0 = time.perf_counter()
-                    ids, _ = index.query(q, k=10, shape_weight=0.5)
+                    ids, _ = index.query(q, k=10)
                     times.append(time.perf_counter() - t0)
                     assert ids[0] == index.ids[i]
             print(f"{m:>8} {t_fill:>8.2f} {t_load * 1e3:>8.1f} {np.median(times) * 1e3:>17.2f} "

@@ -465,6 +465,34 @@ def test_weighted_l2_definition():
     np.testing.assert_allclose(d, np.where(present["texture"], 0.3 * ds + 0.7 * dt, ds), rtol=1e-6)
     np.testing.assert_allclose(weighted_l2({"shape": q["shape"]}, stored, present,
                                            shape_weight=0.3), ds, rtol=1e-6)
+    # The spectrum is appended to the shape vector where the model has one.
+    stored["spectrum"] = rng.random((5, 2)).astype(np.float32)
+    present["spectrum"] = np.array([1, 1, 1, 1, 0], bool)
+    q["spectrum"] = rng.random(2).astype(np.float32)
+    dsp = np.linalg.norm(stored["spectrum"] - q["spectrum"], axis=1)
+    ds2 = np.sqrt(ds ** 2 + np.where(present["spectrum"], dsp ** 2, 0))
+    np.testing.assert_allclose(weighted_l2(q, stored, present, shape_weight=1.0), ds2, rtol=1e-6)
+
+
+def test_default_distance_is_descriptor_distance(db):
+    """The vectorised scan computes surfidx.descriptors.descriptor_distance for every model."""
+    descriptors = pytest.importorskip("surfidx.descriptors")
+    from surfidx.search import DEFAULT_SHAPE_WEIGHT
+
+    models = [make_model(i, color=i % 2 == 0) for i in range(12)]
+    for m in models:
+        db.add(m)
+    index = SearchIndex(db)
+    for qm in (models[0], models[1]):
+        q = {k: v for k, v in qm.descriptors.items() if qm.has_color or k != "texture"}
+        for w in (0.0, 0.3, DEFAULT_SHAPE_WEIGHT, 1.0):
+            ids, dist = index.query(q, k=12, shape_weight=w)
+            want = {i + 1: descriptors.descriptor_distance(
+                q, {k: v for k, v in m.descriptors.items() if m.has_color or k != "texture"},
+                shape_weight=w) for i, m in enumerate(models)}
+            np.testing.assert_allclose(dist, [want[i] for i in ids.tolist()], rtol=1e-6,
+                                       atol=1e-9)
+            assert dist.tolist() == sorted(dist.tolist())
 
 
 def test_search_example_first_and_matches_brute_force(db):
@@ -478,8 +506,7 @@ def test_search_example_first_and_matches_brute_force(db):
             q = {k: v for k, v in q.items() if k != "texture"}
         ids, dist = index.query(q, k=5, shape_weight=0.4)
         assert ids[0] == i + 1 and dist[0] == pytest.approx(0, abs=1e-6)
-        full = weighted_l2({k: np.asarray(v, np.float32) for k, v in q.items()
-                            if k in ("shape", "texture")},
+        full = weighted_l2({k: np.asarray(v, np.float32) for k, v in q.items()},
                            index.stored, index.present, shape_weight=0.4)
         brute = np.lexsort((index.ids, full))[:5]
         assert ids.tolist() == index.ids[brute].tolist()

@@ -126,7 +126,7 @@ def ingest_command(paths, db_path, workers, bits_per_surfel, no_progress, as_jso
 @_db_option
 @click.option("-k", "k", type=click.IntRange(min=1), default=10, show_default=True,
               help="Number of results.")
-@click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
+@click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=0.7, show_default=True,
               help="Weight w of shape against texture distance (1 = shape only).")
 @click.option("--sheet", type=click.Path(dir_okay=False),
               help="Also draw the query and its results side by side into this PNG.")
@@ -137,7 +137,7 @@ def query(example, db_path, k, shape_weight, sheet, as_json):
 
     EXAMPLE is a model file (processed like an ingest, not stored) or id:N (a stored model).
     Distance: w*|shape difference| + (1-w)*|texture difference| when both have colour, else
-    the shape difference alone.
+    the shape difference alone (shape: the shape descriptor with the KLT spectrum appended).
     """
     from ..search import SearchIndex
 
