@@ -22,5 +22,6 @@ from . import _convert  # noqa: E402,F401
 from . import _view  # noqa: E402,F401
 from . import _db  # noqa: E402,F401
 from . import _sphere  # noqa: E402,F401
+from . import _codec  # noqa: E402,F401
 
 __all__ = ["cli"]

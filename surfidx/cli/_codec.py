@@ -1,0 +1,74 @@
+"""``surfidx encode`` and ``surfidx decode``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from . import cli
+from ._common import command_errors, echo_json, input_options, read_input
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The .sfz file to write.")
+@click.option("--bits-per-surfel", "bits", type=float, required=True,
+              help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes.")
+@click.option("--no-color", is_flag=True, help="Code geometry only.")
+@click.option("--level", type=click.IntRange(0, 9), default=None,
+              help="Icosahedral grid level (default: chosen from the surfel count).")
+@click.option("--method", type=click.Choice(["tutte", "mds"]), default="tutte",
+              help="Spherical map: fold-free Tutte with area balancing, or the original MDS.")
+@input_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
+@command_errors
+def encode(input, output, bits, no_color, level, method, texture, samples, as_json):
+    """Encode a model into an embedded .sfz bitstream."""
+    from ..codec import Encoder
+
+    s = read_input(input, texture, samples)
+    enc = Encoder(s, level=level, color=False if no_color else None, method=method)
+    data = enc.encode(bits)
+    tmp = Path(output).with_name(Path(output).name + ".part")
+    tmp.write_bytes(data)
+    tmp.replace(output)
+    out = {"output": str(output), "surfels": len(s), "bytes": len(data),
+           "bits_per_surfel": 8.0 * len(data) / len(s), "level": enc.level, "color": enc.color,
+           "folded": enc.sphere_map.folded, "seconds": enc.setup_seconds}
+    if as_json:
+        echo_json(out)
+    else:
+        click.echo(f"{output}: {len(data)} bytes, {out['bits_per_surfel']:.3f} bits/surfel "
+                   f"({len(s)} surfels, grid level {enc.level}{', colour' if enc.color else ''})")
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Surfel PLY (or mesh PLY with --mesh) to write.")
+@click.option("--bits-per-surfel", "bits", type=float, default=None,
+              help="Decode only the prefix of the embedded stream that fits this rate.")
+@click.option("--mesh", is_flag=True, help="Write a triangle mesh with the grid's connectivity.")
+@command_errors
+def decode(input, output, bits, mesh):
+    """Decode a .sfz file (optionally at a lower rate) to PLY."""
+    from ..codec import decode as _decode, read_sfz
+    from ..io import write_ply
+
+    data = read_sfz(input)
+    model = _decode(data, bits_per_surfel=bits, mesh=mesh, path=input)
+    if mesh:
+        _write_mesh(model, output)
+        click.echo(f"{output}: mesh with {len(model.vertices)} vertices, {len(model.faces)} faces")
+    else:
+        write_ply(model, output)
+        click.echo(f"{output}: {len(model)} surfels")
+
+
+def _write_mesh(mesh, path):
+    """A mesh PLY (every grid vertex is used, so surfel order equals vertex order)."""
+    from ..io import write_ply
+
+    write_ply(mesh.to_surfels(), path)

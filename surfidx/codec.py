@@ -1,0 +1,252 @@
+"""The spherical wavelet codec: map → icosahedral resampling → KLT → lifted butterfly wavelets →
+zerotree + arithmetic coding → ``.sfz`` container, and back.
+
+One embedded stream holds all layers; any prefix decodes to a coarser model, so a stored asset is
+served at a lower rate by truncation (:func:`decode` with ``bits_per_surfel``). Rates are bits per
+*input* surfel with the whole file counted: a file encoded at ``B`` bits/surfel is at most
+``ceil(B · n / 8)`` bytes.
+
+Units. Before the KLT, geometry is divided by the input's bounding-box diagonal (the PSNR peak) and
+colour by 255 and multiplied by :data:`COLOR_WEIGHT`; the zerotree coder spends bits where the
+(normalised) wavelet coefficients are largest, so this weight sets the split of bits between
+geometry and texture. Its value was chosen by rate–distortion measurement
+(``benchmarks/color_weight.py``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import container, wavelets, zerotree
+from ._errors import BitstreamError, InputError
+from .icosphere import choose_level, icosphere
+from .klt import KLT
+from .surfels import SurfelSet
+
+__all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
+           "CODEC_VERSION", "MAP_METHODS", "max_file_bytes"]
+
+CODEC_VERSION = container.FORMAT_VERSION
+COLOR_WEIGHT = 0.05
+"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal)."""
+
+MAP_METHODS = ("tutte", "mds")
+_PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
+
+
+def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
+    """Largest file size in bytes for a rate: ``ceil(bits_per_surfel · n_surfels / 8)``."""
+    if not (isinstance(bits_per_surfel, (int, float, np.floating)) and bits_per_surfel > 0
+            and math.isfinite(bits_per_surfel)):
+        raise InputError(f"bits_per_surfel must be a positive number, got {bits_per_surfel!r}")
+    return int(math.ceil(float(bits_per_surfel) * n_surfels / 8.0 - 1e-9))
+
+
+class Encoder:
+    """Expensive set-up once (map, resampling, transforms), then :meth:`encode` at any rate.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        A closed genus-0 surface (mesh input for the default map).
+    level : int, optional
+        Icosahedral grid level; default :func:`surfidx.icosphere.choose_level` of the surfel count.
+    color : bool, optional
+        Code colour (default: when the surfels have it).
+    method : {"tutte", "mds"}
+        Spherical map (:func:`surfidx.parameterize.parameterize`).
+    color_weight : float
+        Weight of colour against geometry (see the module docstring).
+    sphere_map : SphericalMap, optional
+        A map computed earlier for these surfels (skips the mapping).
+
+    Attributes
+    ----------
+    grid : (n_grid, 3 or 6) float64
+        Resampled layers (x, y, z [, r, g, b]).
+    coeffs : (n_grid, k) float64
+        Normalised wavelet coefficients of the KLT layers.
+    klt : KLT
+    sphere_map : SphericalMap
+    level : int
+    setup_seconds : dict of str -> float
+    """
+
+    def __init__(self, surfels: SurfelSet, *, level: int | None = None, color: bool | None = None,
+                 method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None):
+        from .parameterize import parameterize
+        from .resample import resample
+
+        if not isinstance(surfels, SurfelSet):
+            raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
+        if method not in MAP_METHODS:
+            raise InputError(f"method must be one of {', '.join(MAP_METHODS)}, got {method!r}")
+        if color is None:
+            color = surfels.has_color
+        if color and not surfels.has_color:
+            raise InputError("color=True but the surfels have no colour")
+        if not (color_weight > 0 and math.isfinite(color_weight)):
+            raise InputError(f"color_weight must be a positive number, got {color_weight!r}")
+        self.n_surfels = len(surfels)
+        self.color = bool(color)
+        self.level = choose_level(self.n_surfels) if level is None else level
+        t = {}
+        t0 = time.perf_counter()
+        if sphere_map is None:
+            sphere_map = parameterize(surfels, method=method, stress=False)
+        self.sphere_map = sphere_map
+        t["map"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        grid = resample(surfels, sphere_map.points, self.level)
+        self.grid = grid if self.color else grid[:, :3]
+        t["resample"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        k = self.grid.shape[1]
+        diag = surfels.diagonal
+        weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
+        area = icosphere(self.level).vertex_areas()
+        self.klt = KLT.fit(self.grid, weights=weights, sample_weights=area).as_float32()
+        self.coeffs = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True,
+                                       normalized=True)
+        top = float(np.abs(self.coeffs).max())
+        if not top > 0:
+            raise InputError("the resampled model is constant; nothing to code")
+        self.step = float(np.float32(top * 2.0 ** -_PLANES))
+        self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
+            else 0
+        t["transform"] = time.perf_counter() - t0
+        self.setup_seconds = t
+
+    def header_bytes(self) -> int:
+        """Bytes of the container header for this model."""
+        return container.header_size(self.coeffs.shape[1], zerotree.HEADER_SIZE)
+
+    def encode(self, bits_per_surfel: float) -> bytes:
+        """Encode at a rate.
+
+        Parameters
+        ----------
+        bits_per_surfel : float
+            Target rate; the file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+
+        Returns
+        -------
+        bytes
+            A complete ``.sfz`` container.
+
+        Raises
+        ------
+        InputError
+            When the rate cannot even hold the header and a minimal stream.
+        """
+        budget = max_file_bytes(bits_per_surfel, self.n_surfels) - self.header_bytes()
+        if budget < 4:
+            lowest = 8.0 * (self.header_bytes() + 4) / self.n_surfels
+            raise InputError(f"{bits_per_surfel} bits/surfel cannot hold the header; the lowest "
+                             f"rate for this model is {lowest:.3g} bits/surfel")
+        ico = icosphere(self.level)
+        stream, zh = zerotree.encode(self.coeffs, ico.tree_parent, ico.children_indptr,
+                                     ico.children_indices, step=self.step, final_plane=0,
+                                     max_bytes=budget)
+        header = container.Header(
+            n_surfels=self.n_surfels, level=self.level, color=self.color, lifted=True,
+            mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
+            coder=zerotree.pack_header(zh), map_method=self.map_method)
+        return container.pack(header, stream)
+
+
+def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = None,
+           color: bool | None = None, method: str = "tutte") -> bytes:
+    """One-call encoding (see :class:`Encoder`)."""
+    return Encoder(surfels, level=level, color=color, method=method).encode(bits_per_surfel)
+
+
+def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None):
+    """Decode a container to its grid layers.
+
+    Parameters
+    ----------
+    data : bytes
+        A ``.sfz`` container.
+    bits_per_surfel : float, optional
+        Decode only the prefix that fits this rate (over the header's input surfel count).
+    path : str, optional
+        File name for messages.
+
+    Returns
+    -------
+    values : (10·4^L + 2, 3 or 6) float64
+    header : surfidx.container.Header
+
+    Raises
+    ------
+    BitstreamError
+        Damaged, truncated or foreign data.
+    InputError
+        A rate below what the header needs.
+    """
+    header, stream = container.unpack(data, path=path)
+    if bits_per_surfel is not None:
+        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
+        if keep < 4:
+            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
+                             "file (header plus 4 bytes)")
+        stream = stream[:keep]
+    try:
+        zh = zerotree.unpack_header(header.coder)
+    except BitstreamError as exc:
+        raise BitstreamError(exc.reason, path=path) from None
+    try:
+        ico = icosphere(header.level)
+    except InputError:
+        raise BitstreamError(f"grid level {header.level} is out of range", path=path) from None
+    k = header.layers
+    w = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
+                        ico.children_indices, header=zh)
+    c = wavelets.inverse(w, header.level, lifted=header.lifted, normalized=True)
+    try:
+        klt = KLT.from_arrays(header.mean, header.basis, header.weights)
+    except InputError as exc:
+        raise BitstreamError(f"corrupt KLT header ({exc.reason})", path=path) from None
+    values = klt.inverse(c)
+    if not np.all(np.isfinite(values)):
+        raise BitstreamError("decoding produced non-finite values: the file is damaged",
+                             path=path)
+    return values, header
+
+
+def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False, path=None):
+    """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
+
+    Parameters
+    ----------
+    data : bytes
+    bits_per_surfel : float, optional
+        Serve the embedded stream at this lower rate.
+    mesh : bool
+        Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
+    path : str, optional
+
+    Returns
+    -------
+    SurfelSet or TriangleMesh
+    """
+    from .resample import grid_to_mesh, grid_to_surfels
+
+    values, _ = decode_grid(data, bits_per_surfel=bits_per_surfel, path=path)
+    name = Path(path).stem if path else None
+    return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
+
+
+def read_sfz(path) -> bytes:
+    """Read a ``.sfz`` file's bytes, with a clear error when it is missing."""
+    from ._errors import FileFormatError
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileFormatError("no such file", path=p)
+    return p.read_bytes()

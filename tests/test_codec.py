@@ -1,0 +1,119 @@
+"""Codec: rate control, embedding, exactness of the transform chain, damaged files, CLI."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from surfidx import BitstreamError, FileFormatError, InputError, TriangleMesh
+from surfidx.cli import cli
+from surfidx.codec import Encoder, decode, decode_grid, encode, max_file_bytes
+from surfidx.io import read_surfels
+
+
+@pytest.fixture(scope="module")
+def blob():
+    """A smooth closed genus-0 shape with colour (a deformed level-4 icosphere mesh)."""
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(4)
+    p = v * (1 + 0.25 * v[:, [0]] ** 2) * [1.0, 1.3, 0.8]
+    col = np.clip((v + 1) * 127, 0, 255)
+    return TriangleMesh(p, f, vertex_colors=col, name="blob").to_surfels()
+
+
+@pytest.fixture(scope="module")
+def enc(blob):
+    return Encoder(blob, level=5)
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0, 4.0, 8.0])
+def test_file_size_never_exceeds_the_rate(enc, blob, rate):
+    data = enc.encode(rate)
+    assert len(data) <= max_file_bytes(rate, len(blob))
+    assert len(data) >= 0.95 * max_file_bytes(rate, len(blob))  # the budget is used
+
+
+def test_quality_grows_with_rate(enc, blob):
+    errs = []
+    for rate in (1.0, 2.0, 4.0, 8.0):
+        values, _ = decode_grid(enc.encode(rate))
+        errs.append(np.sqrt(np.mean((values - enc.grid) ** 2, axis=0)))
+    errs = np.array(errs)
+    assert np.all(np.diff(errs[:, :3].sum(1)) < 0)
+
+
+def test_prefix_decoding_equals_direct_encoding(enc):
+    full = enc.encode(8.0)
+    for rate in (1.0, 2.5, 4.0):
+        a, _ = decode_grid(full, bits_per_surfel=rate)
+        b, _ = decode_grid(enc.encode(rate))
+        np.testing.assert_array_equal(a, b)
+
+
+def test_high_rate_reproduces_the_grid(blob):
+    e = Encoder(blob, level=4)
+    values, header = decode_grid(e.encode(64.0))
+    scale = blob.diagonal
+    assert np.abs(values[:, :3] - e.grid[:, :3]).max() < 1e-4 * scale
+    assert np.abs(values[:, 3:] - e.grid[:, 3:]).max() < 1.0
+    assert header.color and header.n_surfels == len(blob)
+
+
+def test_geometry_only_and_mesh_output(blob):
+    data = encode(blob, bits_per_surfel=4.0, level=4, color=False)
+    s = decode(data)
+    assert not s.has_color
+    m = decode(data, mesh=True)
+    assert isinstance(m, TriangleMesh) and m.topology().genus == 0
+
+
+def test_errors(enc, blob):
+    with pytest.raises(InputError, match="lowest rate for this model"):
+        enc.encode(0.01)
+    with pytest.raises(InputError, match="bits_per_surfel must be a positive number"):
+        enc.encode(-1)
+    with pytest.raises(InputError, match="color=True but the surfels have no colour"):
+        Encoder(blob.without_color(), color=True)
+    with pytest.raises(InputError, match="method must be one of"):
+        Encoder(blob, method="magic")
+    with pytest.raises(InputError, match="expected a SurfelSet"):
+        Encoder(np.zeros((3, 3)))
+    data = enc.encode(2.0)
+    with pytest.raises(InputError, match="below the lowest rate of this file"):
+        decode(data, bits_per_surfel=0.01)
+    with pytest.raises(BitstreamError, match="m.sfz: stream checksum mismatch"):
+        damaged = bytearray(data)
+        damaged[-3] ^= 0xFF
+        decode(bytes(damaged), path="m.sfz")
+    with pytest.raises(BitstreamError, match="truncated stream"):
+        decode(data[: len(data) // 2])
+
+
+def test_cli_encode_decode(tmp_path, blob):
+    from surfidx.io import write_ply
+
+    src = tmp_path / "blob.ply"
+    write_ply(blob, src)
+    sfz = tmp_path / "blob.sfz"
+    r = CliRunner().invoke(cli, ["encode", str(src), "-o", str(sfz), "--bits-per-surfel", "4",
+                                 "--level", "5", "--json"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(r.output)
+    assert info["bytes"] == sfz.stat().st_size <= max_file_bytes(4, len(blob))
+    out = tmp_path / "dec.ply"
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--bits-per-surfel", "2"])
+    assert r.exit_code == 0, r.output
+    assert len(read_surfels(out)) == 10 * 4 ** 5 + 2
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "m.ply"), "--mesh"])
+    assert r.exit_code == 0, r.output
+    bad = tmp_path / "bad.sfz"
+    bad.write_bytes(sfz.read_bytes()[:40])
+    r = CliRunner().invoke(cli, ["decode", str(bad), "-o", str(out)])
+    assert r.exit_code == 1 and "bad.sfz: truncated" in r.output and "Traceback" not in r.output
+    r = CliRunner().invoke(cli, ["decode", str(tmp_path / "none.sfz"), "-o", str(out)])
+    assert r.exit_code == 1 and "no such file" in r.output
+    with pytest.raises(FileFormatError, match="no such file"):
+        from surfidx.codec import read_sfz
+        read_sfz(tmp_path / "none.sfz")
