@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from ._errors import InputError
 from ._validate import as_array
@@ -71,54 +70,15 @@ def _dh_points(lmax: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def _ico_to_dh(level: int, lmax: int) -> sp.csr_matrix:
-    """Sparse (n_dh, n_grid) barycentric interpolation from the icosahedral grid to the DH grid.
+    """Sparse (n_dh, n_grid) barycentric interpolation from the icosahedral grid to the DH grid
+    (exact point location in the icosphere's triangulation, built once per level and lmax)."""
+    from .resample import locate
 
-    Every DH point is located in a triangle of the level-``level`` icosphere: candidates are the
-    triangles around its nearest grid vertices, tested with barycentric coordinates of the
-    gnomonic projection (exact for spherical triangles' planar chords); any point not found there
-    is tested against all triangles.
-    """
     ico = icosphere(level)
-    v, f = ico.vertices, ico.faces
     q = _dh_points(lmax).reshape(-1, 3)
-    nq = len(q)
-    # vertex -> incident faces (CSR)
-    vf = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
-                       shape=(len(v), len(f)))
-    _, near = cKDTree(v).query(q, k=3)
-    face_of = np.full(nq, -1, np.int64)
-    bary = np.zeros((nq, 3))
-
-    def test(qi, fi):
-        a, b, c = v[f[fi, 0]], v[f[fi, 1]], v[f[fi, 2]]
-        nrm = np.cross(b - a, c - a)
-        t = np.einsum("ij,ij->i", a, nrm) / np.einsum("ij,ij->i", q[qi], nrm)
-        p = q[qi] * t[:, None]
-        w0 = np.einsum("ij,ij->i", np.cross(c - b, p - b), nrm)
-        w1 = np.einsum("ij,ij->i", np.cross(a - c, p - c), nrm)
-        w2 = np.einsum("ij,ij->i", np.cross(b - a, p - a), nrm)
-        w = np.stack([w0, w1, w2], axis=1)
-        w /= w.sum(axis=1, keepdims=True)
-        return w, (t > 0) & (w.min(axis=1) >= -1e-12)
-
-    for j in range(3):
-        todo = np.flatnonzero(face_of < 0)
-        if not len(todo):
-            break
-        rows = vf[near[todo, j]]
-        qi = todo[np.repeat(np.arange(len(todo)), np.diff(rows.indptr))]
-        fi = rows.indices
-        w, ok = test(qi, fi)
-        hit_q, first = np.unique(qi[ok], return_index=True)
-        face_of[hit_q] = fi[ok][first]
-        bary[hit_q] = w[ok][first]
-    for i in np.flatnonzero(face_of < 0):  # pragma: no cover - safety net, never seen
-        w, ok = test(np.full(len(f), i), np.arange(len(f)))
-        k = int(np.argmax(ok)) if ok.any() else int(np.argmax(w.min(axis=1)))
-        face_of[i], bary[i] = k, w[k]
-    cols = f[face_of]
-    return sp.csr_matrix((bary.ravel(), (np.repeat(np.arange(nq), 3), cols.ravel())),
-                         shape=(nq, len(v)))
+    tri, idx, bary = locate(ico.vertices, q, triangles=ico.faces)
+    rows = np.repeat(np.arange(len(q)), 3)
+    return sp.csr_matrix((bary.ravel(), (rows, tri[idx].ravel())), shape=(len(q), ico.n_vertices))
 
 
 def _degree_energies(layers: np.ndarray, level: int, lmax: int) -> np.ndarray:
