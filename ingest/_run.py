@@ -40,7 +40,7 @@ __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture"
 
 # ---------------------------------------------------------------------- discovery
 def discover(paths) -> list:
-    """The model files named by ``paths``, absolute, deduplicated and sorted.
+    """The model files named by ``paths``, absolute (symbolic links kept), deduplicated, sorted.
 
     Parameters
     ----------
@@ -72,9 +72,9 @@ def discover(paths) -> list:
                 dirs[:] = [d for d in dirs if not d.startswith(".")]
                 for f in files:
                     if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
-                        found.add(Path(root, f).resolve())
+                        found.add(Path(os.path.abspath(Path(root, f))))
         elif p.is_file():
-            found.add(p.resolve())
+            found.add(Path(os.path.abspath(p)))
         else:
             raise InputError("no such file or folder", path=p)
     return sorted(found)

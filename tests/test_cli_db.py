@@ -153,6 +153,13 @@ def test_ls_show_errors(filled):
     assert r.exit_code == 0
 
 
+def test_db_from_environment(filled, monkeypatch):
+    _, db = filled
+    monkeypatch.setenv("SURFIDX_DB", str(db))
+    r = invoke(["ls", "--json"])
+    assert r.exit_code == 0 and len(json.loads(r.stdout)["models"]) == 6
+
+
 def test_no_errors_and_empty_db(tmp_path):
     root = make_tree(tmp_path / "d", 1)
     db = tmp_path / "e.db"

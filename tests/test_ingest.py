@@ -325,18 +325,13 @@ def test_error_message():
 
 def test_unreadable_file_is_recorded(tmp_path):
     (tmp_path / "ok.ply").write_text("model ok")
-    locked = tmp_path / "locked.ply"
-    locked.write_text("model locked")
-    locked.chmod(0)
-    try:
-        if os.access(locked, os.R_OK):
-            pytest.skip("running as a user who can read anything")
-        s = ingest.run([tmp_path], db=tmp_path / "u.db", processor=fake_processor,
-                       progress=False)
-    finally:
-        locked.chmod(0o644)
+    (tmp_path / "dangling.ply").symlink_to(tmp_path / "gone.ply")     # listed, cannot be read
+    s = ingest.run([tmp_path], db=tmp_path / "u.db", processor=fake_processor, progress=False)
     assert (s.stored, s.failed) == (1, 1)
-    assert s.errors[0][1].startswith("cannot read (Permission denied")
+    assert s.errors == [(str(tmp_path / "dangling.ply"),
+                         "cannot read (No such file or directory)")]
+    with Database(tmp_path / "u.db") as d:
+        assert d.errors()[0]["error"] == "cannot read (No such file or directory)"
 
 
 def test_sha_of_hash_matches_pipeline(tmp_path):
