@@ -8,6 +8,9 @@ arithmetic coding -> container; descriptors from the same spherical representati
 from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError, SurfidxError,
                       TopologyError)
 from ._tolerance import TOL, Tolerances
+from .geodesics import (GeodesicPath, GeodesicSolver, farthest_point_landmarks,
+                        geodesic_distances, geodesic_path)
+from .graph import SphereOfInfluenceGraph
 from .icosphere import Icosphere, choose_level, icosphere
 from .io import read_mesh, read_surfels, write_ply
 from .klt import KLT
@@ -24,6 +27,8 @@ __all__ = [
     "DatabaseError", "TOL", "Tolerances", "__version__",
     "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
     "Icosphere", "icosphere", "choose_level", "KLT",
+    "GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
+    "farthest_point_landmarks", "SphereOfInfluenceGraph",
 ]
 
 # The SQLite store is imported on first use (sqlite-utils costs ~0.5 s to import).

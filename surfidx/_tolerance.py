@@ -22,12 +22,16 @@ class Tolerances:
         Largest absolute error of a perfect-reconstruction transform (lifting, KLT).
     psnr_agreement : float
         dB within which two implementations of the same distortion measure must agree.
+    geodesic_refine : float
+        Geodesic path refinement stops a level when one sweep shortens the path by less than this
+        fraction of its length.
     """
 
     unit_normal: float = 1e-3
     degenerate_area: float = 1e-12
     reconstruction: float = 1e-10
     psnr_agreement: float = 0.5
+    geodesic_refine: float = 1e-6
 
 
 TOL = Tolerances()

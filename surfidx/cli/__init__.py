@@ -19,6 +19,7 @@ def cli():
 
 # Command modules register themselves on ``cli`` when imported.
 from . import _convert  # noqa: E402,F401
+from . import _geodesic  # noqa: E402,F401
 from . import _view  # noqa: E402,F401
 from . import _db  # noqa: E402,F401
 from . import _sphere  # noqa: E402,F401

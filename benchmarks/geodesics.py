@@ -1,0 +1,213 @@
+"""Accuracy and speed of surfidx geodesics against exact mesh geodesics.
+
+For every closed genus-0 model of ``../shared/data/models`` (one surfel per mesh vertex) and a
+finely sampled unit sphere (level-6 icosphere, 40,962 surfels; exact geodesics are arc lengths):
+
+* exact reference: MMP exact polyhedral geodesics (``pygeodesic``, benchmark-only dependency) from
+  ``--sources`` random sources. MMP on a 134k-vertex mesh takes ~100 s per source, so the
+  propagation is bounded to the ``--ball`` graph-nearest vertices of each source (all vertices on
+  models smaller than that); targets are drawn among the vertices inside;
+* graph: Dijkstra on the spheres-of-influence graph (defaults of :class:`surfidx.GeodesicSolver`);
+* refined: the same paths straightened on the surface (``refine=True``; ``--refine-targets``
+  targets per source);
+* heat: potpourri3d's point-cloud heat method (``PointCloudHeatSolver``) on the surfel centres;
+
+reported as mean and 95th percentile of the absolute relative error ``|d / d_exact - 1|`` (and the
+mean signed error). A second table sweeps the normal-angle threshold and the sphere-radius scale
+(graph distances only); a third times graph construction and one source to all on Igea (one core).
+
+Run: ``python benchmarks/geodesics.py [--sources 20] [--ball 10000] [--models igea bunny_hr ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from surfidx import TriangleMesh, read_surfels
+from surfidx.geodesics import GeodesicSolver
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
+MODELS = {
+    "igea": "igea.ply", "bunny_hr": "bunny_hr.obj", "horse": "horse.ply",
+    "armadillo": "armadillo.obj", "nefertiti": "nefertiti.obj", "koala": "koala.obj",
+    "scorpion": "scorpion.obj", "falconstatue": "falconstatue.obj", "homer": "homer.obj",
+    "spot": "spot/spot_triangulated.obj", "banana": "ycb_banana/textured_simple_reoriented.obj",
+}
+ANGLES = (30.0, 45.0, 60.0, 90.0, 120.0, 180.0)
+SCALES = (1.0, 1.5, 2.0, 2.5)
+
+
+def icosphere_mesh(level):
+    t = (1 + 5 ** 0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+                  [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+                  [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+                  [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
+    v /= np.linalg.norm(v, axis=1)[:, None]
+    for _ in range(level):
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e.sort(axis=1)
+        uniq, inv = np.unique(e, axis=0, return_inverse=True)
+        mid = v[uniq].sum(axis=1)
+        mid /= np.linalg.norm(mid, axis=1)[:, None]
+        m = len(f)
+        ab, bc, ca = (inv[:m] + len(v), inv[m:2 * m] + len(v), inv[2 * m:] + len(v))
+        v = np.concatenate([v, mid])
+        f = np.concatenate([np.stack([f[:, 0], ab, ca], 1), np.stack([f[:, 1], bc, ab], 1),
+                            np.stack([f[:, 2], ca, bc], 1), np.stack([ab, bc, ca], 1)])
+    return v, f
+
+
+def load(name):
+    if name == "sphere":
+        v, f = icosphere_mesh(6)
+        return TriangleMesh(v, f, name="sphere").to_surfels()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_surfels(DATA / MODELS[name])
+
+
+def reference(s, name, solver, sources, ball, ntarget, rng):
+    """Exact distances (sources x targets), with the targets per source."""
+    n = len(s)
+    gd = solver.distances(sources)
+    targets = np.empty((len(sources), ntarget), np.int64)
+    exact = np.empty((len(sources), ntarget))
+    if name == "sphere":
+        for a, src in enumerate(sources):
+            cand = np.flatnonzero(np.arange(n) != src)
+            targets[a] = rng.choice(cand, ntarget, replace=False)
+            exact[a] = np.arccos(np.clip(s.positions[targets[a]] @ s.positions[src], -1, 1))
+        return targets, exact
+    import pygeodesic.geodesic as pg
+
+    geo = pg.PyGeodesicAlgorithmExact(s.positions, s.faces)
+    for a, src in enumerate(sources):
+        order = np.argsort(gd[a])
+        if ball < n:
+            inside = order[1:ball]
+            limit = gd[a][order[ball]]
+        else:
+            inside, limit = order[1:], 1e100
+        targets[a] = rng.choice(inside, ntarget, replace=False)
+        d, _ = geo.geodesicDistances(np.array([src]), targets[a], max_distance=limit)
+        exact[a] = d
+    return targets, exact
+
+
+def rel_stats(d, exact):
+    ok = np.isfinite(exact) & (exact > 0) & (exact < 1e50)
+    e = d[ok] / exact[ok] - 1.0
+    return 100 * np.mean(np.abs(e)), 100 * np.percentile(np.abs(e), 95), 100 * np.mean(e)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", nargs="+", default=["sphere", *MODELS])
+    ap.add_argument("--sources", type=int, default=20)
+    ap.add_argument("--targets", type=int, default=200, help="targets per source (graph, heat)")
+    ap.add_argument("--refine-targets", type=int, default=10)
+    ap.add_argument("--ball", type=int, default=10000)
+    ap.add_argument("--no-heat", action="store_true")
+    ap.add_argument("--no-sweep", action="store_true")
+    args = ap.parse_args(argv)
+    rng = np.random.default_rng(0)
+    rows, sweep = [], []
+    t_all = time.time()
+    for name in args.models:
+        t0 = time.time()
+        s = load(name)
+        solver = GeodesicSolver(s)
+        sources = rng.choice(len(s), args.sources, replace=False)
+        targets, exact = reference(s, name, solver, sources, args.ball, args.targets, rng)
+        t_exact = time.time() - t0
+        full = solver.distances(sources)
+        graph = np.take_along_axis(full, targets, axis=1)
+        k = args.refine_targets
+        t1 = time.time()
+        refined = np.stack([solver.distances([src], targets=targets[a, :k], refine=True)[0]
+                            for a, src in enumerate(sources)])
+        t_ref = (time.time() - t1) / refined.size
+        row = {"model": name, "n": len(s), "graph": rel_stats(graph, exact),
+               "refined": rel_stats(refined, exact[:, :k]), "t_ref": t_ref}
+        if not args.no_heat:
+            import potpourri3d as pp3d
+
+            heat = pp3d.PointCloudHeatSolver(s.positions)
+            hd = np.stack([heat.compute_distance(int(src))[targets[a]]
+                           for a, src in enumerate(sources)])
+            row["heat"] = rel_stats(hd, exact)
+        rows.append(row)
+        if not args.no_sweep:
+            combos = [(a, 1.5) for a in ANGLES] + [(60.0, sc) for sc in SCALES if sc != 1.5]
+            for ang, sc in combos:
+                try:
+                    sv = GeodesicSolver(s, max_angle=ang, scale=sc)
+                    d = np.take_along_axis(sv.distances(sources), targets, axis=1)
+                    sweep.append((name, ang, sc, sv.graph.degrees.mean(), rel_stats(d, exact)))
+                except Exception as exc:  # a disconnected graph at a strict angle
+                    sweep.append((name, ang, sc, float("nan"), (np.nan, np.nan, np.nan)))
+                    print(f"  {name} angle {ang} scale {sc}: {type(exc).__name__}: {exc}"[:150],
+                          file=sys.stderr)
+        print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s",
+              file=sys.stderr, flush=True)
+
+    print("\nRelative error vs exact geodesics, % (|mean| / p95 / signed mean); "
+          f"{args.sources} sources, {args.targets} targets each ({args.refine_targets} refined)")
+    head = f"{'model':13s} {'surfels':>8s} | {'graph':^20s} | {'refined':^20s} | {'heat':^20s} | ms/ref"
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        cells = []
+        for key in ("graph", "refined", "heat"):
+            v = r.get(key)
+            cells.append("n/a".center(20) if v is None else f"{v[0]:5.2f} {v[1]:5.2f} {v[2]:+6.2f}  ")
+        print(f"{r['model']:13s} {r['n']:8d} | " + " | ".join(cells) + f" | {1e3 * r['t_ref']:6.1f}")
+    mean = lambda key, i: np.mean([r[key][i] for r in rows if key in r])  # noqa: E731
+    print(f"{'mean':13s} {'':8s} | " + " | ".join(
+        f"{mean(k, 0):5.2f} {mean(k, 1):5.2f} {mean(k, 2):+6.2f}  " if any(k in r for r in rows)
+        else "n/a".center(20) for k in ("graph", "refined", "heat")))
+
+    if sweep:
+        print("\nGraph distances: mean |relative error| % by normal-angle threshold and scale "
+              "(mean degree in brackets)")
+        combos = sorted({(a, sc) for _, a, sc, _, _ in sweep}, key=lambda x: (x[1] != 1.5, x))
+        print(f"{'model':13s} " + " ".join(f"{f'{a:g}deg x{sc:g}':>14s}" for a, sc in combos))
+        for name in dict.fromkeys(m for m, *_ in sweep):
+            cells = []
+            for a, sc in combos:
+                hit = [x for x in sweep if x[0] == name and x[1] == a and x[2] == sc][0]
+                cells.append(f"{hit[4][0]:6.2f} [{hit[3]:4.1f}]")
+            print(f"{name:13s} " + " ".join(f"{c:>14s}" for c in cells))
+        cells = []
+        for a, sc in combos:
+            vals = [x[4][0] for x in sweep if x[1] == a and x[2] == sc]
+            cells.append(f"{np.mean(vals):6.2f}")
+        print(f"{'mean':13s} " + " ".join(f"{c:>14s}" for c in cells))
+
+    if "igea" in args.models:
+        s = load("igea")
+        tb, tq = [], []
+        for _ in range(3):
+            t = time.process_time()
+            sv = GeodesicSolver(s)
+            tb.append(time.process_time() - t)
+        for src in range(0, 50000, 10000):
+            t = time.process_time()
+            sv.distances([src])
+            tq.append(time.process_time() - t)
+        print(f"\nIgea ({len(s)} surfels, {sv.graph.n_edges} edges): graph build "
+              f"{np.median(tb):.2f} s, one source to all {np.median(tq):.3f} s "
+              "(CPU time, median; one core)")
+    print(f"\n(benchmark wall time {time.time() - t_all:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
