@@ -234,15 +234,19 @@ class ProcessPool:
     workers : int
     heartbeat : float
         Seconds between ``None`` yields while waiting.
+    mp_context : multiprocessing context, optional
+        E.g. ``multiprocessing.get_context("spawn")``; default: the platform's (fork on Linux).
     """
 
-    def __init__(self, workers: int, *, heartbeat: float = 1.0):
+    def __init__(self, workers: int, *, heartbeat: float = 1.0, mp_context=None):
         self.workers = check_positive_int(workers, "workers")
         self.heartbeat = float(heartbeat)
+        self.mp_context = mp_context
         self._pool = None
 
     def _new_pool(self, n):
-        return cf.ProcessPoolExecutor(max_workers=n, initializer=_ignore_sigint)
+        return cf.ProcessPoolExecutor(max_workers=n, mp_context=self.mp_context,
+                                      initializer=_ignore_sigint)
 
     def shutdown(self, *, kill: bool = False):
         """Stop the workers, cancelling queued tasks (``kill``: terminate running ones too)."""

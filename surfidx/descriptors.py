@@ -51,7 +51,8 @@ class DescriptorSet:
     vectors : dict of str -> (d,) float32
         By kind: ``shape``, ``spectrum`` and, with colour, ``texture``.
     params : dict
-        ``lmax``, ``normalization``, ``version``, ``grid_level``.
+        The conventions that make two descriptors comparable: ``lmax``, ``normalization``,
+        ``version`` (the grid level is not one: energies at a degree do not depend on it).
     """
 
     vectors: dict
@@ -140,8 +141,7 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         vectors["texture"] = np.concatenate(
             [np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(), mean_col])
     vectors = {k: np.asarray(v, np.float32) for k, v in vectors.items()}
-    params = {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION,
-              "grid_level": int(level)}
+    params = {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION}
     return DescriptorSet(vectors, params)
 
 

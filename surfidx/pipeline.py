@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ProcessedModel", "content_hash"]
+__all__ = ["ProcessedModel", "content_hash", "process_model"]
 
 
 @dataclass
@@ -81,3 +81,88 @@ def content_hash(path, *, texture=None) -> str:
             for chunk in iter(lambda: fh.read(1 << 20), b""):
                 h.update(chunk)
     return h.hexdigest()
+
+
+def _png_bytes(image: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: int | None = None,
+                  level: int | None = None, method: str = "tutte", thumbnail_size: int = 192,
+                  lmax: int | None = None) -> ProcessedModel:
+    """Read, map, encode, evaluate, describe and draw one model.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Any file :func:`surfidx.read_surfels` reads.
+    bits_per_surfel : float
+        Full rate of the stored asset (lower rates are served by truncation).
+    texture : str or os.PathLike, optional
+        Texture image for an OBJ that names none.
+    samples : int, optional
+        Sample this many surfels uniformly over a mesh instead of one per vertex.
+    level : int, optional
+        Grid level (default from the surfel count).
+    method : {"tutte", "mds"}
+        Spherical map.
+    thumbnail_size : int
+        Thumbnail width and height in pixels.
+    lmax : int, optional
+        Largest SH degree of the descriptors (default :data:`surfidx.descriptors.DEFAULT_LMAX`).
+
+    Returns
+    -------
+    ProcessedModel
+
+    Raises
+    ------
+    SurfidxError
+        Unreadable file, a surface that cannot be mapped, or a rate below the header's size.
+    """
+    import time
+
+    from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
+    from .descriptors import DEFAULT_LMAX, describe_grid
+    from .io import read_surfels
+    from .metrics import evaluate
+    from .render import render
+
+    timings = {}
+    t0 = time.perf_counter()
+    surfels = read_surfels(path, texture=texture, samples=samples)
+    timings["read"] = time.perf_counter() - t0
+    enc = Encoder(surfels, level=level, method=method)
+    timings.update(enc.setup_seconds)
+    t0 = time.perf_counter()
+    stream = enc.encode(bits_per_surfel)
+    timings["encode"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    decoded = decode(stream)
+    timings["decode"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    q = evaluate(surfels, decoded)
+    quality = {k: q[k] for k in ("psnr_d1", "psnr_d2", "psnr_y")}
+    timings["evaluate"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    desc = describe_grid(enc.grid, enc.level, lmax=DEFAULT_LMAX if lmax is None else lmax)
+    timings["describe"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size))
+    timings["thumbnail"] = time.perf_counter() - t0
+    params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
+              "color_weight": COLOR_WEIGHT, "samples": samples, "texture": None if texture is None
+              else str(texture), "folded": int(enc.sphere_map.folded),
+              "descriptors": desc.params}
+    return ProcessedModel(
+        name=Path(path).stem, source=str(Path(path).resolve()),
+        content_hash=content_hash(path, texture=texture), n_surfels=len(surfels),
+        has_color=surfels.has_color, bbox=surfels.bounds, stream=stream,
+        format_version=CODEC_VERSION, rate=8.0 * len(stream) / len(surfels), quality=quality,
+        descriptors=desc.vectors, thumbnail=thumb, params=params, timings=timings)

@@ -201,6 +201,18 @@ def test_parallel_workers_and_crash(tmp_path):
         assert key(a) == key(b)
 
 
+@pytest.mark.slow
+def test_spawn_context(tmp_path):
+    """Workers started by spawn (as on macOS/Windows) import the processor by name."""
+    import multiprocessing
+
+    make_tree(tmp_path / "data", 2)
+    pool = ingest.ProcessPool(2, mp_context=multiprocessing.get_context("spawn"))
+    s = ingest.run([tmp_path / "data"], db=tmp_path / "sp.db", processor=fake_processor,
+                   executor=pool, progress=False)
+    assert (s.stored, s.failed) == (2, 0), s.errors
+
+
 def test_custom_executor(tmp_path):
     make_tree(tmp_path / "data", 3)
     calls = []
@@ -244,7 +256,7 @@ ingest.run([{root!r}], db={db!r}, processor=test_ingest.fake_processor, progress
 """
 
 
-def test_sigkill_mid_run_then_resume(tmp_path):
+def test_sigkill_mid_run_then_resume(tmp_path, monkeypatch):
     root = tmp_path / "data"
     root.mkdir()
     for i in range(12):
@@ -273,6 +285,7 @@ def test_sigkill_mid_run_then_resume(tmp_path):
     assert rows["descriptors"] == rows["models"]
     with Database(db) as d:
         assert d.last_run()["status"] == "running"           # killed: never finished
+    monkeypatch.setattr(time, "sleep", lambda seconds: None)     # the re-run need not be slow
     s = ingest.run([root], db=db, processor=fake_processor, progress=False)
     assert s.skipped == rows["models"] and s.stored == 12 - rows["models"] and s.failed == 0
     with Database(db) as d:

@@ -35,7 +35,8 @@ def brute_force(ref: SurfelSet, test: SurfelSet) -> dict:
     a = one_way(ref, test)
     b = one_way(test, ref)
     mse1, mse2 = max(a[0], b[0]), max(a[1], b[1])
-    out = {"psnr_d1": 10 * math.log10(peak ** 2 / mse1), "psnr_d2": 10 * math.log10(peak ** 2 / mse2),
+    out = {"psnr_d1": 10 * math.log10(peak ** 2 / mse1),
+           "psnr_d2": 10 * math.log10(peak ** 2 / mse2),
            "hausdorff": max(a[3], b[3]) / peak, "peak": peak}
     if a[2] is not None:
         out["psnr_y"] = 10 * math.log10(255 ** 2 / max(a[2], b[2]))
@@ -110,8 +111,8 @@ def test_gaussian_noise_on_sparse_points_matches_theory():
     """Isotropic noise of sigma per axis, sigma far below the point spacing.
 
     Each noisy point's nearest reference point is then its own original (and vice versa), so the
-    D1 error is |e|^2 with e ~ N(0, sigma^2 I3): its mean is 3 sigma^2 (RMS = sqrt(3) sigma), and the
-    D2 error is (e . n)^2, mean sigma^2. With 4000 points the sample mean of a chi-square with 3
+    D1 error is |e|^2 with e ~ N(0, sigma^2 I3): its mean is 3 sigma^2 (RMS = sqrt(3) sigma), and
+    the D2 error is (e . n)^2, mean sigma^2. With 4000 points the sample mean of a chi-square with 3
     degrees of freedom is within ~2% (0.1 dB), well inside the tolerance. (On samples dense
     compared to sigma the nearest neighbour would no longer be the original and D1 would tend to
     the normal component only, sigma^2; that regime is not asserted here.)
@@ -129,6 +130,27 @@ def test_gaussian_noise_on_sparse_points_matches_theory():
     test2 = perturbed(ref, rng.normal(scale=2 * sigma, size=ref.positions.shape))
     assert psnr_d1(ref, test) - psnr_d1(ref, test2) == pytest.approx(20 * math.log10(2),
                                                                      abs=TOL.psnr_agreement)
+
+
+def test_gaussian_noise_on_dense_points_sees_only_the_normal_component():
+    """The opposite regime: noise sigma far above the point spacing.
+
+    A noisy point's nearest reference point is then (nearly) the foot of its perpendicular on the
+    surface, so only the normal component of the noise counts: D1 MSE -> sigma^2 (not 3 sigma^2),
+    plus the mean squared distance from a surface point to the nearest sample, 1 / (pi * density)
+    = 4 / n on the unit sphere (4% of sigma^2 here, 0.2 dB). The other direction (a reference
+    point searching the noisy layer) finds a nearer point, so the maximum is this one. Both PSNRs
+    sit ~4.8 dB above the sparse regime's D1 value, which the test also rules out.
+    """
+    rng = np.random.default_rng(8)
+    ref = sphere_points(50_000, rng)  # spacing about 0.016
+    sigma = 0.04
+    test = perturbed(ref, rng.normal(scale=sigma, size=ref.positions.shape))
+    res = evaluate(ref, test)
+    dense = 20 * math.log10(ref.diagonal / sigma)
+    assert res["psnr_d1"] == pytest.approx(dense, abs=TOL.psnr_agreement)
+    assert res["psnr_d2"] == pytest.approx(dense, abs=TOL.psnr_agreement)
+    assert res["psnr_d1"] - 20 * math.log10(ref.diagonal / (math.sqrt(3) * sigma)) > 4.0
 
 
 def test_tangential_noise_costs_little_in_d2():
@@ -156,7 +178,10 @@ def test_d2_never_worse_than_d1():
 
 
 def test_luma_constant_shift_is_analytic(sphere_surfels):
-    """Adding delta to R, G and B adds delta to Y (the weights sum to 1): PSNR = 20 log10(255/delta)."""
+    """Adding delta to R, G and B adds delta to Y (the weights sum to 1).
+
+    Hence PSNR_Y = 20 log10(255 / delta) exactly.
+    """
     c = sphere_surfels.colors.astype(int)
     keep = np.all(c <= 249, axis=1)
     ref = sphere_surfels.subset(keep)
@@ -187,7 +212,8 @@ def test_explicit_peak_shifts_psnr(sphere_surfels):
     rng = np.random.default_rng(0)
     test = perturbed(sphere_surfels, rng.normal(scale=1e-3, size=sphere_surfels.positions.shape))
     base = psnr_d1(sphere_surfels, test)
-    assert psnr_d1(sphere_surfels, test, peak=10 * sphere_surfels.diagonal) == pytest.approx(base + 20)
+    ten = psnr_d1(sphere_surfels, test, peak=10 * sphere_surfels.diagonal)
+    assert ten == pytest.approx(base + 20)  # 10x the peak: +20 dB
 
 
 # ---------------------------------------------------------------------- errors
