@@ -31,6 +31,7 @@ import numpy as np
 
 from surfidx import TriangleMesh, read_surfels
 from surfidx.geodesics import GeodesicSolver
+from surfidx.graph import DEFAULT_MAX_ANGLE, DEFAULT_SCALE
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 MODELS = {
@@ -40,7 +41,7 @@ MODELS = {
     "spot": "spot/spot_triangulated.obj", "banana": "ycb_banana/textured_simple_reoriented.obj",
 }
 ANGLES = (30.0, 45.0, 60.0, 90.0, 120.0, 180.0)
-SCALES = (1.0, 1.5, 2.0, 2.5)
+SCALES = (1.0, 1.5, 1.75, 2.0, 2.5)
 
 
 def icosphere_mesh(level):
@@ -124,7 +125,11 @@ def main(argv=None):
     for name in args.models:
         t0 = time.time()
         s = load(name)
-        solver = GeodesicSolver(s)
+        try:
+            solver = GeodesicSolver(s)
+        except Exception as exc:  # report and go on with the other models
+            print(f"  {name}: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+            continue
         sources = rng.choice(len(s), args.sources, replace=False)
         targets, exact = reference(s, name, solver, sources, args.ball, args.targets, rng)
         t_exact = time.time() - t0
@@ -146,7 +151,8 @@ def main(argv=None):
             row["heat"] = rel_stats(hd, exact)
         rows.append(row)
         if not args.no_sweep:
-            combos = [(a, 1.5) for a in ANGLES] + [(60.0, sc) for sc in SCALES if sc != 1.5]
+            combos = [(a, DEFAULT_SCALE) for a in ANGLES] + [
+                (DEFAULT_MAX_ANGLE, sc) for sc in SCALES if sc != DEFAULT_SCALE]
             for ang, sc in combos:
                 try:
                     sv = GeodesicSolver(s, max_angle=ang, scale=sc)
@@ -156,8 +162,10 @@ def main(argv=None):
                     sweep.append((name, ang, sc, float("nan"), (np.nan, np.nan, np.nan)))
                     print(f"  {name} angle {ang} scale {sc}: {type(exc).__name__}: {exc}"[:150],
                           file=sys.stderr)
-        print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s",
-              file=sys.stderr, flush=True)
+        stats = " ".join(f"{key} {row[key][0]:.2f}/{row[key][1]:.2f}%" for key in
+                         ("graph", "refined", "heat") if key in row)
+        print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s;"
+              f" {stats}", file=sys.stderr, flush=True)
 
     print("\nRelative error vs exact geodesics, % (|mean| / p95 / signed mean); "
           f"{args.sources} sources, {args.targets} targets each ({args.refine_targets} refined)")
@@ -178,7 +186,7 @@ def main(argv=None):
     if sweep:
         print("\nGraph distances: mean |relative error| % by normal-angle threshold and scale "
               "(mean degree in brackets)")
-        combos = sorted({(a, sc) for _, a, sc, _, _ in sweep}, key=lambda x: (x[1] != 1.5, x))
+        combos = sorted({(a, sc) for _, a, sc, _, _ in sweep}, key=lambda x: (x[1] != DEFAULT_SCALE, x))
         print(f"{'model':13s} " + " ".join(f"{f'{a:g}deg x{sc:g}':>14s}" for a, sc in combos))
         for name in dict.fromkeys(m for m, *_ in sweep):
             cells = []

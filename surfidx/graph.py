@@ -11,7 +11,9 @@ normals differ by less than ``max_angle``; the edge weight is the Euclidean dist
 * ``"knn"``: the distance to the ``k``-th nearest surfel (a richer, still scale-adaptive stencil).
 
 The normal test keeps the two sides of thin parts (ears, fingers, sheets) apart: their surfels are
-close in space but face opposite ways.
+close in space but face opposite ways. A surfel that the tests leave without any edge (the tip of
+a spike, whose normal is steep to all its neighbours) is linked to the surfels whose spheres meet
+its own and whose normals are within 90 degrees of its normal.
 
 Construction is O(N log N) and memory linear in the number of edges: a numba kernel scans a hashed
 uniform grid (see ``_sig_edges``).
@@ -43,7 +45,7 @@ edges at creases (longer detours) and 120 degrees and more lets paths jump betwe
 of thin parts. 60 degrees sits in the middle of the flat range.
 """
 
-DEFAULT_SCALE = 1.5
+DEFAULT_SCALE = 2.0
 """Default sphere-radius multiplier ``s``.
 
 With ``s = 1`` and mesh coverage radii the graph is essentially the mesh's 1-ring (6 neighbours),
@@ -133,6 +135,8 @@ class SphereOfInfluenceGraph:
         radii = neighbour_radii(surfels.positions, surfels.radii, radius=radius, k=k)
         rows, cols, dist = _sig_edges(surfels.positions, surfels.normals, radii * float(scale),
                                       max_angle)
+        rows, cols, dist = _link_isolated(surfels.positions, surfels.normals,
+                                          radii * float(scale), rows, cols, dist)
         matrix = _symmetric_csr(rows, cols, dist, n)
         graph = cls(matrix, radii, max_angle=max_angle, scale=float(scale))
         if check:
@@ -359,6 +363,47 @@ def _grid_pairs(pos, nrm, r, cos_min, sin_half, q, dims, order, skeys, cell, pai
     out = np.zeros(1, np.int64)
     out[0] = k
     return out
+
+
+def _link_isolated(positions, normals, radii, rows, cols, dist):
+    """Link surfels left without any edge to their sphere-intersecting neighbours on the same side.
+
+    The tip of a spike or cone (a mesh vertex whose normal averages steep faces) fails the tangent
+    test with every neighbour, so the strict tests would isolate it; it is linked to the surfels
+    whose spheres meet its own and whose normals lie within 90 degrees of its normal (or to its
+    nearest same-side surfel when none meets it). Cheap: such surfels are rare.
+    """
+    n = len(positions)
+    deg = np.bincount(rows, minlength=n) + np.bincount(cols, minlength=n)
+    lonely = np.flatnonzero(deg == 0)
+    if len(lonely) == 0:
+        return rows, cols, dist
+    tree = cKDTree(positions)
+    reach = float(radii.max())
+    add_i, add_j = [], []
+    for i in lonely:  # few surfels: a Python loop over them is fine
+        nb = np.asarray(tree.query_ball_point(positions[i], radii[i] + reach), np.int64)
+        nb = nb[nb != i]
+        d = np.linalg.norm(positions[nb] - positions[i], axis=1)
+        same = normals[nb] @ normals[i] > 0.0
+        ok = same & (d < radii[i] + radii[nb])
+        if not ok.any():
+            kk = min(16, n)
+            d, nb = tree.query(positions[i], k=kk)
+            nb, d = np.atleast_1d(nb), np.atleast_1d(d)
+            keep = (nb != i) & (normals[nb] @ normals[i] > 0.0)
+            ok = np.zeros(len(nb), bool)
+            if keep.any():
+                ok[np.flatnonzero(keep)[np.argmin(d[keep])]] = True
+        add_i.append(np.full(int(ok.sum()), i, np.int64))
+        add_j.append(nb[ok])
+    ai, aj = np.concatenate(add_i), np.concatenate(add_j)
+    # a pair of two lonely surfels would be listed twice
+    lo, hi = np.minimum(ai, aj), np.maximum(ai, aj)
+    pairs = np.unique(np.stack([lo, hi], 1), axis=0)
+    ad = np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+    return (np.concatenate([rows, pairs[:, 0]]), np.concatenate([cols, pairs[:, 1]]),
+            np.concatenate([dist, ad]))
 
 
 def _symmetric_csr(i, j, d, n):

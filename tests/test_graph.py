@@ -144,3 +144,25 @@ def test_varied_radii_and_repr():
     ok = (d < r[i] + r[j])
     assert g.n_edges == ok.sum()
     assert "SphereOfInfluenceGraph(642 surfels" in repr(g)
+
+
+def test_isolated_tip_is_linked_to_same_side_neighbours():
+    # a flat grid with one surfel whose normal is tilted by 80 degrees (like the tip of a spike):
+    # the normal and tangent tests reject all its links, the fallback links it on the same side
+    x, y = np.meshgrid(np.arange(9) * 0.1, np.arange(9) * 0.1)
+    pos = np.stack([x.ravel(), y.ravel(), np.zeros(81)], 1)
+    nrm = np.tile([0, 0, 1.0], (81, 1))
+    t = np.radians(80.0)
+    nrm[40] = [np.sin(t), 0.0, np.cos(t)]
+    s = SurfelSet(pos, nrm, np.full(81, 0.08))
+    g = SphereOfInfluenceGraph.from_surfels(s, scale=1.0)
+    assert g.n_components == 1
+    nb = g.matrix[40].indices
+    d = np.linalg.norm(pos[nb] - pos[40], axis=1)
+    assert len(nb) == 8 and np.all(d < 0.16)
+    assert np.allclose(g.matrix[40].data, d) and np.allclose(g.matrix[:, 40].toarray()[nb, 0], d)
+    # the other surfels keep the strict tests: no edge between two other surfels changed
+    flat = SurfelSet(pos, np.tile([0, 0, 1.0], (81, 1)), np.full(81, 0.08))
+    gf = SphereOfInfluenceGraph.from_surfels(flat, scale=1.0)
+    keep = np.setdiff1d(np.arange(81), [40])
+    assert (g.matrix[keep][:, keep] != gf.matrix[keep][:, keep]).nnz == 0
