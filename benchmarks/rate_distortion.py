@@ -140,11 +140,11 @@ def interp_log_rate(points, rate):
 def _encode_after_map(encoder) -> float | None:
     """Seconds of the Encoder's setup after the spherical map, if it reports a breakdown.
 
-    Looks for a dict attribute ``setup_timings`` / ``timings`` (stage -> seconds) and sums every
+    Looks for a dict attribute ``setup_seconds`` / ``setup_timings`` / ``timings`` (stage -> seconds) and sums every
     stage but the parameterisation ones (names containing ``map``, ``param``, ``sphere`` or
     ``graph``/``geodesic``). Returns None when there is no breakdown.
     """
-    for attr in ("setup_timings", "timings", "stage_seconds"):
+    for attr in ("setup_seconds", "setup_timings", "timings", "stage_seconds"):
         t = getattr(encoder, attr, None)
         if isinstance(t, dict) and t:
             skip = ("map", "param", "spher", "graph", "geodesic", "embed", "read", "total")
@@ -175,7 +175,8 @@ def run_surfidx(surfels, rates, level, method) -> dict:
 
     n = len(surfels)
     t0 = time.perf_counter()
-    enc = codec.Encoder(surfels, level=level, method=method)
+    kw = {} if method is None else {"method": method}
+    enc = codec.Encoder(surfels, level=level, **kw)
     wall_setup = time.perf_counter() - t0
     setup = float(getattr(enc, "setup_seconds", wall_setup))
     if not _WARMED:  # first call compiles/loads numba kernels: keep it out of the timings
