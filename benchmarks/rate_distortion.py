@@ -175,10 +175,13 @@ def run_surfidx(surfels, rates, level, method) -> dict:
 
     n = len(surfels)
     t0 = time.perf_counter()
+    if method is None and surfels.faces is None:
+        method = "mds"  # surface samples carry no triangulation for the default (Tutte) map
     kw = {} if method is None else {"method": method}
     enc = codec.Encoder(surfels, level=level, **kw)
     wall_setup = time.perf_counter() - t0
-    setup = float(getattr(enc, "setup_seconds", wall_setup))
+    setup = getattr(enc, "setup_seconds", wall_setup)
+    setup = float(sum(setup.values()) if isinstance(setup, dict) else setup)
     if not _WARMED:  # first call compiles/loads numba kernels: keep it out of the timings
         codec.decode(enc.encode(min(rates)))
         _WARMED = True
