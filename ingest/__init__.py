@@ -5,11 +5,15 @@
 >>> print(summary)                                                        # doctest: +SKIP
 run 1: stored 41, skipped 0, failed 1 in 312.4 s
 
-See :mod:`ingest._run` for the data flow, the executor abstraction and the texture discovery.
+See :mod:`ingest._run` for the data flow, the executor abstraction and the texture discovery, and
+:mod:`ingest._dask` for the dask.distributed executor (``ingest.run(..., scheduler="local")`` or
+``scheduler="tcp://HOST:PORT"``; needs ``pip install 'surfidx[distributed]'``).
 """
 
+from ._dask import DaskExecutor
 from ._run import (IngestSummary, Outcome, ProcessPool, Task, discover, error_message,
                    find_texture, make_tasks, process_task, resolve_processor, run, serial)
 
 __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
-           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message"]
+           "process_task", "resolve_processor", "serial", "ProcessPool", "DaskExecutor",
+           "error_message"]

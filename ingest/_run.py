@@ -11,9 +11,10 @@ Data flow of :func:`run`:
 3. The remaining :class:`Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
    yields ``fn(task)`` for every task, in completion order (and may yield ``None`` as a
    heartbeat while it waits). :class:`ProcessPool` runs them in
-   worker processes (restarting the pool when a worker dies), :func:`serial` in-process; a
-   dask.distributed executor only needs the same signature. ``fn`` is :func:`process_task`
-   bound to the processor and rate: one picklable per-model function for every executor.
+   worker processes (restarting the pool when a worker dies), :func:`serial` in-process,
+   :class:`ingest.DaskExecutor` on a dask.distributed cluster (``scheduler=``). ``fn`` is
+   :func:`process_task` bound to the processor and rate: one picklable per-model function for
+   every executor.
 4. Results are written by this process alone, in batched transactions (every ``batch`` models or
    ``flush_seconds``), each model inside its own savepoint: a model is stored whole or not at all,
    and a SIGINT or SIGKILL at any moment leaves a consistent database (WAL mode).
@@ -397,7 +398,7 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
 
 def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
         progress: bool = True, executor=None, batch: int = 8,
-        flush_seconds: float = 2.0) -> IngestSummary:
+        flush_seconds: float = 2.0, scheduler=None, retries: int = 2) -> IngestSummary:
     """Ingest model files and folders into a database, skipping models already stored.
 
     Parameters
@@ -407,7 +408,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     db : surfidx.database.Database or str or os.PathLike
         An open database, or the path of one (created when missing).
     workers : int
-        Worker processes; ``1`` processes in this process.
+        Worker processes; ``1`` processes in this process. With ``scheduler="local"`` the
+        LocalCluster's workers; ignored with a running cluster (its workers are used).
     bits_per_surfel : float
         Coding rate passed to the processor.
     processor : callable, optional
@@ -424,6 +426,13 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         Models per write transaction.
     flush_seconds : float
         Longest time a finished model waits before it is written.
+    scheduler : str or distributed.Client, optional
+        Run the per-model work on a Dask cluster (:class:`ingest.DaskExecutor`): ``"local"``
+        starts a LocalCluster of ``workers`` processes, ``"tcp://HOST:PORT"`` connects to a
+        running scheduler. This process remains the only writer of the database.
+    retries : int
+        With ``scheduler``: times a model whose worker died is submitted again before it is
+        recorded as failed.
 
     Returns
     -------
@@ -432,8 +441,12 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     Raises
     ------
     InputError
-        A path does not exist, bad ``workers``/``bits_per_surfel``/``batch``, or a processor
-        that cannot be sent to worker processes.
+        A path does not exist, bad ``workers``/``bits_per_surfel``/``batch``/``retries``, a
+        processor that cannot be sent to worker processes, or both ``executor`` and
+        ``scheduler``.
+    SurfidxError
+        ``scheduler`` without dask.distributed installed, or a scheduler that cannot be reached
+        (before anything is written).
     DatabaseError
         The database cannot be opened or written.
 
@@ -452,6 +465,16 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
     files = discover(paths)
     processor = resolve_processor(processor)
+    if scheduler is not None:
+        if executor is not None:
+            raise InputError("give either executor or scheduler, not both")
+        from ._dask import DaskExecutor
+
+        # Connect (or start the LocalCluster) before anything is written.
+        with DaskExecutor(scheduler, workers=workers, retries=retries) as dask_executor:
+            return run(paths, db=db, workers=workers, bits_per_surfel=bits_per_surfel,
+                       processor=processor, progress=progress, executor=dask_executor,
+                       batch=batch, flush_seconds=flush_seconds)
     if executor is None and workers > 1:
         _check_picklable(processor)
     if not isinstance(db, Database):
@@ -461,7 +484,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                        flush_seconds=flush_seconds)
 
     t_start = time.perf_counter()
-    summary = IngestSummary(run_id=db.start_run([str(p) for p in paths], workers=workers,
+    n_workers = getattr(executor, "n_workers", workers)      # a cluster's actual worker count
+    summary = IngestSummary(run_id=db.start_run([str(p) for p in paths], workers=n_workers,
                                                 bits_per_surfel=bits_per_surfel))
     pending_errors = []
 

@@ -229,3 +229,15 @@ def test_parse_model_ref():
     assert parse_model_ref("bunny") == "bunny"
     with pytest.raises(Exception, match="'id:q' is not a model id"):
         parse_model_ref("id:q")
+
+
+def test_ingest_scheduler_without_distributed(tmp_path, monkeypatch):
+    import sys
+
+    root = make_tree(tmp_path / "data", 1)
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    r = invoke(["ingest", root, "--db", tmp_path / "x.db", "--scheduler", "tcp://127.0.0.1:1"])
+    assert r.exit_code == 1
+    assert "Error: ingestion on a Dask cluster needs dask.distributed" in r.output
+    assert "pip install 'surfidx[distributed]'" in r.output
+    assert not (tmp_path / "x.db").exists()

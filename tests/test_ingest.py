@@ -388,3 +388,15 @@ def test_process_pool_heartbeat_and_stop(tmp_path):
         p.join(5)
         assert not p.is_alive()
     assert time.monotonic() - t0 < 5
+
+
+def test_scheduler_without_distributed_says_how_to_install(tmp_path, monkeypatch):
+    import sys
+
+    make_tree(tmp_path / "data", 1)
+    monkeypatch.setitem(sys.modules, "distributed", None)          # import distributed fails
+    with pytest.raises(SurfidxError, match=r"needs dask\.distributed.*"
+                                           r"pip install 'surfidx\[distributed\]'"):
+        ingest.run([tmp_path / "data"], db=tmp_path / "x.db", scheduler="local",
+                   processor=fake_processor, progress=False)
+    assert not (tmp_path / "x.db").exists()

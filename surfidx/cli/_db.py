@@ -90,25 +90,34 @@ def _table(rows, columns):
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
 @_db_option
 @click.option("-j", "--workers", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Worker processes.")
+              help="Worker processes (of the local pool, or of --scheduler local).")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run the per-model work on a Dask cluster: tcp://HOST:PORT of a running "
+                   "`dask scheduler`, or 'local' to start one with --workers worker processes "
+                   "(needs surfidx[distributed]).")
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --scheduler: times a model whose worker died is re-run before it is "
+                   "recorded as failed.")
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=8.0,
               show_default=True, help="Coding rate of the stored streams.")
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @command_errors
-def ingest_command(paths, db_path, workers, bits_per_surfel, no_progress, as_json):
+def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, no_progress,
+                   as_json):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
     ingest resumes it. A file that fails is recorded (see `surfidx errors`) and the run goes on.
     An OBJ with UVs but no texture named gets <stem>_texture.png, <stem>.png or the folder's only
-    PNG.
+    PNG. With --scheduler the models are processed on a Dask cluster's workers (which need the
+    package and read access to the paths); this process alone writes the database.
     """
     import ingest
 
     summary = ingest.run(list(paths), db=db_path, workers=workers,
                          bits_per_surfel=bits_per_surfel, processor=_processor(),
-                         progress=not no_progress)
+                         progress=not no_progress, scheduler=scheduler, retries=retries)
     if as_json:
         echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
                    "failed": summary.failed, "ids": summary.ids, "seconds": summary.seconds,
