@@ -143,7 +143,10 @@ class Encoder:
         diag = surfels.diagonal
         weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
         area = icosphere(self.level).vertex_areas()
-        self.klt = KLT.fit(self.grid, weights=weights, sample_weights=area).as_float32()
+        fit = KLT.fit(self.grid, weights=weights, sample_weights=area)
+        # the values the container stores (float16 basis): encoder and decoder use the same
+        self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
+                       eigenvalues=fit.eigenvalues)
         self.coeffs = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True,
                                        normalized=True)
         top = float(np.abs(self.coeffs).max())

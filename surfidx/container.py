@@ -15,10 +15,13 @@ import numpy as np
 
 from ._errors import BitstreamError, InputError
 
-__all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size"]
+__all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
+           "storable"]
 
 MAGIC = b"\x89SFZ"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Version 2 (this one): KLT basis as float16, one unit weight per geometry/colour group.
+Version 1 stored the basis and one weight per layer as float32 (132 bytes more with colour)."""
 
 FLAG_COLOR = 1
 FLAG_LIFTED = 2
@@ -49,7 +52,7 @@ class Header:
     basis : (k, k) float32
         KLT basis (rows are the principal directions).
     weights : (k,) float32
-        Per-layer unit weights applied before the KLT (geometry 1, colour ``w``).
+        Per-layer unit weights applied before the KLT: one value for x, y, z and one for r, g, b.
     coder : bytes
         The zerotree coder's own small header (top bit plane, step, ...).
     """
@@ -71,10 +74,47 @@ class Header:
         return 6 if self.color else 3
 
 
+def _n_weights(k: int) -> int:
+    return 1 if k <= 3 else 2
+
+
 def header_size(layers: int, coder_bytes: int) -> int:
     """Bytes of a container's header for ``layers`` KLT layers and a coder header of given size."""
     k = layers
-    return _FIXED.size + 4 * (k + k * k + k) + coder_bytes + _TAIL.size
+    return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + _TAIL.size
+
+
+def storable(mean, basis, weights):
+    """The KLT arrays rounded exactly as :func:`pack` stores them.
+
+    ``mean`` and ``weights`` become float32, ``basis`` float16 (an orthonormal basis loses
+    nothing that matters: the analysis inverts the stored basis, so coding stays exact).
+
+    Parameters
+    ----------
+    mean : (k,) float64
+    basis : (k, k) float64
+    weights : (k,) float64
+        One value for x, y, z and one for r, g, b.
+
+    Returns
+    -------
+    mean, basis, weights : float64 arrays holding the stored values
+
+    Raises
+    ------
+    InputError
+        When the weights are not one value per group.
+    """
+    k = len(mean)
+    w = np.asarray(weights, np.float64).reshape(k)
+    if np.any(w[:3] != w[0]) or np.any(w[3:] != w[3:4]):
+        raise InputError("weights must be one value for x, y, z and one for r, g, b, got "
+                         f"{w.tolist()}")
+    with np.errstate(over="ignore"):  # overflow gives inf, refused by pack
+        return (np.asarray(mean, np.float32).astype(np.float64),
+                np.asarray(basis, np.float16).astype(np.float64),
+                np.asarray(w, np.float32).astype(np.float64))
 
 
 def pack(header: Header, stream: bytes) -> bytes:
@@ -90,9 +130,14 @@ def pack(header: Header, stream: bytes) -> bytes:
     bytes
     """
     k = header.layers
-    mean = np.asarray(header.mean, "<f4").reshape(k)
-    basis = np.asarray(header.basis, "<f4").reshape(k, k)
-    weights = np.asarray(header.weights, "<f4").reshape(k)
+    mean, basis, weights = storable(np.reshape(header.mean, k), np.reshape(header.basis, (k, k)),
+                                    np.reshape(header.weights, k))
+    mean = mean.astype("<f4")
+    basis = basis.astype("<f2")
+    weights = weights[[0, 3][:_n_weights(k)]].astype("<f4")
+    if not (np.all(np.isfinite(basis)) and np.all(np.isfinite(mean))
+            and np.all(np.isfinite(weights))):
+        raise InputError("the KLT mean, basis and weights must be finite in float32/float16")
     if not (0 <= header.level <= 12):
         raise InputError(f"grid level must be 0..12, got {header.level}")
     if not (0 < header.n_surfels < 2 ** 32):
@@ -137,8 +182,10 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if version != FORMAT_VERSION:
         raise BitstreamError(f"unsupported format version {version} (this surfidx reads "
                              f"version {FORMAT_VERSION}); upgrade surfidx", path=path)
-    nf = k + k * k + k
-    tail_off = _FIXED.size + 4 * nf + clen
+    if k not in (3, 6):
+        raise BitstreamError(f"corrupt header (layer count {k}, expected 3 or 6)", path=path)
+    nw = _n_weights(k)
+    tail_off = _FIXED.size + 4 * k + 2 * k * k + 4 * nw + clen
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
@@ -157,13 +204,16 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         raise BitstreamError(f"{len(stream) - s_len} unexpected bytes after the stream", path=path)
     if zlib.crc32(stream) != scrc:
         raise BitstreamError("stream checksum mismatch: the file is damaged", path=path)
-    floats = np.frombuffer(data, "<f4", nf, _FIXED.size).astype(np.float32)
-    if not np.all(np.isfinite(floats)):
+    off = _FIXED.size
+    mean = np.frombuffer(data, "<f4", k, off).astype(np.float32)
+    basis = np.frombuffer(data, "<f2", k * k, off + 4 * k).astype(np.float32).reshape(k, k)
+    w = np.frombuffer(data, "<f4", nw, off + 4 * k + 2 * k * k).astype(np.float32)
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(basis)) and np.all(np.isfinite(w))):
         raise BitstreamError("corrupt header (non-finite KLT values)", path=path)
+    weights = np.repeat(w, 3)
     header = Header(
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
-        mean=floats[:k].copy(), basis=floats[k:k + k * k].reshape(k, k).copy(),
-        weights=floats[k + k * k:].copy(), coder=bytes(data[tail_off - clen:tail_off]),
+        mean=mean, basis=basis, weights=weights, coder=bytes(data[tail_off - clen:tail_off]),
         map_method=method, version=version)
     return header, stream
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx import BitstreamError, InputError
-from surfidx.container import FORMAT_VERSION, MAGIC, Header, header_size, pack, truncate, unpack
+from surfidx.container import (FORMAT_VERSION, MAGIC, Header, header_size, pack, storable,
+                               truncate, unpack)
 
 
 def _header(color=True):
@@ -12,7 +13,8 @@ def _header(color=True):
     rng = np.random.default_rng(0)
     q, _ = np.linalg.qr(rng.normal(size=(k, k)))
     return Header(n_surfels=1234, level=5, color=color, lifted=True, mean=rng.normal(size=k),
-                  basis=q, weights=np.ones(k), coder=b"\x07\x01abc", map_method=2)
+                  basis=q, weights=np.r_[np.full(3, 0.5), np.full(k - 3, 0.01)],
+                  coder=b"\x07\x01abc", map_method=2)
 
 
 @pytest.mark.parametrize("color", [True, False])
@@ -25,8 +27,24 @@ def test_round_trip(color):
     assert s2 == stream
     assert (h2.n_surfels, h2.level, h2.color, h2.lifted, h2.coder, h2.map_method, h2.version) == (
         1234, 5, color, True, b"\x07\x01abc", 2, FORMAT_VERSION)
-    np.testing.assert_array_equal(h2.basis, np.float32(h.basis))
+    np.testing.assert_array_equal(h2.basis, np.float16(h.basis))
     np.testing.assert_array_equal(h2.mean, np.float32(h.mean))
+    np.testing.assert_array_equal(h2.weights, np.float32(h.weights))
+    for a, b in zip(storable(h.mean, h.basis, h.weights), (h2.mean, h2.basis, h2.weights)):
+        np.testing.assert_array_equal(a, b)  # what the encoder uses is what the decoder reads
+
+
+def test_header_sizes():
+    # fixed 16 + mean 4k + float16 basis 2k^2 + 1 or 2 group weights + coder + tail 12
+    assert header_size(3, 8) == 16 + 12 + 18 + 4 + 8 + 12 == 70
+    assert header_size(6, 8) == 16 + 24 + 72 + 8 + 8 + 12 == 140
+
+
+def test_weights_must_be_one_per_group():
+    h = _header()
+    h.weights = np.arange(1.0, 7.0)
+    with pytest.raises(InputError, match="one value for x, y, z and one for r, g, b"):
+        pack(h, b"")
 
 
 def test_truncate_keeps_a_valid_prefix():
@@ -94,4 +112,15 @@ def test_coder_header_limit():
     h = _header()
     h.coder = bytes(70000)
     with pytest.raises(InputError, match="coder header longer than 65535"):
+        pack(h, b"")
+
+
+def test_layer_count_and_non_finite_values():
+    data = bytearray(pack(_header(), b"abc"))
+    data[7] = 4
+    with pytest.raises(BitstreamError, match="layer count 4, expected 3 or 6"):
+        unpack(bytes(data))
+    h = _header()
+    h.basis = h.basis * 1e6  # overflows float16
+    with pytest.raises(InputError, match="must be finite in float32/float16"):
         pack(h, b"")
