@@ -5,19 +5,26 @@ Default method ``"tutte"`` (the fold-free route)
 1. A planar triangulation over the surfels: the mesh faces (``SurfelSet.faces``). Its topology is
    checked first (closed, one piece, manifold, Euler characteristic 2), so a torus, a pretzel or
    two pieces fail with :class:`~surfidx.TopologyError` before any mapping.
-2. Puncture one triangle (the largest) and map the rest into the plane by a Tutte embedding with
-   positive mean-value weights (Floater 2003), the punctured triangle as the convex boundary.
-   Tutte's theorem (Floater's extension to any positive weights) makes the planar map an
-   embedding: no triangle folds.
-3. Area balancing (Yoshizawa, Belyaev & Seidel 2004 style reweighting): the weights toward each
-   vertex are multiplied by ``rho**gamma`` where ``rho`` is the local ratio of spherical to 3D
-   area share, and the Tutte system is solved again. Every iterate is again a positive-weight
-   Tutte embedding, hence fold-free in the plane; steps are accepted only when they lower the
-   area distortion and keep every triangle positively oriented on the sphere.
-4. Inverse stereographic projection (orientation preserving); the scale of the plane (the Möbius
-   dilation left free by the puncture) is chosen to minimise the area distortion. All steps use
-   intrinsic quantities only (lengths, angles, areas), so the result is canonical up to a rotation
-   of the sphere: a rotated input gives the same sphere points and the same figures.
+2. Puncture one vertex (the one with the largest area share) and map the rest into the plane by a
+   Tutte embedding with positive mean-value weights (Floater 2003), its 1-ring fixed on the unit
+   circle (spaced by edge length). Tutte's theorem (Floater's extension to any positive weights)
+   makes the planar map an embedding: no triangle folds. The inverse stereographic projection
+   (the punctured vertex at the north pole) keeps it an embedding on the sphere.
+3. Möbius normalisation: the Möbius automorphism of the sphere that moves the area-weighted centre
+   of mass of the vertices to the origin (Gu et al. 2004, Praun & Hoppe 2003), taken in halved
+   steps that never invert a mesh triangle. This fixes the three non-rotational Möbius degrees of
+   freedom, so the map is canonical up to a rotation.
+4. Area balancing (Yoshizawa, Belyaev & Seidel 2004 style reweighting): the weights toward each
+   vertex are multiplied by ``exp(-gamma * s)``, ``s`` the (clipped, graph-smoothed) log ratio of
+   3D to spherical area share around it, and the Tutte system is solved again (then normalised as
+   in 3). Neighbours of a squeezed vertex move away from it, so its region grows. Every iterate is
+   again a positive-weight Tutte embedding; a step is accepted only when it lowers the area
+   distortion, inverts no mesh triangle on the sphere and adds no folded triangle to the
+   spherical Delaunay triangulation of the mapped surfels (beyond 0.01 % of the triangles);
+   otherwise ``gamma`` is halved.
+
+All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity), so a rotated
+input gives the same sphere points and the same figures.
 
 Original method ``"mds"``
 -------------------------
@@ -357,62 +364,102 @@ def _mean_value_weights(p, f):
     return w
 
 
-class _TutteSystem:
-    """Tutte's linear system with the vertices of one triangle fixed on a planar triangle."""
+def _puncture(p, f, vertex_area):
+    """The vertex with the largest area share and its 1-ring in counter-clockwise order.
 
-    def __init__(self, n, boundary):
-        self.n = n
-        self.boundary = boundary
-        self.inner = np.setdiff1d(np.arange(n), boundary)
-        ang = np.pi / 2 + np.array([0.0, -2.0, -4.0]) * np.pi / 3  # clockwise: see _invstereo
+    Ties are broken by index, so the choice depends on intrinsic quantities only."""
+    key = np.round(vertex_area / vertex_area.max(), 9)
+    v = int(np.flatnonzero(key == key.max())[0])
+    return v, _ring(f, v)
+
+
+def _ring(f, v):
+    """The 1-ring of vertex ``v`` in counter-clockwise order."""
+    fv = f[np.any(f == v, axis=1)]
+    k = np.argmax(fv == v, axis=1)
+    a = fv[np.arange(len(fv)), (k + 1) % 3]
+    b = fv[np.arange(len(fv)), (k + 2) % 3]
+    nxt = dict(zip(a.tolist(), b.tolist()))
+    ring = [int(a[0])]
+    for _ in range(len(a) - 1):
+        ring.append(nxt[ring[-1]])
+    return np.array(ring, dtype=np.int64)
+
+
+class _TutteSystem:
+    """Tutte's linear system of the mesh punctured at one vertex, its 1-ring fixed on the unit
+    circle (spaced by edge length); the punctured vertex goes to infinity (the north pole)."""
+
+    def __init__(self, p, f, vertex, ring):
+        n = len(p)
+        self.n, self.vertex, self.ring = n, vertex, ring
+        self.inner = np.setdiff1d(np.arange(n), np.concatenate([[vertex], ring]))
+        el = np.linalg.norm(p[ring] - p[np.roll(ring, -1)], axis=1)
+        ang = np.concatenate([[0.0], np.cumsum(el)[:-1]]) / el.sum() * 2 * np.pi
         self.ub = np.column_stack([np.cos(ang), np.sin(ang)])
+        self.mirror = None
 
     def solve(self, w):
         from scipy.sparse.linalg import splu
 
         rs = np.asarray(w.sum(axis=1)).ravel()
         lap = (sp.diags(rs) - w).tocsr()
-        a = lap[self.inner][:, self.inner].tocsc()
-        b = lap[self.inner][:, self.boundary]
-        u = np.empty((self.n, 2))
-        u[self.boundary] = self.ub
+        rows = lap[self.inner]
+        a = rows[:, self.inner].tocsc()
+        b = rows[:, self.ring]
+        u = np.zeros((self.n, 2))
+        u[self.ring] = self.ub
         u[self.inner] = splu(a, permc_spec="COLAMD").solve(np.asarray(-(b @ self.ub)))
         return u
 
-
-def _invstereo(u):
-    """Inverse stereographic projection from the north pole, composed with a mirror so that the
-    clockwise boundary triangle and counter-clockwise interior map orientation-preservingly."""
-    r2 = (u ** 2).sum(axis=1)
-    return np.column_stack([2 * u[:, 0], -2 * u[:, 1], r2 - 1.0]) / (1.0 + r2)[:, None]
-
-
-def _log_ratios(s, f, share3, punct):
-    asph = _spherical_areas(s, f)
-    a = np.abs(asph) / (4 * np.pi)
-    a[punct] = max(1.0 - (a.sum() - a[punct]), 1e-300)
-    return np.log(np.clip(a / np.maximum(share3, 1e-300), 1e-300, 1e300)), asph
+    def sphere(self, u, f):
+        """Inverse stereographic projection, oriented so that the mesh keeps its orientation."""
+        r2 = (u ** 2).sum(axis=1)
+        x = np.column_stack([2 * u[:, 0], 2 * u[:, 1], r2 - 1.0]) / (1.0 + r2)[:, None]
+        x[self.vertex] = [0.0, 0.0, 1.0]
+        if self.mirror is None:
+            self.mirror = bool(np.sum(_orientation(x, f)) < 0)
+        if self.mirror:
+            x[:, 0] *= -1.0
+        return x
 
 
-def _score(u, scale, f, share3, punct):
-    s = _invstereo(u / scale)
-    lr, asph = _log_ratios(s, f, share3, punct)
-    neg = int(np.count_nonzero(np.delete(asph, punct) <= 0))
-    return float(np.sqrt(np.average(lr ** 2, weights=share3))), neg, lr, s
+def _orientation(x, f):
+    """Orientation of each mesh triangle on the sphere: ``(b - a) × (c - a) · (a + b + c)``."""
+    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
 
 
-def _best_scale(u, f, share3, punct):
-    from scipy.optimize import minimize_scalar
+def _mobius(x, a):
+    """The Möbius automorphism of the unit ball sending ``a`` (``|a| < 1``) to the origin, applied
+    to unit vectors ``x`` (Ahlfors): orientation preserving, maps the sphere onto itself."""
+    aa = a @ a
+    d = x - a
+    y = (1.0 - aa) * d - (d ** 2).sum(axis=1)[:, None] * a
+    y /= (1.0 - 2.0 * (x @ a) + aa)[:, None]
+    return y / np.linalg.norm(y, axis=1)[:, None]
 
-    res = minimize_scalar(lambda ls: _score(u, np.exp(ls), f, share3, punct)[0],
-                          bounds=(-15.0, 15.0), method="bounded", options={"xatol": 1e-2})
-    return float(np.exp(res.x))
 
+def _centre(x, weights, f, *, iterations: int = 60, tol: float = 1e-10):
+    """Möbius normalisation: move the ``weights``-weighted centre of mass of ``x`` to the origin.
 
-def _planar_folds(u, f, punct):
-    e1, e2 = u[f[:, 1]] - u[f[:, 0]], u[f[:, 2]] - u[f[:, 0]]
-    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    return int(np.count_nonzero(np.delete(det, punct) <= 0))
+    Fixes the three non-rotational Möbius degrees of freedom (Gu et al. 2004; Praun & Hoppe 2003).
+    A step is halved while it would invert a mesh triangle on the sphere."""
+    w = weights / weights.sum()
+    for _ in range(iterations):
+        c = w @ x
+        if np.linalg.norm(c) < tol:
+            break
+        h = 0.5
+        while h > 1e-3:
+            y = _mobius(x, h * c)
+            if np.all(_orientation(y, f) > 0):
+                break
+            h *= 0.5
+        else:
+            break
+        x = y
+    return x
 
 
 def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget: float):
@@ -423,47 +470,66 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     if not a3.sum() > 0:
         raise InputError("the surface has zero area")
     share3 = a3 / a3.sum()
-    # puncture the largest triangle (ties broken by index, so the choice is rotation invariant)
-    key = np.round(a3 / a3.max(), 9)
-    punct = int(np.flatnonzero(key == key.max())[0])
-    system = _TutteSystem(n, f[punct])
-    w = _mean_value_weights(p, f)
-    vf = sp.csr_matrix((np.repeat(a3, 3), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
-                       shape=(n, len(f)))
-    vsum = np.maximum(np.asarray(vf.sum(axis=1)).ravel(), 1e-300)
+    va = np.maximum(np.bincount(f.ravel(), np.repeat(a3, 3), minlength=n), 1e-300)
+    vertex, ring = _puncture(p, f, va)
+    system = _TutteSystem(p, f, vertex, ring)
+    w0 = _mean_value_weights(p, f)
     t0 = time.perf_counter()
-    u = system.solve(w)
-    scale = _best_scale(u, f, share3, punct)
-    sd, neg, lr, s = _score(u, scale, f, share3, punct)
-    neg += _planar_folds(u, f, punct)
-    best = (neg, sd, s, scale)
-    accepted = 0
+
+    def evaluate(lw):
+        x = system.sphere(system.solve(w0 @ sp.diags(np.exp(lw))), f)
+        x = _centre(x, va, f)
+        asph = np.abs(_spherical_areas(x, f))
+        lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
+        sd = float(np.sqrt(np.average(lr ** 2, weights=share3)))
+        return x, lr, sd, int(np.count_nonzero(_orientation(x, f) <= 0))
+
+    # log column weights: Yoshizawa-style reweighting, the weights toward a vertex whose
+    # neighbourhood is squeezed on the sphere (3D share > sphere share) are lowered, so its
+    # neighbours move away from it and its region grows; every iterate is a Tutte embedding
+    adj = (w0 > 0).astype(np.float64)
+    adj = adj + adj.T + sp.identity(n, format="csr")
+    avg = sp.diags(1.0 / np.asarray(adj.sum(axis=1)).ravel()) @ adj
+    smooth = 20
+    lw = np.zeros(n)
+    x, lr, sd, neg = evaluate(lw)
+    # a step is accepted only when the spherical Delaunay triangulation of the mapped surfels
+    # keeps at most the folds of the start (at most 0.01 % of the triangles where it had some)
+    start_folds, total = count_folds(surfels, x)
+    allowed = max(start_folds, int(1e-4 * total))
+    g = gamma
+    accepted = switches = 0
+    max_switches = 0
     for _ in range(iterations):
         if time.perf_counter() - t0 > time_budget:
             break
-        lrho = (vf @ lr) / vsum
+        lv = np.bincount(f.ravel(), np.repeat(a3 * lr, 3), minlength=n) / va
+        step = np.clip(lv, -3.0, 3.0)
+        for _ in range(smooth):  # a smooth reweighting keeps the map close to conformal
+            step = avg @ step
         improved = False
-        for g in (gamma, 0.5 * gamma, 0.2 * gamma):
-            w2 = w @ sp.diags(np.exp(g * lrho))
-            u2 = system.solve(w2)
-            pneg = _planar_folds(u2, f, punct)
-            if pneg:
-                continue
-            sc2 = _best_scale(u2, f, share3, punct)
-            sd2, neg2, lr2, s2 = _score(u2, sc2, f, share3, punct)
-            if (neg2, sd2) < (neg, sd):  # accept only steps that do not add folds
-                w, u, lr, sd, neg, s, scale = w2, u2, lr2, sd2, neg2, s2, sc2
+        while g > 0.02:
+            lw2 = lw - g * step
+            x2, lr2, sd2, neg2 = evaluate(lw2)
+            if neg2 <= neg and sd2 < sd and count_folds(surfels, x2)[0] <= allowed:
+                lw, x, lr, sd, neg = lw2, x2, lr2, sd2, neg2
                 improved = True
                 accepted += 1
+                g = min(gamma, 1.5 * g)
                 break
-        if (neg, sd) < best[:2]:
-            best = (neg, sd, s, scale)
+            g *= 0.5
         if not improved:
-            break
-    neg, sd, s, scale = best
-    s = s / np.linalg.norm(s, axis=1)[:, None]
-    return s, {"mesh_folds": neg, "mesh_area_distortion": sd, "scale": scale,
-               "iterations": accepted, "punctured_triangle": punct}
+            if switches >= max_switches:
+                break
+            # the fixed 1-ring cannot adapt: puncture again, far from the current puncture
+            switches += 1
+            far = int(np.argmin(x @ x[system.vertex]))
+            system = _TutteSystem(p, f, far, _ring(f, far))
+            x, lr, sd, neg = evaluate(lw)
+            g = gamma
+    x = x / np.linalg.norm(x, axis=1)[:, None]
+    return x, {"mesh_folds": neg, "mesh_area_distortion": sd, "iterations": accepted,
+               "punctured_vertex": vertex}
 
 
 # ---------------------------------------------------------------------- original method (MDS)
@@ -540,7 +606,7 @@ def _mds_map(surfels: SurfelSet, *, landmarks: int, seed: int, maxiter: int):
 # ---------------------------------------------------------------------- public entry point
 def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
                  landmarks: int = 32, iterations: int = 40, gamma: float = 0.5,
-                 time_budget: float = 60.0, stress: bool = True) -> SphericalMap:
+                 time_budget: float = 10.0, stress: bool = True) -> SphericalMap:
     """Map surfels to the unit sphere.
 
     Parameters
