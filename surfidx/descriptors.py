@@ -15,10 +15,36 @@ Invariance, by construction:
 
 Descriptor vectors (float32), by kind:
 
-``shape``  (3·(lmax+1),) — sqrt of per-degree energies of the three geometric KLT layers;
+``shape``  — the retrieval shape descriptor (version 2), three parts concatenated, each scaled by
+           the constant of :data:`SHAPE_PART_SCALES` (so that each part's median distance between
+           different models is about 1.15 and the three weigh alike):
+
+           * *shells* (``SHELLS·(SHELL_LMAX+1)``): the grid surface's area measure split into
+             ``SHELLS`` concentric shells (radius relative to the area-weighted RMS radius, up to
+             ``SHELL_RMAX``), the sqrt per-degree energy of each shell's measure on the direction
+             sphere, degrees 0..``SHELL_LMAX`` (Kazhdan, Funkhouser & Rusinkiewicz 2003, on the grid
+             surface; damped by ``exp(-l(l+1)/(4·SHELL_KAPPA))`` as a von Mises smoothing would);
+           * *D2* (``D2_BINS``): sqrt of the distribution of distances between area-weighted random
+             pairs of grid vertices over their mean (Osada et al. 2002), ``D2_PAIRS`` pairs from a
+             fixed seed;
+           * *radial* (``RADIAL_BINS``): sqrt of the area-weighted distribution of the distance to
+             the centroid over the RMS radius.
+
+           Area weights are the 3D areas of the grid mesh (the icosphere's triangles at the
+           resampled positions), so the parts measure the surface, not the sphere map: limbs the map
+           squeezes keep their surface share. Square roots make the L2 distance a Hellinger one.
+``layers`` (3·(lmax+1),) — sqrt of per-degree energies (pyshtools) of the three geometric KLT
+           layers as functions on the sphere (version 1's ``shape``). Stored, not used by the
+           default distance: with the current sphere map it ranks near chance (see
+           ``benchmarks/retrieval.py``).
 ``texture`` (3·(lmax+1) + 3,) — the same for the colour KLT layers (colour units /255) followed by
            the mean colour /255; absent without colour;
 ``spectrum`` (3,) — the normalised geometric KLT eigenvalues (sum 1).
+
+Invariance of ``shape``: rotation and reflection by per-degree energies of a point measure (exact,
+computed with complex spherical harmonics at the points) and by distances; translation by the area
+centroid; scale by the RMS radius and the mean pair distance; the sphere map only through which
+surface points the grid samples.
 """
 
 from __future__ import annotations
@@ -39,7 +65,21 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "DEFAULT_LMA
 
 DEFAULT_LMAX = 24
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
-DESCRIPTOR_VERSION = 1
+DESCRIPTOR_VERSION = 2
+
+SHELLS = 8
+SHELL_LMAX = 8
+SHELL_RMAX = 2.5
+SHELL_KAPPA = 10.0
+D2_BINS = 64
+D2_RMAX = 3.0
+D2_PAIRS = 1 << 20
+RADIAL_BINS = 32
+RADIAL_RMAX = 3.0
+SEED = 0
+#: Scale of each shape part (shells, D2, radial): 1.15 over its median distance between different
+#: models of the retrieval benchmark's genus-0 set.
+SHAPE_PART_SCALES = (1.15 / 0.0167, 1.15 / 0.179, 1.15 / 0.405)
 
 
 @dataclass
@@ -96,6 +136,63 @@ def _degree_energies(layers: np.ndarray, level: int, lmax: int) -> np.ndarray:
     return out
 
 
+def _grid_areas(x: np.ndarray, level: int) -> np.ndarray:
+    """(n_grid,) 3D area share of each grid vertex (a third of its incident triangles' areas)."""
+    f = icosphere(level).faces
+    v = x[f]
+    a = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    return np.bincount(f.ravel(), weights=np.repeat(a / 3.0, 3), minlength=len(x))
+
+
+def _hist(values, weights, bins, rmax):
+    h, _ = np.histogram(np.minimum(values, rmax * (1 - 1e-12)), bins=bins, range=(0.0, rmax),
+                        weights=weights)
+    return h / max(h.sum(), 1e-300)
+
+
+def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(SHELLS, SHELL_LMAX+1) sqrt per-degree energies of the shells' area measures."""
+    from scipy.special import sph_harm_y
+
+    r = np.linalg.norm(y, axis=1)
+    theta = np.arccos(np.clip(y[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+    phi = np.arctan2(y[:, 1], y[:, 0])
+    shell = np.minimum((r / SHELL_RMAX * SHELLS).astype(np.int64), SHELLS - 1)
+    out = np.zeros((SHELLS, SHELL_LMAX + 1))
+    for l in range(SHELL_LMAX + 1):
+        for m in range(l + 1):
+            c = np.bincount(shell, weights=w * np.cos(m * phi) * sph_harm_y(l, m, theta, 0.0).real,
+                            minlength=SHELLS)
+            c2 = c ** 2
+            if m:
+                c = np.bincount(shell, weights=w * np.sin(m * phi)
+                                * sph_harm_y(l, m, theta, 0.0).real, minlength=SHELLS)
+                c2 = 2.0 * (c2 + c ** 2)
+            out[:, l] += c2
+    damp = np.exp(-np.arange(SHELL_LMAX + 1) * np.arange(1, SHELL_LMAX + 2) / (4 * SHELL_KAPPA))
+    return np.sqrt(out) * damp
+
+
+def _shape_vector(x: np.ndarray, level: int) -> np.ndarray:
+    """The version-2 ``shape`` descriptor of grid positions (n_grid, 3)."""
+    a = _grid_areas(x, level)
+    if not a.sum() > 0:
+        raise InputError("the resampled surface has zero area; cannot normalise its scale")
+    w = a / a.sum()
+    y = x - w @ x
+    rms = np.sqrt(w @ np.einsum("ij,ij->i", y, y))
+    y = y / rms
+    shells = _shell_energies(y, w).ravel()
+    rng = np.random.default_rng(SEED)
+    i = rng.choice(len(y), D2_PAIRS, p=w)
+    j = rng.choice(len(y), D2_PAIRS, p=w)
+    d = np.linalg.norm(y[i] - y[j], axis=1)
+    d2 = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
+    radial = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
+    s_sh, s_d2, s_rad = SHAPE_PART_SCALES
+    return np.concatenate([s_sh * shells, s_d2 * d2, s_rad * radial])
+
+
 def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> DescriptorSet:
     """Descriptors of a model from its layers on the icosahedral grid.
 
@@ -130,7 +227,8 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         raise InputError("the geometry has zero variance; cannot normalise its scale")
     g = geo.forward(values[:, :3]) / np.sqrt(total)
     vectors = {
-        "shape": np.sqrt(np.maximum(_degree_energies(g, level, lmax), 0)).ravel(),
+        "shape": _shape_vector(values[:, :3], level),
+        "layers": np.sqrt(np.maximum(_degree_energies(g, level, lmax), 0)).ravel(),
         "spectrum": np.asarray(geo.eigenvalues) / total,
     }
     if values.shape[1] == 6:
@@ -141,7 +239,12 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         vectors["texture"] = np.concatenate(
             [np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(), mean_col])
     vectors = {k: np.asarray(v, np.float32) for k, v in vectors.items()}
-    params = {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION}
+    params = {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION,
+              "shape": {"shells": SHELLS, "shell_lmax": SHELL_LMAX, "shell_rmax": SHELL_RMAX,
+                        "shell_kappa": SHELL_KAPPA, "d2_bins": D2_BINS, "d2_rmax": D2_RMAX,
+                        "d2_pairs": D2_PAIRS, "radial_bins": RADIAL_BINS,
+                        "radial_rmax": RADIAL_RMAX, "seed": SEED,
+                        "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
     return DescriptorSet(vectors, params)
 
 
@@ -170,7 +273,7 @@ def descriptor_distance(a: dict, b: dict, *, shape_weight: float = 0.7) -> float
     sa = np.concatenate([a["shape"], a.get("spectrum", [])]).astype(np.float64)
     sb = np.concatenate([b["shape"], b.get("spectrum", [])]).astype(np.float64)
     if sa.shape != sb.shape:
-        raise InputError("descriptor dimensions differ (different lmax?); recompute them")
+        raise InputError("descriptor dimensions differ (different descriptor version or settings?); recompute them")
     ds = float(np.linalg.norm(sa - sb))
     if "texture" in a and "texture" in b:
         dt = float(np.linalg.norm(a["texture"].astype(np.float64) - b["texture"]))

@@ -25,8 +25,30 @@ def test_object_rotation_translation_scale_invariance():
     b = describe_grid(np.c_[2.7 * s @ _rot(1).T + [4, -1, 9], col], 5)
     for k in a.vectors:
         np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
-    assert set(a.vectors) == {"shape", "texture", "spectrum"}
+    assert set(a.vectors) == {"shape", "layers", "texture", "spectrum"}
     assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
+    assert a.params["version"] == 2 and a.params["shape"]["shells"] == 8
+    # a reflection too, and the descriptor does see a different shape
+    c = describe_grid(np.c_[0.3 * s * [1, -1, 1] - 5, col], 5)
+    np.testing.assert_allclose(a.vectors["shape"], c.vectors["shape"], atol=1e-5)
+    d = describe_grid(np.c_[s * [1.0, 1.0, 1.5], col], 5)
+    assert np.linalg.norm(a.vectors["shape"] - d.vectors["shape"]) > 0.1
+
+
+def test_shape_measures_the_surface_not_the_sphere_sampling():
+    """The same surface sampled through a different (non-uniform) sphere map: the area-weighted
+    shape descriptor barely moves, unlike the per-layer sphere energies (``layers``)."""
+    v = icosphere(6).vertices
+    u = v * [1.0, 1.0, 2.5]
+    u /= np.linalg.norm(u, axis=1, keepdims=True)  # crowds the grid samples toward the equator
+    a = describe_grid(_shape(v), 6).vectors
+    b = describe_grid(_shape(u), 6).vectors
+    other = describe_grid(_shape(v) * [1.0, 1.0, 1.6], 6).vectors
+    d_same = np.linalg.norm(a["shape"] - b["shape"])
+    d_other = np.linalg.norm(a["shape"] - other["shape"])
+    assert d_same < 0.1 * d_other
+    rel = lambda k, x, y: np.linalg.norm(x[k] - y[k]) / np.linalg.norm(x[k])  # noqa: E731
+    assert rel("shape", a, b) < 0.5 * rel("layers", a, b)
 
 
 def test_sphere_rotation_invariance():
@@ -34,8 +56,9 @@ def test_sphere_rotation_invariance():
     v = icosphere(6).vertices
     a = describe_grid(_shape(v), 6)
     b = describe_grid(_shape(v @ _rot(2).T), 6)
-    rel = np.linalg.norm(a.vectors["shape"] - b.vectors["shape"]) / np.linalg.norm(a.vectors["shape"])
-    assert rel < 0.01
+    for kind in ("shape", "layers"):
+        rel = np.linalg.norm(a.vectors[kind] - b.vectors[kind]) / np.linalg.norm(a.vectors[kind])
+        assert rel < 0.01, kind
     other = describe_grid(v * [1.0, 1.0, 3.0], 6)
     assert descriptor_distance(a.vectors, b.vectors) < 0.1 * descriptor_distance(a.vectors, other.vectors)
 
@@ -52,7 +75,7 @@ def test_distance_weights_and_errors():
         descriptor_distance(a, b, shape_weight=2)
     with pytest.raises(InputError, match="lacks its 'shape' vector"):
         descriptor_distance({}, b)
-    c = describe_grid(_shape(v), 4, lmax=8).vectors
+    c = dict(a, shape=a["shape"][:75])  # a version-1 (lmax 24) shape vector
     with pytest.raises(InputError, match="descriptor dimensions differ"):
         descriptor_distance(a, c)
 
@@ -65,5 +88,7 @@ def test_bad_input():
         describe_grid(np.c_[v, v[:, :1]], 3)
     with pytest.raises(InputError, match="zero variance"):
         describe_grid(np.zeros_like(v), 3)
+    with pytest.raises(InputError, match="zero area"):
+        describe_grid(v * [1.0, 0.0, 0.0], 3)
     with pytest.raises(InputError, match="lmax must be an integer"):
         describe_grid(v, 3, lmax=1)
