@@ -147,7 +147,7 @@ def hull_triangles(sphere_points) -> np.ndarray:
     return tri
 
 
-def count_folds(surfels: SurfelSet, sphere_points) -> tuple[int, int]:
+def count_folds(surfels: SurfelSet, sphere_points, *, triangles=None) -> tuple[int, int]:
     """Folded triangles of the spherical Delaunay triangulation of mapped surfels.
 
     A hull triangle (counter-clockwise seen from outside the sphere) is mapped back to the surfel
@@ -160,6 +160,8 @@ def count_folds(surfels: SurfelSet, sphere_points) -> tuple[int, int]:
     surfels : SurfelSet
     sphere_points : (n, 3) float64
         The surfels' positions on the unit sphere.
+    triangles : (m, 3) int64, optional
+        The hull of ``sphere_points`` when already computed (:func:`hull_triangles`).
 
     Returns
     -------
@@ -167,7 +169,8 @@ def count_folds(surfels: SurfelSet, sphere_points) -> tuple[int, int]:
     total : int
     """
     pts = _check_points(surfels, sphere_points)
-    tri = hull_triangles(pts)
+    tri = hull_triangles(pts) if triangles is None else as_array(
+        triangles, "triangles", dtype=np.int64, shape=(None, 3))
     p = surfels.positions
     n3 = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
     nsum = surfels.normals[tri].sum(axis=1)
@@ -409,7 +412,9 @@ class _TutteSystem:
         b = rows[:, self.ring]
         u = np.zeros((self.n, 2))
         u[self.ring] = self.ub
-        u[self.inner] = splu(a, permc_spec="COLAMD").solve(np.asarray(-(b @ self.ub)))
+        # a diagonally dominant M-matrix: no pivoting needed
+        lu = splu(a, permc_spec="COLAMD", diag_pivot_thresh=0.0)
+        u[self.inner] = lu.solve(np.asarray(-(b @ self.ub)))
         return u
 
     def sphere(self, u, f):
@@ -661,8 +666,9 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         pts, info, lm, dist = _mds_map(surfels, landmarks=landmarks, seed=seed,
                                        maxiter=max(10 * iterations, 10))
     seconds = time.perf_counter() - t0
-    folded, total = count_folds(surfels, pts)
-    ad = area_distortion(surfels, pts)
+    tri = hull_triangles(pts)
+    folded, total = count_folds(surfels, pts, triangles=tri)
+    ad = area_distortion(surfels, pts, triangles=tri)
     st = float("nan")
     if stress:
         if lm is None:
