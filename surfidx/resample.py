@@ -39,6 +39,8 @@ def _bary(q, a, b, c):
     m20, m21, m22 = a[2], b[2], c[2]
     det = (m00 * (m11 * m22 - m12 * m21) - m01 * (m10 * m22 - m12 * m20)
            + m02 * (m10 * m21 - m11 * m20))
+    if det == 0.0:  # degenerate (collinear or repeated) sites: never contains a query
+        return -1.0, -1.0, -1.0, -1.0
     l0 = (q[0] * (m11 * m22 - m12 * m21) - m01 * (q[1] * m22 - m12 * q[2])
           + m02 * (q[1] * m21 - m11 * q[2])) / det
     l1 = (m00 * (q[1] * m22 - m12 * q[2]) - q[0] * (m10 * m22 - m12 * m20)
@@ -46,6 +48,8 @@ def _bary(q, a, b, c):
     l2 = (m00 * (m11 * q[2] - q[1] * m21) - m01 * (m10 * q[2] - q[1] * m20)
           + q[0] * (m10 * m21 - m11 * m20)) / det
     s = l0 + l1 + l2
+    if s == 0.0:
+        return -1.0, -1.0, -1.0, -1.0
     return l0 / s, l1 / s, l2 / s, s
 
 

@@ -77,3 +77,13 @@ def test_grid_value_errors():
 def test_resample_checks_points(sphere_surfels):
     with pytest.raises(InputError, match="shape"):
         resample(sphere_surfels, np.zeros((3, 3)), 2)
+
+
+def test_degenerate_triangle_never_contains_a_query():
+    """Sites on one great circle (a zero-volume triangle) are skipped by the walk, not divided by."""
+    from surfidx.resample import _bary
+
+    a, b = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    mid = (a + b) / np.sqrt(2.0)
+    assert _bary(np.array([0.0, 0.0, 1.0]), a, mid, b)[3] <= 0
+    assert _bary(np.array([0.0, 0.0, 1.0]), a, a, b)[3] <= 0
