@@ -1,0 +1,457 @@
+"""Proxy meshes for surfel sets without faces: a closed genus-0 triangulation to map to the sphere.
+
+:func:`proxy_mesh` reconstructs a closed, manifold, outward-wound triangle mesh from an oriented
+point cloud: the signed distance of Hoppe et al. (1992) -- the distance to the tangent planes of
+the nearest surfels, Gaussian-weighted over a few of them -- is sampled on a voxel grid in a narrow
+band around the surfels only; the grid nodes outside the band take the sign of the band around
+them (each connected region of them is labelled by the majority sign of the band nodes it touches,
+the region touching the grid border is outside), so the zero set is one clean closed surface with
+no spurious sheets far from the data. Marching cubes (Lewiner et al. 2003, the topologically
+consistent variant of :func:`skimage.measure.marching_cubes`) extracts it; the largest connected
+piece is kept and checked to be closed, manifold and of genus 0.
+
+:func:`transfer` carries per-vertex values of the proxy (e.g. its sphere positions) to arbitrary
+points: the exact closest point on the mesh (KD-tree candidates, certified by a distance bound, and
+a compiled point-triangle projection) and barycentric interpolation there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+from scipy import ndimage
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ._errors import InputError, TopologyError
+from ._validate import as_array, check_positive_int
+from .mesh import TriangleMesh
+from .surfels import SurfelSet
+
+__all__ = ["proxy_mesh", "transfer", "closest_points", "MAX_RESOLUTION", "MIN_POINTS"]
+
+MIN_POINTS = 32
+"""Fewest surfels :func:`proxy_mesh` accepts."""
+
+MAX_RESOLUTION = 512
+"""Most grid cells along the longest bounding-box axis (``resolution`` argument)."""
+
+_AUTO_MAX = 200  # automatic grid: at most this many cells along the longest axis (8M nodes)
+_AUTO_MIN = 24   # ... and at least this many
+_NEIGHBOURS = 8  # surfels averaged in the signed distance
+_AGREE = 0.5  # cosine: neighbours whose normals are within 60 degrees of the nearest's count
+_DISK_CELLS = 12  # surfel disks are rasterised up to this many cells from their centres
+_BAND = 3        # half width of the narrow band, in grid cells
+_ZERO_GUARD = 1e-3  # |field| is kept above this fraction of a cell: no vertex sits on a grid node
+
+
+# ---------------------------------------------------------------------- signed distance
+def _spacing(points: np.ndarray) -> float:
+    """Median distance to the 3rd nearest other surfel (robust to duplicated points)."""
+    k = min(3, len(points) - 1)
+    d, _ = cKDTree(points).query(points, k=k + 1)
+    s = float(np.median(d[:, k]))
+    if not s > 0:
+        pos = d[:, k][d[:, k] > 0]
+        if not len(pos):
+            raise InputError("all surfels coincide; a proxy surface needs points spread over it")
+        s = float(np.median(pos))
+    return s
+
+
+def _signed_distance(tree, points, normals, x, sigma, k):
+    """Gaussian-weighted mean distance of ``x`` to the tangent planes of its ``k`` nearest
+    surfels, and the matching weighted normal."""
+    d, idx = tree.query(x, k=k, workers=-1)
+    if k == 1:
+        d, idx = d[:, None], idx[:, None]
+    w = np.exp(-((d - d[:, :1]) / sigma) ** 2)  # relative to the nearest: never all underflow
+    nrm = normals[idx]
+    # only surfels facing like the nearest one: across a thin part, the planes of the far side
+    # would pull the field to the wrong sign and glue the two sides (spurious handles)
+    w = w * (np.einsum("nkj,nj->nk", nrm, nrm[:, 0]) > _AGREE)
+    plane = np.einsum("nkj,nkj->nk", x[:, None, :] - points[idx], nrm)
+    ws = w.sum(axis=1)
+    f = (w * plane).sum(axis=1) / ws
+    g = (w[:, :, None] * nrm).sum(axis=1) / ws[:, None]
+    return f, g
+
+
+def _disk_samples(points, normals, radii, h, *, most: int):
+    """Points spread over each surfel's disk at most a cell apart (the centre alone for disks
+    smaller than a cell; radii are capped at ``most`` cells), yielded in groups."""
+    level = np.minimum(np.ceil(radii / h), most).astype(np.int64)
+    yield points[level <= 1]
+    # tangent frames
+    a = np.where(np.abs(normals[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(normals, a)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(normals, t1)
+    for lev in np.unique(level[level > 1]):
+        sel = np.flatnonzero(level == lev)
+        g = np.arange(-lev, lev + 1)
+        u, v = np.meshgrid(g, g, indexing="ij")
+        keep = u ** 2 + v ** 2 <= lev ** 2
+        u, v = u[keep] / lev, v[keep] / lev  # unit disk, step 1/lev
+        r = np.minimum(radii[sel], most * h)[:, None, None]
+        off = r * (u[None, :, None] * t1[sel][:, None, :] + v[None, :, None] * t2[sel][:, None, :])
+        yield (points[sel][:, None, :] + off).reshape(-1, 3)
+
+
+def _grid_field(points, normals, radii, h, spacing):
+    """The signed distance on a padded grid of step ``h``; returns (field, origin)."""
+    # disks reach up to _DISK_CELLS cells beyond their centres, the band _BAND cells further
+    pad = _BAND + 2 + int(min(np.ceil(radii.max() / h), _DISK_CELLS))
+    lo = points.min(axis=0) - pad * h
+    dims = np.ceil((points.max(axis=0) - points.min(axis=0)) / h).astype(np.int64) + 2 * pad + 1
+    # band: nodes within _BAND cells (Chebyshev) of a node next to a surfel's disk (disks cover
+    # the surface, so sparse regions leave no gap through which outside would leak inside)
+    occ = np.zeros(dims, bool)
+    for x in _disk_samples(points, normals, radii, h, most=_DISK_CELLS):
+        ijk = np.floor((x - lo) / h).astype(np.int64)
+        ijk = ijk[np.all((ijk >= 0) & (ijk < dims - 1), axis=1)]
+        for c in np.ndindex(2, 2, 2):
+            occ[tuple((ijk + np.array(c)).T)] = True
+    band = ndimage.binary_dilation(occ, structure=np.ones((3, 3, 3), bool), iterations=_BAND)
+    for axis in range(3):  # the border layer stays outside, so the surface is closed
+        band[(slice(None),) * axis + (0,)] = False
+        band[(slice(None),) * axis + (-1,)] = False
+    nodes = np.argwhere(band)
+    tree = cKDTree(points)
+    sigma = max(h, spacing)
+    f, _ = _signed_distance(tree, points, normals, lo + nodes * h, sigma, min(_NEIGHBOURS,
+                                                                             len(points)))
+    limit = (_BAND + 1) * h
+    f = np.clip(f, -limit, limit)
+    field = np.zeros(dims)
+    field[tuple(nodes.T)] = f
+    # regions outside the band: the majority sign of the band nodes they touch (6-neighbours);
+    # the region touching the grid border is outside whatever the vote
+    lab, nlab = ndimage.label(~band)
+    vote = np.zeros(nlab + 1)
+    sgn = np.sign(field)
+    for axis in range(3):
+        for shift in (1, -1):
+            nb_lab = np.roll(lab, shift, axis=axis)
+            touch = band & (nb_lab > 0)
+            # np.roll wraps: the border layers are never band nodes (padding), so no false touch
+            vote += np.bincount(nb_lab[touch], sgn[touch], minlength=nlab + 1)
+    sign = np.where(vote >= 0, 1.0, -1.0)
+    border = np.unique(np.concatenate([lab[[0, -1]].ravel(), lab[:, [0, -1]].ravel(),
+                                       lab[:, :, [0, -1]].ravel()]))
+    border = border[border > 0]
+    if vote[border].sum() < 0:
+        raise TopologyError("the surfel normals point inward (the signed distance is negative "
+                            "around the outside of the cloud); flip them so they point outward")
+    sign[border] = 1.0
+    sign[0] = 0.0
+    outside = ~band
+    field[outside] = sign[lab[outside]] * limit
+    guard = _ZERO_GUARD * h
+    small = np.abs(field) < guard
+    field[small] = np.where(field[small] < 0, -guard, guard)
+    return field, lo
+
+
+# ---------------------------------------------------------------------- mesh clean-up
+def _largest_component(v, f):
+    n = len(v)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    ncomp, lab = connected_components(g, directed=False)
+    if ncomp > 1:
+        big = np.argmax(np.bincount(lab[f[:, 0]], minlength=ncomp))
+        f = f[lab[f[:, 0]] == big]
+    used = np.unique(f)
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return np.ascontiguousarray(v[used]), np.ascontiguousarray(remap[f])
+
+
+def _merge_duplicates(v, f):
+    """Merge vertices with identical coordinates; drop triangles that collapse."""
+    uv, inv = np.unique(v, axis=0, return_inverse=True)
+    if len(uv) == len(v):
+        return v, f
+    f = inv.ravel()[f]
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    return uv, f
+
+
+def _check_topology(v, f, *, genus0: bool):
+    topo = TriangleMesh(v, f).topology()
+    if not topo.closed or topo.nonmanifold_vertices:
+        raise TopologyError(
+            f"the proxy surface is not one closed manifold piece ({topo.boundary_edges} boundary "
+            f"edges, {topo.nonmanifold_edges} non-manifold edges, {topo.nonmanifold_vertices} "
+            "pinched vertices); pass a finer resolution or a denser point cloud")
+    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    if len(np.unique(he[:, 0] * len(v) + he[:, 1])) != len(he):
+        raise TopologyError("the proxy surface is not consistently oriented; pass a finer "
+                            "resolution or a denser point cloud")
+    if genus0 and topo.genus != 0:
+        err = TopologyError(
+            f"the proxy surface has genus {topo.genus} (Euler characteristic {topo.euler}); only "
+            "genus-0 surfaces map to the sphere: change the resolution (a coarse grid can bridge "
+            "close parts) or use method 'mds'")
+        err.genus = topo.genus
+        raise err
+    return topo
+
+
+# ---------------------------------------------------------------------- public: proxy mesh
+def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
+               project: bool = True):
+    """A closed, manifold, outward-wound triangle mesh approximating an oriented point cloud.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        Positions and outward unit normals (faces, radii and colours are ignored).
+    resolution : int, optional
+        Grid cells along the longest bounding-box axis (16 .. ``MAX_RESOLUTION``). By default the
+        cell is the median distance to the 3rd nearest surfel, within 24 .. 200 cells, so the proxy
+        has about as many vertices as there are surfels, or fewer.
+    genus0 : bool
+        Raise :class:`TopologyError` unless the proxy has genus 0 (what a spherical map needs).
+    project : bool
+        Move each proxy vertex onto the weighted tangent planes of its nearest surfels (one
+        Newton step of the signed distance, at most half a cell): lowers the distance to the
+        points from about a tenth of a cell to a fraction of that.
+
+    Returns
+    -------
+    vertices : (m, 3) float64
+    faces : (k, 3) int64
+        Counter-clockwise seen from outside (positive signed volume).
+
+    Raises
+    ------
+    InputError
+        Not a SurfelSet, fewer than ``MIN_POINTS`` surfels, all surfels coincident, a resolution
+        out of range.
+    TopologyError
+        The proxy is not one closed manifold piece, or (``genus0``) its genus is not 0; the error's
+        ``genus`` attribute holds the genus.
+    """
+    if not isinstance(surfels, SurfelSet):
+        raise InputError(f"surfels must be a SurfelSet, got {type(surfels).__name__}")
+    n = len(surfels.positions)
+    if n < MIN_POINTS:
+        raise InputError(f"too few surfels for a proxy surface: {n} (need at least {MIN_POINTS}); "
+                         "use a denser point cloud")
+    p, nrm = surfels.positions, surfels.normals
+    extent = float((p.max(axis=0) - p.min(axis=0)).max())
+    spacing = _spacing(p)
+    if resolution is None:
+        cells = int(np.clip(np.ceil(extent / spacing), _AUTO_MIN, _AUTO_MAX))
+    else:
+        cells = check_positive_int(resolution, "resolution", minimum=16)
+        if cells > MAX_RESOLUTION:
+            raise InputError(f"resolution must be at most {MAX_RESOLUTION} cells, got {cells}; "
+                             "a finer grid would not fit in memory")
+    h = extent / cells
+    field, lo = _grid_field(p, nrm, surfels.radii, h, spacing)
+    from skimage.measure import marching_cubes
+
+    v, f, _, _ = marching_cubes(field, level=0.0, spacing=(h, h, h), method="lewiner",
+                                allow_degenerate=True)
+    v = np.asarray(v, np.float64) + lo
+    f = np.asarray(f, np.int64)
+    if not len(f):
+        raise TopologyError("the point cloud encloses no volume at this resolution; check that "
+                            "the normals point outward or pass a finer resolution")
+    v, f = _merge_duplicates(v, f)
+    v, f = _largest_component(v, f)
+    _check_topology(v, f, genus0=genus0)
+    if project:
+        d, g = _signed_distance(cKDTree(p), p, nrm, v, max(h, spacing), min(_NEIGHBOURS, n))
+        gl = np.maximum(np.linalg.norm(g, axis=1), 1e-300)
+        step = np.clip(d / gl, -0.5 * h, 0.5 * h)
+        v = v - step[:, None] * (g / gl[:, None])
+    vol = TriangleMesh(v, f).signed_volume()
+    if vol < 0:
+        f = f[:, [0, 2, 1]]
+    return np.ascontiguousarray(v), np.ascontiguousarray(f)
+
+
+# ---------------------------------------------------------------------- closest points
+@njit(cache=True)
+def _closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
+    """Barycentric coordinates (u, v, w) of the point of triangle abc closest to p (Ericson,
+    Real-Time Collision Detection, 5.1.5)."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        return 1.0, 0.0, 0.0
+    bpx, bpy, bpz = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0.0 and d4 <= d3:
+        return 0.0, 1.0, 0.0
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        t = d1 / (d1 - d3)
+        return 1.0 - t, t, 0.0
+    cpx, cpy, cpz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0.0 and d5 <= d6:
+        return 0.0, 0.0, 1.0
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        t = d2 / (d2 - d6)
+        return 1.0 - t, 0.0, t
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return 0.0, 1.0 - t, t
+    den = va + vb + vc
+    if den <= 0.0:  # degenerate triangle: fall back to the nearest corner
+        da = apx * apx + apy * apy + apz * apz
+        db = bpx * bpx + bpy * bpy + bpz * bpz
+        dc = cpx * cpx + cpy * cpy + cpz * cpz
+        if da <= db and da <= dc:
+            return 1.0, 0.0, 0.0
+        if db <= dc:
+            return 0.0, 1.0, 0.0
+        return 0.0, 0.0, 1.0
+    v = vb / den
+    w = vc / den
+    return 1.0 - v - w, v, w
+
+
+@njit(cache=True)
+def _project(points, cand, vertices, faces):  # pragma: no cover - compiled
+    """For each point, the closest of its candidate triangles (``cand`` rows, -1 padded):
+    face index, barycentric coordinates, squared distance."""
+    n, k = cand.shape
+    best_f = np.full(n, -1, np.int64)
+    best_b = np.zeros((n, 3))
+    best_d = np.full(n, np.inf)
+    for i in range(n):
+        p = points[i]
+        for j in range(k):
+            t = cand[i, j]
+            if t < 0:
+                break
+            a = vertices[faces[t, 0]]
+            b = vertices[faces[t, 1]]
+            c = vertices[faces[t, 2]]
+            u, v, w = _closest_on_triangle(p, a, b, c)
+            dx = u * a[0] + v * b[0] + w * c[0] - p[0]
+            dy = u * a[1] + v * b[1] + w * c[1] - p[1]
+            dz = u * a[2] + v * b[2] + w * c[2] - p[2]
+            d = dx * dx + dy * dy + dz * dz
+            if d < best_d[i]:
+                best_d[i] = d
+                best_f[i] = t
+                best_b[i, 0] = u
+                best_b[i, 1] = v
+                best_b[i, 2] = w
+    return best_f, best_b, best_d
+
+
+def closest_points(points, vertices, faces, *, candidates: int = 16):
+    """The exact closest point of a triangle mesh to each point.
+
+    Candidates are the triangles with the ``candidates`` nearest centroids; a point whose best
+    distance is not certified by them (a triangle further away could be closer: its centroid
+    distance minus the largest centroid-to-corner distance is below the best) is searched again
+    among all triangles within that bound.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    vertices : (m, 3) float64
+    faces : (k, 3) int64
+    candidates : int
+        Nearest-centroid triangles tried first.
+
+    Returns
+    -------
+    face : (n,) int64
+        The triangle holding the closest point.
+    bary : (n, 3) float64
+        Its barycentric coordinates in that triangle (non-negative, summing to 1).
+    distance : (n,) float64
+
+    Raises
+    ------
+    InputError
+        Bad shapes, non-finite values, face indices out of range, no faces.
+    """
+    points = as_array(points, "points", shape=(None, 3))
+    vertices = as_array(vertices, "vertices", shape=(None, 3))
+    faces = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
+    if not len(faces):
+        raise InputError("faces is empty; closest points need a mesh with at least one triangle")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(f"faces index vertices outside 0..{len(vertices) - 1}")
+    check_positive_int(candidates, "candidates")
+    tri = vertices[faces]
+    cen = tri.mean(axis=1)
+    reach = float(np.linalg.norm(tri - cen[:, None, :], axis=2).max())
+    tree = cKDTree(cen)
+    k = min(candidates, len(faces))
+    dk, cand = tree.query(points, k=k, workers=-1)
+    if k == 1:
+        dk, cand = dk[:, None], cand[:, None]
+    cand = np.ascontiguousarray(cand, np.int64)
+    face, bary, d2 = _project(points, cand, vertices, faces)
+    dist = np.sqrt(d2)
+    if k < len(faces):
+        # an untried triangle is at least (its centroid distance - reach) >= dk[:, -1] - reach away
+        redo = np.flatnonzero(dist > dk[:, -1] - reach)
+        if len(redo):
+            lists = tree.query_ball_point(points[redo], dist[redo] + reach + 1e-12 * (1 + reach))
+            width = max(len(x) for x in lists)
+            more = np.full((len(redo), width), -1, np.int64)
+            for r, x in enumerate(lists):  # one row per uncertified point (few)
+                more[r, :len(x)] = x
+            f2, b2, d22 = _project(points[redo], more, vertices, faces)
+            better = d22 < d2[redo]
+            sel = redo[better]
+            face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
+    return face, bary, dist
+
+
+def transfer(points, vertices, faces, values):
+    """Per-vertex values of a mesh carried to arbitrary points by barycentric interpolation at
+    their closest points on the mesh.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+        E.g. surfel positions.
+    vertices : (m, 3) float64
+    faces : (k, 3) int64
+    values : (m, d) or (m,) float64
+        One value per mesh vertex (e.g. its sphere position; renormalise after the transfer).
+
+    Returns
+    -------
+    (n, d) or (n,) float64
+        Values at the points; linear functions of position are reproduced exactly on the mesh.
+
+    Raises
+    ------
+    InputError
+        Bad shapes, non-finite values, face indices out of range, a ``values`` row count other
+        than the vertex count.
+    """
+    vertices = as_array(vertices, "vertices", shape=(None, 3))
+    values = as_array(values, "values")
+    if values.ndim not in (1, 2) or len(values) != len(vertices):
+        raise InputError(f"values must have shape ({len(vertices)},) or ({len(vertices)}, d): one "
+                         f"row per mesh vertex, got {values.shape}")
+    face, bary, _ = closest_points(points, vertices, faces)
+    faces = np.asarray(faces, np.int64)
+    corners = values[faces[face]]  # (n, 3) or (n, 3, d)
+    if values.ndim == 1:
+        return np.einsum("nc,nc->n", corners, bary)
+    return np.einsum("ncd,nc->nd", corners, bary)
