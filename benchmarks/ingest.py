@@ -5,8 +5,8 @@ LocalCluster of worker processes; ``--scheduler tcp://HOST:PORT``: a running clu
 with the workers it has) and worker count, the same model files are ingested with the real
 processor (``surfidx.pipeline.process_model``) into a fresh database, and the script prints:
 
-- models per minute and input surfels per second (wall time of ``ingest.run``: hashing, the
-  per-model work and the database writes),
+- models (files processed, stored or failed) per minute and stored input surfels per second
+  (wall time of ``ingest.run``: hashing, the per-model work and the database writes),
 - the mean per-model time measured inside the workers (``Outcome.seconds``),
 - the overhead per model, ``(wall * workers - sum of per-model times) / models`` (all that is not
   model work: hashing, dispatch, transfers, idle workers at the end of the run), in seconds and
@@ -16,7 +16,9 @@ processor (``surfidx.pipeline.process_model``) into a fresh database, and the sc
   targets (under 5% of the per-model time on models of 10k+ surfels).
 
 Workers are warmed up first (imports and numba caches: one small model per worker) and the
-LocalCluster start-up is timed apart. Usage::
+LocalCluster start-up is timed apart. Mind that Dask's nanny starts workers with one BLAS/OpenMP
+thread (``distributed.nanny.pre-spawn-environ``) while the process pool's workers inherit this
+process's settings: on a busy machine that alone changes the per-model time. Usage::
 
     python benchmarks/ingest.py /work/shared/data/models/{armadillo,rocker-arm}.obj \\
         --workers 1,2 --executors pool,local --db-dir /tmp/ingest-bench [--json out.json]
@@ -28,12 +30,15 @@ import argparse
 import json
 import shutil
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-import ingest
-from surfidx.pipeline import process_model
+# This script is named like the package it measures: import the package, not the script.
+sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+import ingest  # noqa: E402
+from surfidx.pipeline import process_model  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WARMUP = REPO / "examples" / "models" / "spot" / "spot_triangulated.obj"
@@ -62,28 +67,29 @@ def measure(paths, executor, n_workers, db_path, *, label):
     rec = Recording(executor)
     summary = ingest.run(paths, db=db_path, executor=rec, progress=False)
     done = [o for o in rec.outcomes if o.error is None]
-    per_model = [o.seconds for o in done]
+    # Every processed file is model work, stored or failed (a failure costs its read and checks).
+    per_model = [o.seconds for o in rec.outcomes]
     surfels = sum(o.model.n_surfels for o in done)
     wall = summary.seconds
+    n = max(1, len(per_model))
     row = {
         "executor": label, "workers": n_workers, "models": summary.stored,
         "failed": summary.failed, "wall_s": wall,
-        "models_per_min": 60.0 * summary.stored / wall if wall else float("nan"),
+        "models_per_min": 60.0 * len(per_model) / wall if wall else float("nan"),
         "surfels_per_s": surfels / wall if wall else float("nan"),
         "mean_surfels": surfels / max(1, len(done)),
         "per_model_s": statistics.fmean(per_model) if per_model else float("nan"),
     }
-    total = sum(per_model)
-    row["overhead_s"] = (wall * n_workers - total) / max(1, len(done))
+    row["overhead_s"] = (wall * n_workers - sum(per_model)) / n
     row["overhead_pct"] = 100.0 * row["overhead_s"] / row["per_model_s"]
     stats = getattr(executor, "stats", None)
     if stats:
-        seconds = {o.task.path: o.seconds for o in done}
-        lat = [recv - sub - seconds[p] for p, sub, recv in stats[-len(done):] if p in seconds]
-        row["dispatch_ms"] = 1e3 * statistics.median(lat)
-        row["dispatch_pct"] = 100.0 * statistics.median(
-            (recv - sub - seconds[p]) / seconds[p] for p, sub, recv in stats[-len(done):]
-            if p in seconds)
+        seconds = {o.task.path: o.seconds for o in rec.outcomes}
+        recent = [(p, sub, recv) for p, sub, recv in stats[-len(per_model):] if p in seconds]
+        row["dispatch_ms"] = 1e3 * statistics.median(recv - sub - seconds[p]
+                                                     for p, sub, recv in recent)
+        row["dispatch_pct"] = 100.0 * statistics.median((recv - sub - seconds[p]) / seconds[p]
+                                                        for p, sub, recv in recent)
     for path, message in summary.errors:
         print(f"  failed {path}: {message}")
     return row
@@ -107,7 +113,8 @@ def run_dask(paths, n, db_dir, scheduler):
     return row
 
 
-COLUMNS = [("executor", "executor", "{}"), ("workers", "workers", "{}"), ("models", "models", "{}"),
+COLUMNS = [("executor", "executor", "{}"), ("workers", "workers", "{}"), ("models", "stored", "{}"),
+           ("failed", "failed", "{}"),
            ("mean_surfels", "surfels/model", "{:.0f}"), ("wall_s", "wall s", "{:.1f}"),
            ("models_per_min", "models/min", "{:.2f}"), ("surfels_per_s", "surfels/s", "{:.0f}"),
            ("per_model_s", "s/model (worker)", "{:.2f}"), ("overhead_s", "overhead s", "{:.2f}"),

@@ -141,7 +141,8 @@ class DaskExecutor:
             self.close()
             where = "start a LocalCluster" if self.is_local else \
                 f"reach the Dask scheduler at {self.scheduler}"
-            hint = "" if self.is_local else \
+            hint = (" (a script that starts one needs an `if __name__ == '__main__':` guard: "
+                    "its worker processes are spawned and import it)") if self.is_local else \
                 " (start one with `dask scheduler` and workers with `dask worker ADDRESS`)"
             raise SurfidxError(f"cannot {where}: {exc}{hint}") from exc
         self._own_client = True
