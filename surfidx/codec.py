@@ -70,10 +70,10 @@ def _resample_phong(surfels: SurfelSet, sphere_points, level: int, color: bool) 
     because the grid points then lie on the surfels' tangent planes instead of cutting chords
     below them.
     """
-    from .resample import locate
+    from .resample import locate_grid
 
     pts = surfels.positions
-    tri, idx, bary = locate(sphere_points, icosphere(level).vertices)
+    tri, idx, bary = locate_grid(sphere_points, icosphere(level))
     corners = tri[idx]
     v = pts[corners]                                  # (q, 3, 3)
     nrm = surfels.normals[corners]

@@ -18,12 +18,12 @@ import numpy as np
 
 from ._errors import InputError
 from ._validate import as_array
-from .icosphere import icosphere
+from .icosphere import icosphere, vertex_count
 from .mesh import TriangleMesh
 from .parameterize import _check_points, hull_triangles
 from .surfels import SurfelSet
 
-__all__ = ["locate", "resample", "grid_to_surfels", "grid_to_mesh", "layer_names"]
+__all__ = ["locate", "locate_grid", "resample", "grid_to_surfels", "grid_to_mesh", "layer_names"]
 
 
 def layer_names(has_color: bool) -> tuple[str, ...]:
@@ -116,7 +116,7 @@ def _neighbors(tri: np.ndarray) -> np.ndarray:
     return nbr
 
 
-def locate(sphere_points, queries, *, triangles=None):
+def locate(sphere_points, queries, *, triangles=None, start=None):
     """Exact point location in the spherical Delaunay triangulation.
 
     Parameters
@@ -127,6 +127,9 @@ def locate(sphere_points, queries, *, triangles=None):
         Unit vectors to locate.
     triangles : (m, 3) int64, optional
         Counter-clockwise triangulation of the sites (default: their convex hull).
+    start : (q,) int64, optional
+        A triangle near each query to start the walk from (default: one incident to the nearest
+        site, found with a KD-tree).
 
     Returns
     -------
@@ -137,21 +140,65 @@ def locate(sphere_points, queries, *, triangles=None):
     bary : (q, 3) float64
         Barycentric coordinates (≥ −1e-12 up to round-off, summing to 1).
     """
-    from scipy.spatial import cKDTree
-
     pts = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=4)
     qs = as_array(queries, "queries", shape=(None, 3))
     tri = hull_triangles(pts) if triangles is None else as_array(
         triangles, "triangles", dtype=np.int64, shape=(None, 3))
     nbr = _neighbors(tri)
-    # a triangle incident to every site
+    if start is None:
+        start = _nearest_starts(pts, tri, qs)
+    else:
+        start = np.clip(as_array(start, "start", dtype=np.int64, shape=(len(qs),)), 0, len(tri) - 1)
+    idx, bary = _walk(qs, pts, tri, nbr, start, 1e-12)
+    return tri, idx, bary
+
+
+def _nearest_starts(pts, tri, qs):
+    """A triangle incident to the site nearest each query."""
+    from scipy.spatial import cKDTree
+
     inc = np.full(len(pts), -1, np.int64)
     inc[tri.ravel()] = np.repeat(np.arange(len(tri)), 3)
     _, near = cKDTree(pts).query(qs)
     start = inc[near]
     start[start < 0] = 0
-    idx, bary = _walk(qs, pts, tri, nbr, start, 1e-12)
+    return start
+
+
+def locate_grid(sphere_points, grid, *, triangles=None):
+    """:func:`locate` for the vertices of an icosahedral grid, coarse to fine.
+
+    Each vertex born on an edge at level j + 1 starts its walk from the triangle that holds the
+    edge's first end, so the walks are a few steps long and no KD-tree over the queries is needed.
+
+    Parameters
+    ----------
+    sphere_points : (n, 3) float64
+    grid : Icosphere
+    triangles : (m, 3) int64, optional
+
+    Returns
+    -------
+    triangles, index, bary
+        As :func:`locate`.
+    """
+    pts = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=4)
+    tri = hull_triangles(pts) if triangles is None else as_array(
+        triangles, "triangles", dtype=np.int64, shape=(None, 3))
+    nbr = _neighbors(tri)
+    q = np.ascontiguousarray(grid.vertices, dtype=np.float64)
+    counts = [vertex_count(j) for j in range(grid.level + 1)]
+    idx = np.empty(len(q), np.int64)
+    bary = np.empty((len(q), 3))
+    c0 = counts[0]
+    idx[:c0], bary[:c0] = _walk(q[:c0], pts, tri, nbr, _nearest_starts(pts, tri, q[:c0]), 1e-12)
+    for lo, hi in zip(counts[:-1], counts[1:]):
+        start = idx[grid.edge_parents[lo:hi, 0]]
+        idx[lo:hi], bary[lo:hi] = _walk(q[lo:hi], pts, tri, nbr, start, 1e-12)
     return tri, idx, bary
+
+
+
 
 
 def resample(surfels: SurfelSet, sphere_points, level: int) -> np.ndarray:
@@ -172,7 +219,7 @@ def resample(surfels: SurfelSet, sphere_points, level: int) -> np.ndarray:
     """
     pts = _check_points(surfels, sphere_points)
     grid = icosphere(level)
-    tri, idx, bary = locate(pts, grid.vertices)
+    tri, idx, bary = locate_grid(pts, grid)
     layers = surfels.positions
     if surfels.has_color:
         layers = np.hstack([layers, surfels.colors.astype(np.float64)])
@@ -243,9 +290,9 @@ def grid_to_surfels(values, *, name=None) -> SurfelSet:
     vol = np.einsum("ij,ij->", p[f[:, 0]], np.cross(p[f[:, 1]], p[f[:, 2]]))
     if vol < 0:
         fn = -fn
-    nrm = np.zeros_like(p)
-    for k in range(3):
-        np.add.at(nrm, f[:, k], fn)
+    n = len(p)
+    nrm = np.column_stack([sum(np.bincount(f[:, k], weights=fn[:, c], minlength=n)
+                               for k in range(3)) for c in range(3)])
     ln = np.linalg.norm(nrm, axis=1)
     bad = ln <= 0
     if bad.any():  # collapsed spots: fall back to the direction from the centroid
@@ -258,9 +305,7 @@ def grid_to_surfels(values, *, name=None) -> SurfelSet:
     ptr, nb = grid.neighbor_indptr, grid.neighbor_indices
     owner = np.repeat(np.arange(len(p)), np.diff(ptr))
     el = np.linalg.norm(p[nb] - p[owner], axis=1)
-    rad = np.zeros(len(p))
-    np.maximum.at(rad, owner, el)
-    rad /= np.sqrt(3.0)
+    rad = np.maximum.reduceat(el, ptr[:-1]) / np.sqrt(3.0)  # every grid vertex has 5 or 6 neighbours
     floor = max(rad.max(), 1e-300) * 1e-6
     rad = np.maximum(rad, floor)
     return SurfelSet(p, nrm, rad, _colors(vals), faces=f, name=name)

@@ -87,3 +87,18 @@ def test_degenerate_triangle_never_contains_a_query():
     mid = (a + b) / np.sqrt(2.0)
     assert _bary(np.array([0.0, 0.0, 1.0]), a, mid, b)[3] <= 0
     assert _bary(np.array([0.0, 0.0, 1.0]), a, a, b)[3] <= 0
+
+
+def test_locate_grid_equals_locate():
+    """The coarse-to-fine walk finds the same triangles as the KD-tree-started one."""
+    from surfidx.icosphere import icosphere
+    from surfidx.resample import locate_grid
+
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(3000, 3))
+    p /= np.linalg.norm(p, axis=1)[:, None]
+    g = icosphere(5)
+    tri, idx, bary = locate(p, g.vertices)
+    tri2, idx2, bary2 = locate_grid(p, g, triangles=tri)
+    np.testing.assert_array_equal(idx, idx2)
+    np.testing.assert_allclose(bary, bary2, atol=1e-12)
