@@ -97,6 +97,37 @@ def _walk(queries, pts, tri, nbr, start, eps):
     return out_t, out_b
 
 
+@numba.njit(cache=True)
+def _grid_normals_radii(p, f, ptr, nb):
+    """Area-weighted vertex normals (outward by the sign of the enclosed volume) and the longest
+    incident edge / √3 of a closed grid surface."""
+    n = p.shape[0]
+    nrm = np.zeros((n, 3))
+    vol = 0.0
+    for t in range(f.shape[0]):
+        a, b, c = f[t, 0], f[t, 1], f[t, 2]
+        ux, uy, uz = p[b, 0] - p[a, 0], p[b, 1] - p[a, 1], p[b, 2] - p[a, 2]
+        vx, vy, vz = p[c, 0] - p[a, 0], p[c, 1] - p[a, 1], p[c, 2] - p[a, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        vol += p[a, 0] * nx + p[a, 1] * ny + p[a, 2] * nz
+        for v in (a, b, c):
+            nrm[v, 0] += nx
+            nrm[v, 1] += ny
+            nrm[v, 2] += nz
+    if vol < 0:
+        nrm = -nrm
+    rad = np.zeros(n)
+    for v in range(n):
+        m = 0.0
+        for k in range(ptr[v], ptr[v + 1]):
+            w = nb[k]
+            d = ((p[w, 0] - p[v, 0]) ** 2 + (p[w, 1] - p[v, 1]) ** 2 + (p[w, 2] - p[v, 2]) ** 2)
+            if d > m:
+                m = d
+        rad[v] = np.sqrt(m / 3.0)
+    return nrm, rad
+
+
 def _neighbors(tri: np.ndarray) -> np.ndarray:
     """nbr[t, j]: the triangle across the edge opposite corner j of triangle t."""
     m = len(tri)
@@ -284,16 +315,10 @@ def grid_to_surfels(values, *, name=None) -> SurfelSet:
     """
     vals, level = _grid_level(values)
     grid = icosphere(level)
-    p = vals[:, :3]
+    p = np.ascontiguousarray(vals[:, :3])
     f = np.asarray(grid.faces)
-    fn = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
-    vol = np.einsum("ij,ij->", p[f[:, 0]], np.cross(p[f[:, 1]], p[f[:, 2]]))
-    if vol < 0:
-        fn = -fn
-    n = len(p)
-    nrm = np.column_stack([sum(np.bincount(f[:, k], weights=fn[:, c], minlength=n)
-                               for k in range(3)) for c in range(3)])
-    ln = np.linalg.norm(nrm, axis=1)
+    nrm, rad = _grid_normals_radii(p, f, grid.neighbor_indptr, grid.neighbor_indices)
+    ln = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
     bad = ln <= 0
     if bad.any():  # collapsed spots: fall back to the direction from the centroid
         d = p[bad] - p.mean(axis=0)
@@ -302,10 +327,6 @@ def grid_to_surfels(values, *, name=None) -> SurfelSet:
         nrm[bad] = d
         ln = np.linalg.norm(nrm, axis=1)
     nrm /= ln[:, None]
-    ptr, nb = grid.neighbor_indptr, grid.neighbor_indices
-    owner = np.repeat(np.arange(len(p)), np.diff(ptr))
-    el = np.linalg.norm(p[nb] - p[owner], axis=1)
-    rad = np.maximum.reduceat(el, ptr[:-1]) / np.sqrt(3.0)  # every grid vertex has 5 or 6 neighbours
     floor = max(rad.max(), 1e-300) * 1e-6
     rad = np.maximum(rad, floor)
     return SurfelSet(p, nrm, rad, _colors(vals), faces=f, name=name)
