@@ -42,6 +42,7 @@ _AUTO_MIN = 24   # ... and at least this many
 _NEIGHBOURS = 8  # surfels averaged in the signed distance
 _AGREE = 0.5  # cosine: neighbours whose normals are within 60 degrees of the nearest's count
 _DISK_CELLS = 12  # surfel disks are rasterised up to this many cells from their centres
+_LADDER = (1.0, 1.4, 0.7, 2.0, 0.5)  # automatic grid: multiples of extent / spacing tried
 _BAND = 3        # half width of the narrow band, in grid cells
 _ZERO_GUARD = 1e-3  # |field| is kept above this fraction of a cell: no vertex sits on a grid node
 
@@ -62,16 +63,18 @@ def _spacing(points: np.ndarray) -> float:
 
 def _signed_distance(tree, points, normals, x, sigma, k):
     """Gaussian-weighted mean distance of ``x`` to the tangent planes of its ``k`` nearest
-    surfels, and the matching weighted normal."""
+    surfels (those facing like the nearest), and the matching weighted normal."""
     d, idx = tree.query(x, k=k, workers=-1)
     if k == 1:
         d, idx = d[:, None], idx[:, None]
-    w = np.exp(-((d - d[:, :1]) / sigma) ** 2)  # relative to the nearest: never all underflow
     nrm = normals[idx]
+    plane = np.einsum("nkj,nkj->nk", x[:, None, :] - points[idx], nrm)
+    ref = np.argmin(d, axis=1)
+    rows = np.arange(len(d))
+    w = np.exp(-((d - d[rows, ref][:, None]) / sigma) ** 2)  # relative: never all underflow
     # only surfels facing like the nearest one: across a thin part, the planes of the far side
     # would pull the field to the wrong sign and glue the two sides (spurious handles)
-    w = w * (np.einsum("nkj,nj->nk", nrm, nrm[:, 0]) > _AGREE)
-    plane = np.einsum("nkj,nkj->nk", x[:, None, :] - points[idx], nrm)
+    w = w * (np.einsum("nkj,nj->nk", nrm, nrm[rows, ref]) > _AGREE)
     ws = w.sum(axis=1)
     f = (w * plane).sum(axis=1) / ws
     g = (w[:, :, None] * nrm).sum(axis=1) / ws[:, None]
@@ -200,6 +203,22 @@ def _check_topology(v, f, *, genus0: bool):
     return topo
 
 
+def _extract(p, nrm, radii, h, spacing):
+    """Marching cubes of the grid field; the largest piece, duplicates merged."""
+    from skimage.measure import marching_cubes
+
+    field, lo = _grid_field(p, nrm, radii, h, spacing)
+    v, f, _, _ = marching_cubes(field, level=0.0, spacing=(h, h, h), method="lewiner",
+                                allow_degenerate=True)
+    v = np.asarray(v, np.float64) + lo
+    f = np.asarray(f, np.int64)
+    if not len(f):
+        raise TopologyError("the point cloud encloses no volume at this resolution; check that "
+                            "the normals point outward or pass a finer resolution")
+    v, f = _merge_duplicates(v, f)
+    return _largest_component(v, f)
+
+
 # ---------------------------------------------------------------------- public: proxy mesh
 def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
                project: bool = True):
@@ -212,7 +231,9 @@ def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
     resolution : int, optional
         Grid cells along the longest bounding-box axis (16 .. ``MAX_RESOLUTION``). By default the
         cell is the median distance to the 3rd nearest surfel, within 24 .. 200 cells, so the proxy
-        has about as many vertices as there are surfels, or fewer.
+        has about as many vertices as there are surfels; when that proxy is not closed (genus 0
+        with ``genus0``), grids 1.4, 0.7, 2 and 0.5 times as fine are tried in turn (clipped to
+        24 .. 200) and the first good one is returned; the error of the first is raised if none.
     genus0 : bool
         Raise :class:`TopologyError` unless the proxy has genus 0 (what a spherical map needs).
     project : bool
@@ -245,26 +266,29 @@ def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
     extent = float((p.max(axis=0) - p.min(axis=0)).max())
     spacing = _spacing(p)
     if resolution is None:
-        cells = int(np.clip(np.ceil(extent / spacing), _AUTO_MIN, _AUTO_MAX))
+        # the cell about the surfel spacing; when that proxy is not closed genus 0 (a coarse grid
+        # bridges close parts, a fine one opens gaps where the sampling is sparse), finer and
+        # coarser grids are tried in turn and the first good one is kept
+        base = extent / spacing
+        ladder = [int(np.clip(np.ceil(base * m), _AUTO_MIN, _AUTO_MAX)) for m in _LADDER]
+        ladder = list(dict.fromkeys(ladder))
     else:
         cells = check_positive_int(resolution, "resolution", minimum=16)
         if cells > MAX_RESOLUTION:
             raise InputError(f"resolution must be at most {MAX_RESOLUTION} cells, got {cells}; "
                              "a finer grid would not fit in memory")
-    h = extent / cells
-    field, lo = _grid_field(p, nrm, surfels.radii, h, spacing)
-    from skimage.measure import marching_cubes
-
-    v, f, _, _ = marching_cubes(field, level=0.0, spacing=(h, h, h), method="lewiner",
-                                allow_degenerate=True)
-    v = np.asarray(v, np.float64) + lo
-    f = np.asarray(f, np.int64)
-    if not len(f):
-        raise TopologyError("the point cloud encloses no volume at this resolution; check that "
-                            "the normals point outward or pass a finer resolution")
-    v, f = _merge_duplicates(v, f)
-    v, f = _largest_component(v, f)
-    _check_topology(v, f, genus0=genus0)
+        ladder = [cells]
+    first = None
+    for cells in ladder:
+        h = extent / cells
+        try:
+            v, f = _extract(p, nrm, surfels.radii, h, spacing)
+            _check_topology(v, f, genus0=genus0)
+            break
+        except TopologyError as exc:
+            first = first or exc
+    else:
+        raise first
     if project:
         d, g = _signed_distance(cKDTree(p), p, nrm, v, max(h, spacing), min(_NEIGHBOURS, n))
         gl = np.maximum(np.linalg.norm(g, axis=1), 1e-300)

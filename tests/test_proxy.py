@@ -81,9 +81,9 @@ def test_translation_and_scale_do_not_change_topology():
 def test_torus_genus_is_reported():
     s = _torus(6000)
     with pytest.raises(TopologyError, match=r"genus 1 .*only genus-0") as info:
-        proxy_mesh(s)
+        proxy_mesh(s, resolution=40)
     assert info.value.genus == 1
-    v, f = proxy_mesh(s, genus0=False)
+    v, f = proxy_mesh(s, resolution=40, genus0=False)
     assert TriangleMesh(v, f).topology().genus == 1
 
 
@@ -207,6 +207,7 @@ def test_transfer_errors():
 
 
 # ---------------------------------------------------------------------- real scans
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["bunny_hr.obj", "armadillo.obj"])
 def test_real_point_cloud_gives_closed_genus0_proxy(models, name):
     import surfidx
