@@ -5,7 +5,8 @@ Default method ``"tutte"`` (the fold-free route)
 1. A planar triangulation over the surfels: the mesh faces (``SurfelSet.faces``). Its topology is
    checked first (closed, one piece, manifold, Euler characteristic 2), so a torus, a pretzel or
    two pieces fail with :class:`~surfidx.TopologyError` before any mapping.
-2. Puncture one vertex (the one with the largest area share) and map the rest into the plane by a
+2. Puncture one vertex (the one of largest area share, or one far from it when that start is as
+   clean, see ``_punctures``) and map the rest into the plane by a
    Tutte embedding with positive mean-value weights (Floater 2003), its 1-ring fixed on the unit
    circle (spaced by edge length). Tutte's theorem (Floater's extension to any positive weights)
    makes the planar map an embedding: no triangle folds. The inverse stereographic projection
@@ -15,7 +16,7 @@ Default method ``"tutte"`` (the fold-free route)
    steps that never invert a mesh triangle. This fixes the three non-rotational Möbius degrees of
    freedom, so the map is canonical up to a rotation.
 4. Area balancing (Yoshizawa, Belyaev & Seidel 2004 style reweighting): the weights toward each
-   vertex are multiplied by ``exp(-gamma * s)``, ``s`` the (clipped, graph-smoothed) log ratio of
+   vertex are multiplied by ``exp(-gamma * s)``, ``s`` the graph-smoothed log ratio of
    3D to spherical area share around it, and the Tutte system is solved again (then normalised as
    in 3). Neighbours of a squeezed vertex move away from it, so its region grows. Every iterate is
    again a positive-weight Tutte embedding; a step is accepted only when it lowers the area
@@ -367,13 +368,16 @@ def _mean_value_weights(p, f):
     return w
 
 
-def _puncture(p, f, vertex_area):
-    """The vertex with the largest area share and its 1-ring in counter-clockwise order.
-
-    Ties are broken by index, so the choice depends on intrinsic quantities only."""
+def _punctures(adj, vertex_area):
+    """Candidate vertices to puncture: the one of largest area share, and the largest area share
+    among the vertices at least half the largest hop distance away from it. Ties are broken by
+    index, so the choice depends on intrinsic quantities only."""
     key = np.round(vertex_area / vertex_area.max(), 9)
     v = int(np.flatnonzero(key == key.max())[0])
-    return v, _ring(f, v)
+    hops = dijkstra(adj, indices=v, unweighted=True)
+    cand = np.flatnonzero(hops >= 0.5 * hops[np.isfinite(hops)].max())
+    key = np.round(vertex_area[cand] / vertex_area[cand].max(), 9)
+    return v, int(cand[np.flatnonzero(key == key.max())[0]])
 
 
 def _ring(f, v):
@@ -476,9 +480,11 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
         raise InputError("the surface has zero area")
     share3 = a3 / a3.sum()
     va = np.maximum(np.bincount(f.ravel(), np.repeat(a3, 3), minlength=n), 1e-300)
-    vertex, ring = _puncture(p, f, va)
-    system = _TutteSystem(p, f, vertex, ring)
     w0 = _mean_value_weights(p, f)
+    adj = (w0 > 0).astype(np.float64)
+    adj = adj + adj.T + sp.identity(n, format="csr")
+    vertex = None
+    system = None
     t0 = time.perf_counter()
 
     def evaluate(lw):
@@ -492,15 +498,21 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     # log column weights: Yoshizawa-style reweighting, the weights toward a vertex whose
     # neighbourhood is squeezed on the sphere (3D share > sphere share) are lowered, so its
     # neighbours move away from it and its region grows; every iterate is a Tutte embedding
-    adj = (w0 > 0).astype(np.float64)
-    adj = adj + adj.T + sp.identity(n, format="csr")
     avg = sp.diags(1.0 / np.asarray(adj.sum(axis=1)).ravel()) @ adj
     smooth = 20
     lw = np.zeros(n)
-    x, lr, sd, neg = evaluate(lw)
+    # two candidate punctures: the vertex of largest area share, and one far from it (puncturing
+    # at the largest share can let the balancing collapse the neighbourhood of the fixed 1-ring);
+    # the far one is kept when its start is as clean (mesh and Delaunay folds)
+    starts = []
+    for cand in _punctures(adj, va):
+        system = _TutteSystem(p, f, cand, _ring(f, cand))
+        x, lr, sd, neg = evaluate(lw)
+        starts.append((neg, count_folds(surfels, x), cand, system, x, lr, sd))
+    pick = starts[-1] if starts[-1][:2] <= starts[0][:2] else starts[0]
+    neg, (start_folds, total), vertex, system, x, lr, sd = pick
     # a step is accepted only when the spherical Delaunay triangulation of the mapped surfels
     # keeps at most the folds of the start (at most 0.01 % of the triangles where it had some)
-    start_folds, total = count_folds(surfels, x)
     allowed = max(start_folds, int(1e-4 * total))
     g = gamma
     accepted = switches = 0
@@ -508,8 +520,8 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     for _ in range(iterations):
         if time.perf_counter() - t0 > time_budget:
             break
-        lv = np.bincount(f.ravel(), np.repeat(a3 * lr, 3), minlength=n) / va
-        step = np.clip(lv, -3.0, 3.0)
+        asph = np.bincount(f.ravel(), np.repeat(np.abs(_spherical_areas(x, f)), 3), minlength=n)
+        step = np.clip(np.log(va / va.sum() / np.maximum(asph / asph.sum(), 1e-300)), -10, 10)
         for _ in range(smooth):  # a smooth reweighting keeps the map close to conformal
             step = avg @ step
         improved = False
@@ -610,8 +622,8 @@ def _mds_map(surfels: SurfelSet, *, landmarks: int, seed: int, maxiter: int):
 
 # ---------------------------------------------------------------------- public entry point
 def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
-                 landmarks: int = 32, iterations: int = 40, gamma: float = 0.5,
-                 time_budget: float = 10.0, stress: bool = True) -> SphericalMap:
+                 landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
+                 time_budget: float = 20.0, stress: bool = True) -> SphericalMap:
     """Map surfels to the unit sphere.
 
     Parameters
