@@ -116,7 +116,7 @@ def test_bad_resolution(res, msg):
 def test_inward_normals():
     s = _ellipsoid(2000)
     inward = SurfelSet(s.positions, -s.normals, s.radii)
-    with pytest.raises(TopologyError, match=r"normals point inward.*flip them so they point outward"):
+    with pytest.raises(TopologyError, match=r"normals point inward.*flip them so they point out"):
         proxy_mesh(inward)
 
 
