@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 from ._errors import FileFormatError, InputError
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
-from .graph import DEFAULT_MAX_ANGLE, DEFAULT_SCALE, SphereOfInfluenceGraph
+from .graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE, SphereOfInfluenceGraph
 from .surfels import SurfelSet
 
 __all__ = ["GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
@@ -48,7 +48,9 @@ class GeodesicPath:
         The polyline: the surfel positions, or the refined points (endpoints are the surfel
         positions of the source and target).
     length : float
-        Length of the polyline.
+        The path length: for a graph path the sum of its edge weights (the graph distance; with
+        arc weights slightly more than the polyline of surfel centres), for a refined path the
+        length of the refined polyline.
     refined : bool
         Whether ``points`` is the refined polyline.
     surfels : (m,) int64
@@ -104,6 +106,13 @@ class GeodesicSolver:
         Neighbour rank for ``radius="knn"``.
     scale : float
         Sphere-radius multiplier; see :data:`surfidx.graph.DEFAULT_SCALE`.
+    max_offset : float or None
+        Edge midpoint-to-surface distance limit relative to the edge length (shortcut test); see
+        :data:`surfidx.graph.DEFAULT_MAX_OFFSET`. ``None`` disables it.
+    mesh_edges : bool
+        Also link the mesh edges when the surfels carry faces (see :mod:`surfidx.graph`).
+    arc_weights : bool
+        Weight edges by tangent-arc length rather than chord length (see :mod:`surfidx.graph`).
     bridge : bool
         Join disconnected parts with straight links (with a ``UserWarning``) instead of raising.
 
@@ -123,9 +132,11 @@ class GeodesicSolver:
 
     def __init__(self, surfels: SurfelSet, *, max_angle: float = DEFAULT_MAX_ANGLE,
                  radius: str = "surfel", k: int = 6, scale: float = DEFAULT_SCALE,
-                 bridge: bool = False):
+                 max_offset: float | None = DEFAULT_MAX_OFFSET, mesh_edges: bool = True,
+                 arc_weights: bool = True, bridge: bool = False):
         self.graph = SphereOfInfluenceGraph.from_surfels(
-            surfels, max_angle=max_angle, radius=radius, k=k, scale=scale, bridge=bridge)
+            surfels, max_angle=max_angle, radius=radius, k=k, scale=scale, max_offset=max_offset,
+            mesh_edges=mesh_edges, arc_weights=arc_weights, bridge=bridge)
         self.surfels = surfels
         m = self.graph.matrix
         self._indptr = m.indptr.astype(np.int64)
@@ -239,7 +250,8 @@ class GeodesicSolver:
         idx = _walk_predecessors(pred, a, b)
         if not refine:
             pts = self._positions[idx].copy()
-            return GeodesicPath(idx, pts, _polyline_length(pts), False, idx.copy())
+            length = float(np.asarray(self.graph.matrix[idx[:-1], idx[1:]]).sum())
+            return GeodesicPath(idx, pts, length, False, idx.copy())
         pts, sid = self._refine(idx)
         return GeodesicPath(idx, pts, _polyline_length(pts), True, sid)
 
@@ -499,6 +511,12 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
             for c in range(3):
                 x[c] = P[i, c] + dx[c]
             s = _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
+            # safety: the point must stay on the same sheet of surface as the path, i.e. its
+            # nearest surfel is one of, or a graph neighbour of, the surfels of the point and of
+            # its two neighbours; otherwise the move slid across a gap and is rejected
+            if not (_adjacent(s, S[i], indptr, indices) or _adjacent(s, S[i - 1], indptr, indices)
+                    or _adjacent(s, S[i + 1], indptr, indices)):
+                continue
             for c in range(3):
                 P[i, c] = out[c]
                 Nn[i, c] = nout[c]
@@ -507,6 +525,17 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
         if prev - cur < tol * cur:
             break
         prev = cur
+
+
+@numba.njit(cache=True)
+def _adjacent(a, b, indptr, indices):
+    """Whether surfels ``a`` and ``b`` are equal or linked in the graph."""
+    if a == b:
+        return True
+    for e in range(indptr[b], indptr[b + 1]):
+        if indices[e] == a:
+            return True
+    return False
 
 
 @numba.njit(cache=True)

@@ -34,7 +34,7 @@ from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
 
 __all__ = ["SphereOfInfluenceGraph", "sphere_of_influence_graph", "DEFAULT_MAX_ANGLE",
-           "DEFAULT_SCALE", "RADIUS_MODES"]
+           "DEFAULT_SCALE", "DEFAULT_MAX_OFFSET", "RADIUS_MODES"]
 
 DEFAULT_MAX_ANGLE = 60.0
 """Default largest angle (degrees) between the normals of linked surfels.
@@ -58,6 +58,12 @@ degree): ``s = 1.5`` 2.4-2.9 % (degree 9), ``s = 1.75`` 1.3-1.4 % (16), ``s = 2`
 ``s = 2.5`` 0.3 % (32). ``s = 1.5`` misses the 2 % target on regular samplings; the default 2 reaches the
 full 2-ring (1.75 nearly does, with the same error) with a margin for irregular samplings; on Igea it costs 1.9 M edges instead of 1.0 M
 (build 0.8 s instead of 0.6 s, one source 0.07 s either way). See ``benchmarks/geodesics.py``.
+"""
+
+DEFAULT_MAX_OFFSET = 0.1
+"""Default largest distance from an edge's midpoint to the surface, relative to the edge length.
+
+PLACEHOLDER
 """
 
 RADIUS_MODES = ("surfel", "nearest", "knn")
@@ -97,7 +103,9 @@ class SphereOfInfluenceGraph:
     @classmethod
     def from_surfels(cls, surfels: SurfelSet, *, max_angle: float = DEFAULT_MAX_ANGLE,
                      radius: str = "surfel", k: int = 6, scale: float = DEFAULT_SCALE,
-                     bridge: bool = False, check: bool = True) -> "SphereOfInfluenceGraph":
+                     max_offset: float | None = DEFAULT_MAX_OFFSET, mesh_edges: bool = True,
+                     arc_weights: bool = True, bridge: bool = False,
+                     check: bool = True) -> "SphereOfInfluenceGraph":
         """Build the graph of a surfel set.
 
         Parameters
@@ -112,6 +120,16 @@ class SphereOfInfluenceGraph:
             Neighbour rank for ``radius="knn"``.
         scale : float
             Multiplier of the sphere radii (1 gives the classical SIG).
+        max_offset : float or None
+            Surface test: an edge is kept only when its midpoint lies within ``max_offset`` times
+            the edge length of a surfel disk of either endpoint's neighbourhood (see the module
+            notes); ``None`` disables the test.
+        mesh_edges : bool
+            When the surfels carry mesh faces, also link every mesh edge (they lie on the surface
+            by construction, and cross the sharp creases that the normal tests cut).
+        arc_weights : bool
+            Weight the SIG edges by the length of the circular arc through both surfels tangent
+            to their planes instead of the chord (see the module notes).
         bridge : bool
             Join disconnected components with their shortest Euclidean links (a minimum spanning
             tree over components) and warn, instead of raising.
@@ -141,6 +159,17 @@ class SphereOfInfluenceGraph:
         radii = neighbour_radii(surfels.positions, surfels.radii, radius=radius, k=k)
         rows, cols, dist = _sig_edges(surfels.positions, surfels.normals, radii * float(scale),
                                       max_angle)
+        if max_offset is not None:
+            if not (isinstance(max_offset, (int, float, np.floating)) and np.isfinite(max_offset)
+                    and max_offset >= 0):
+                raise InputError("max_offset must be a non-negative number or None, got "
+                                 f"{max_offset!r}")
+            rows, cols, dist = _surface_edges(surfels.positions, surfels.normals, surfels.radii,
+                                              rows, cols, dist, float(max_offset))
+        if arc_weights:
+            dist = _arc_lengths(surfels.positions, surfels.normals, rows, cols, dist)
+        if mesh_edges and surfels.faces is not None and len(surfels.faces):
+            rows, cols, dist = _add_mesh_edges(surfels.positions, surfels.faces, rows, cols, dist)
         rows, cols, dist = _link_isolated(surfels.positions, surfels.normals,
                                           radii * float(scale), rows, cols, dist)
         matrix = _symmetric_csr(rows, cols, dist, n)
@@ -369,6 +398,117 @@ def _grid_pairs(pos, nrm, r, cos_min, sin_half, q, dims, order, skeys, cell, pai
     out = np.zeros(1, np.int64)
     out[0] = k
     return out
+
+
+def _surface_edges(positions, normals, radii, rows, cols, dist, max_offset):
+    """Keep the edges whose midpoint lies near the surface (the shortcut test).
+
+    The surface near an edge ``(i, j)`` is represented by the disks (centre ``p_k``, normal
+    ``n_k``, radius ``r_k``) of ``i``, ``j`` and their graph neighbours; the edge is kept when the
+    distance from its midpoint to the nearest of these disks is at most ``max_offset * |p_i - p_j|``.
+    A chord of a smooth surface stays within its sagitta (``L**2 / 8R`` for curvature radius ``R``),
+    while an edge jumping a gap or cutting across a concave fold has its midpoint in the air.
+    Neighbourhoods replace a KD-tree query per midpoint (O(edges x degree) in a numba kernel).
+    """
+    n = len(positions)
+    csr = _symmetric_csr(rows, cols, dist, n)
+    keep = _midpoint_test(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
+                          np.ascontiguousarray(radii, dtype=np.float64),
+                          csr.indptr.astype(np.int64), csr.indices.astype(np.int64),
+                          np.asarray(rows, np.int64), np.asarray(cols, np.int64), max_offset)
+    return rows[keep], cols[keep], dist[keep]
+
+
+def _arc_lengths(positions, normals, rows, cols, dist):
+    """Length of the circular arc joining two surfels and tangent to their planes (chord if flat).
+
+    The chord ``u = p_j - p_i`` leaves the tangent planes at angles ``a_i = asin(|n_i.u| / |u|)``
+    and ``a_j``; the arc turning by ``t = a_i + a_j`` is ``|u| (t / 2) / sin(t / 2)`` long. Exact
+    for points of a sphere with radial normals; it removes the chord's systematic shortcut on
+    curved parts (a few % per edge on coarse samplings of thin parts).
+    """
+    u = positions[cols] - positions[rows]
+    d = np.maximum(dist, np.finfo(float).tiny)
+    si = np.abs(np.einsum("ij,ij->i", u, normals[rows])) / d
+    sj = np.abs(np.einsum("ij,ij->i", u, normals[cols])) / d
+    half = 0.5 * (np.arcsin(np.minimum(si, 1.0)) + np.arcsin(np.minimum(sj, 1.0)))
+    factor = np.ones_like(half)
+    big = half > 1e-6
+    factor[big] = half[big] / np.sin(half[big])
+    return dist * factor
+
+
+def _add_mesh_edges(positions, faces, rows, cols, dist):
+    """Add the mesh edges that the SIG tests left out (each once)."""
+    n = len(positions)
+    csr = _symmetric_csr(rows, cols, dist, n)
+    f = np.asarray(faces, np.int64)
+    a = f.ravel()
+    b = f[:, [1, 2, 0]].ravel()
+    miss = _absent(csr.indptr.astype(np.int64), csr.indices.astype(np.int64), a, b)
+    if not miss.any():
+        return rows, cols, dist
+    pairs = np.stack([np.minimum(a[miss], b[miss]), np.maximum(a[miss], b[miss])], 1)
+    pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    d = np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+    return (np.concatenate([rows, pairs[:, 0]]), np.concatenate([cols, pairs[:, 1]]),
+            np.concatenate([dist, d]))
+
+
+@numba.njit(cache=True)
+def _absent(indptr, indices, a, b):
+    out = np.ones(a.shape[0], np.bool_)
+    for e in range(a.shape[0]):
+        for t in range(indptr[a[e]], indptr[a[e] + 1]):
+            if indices[t] == b[e]:
+                out[e] = False
+                break
+    return out
+
+
+@numba.njit(cache=True)
+def _disk_distance2(x, k, pos, nrm, rad):
+    h = 0.0
+    d2 = 0.0
+    for c in range(3):
+        t = x[c] - pos[k, c]
+        h += t * nrm[k, c]
+        d2 += t * t
+    rho2 = d2 - h * h
+    e = 0.0
+    if rho2 > rad[k] * rad[k]:
+        e = np.sqrt(rho2) - rad[k]
+    return h * h + e * e
+
+
+@numba.njit(cache=True)
+def _midpoint_test(pos, nrm, rad, indptr, indices, rows, cols, max_offset):
+    m = rows.shape[0]
+    keep = np.zeros(m, np.bool_)
+    x = np.empty(3)
+    for e in range(m):
+        i = rows[e]
+        j = cols[e]
+        L2 = 0.0
+        for c in range(3):
+            x[c] = 0.5 * (pos[i, c] + pos[j, c])
+            t = pos[i, c] - pos[j, c]
+            L2 += t * t
+        lim = max_offset * max_offset * L2
+        ok = _disk_distance2(x, i, pos, nrm, rad) <= lim or \
+            _disk_distance2(x, j, pos, nrm, rad) <= lim
+        if not ok:
+            for a in range(indptr[i], indptr[i + 1]):
+                if _disk_distance2(x, indices[a], pos, nrm, rad) <= lim:
+                    ok = True
+                    break
+        if not ok:
+            for a in range(indptr[j], indptr[j + 1]):
+                if _disk_distance2(x, indices[a], pos, nrm, rad) <= lim:
+                    ok = True
+                    break
+        keep[e] = ok
+    return keep
 
 
 def _link_isolated(positions, normals, radii, rows, cols, dist):

@@ -126,7 +126,9 @@ def test_graph_path_is_chain_of_edges(sphere4):
     assert len(np.unique(p.indices)) == len(p.indices)
     steps = np.asarray(m[p.indices[:-1], p.indices[1:]]).ravel()
     assert np.all(steps > 0)  # consecutive surfels are linked
-    assert np.allclose(steps, np.linalg.norm(np.diff(p.points, axis=0), axis=1))
+    chords = np.linalg.norm(np.diff(p.points, axis=0), axis=1)
+    # arc weights: no shorter than the chords, and close to them on a fine sphere
+    assert np.all(steps >= chords * (1 - 1e-12)) and np.allclose(steps, chords, rtol=1e-2)
     assert p.length == pytest.approx(steps.sum())
     assert p.length == pytest.approx(solver.distances([a], targets=[b])[0, 0], rel=1e-12)
     assert np.array_equal(p.points, s.positions[p.indices])
@@ -370,3 +372,46 @@ def test_cli_geodesic_missing_file(tmp_path):
     res = run("geodesic", tmp_path / "none.ply", "--source", 0, "--target", 1)
     assert res.exit_code != 0 and "Traceback" not in res.output
     assert len(res.output.strip().splitlines()) == 1
+
+
+def _u_strip(arm=1.0, gap=0.12, h=0.02, width=0.2):
+    """A strip bent into a U: arm z=0 (normal -z), half-circle of radius gap/2 at x=arm, arm
+    z=gap (normal +z); surfel radii 0.05 reach across the gap."""
+    t = np.arange(0.0, 2 * arm + np.pi * gap / 2 + h / 2, h)  # arc length along the U
+    r = gap / 2
+    pts, nrm = [], []
+    for u in t:
+        if u <= arm:
+            pts.append((u, -r)), nrm.append((0.0, -1.0))
+        elif u <= arm + np.pi * r:
+            a = (u - arm) / r - np.pi / 2
+            pts.append((arm + r * np.cos(a), r * np.sin(a))), nrm.append((np.cos(a), np.sin(a)))
+        else:
+            pts.append((arm - (u - arm - np.pi * r), r)), nrm.append((0.0, 1.0))
+    pts, nrm = np.asarray(pts), np.asarray(nrm)
+    ys = np.arange(0.0, width + h / 2, h)
+    P = np.array([(x, y, z) for y in ys for x, z in pts])
+    N = np.array([(nx, 0.0, nz) for y in ys for nx, nz in nrm])
+    return SurfelSet(P, N, np.full(len(P), 0.05)), t, len(pts)
+
+
+def test_u_strip_paths_do_not_cut_across():
+    s, t, m = _u_strip()
+    row = 5 * m  # a row of the strip in the middle of its width
+    a, b = row, row + m - 1  # the two free ends, 0.12 apart in space
+    exact = t[-1]
+    # normal test off: only the surface test keeps the arms apart
+    cut = GeodesicSolver(s, max_angle=180.0, max_offset=None)
+    assert cut.distance(a, b) < 0.5 * exact
+    solver = GeodesicSolver(s, max_angle=180.0)
+    d = solver.distance(a, b)
+    assert d == pytest.approx(exact, rel=0.03)
+    p = solver.path(a, b, refine=True)
+    assert p.length == pytest.approx(exact, rel=0.01)
+    # every refined point lies on the strip (within the half-circle or on an arm)
+    x, z = p.points[:, 0], p.points[:, 2]
+    on_arm = (x <= 1.0 + 1e-9) & (np.abs(np.abs(z) - 0.06) < 2e-3)
+    on_bend = (x > 1.0 - 1e-9) & (np.abs(np.hypot(x - 1.0, z) - 0.06) < 2e-3)
+    assert np.all(on_arm | on_bend)
+    # the default solver (normal test on) agrees
+    assert GeodesicSolver(s).distance(a, b, refine=True) == pytest.approx(exact, rel=0.01)

@@ -25,7 +25,8 @@ def _two_spheres():
 
 def test_edges_match_brute_force(sphere_surfels):
     s = sphere_surfels
-    g = SphereOfInfluenceGraph.from_surfels(s, max_angle=60.0, scale=1.5)
+    g = SphereOfInfluenceGraph.from_surfels(s, max_angle=60.0, scale=1.5, max_offset=None,
+                                            mesh_edges=False, arc_weights=False)
     p, n, r = s.positions, s.normals, 1.5 * s.radii
     i, j = np.triu_indices(len(s), 1)
     u = p[j] - p[i]
@@ -137,7 +138,7 @@ def test_varied_radii_and_repr():
     r = np.full(len(v), 0.08)
     r[rng.choice(len(v), 5, replace=False)] = 1.0  # a few huge surfels
     s = SurfelSet(v, v, r)
-    g = SphereOfInfluenceGraph.from_surfels(s, scale=1.0, max_angle=180.0)
+    g = SphereOfInfluenceGraph.from_surfels(s, scale=1.0, max_angle=180.0, max_offset=None)
     i, j = np.triu_indices(len(v), 1)
     d = np.linalg.norm(v[i] - v[j], axis=1)
     u = (v[j] - v[i]) / d[:, None]
@@ -166,3 +167,50 @@ def test_isolated_tip_is_linked_to_same_side_neighbours():
     gf = SphereOfInfluenceGraph.from_surfels(flat, scale=1.0)
     keep = np.setdiff1d(np.arange(81), [40])
     assert (g.matrix[keep][:, keep] != gf.matrix[keep][:, keep]).nnz == 0
+
+
+def _sheet(z, n=12, h=0.1, normal=(0.0, 0.0, 1.0)):
+    x, y = np.meshgrid(np.arange(n) * h, np.arange(n) * h)
+    pos = np.stack([x.ravel(), y.ravel(), np.full(n * n, z)], 1)
+    return pos, np.tile(np.asarray(normal, float), (n * n, 1))
+
+
+def test_parallel_sheets_get_no_edges_between_them():
+    # two sheets 0.1 apart, same normals, spheres reaching 0.32: the sphere, normal and tangent
+    # tests accept the slanted links between them; the midpoint (surface) test rejects them all
+    pa, na = _sheet(0.0)
+    pb, nb = _sheet(0.1)
+    s = SurfelSet(np.vstack([pa, pb]), np.vstack([na, nb]), np.full(2 * len(pa), 0.08))
+    raw = SphereOfInfluenceGraph.from_surfels(s, max_offset=None, check=False)
+    m = raw.matrix.tocoo()
+    assert np.any((m.row < len(pa)) != (m.col < len(pa)))  # the shortcut links exist without it
+    g = SphereOfInfluenceGraph.from_surfels(s, check=False)
+    m = g.matrix.tocoo()
+    assert not np.any((m.row < len(pa)) != (m.col < len(pa)))
+    assert g.n_components == 2 and list(g.component_sizes()) == [len(pa), len(pa)]
+    with pytest.raises(TopologyError, match="2 components"):
+        SphereOfInfluenceGraph.from_surfels(s)
+    with pytest.raises(InputError, match="max_offset must be a non-negative number"):
+        SphereOfInfluenceGraph.from_surfels(s, max_offset=-1.0)
+
+
+def test_surface_test_keeps_curved_and_flat_edges(sphere_surfels):
+    # chords of a smooth surface stay within their sagitta: the test removes nothing there
+    a = SphereOfInfluenceGraph.from_surfels(sphere_surfels, max_offset=None)
+    b = SphereOfInfluenceGraph.from_surfels(sphere_surfels)
+    assert b.n_edges == a.n_edges
+    pos, nrm = _sheet(0.0)
+    flat = SurfelSet(pos, nrm, np.full(len(pos), 0.08))
+    assert (SphereOfInfluenceGraph.from_surfels(flat).n_edges
+            == SphereOfInfluenceGraph.from_surfels(flat, max_offset=None).n_edges)
+
+
+def test_arc_weights_are_arc_lengths_on_a_sphere(sphere_surfels):
+    # unit sphere with exact radial normals: arc weights are great-circle arcs
+    s = SurfelSet(sphere_surfels.positions, sphere_surfels.positions, sphere_surfels.radii)
+    g = SphereOfInfluenceGraph.from_surfels(s)
+    m = g.matrix.tocoo()
+    arc = np.arccos(np.clip(np.einsum("ij,ij->i", s.positions[m.row], s.positions[m.col]), -1, 1))
+    assert np.allclose(m.data, arc, rtol=1e-6)
+    chord = SphereOfInfluenceGraph.from_surfels(s, arc_weights=False).matrix
+    assert np.all(g.matrix.data >= chord.data)
