@@ -549,6 +549,32 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
                "punctured_vertex": vertex}
 
 
+def _proxy_tutte_map(surfels: SurfelSet, **options):
+    """The Tutte map of a point cloud (surfels without faces) through a closed proxy mesh.
+
+    :func:`surfidx.proxy.proxy_mesh` reconstructs a closed genus-0 triangle mesh from the oriented
+    surfels; that mesh is mapped with :func:`_tutte_map`, and each surfel takes the sphere position
+    of its closest point on the proxy (barycentric interpolation, renormalised).
+    """
+    from .proxy import proxy_mesh, transfer
+
+    v, f = proxy_mesh(surfels)
+    e0, e1 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    fn = np.cross(e0, e1)
+    nrm = np.column_stack([sum(np.bincount(f[:, k], weights=fn[:, c], minlength=len(v))
+                               for k in range(3)) for c in range(3)])
+    ln = np.linalg.norm(nrm, axis=1)
+    nrm[ln <= 0] = (0.0, 0.0, 1.0)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+    spacing = float(np.mean(np.linalg.norm(e0, axis=1))) or 1.0
+    proxy = SurfelSet(v, nrm, np.full(len(v), spacing), faces=f, name=surfels.name)
+    x, info = _tutte_map(proxy, **options)
+    pts = transfer(surfels.positions, v, f, x)
+    pts /= np.linalg.norm(pts, axis=1)[:, None]
+    info = dict(info, proxy_vertices=len(v), proxy_faces=len(f))
+    return pts, info
+
+
 # ---------------------------------------------------------------------- original method (MDS)
 def _sphere_stress_fit(x0, d, r0, *, maxiter):
     """Minimise sum (r*angle(x_i, x_j) - d_ij)^2 over unit vectors x by conjugate gradients."""
@@ -629,7 +655,9 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     Parameters
     ----------
     surfels : SurfelSet
-        A closed genus-0 surface; method ``"tutte"`` needs mesh faces (``surfels.faces``).
+        A closed genus-0 surface. Method ``"tutte"`` maps the mesh faces (``surfels.faces``); a
+        point cloud (no faces) is mapped through a closed proxy mesh reconstructed from the
+        oriented surfels (:func:`surfidx.proxy.proxy_mesh`).
     method : {"tutte", "mds"}
         ``"tutte"``: fold-free Tutte embedding with area balancing (default); ``"mds"``: the
         original spherical MDS of landmark geodesics.
@@ -653,9 +681,10 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     Raises
     ------
     InputError
-        Unknown method, bad options, too few surfels, or ``"tutte"`` on a point cloud.
+        Unknown method, bad options, too few surfels.
     TopologyError
-        Several pieces, holes, pinched vertices, genus > 0, inconsistent winding.
+        Several pieces, holes, pinched vertices, genus > 0, inconsistent winding (for a point
+        cloud: a proxy surface that is not one closed genus-0 piece).
     """
     surfels = _check_surfels(surfels)
     if method not in METHODS:
@@ -668,10 +697,11 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     lm = dist = None
     if method == "tutte":
         if surfels.faces is None or not len(surfels.faces):
-            raise InputError("method 'tutte' needs a triangulation over the surfels (a mesh "
-                             "input); for a bare point cloud use method='mds'")
-        pts, info = _tutte_map(surfels, iterations=iterations, gamma=float(gamma),
-                               time_budget=float(time_budget))
+            pts, info = _proxy_tutte_map(surfels, iterations=iterations, gamma=float(gamma),
+                                         time_budget=float(time_budget))
+        else:
+            pts, info = _tutte_map(surfels, iterations=iterations, gamma=float(gamma),
+                                   time_budget=float(time_budget))
     else:
         if surfels.faces is not None and len(surfels.faces):
             _oriented_faces(surfels)  # topology check before mapping

@@ -124,8 +124,6 @@ def test_bad_arguments(sphere_surfels):
         parameterize(sphere_surfels, method="conformal-ish")
     with pytest.raises(InputError, match="too few surfels"):
         parameterize(sphere_surfels.subset(np.arange(5)))
-    with pytest.raises(InputError, match="needs a triangulation"):
-        parameterize(sphere_surfels.subset(np.arange(642)))
     with pytest.raises(InputError, match="gamma"):
         parameterize(sphere_surfels, gamma=5)
     with pytest.raises(InputError, match="SurfelSet"):
@@ -175,3 +173,29 @@ def test_horse_full_size(models):
 def test_horse_delaunay_fold_target(models):
     m = parameterize(read_surfels(models / "horse.ply"), stress=False)
     assert m.fold_fraction <= 1e-4
+
+
+def test_point_cloud_mapped_through_proxy_mesh():
+    """Surfels without faces (a point cloud) get the Tutte map through a closed proxy mesh: the
+    map is fold-free on a sampled ellipsoid-like shape and keeps its limbs apart."""
+    s = _limbs()
+    cloud = SurfelSet(s.positions, s.normals, s.radii)
+    m = parameterize(cloud, stress=False)
+    assert m.info["proxy_vertices"] > 0
+    np.testing.assert_allclose(np.linalg.norm(m.points, axis=1), 1.0, atol=1e-12)
+    assert m.fold_fraction <= 0.01
+    assert len(np.unique(np.round(m.points, 9), axis=0)) == len(cloud)
+
+
+def test_point_cloud_of_genus_one_refused():
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 80, endpoint=False),
+                       np.linspace(0, 2 * np.pi, 40, endpoint=False))
+    u, v = u.ravel(), v.ravel()
+    p = np.column_stack([(1 + 0.4 * np.cos(v)) * np.cos(u), (1 + 0.4 * np.cos(v)) * np.sin(u),
+                         0.4 * np.sin(v)])
+    c = np.column_stack([np.cos(u), np.sin(u), np.zeros_like(u)])
+    n = p - c
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    torus = SurfelSet(p, n, np.full(len(p), 0.08))
+    with pytest.raises(TopologyError, match="genus"):
+        parameterize(torus, stress=False)
