@@ -511,11 +511,21 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
             for c in range(3):
                 x[c] = P[i, c] + dx[c]
             s = _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
-            # safety: the point must stay on the same sheet of surface as the path, i.e. its
-            # nearest surfel is one of, or a graph neighbour of, the surfels of the point and of
-            # its two neighbours; otherwise the move slid across a gap and is rejected
-            if not (_adjacent(s, S[i], indptr, indices) or _adjacent(s, S[i - 1], indptr, indices)
-                    or _adjacent(s, S[i + 1], indptr, indices)):
+            # safety: the point must stay on the same sheet of surface as the path. Its new
+            # nearest surfel must be linked to its current one, and to the surfels of its two
+            # polyline neighbours when the current one is: consecutive points then always sit on
+            # linked surfels, whose (surface-tested) edge the segment follows, so the path can
+            # never slide across a gap to another part
+            if not _adjacent(s, S[i], indptr, indices):
+                continue
+            # nor face away from its neighbours' surfels (the other side of a thin part)
+            if _dot(nrm, s, S[i - 1]) <= 0.0 or _dot(nrm, s, S[i + 1]) <= 0.0:
+                continue
+            if _adjacent(S[i], S[i - 1], indptr, indices) and \
+                    not _adjacent(s, S[i - 1], indptr, indices):
+                continue
+            if _adjacent(S[i], S[i + 1], indptr, indices) and \
+                    not _adjacent(s, S[i + 1], indptr, indices):
                 continue
             for c in range(3):
                 P[i, c] = out[c]
@@ -525,6 +535,11 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
         if prev - cur < tol * cur:
             break
         prev = cur
+
+
+@numba.njit(cache=True)
+def _dot(nrm, a, b):
+    return nrm[a, 0] * nrm[b, 0] + nrm[a, 1] * nrm[b, 1] + nrm[a, 2] * nrm[b, 2]
 
 
 @numba.njit(cache=True)
@@ -593,9 +608,14 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
             x[c] = (1 - f) * pos[idx[seg], c] + f * pos[idx[seg + 1], c]
         s0 = idx[seg] if f < 0.5 else idx[seg + 1]
         s = _project(x, s0, pos, nrm, bw, indptr, indices, out, nout)
-        P[q] = out
-        Nn[q] = nout
-        S[q] = s
+        if _adjacent(s, idx[seg], indptr, indices) or _adjacent(s, idx[seg + 1], indptr, indices):
+            P[q] = out
+            Nn[q] = nout
+            S[q] = s
+        else:  # the projection left the edge's neighbourhood: keep the point on the edge
+            P[q] = x
+            Nn[q] = nrm[s0]
+            S[q] = s0
     P[0] = pos[idx[0]]
     P[nseg] = pos[idx[k - 1]]
     S[0] = idx[0]

@@ -157,19 +157,17 @@ class SphereOfInfluenceGraph:
         if not (isinstance(scale, (int, float, np.floating)) and np.isfinite(scale) and scale > 0):
             raise InputError(f"scale must be a positive number, got {scale!r}")
         radii = neighbour_radii(surfels.positions, surfels.radii, radius=radius, k=k)
+        if max_offset is not None and not (
+                isinstance(max_offset, (int, float, np.floating)) and np.isfinite(max_offset)
+                and max_offset >= 0):
+            raise InputError("max_offset must be a non-negative number or None, got "
+                             f"{max_offset!r}")
         rows, cols, dist = _sig_edges(surfels.positions, surfels.normals, radii * float(scale),
-                                      max_angle)
-        if max_offset is not None:
-            if not (isinstance(max_offset, (int, float, np.floating)) and np.isfinite(max_offset)
-                    and max_offset >= 0):
-                raise InputError("max_offset must be a non-negative number or None, got "
-                                 f"{max_offset!r}")
-            rows, cols, dist = _surface_edges(surfels.positions, surfels.normals, surfels.radii,
-                                              rows, cols, dist, float(max_offset))
-        if arc_weights:
-            dist = _arc_lengths(surfels.positions, surfels.normals, rows, cols, dist)
+                                      max_angle, -1.0 if max_offset is None else float(max_offset),
+                                      arc_weights)
         if mesh_edges and surfels.faces is not None and len(surfels.faces):
-            rows, cols, dist = _add_mesh_edges(surfels.positions, surfels.faces, rows, cols, dist)
+            rows, cols, dist = _add_mesh_edges(surfels.positions, surfels.normals, surfels.faces,
+                                               rows, cols, dist, arc_weights)
         rows, cols, dist = _link_isolated(surfels.positions, surfels.normals,
                                           radii * float(scale), rows, cols, dist)
         matrix = _symmetric_csr(rows, cols, dist, n)
@@ -309,13 +307,16 @@ def _check_angle(max_angle) -> float:
     return a
 
 
-def _sig_edges(positions, normals, radii, max_angle):
-    """Undirected edges (each once) passing the sphere and normal tests.
+def _sig_edges(positions, normals, radii, max_angle, max_offset=-1.0, arc=False):
+    """Undirected edges (each once) passing the sphere, normal and (``max_offset >= 0``) surface
+    tests, weighted by chord length or (``arc``) tangent-arc length.
 
     A hashed uniform grid (cell = twice the median radius, cells sorted by key and found by
     binary search, so memory is linear in N whatever the extent) is scanned by the surfel with the
     larger radius of each pair, over ``2 r_i``: typical surfels visit 27 cells, and the few large
-    ones a few more, so the cost stays O(N log N) even when radii vary widely.
+    ones a few more, so the cost stays O(N log N) even when radii vary widely. The surfels found
+    within ``2 r_i`` contain the nearest surfel to the midpoint of every edge of ``i`` (it lies
+    within ``|p_i - p_j| / 2 < r_i`` of the midpoint), so the surface test needs no extra search.
     """
     cos_min = np.cos(np.radians(max_angle)) if max_angle < 180.0 else -2.0
     sin_half = np.sin(np.radians(max_angle) / 2.0) if max_angle < 180.0 else 2.0
@@ -326,21 +327,20 @@ def _sig_edges(positions, normals, radii, max_angle):
     keys = ((q[:, 0] + 1) * dims[1] + (q[:, 1] + 1)) * dims[2] + (q[:, 2] + 1)
     order = np.argsort(keys, kind="stable").astype(np.int64)
     skeys = keys[order]
-    counts = _grid_pairs(positions, normals, radii, cos_min, sin_half, q, dims, order, skeys, cell,
-                         np.zeros((0, 2), np.int64), np.zeros(0), True)
-    total = int(counts[0])
-    pairs = np.empty((total, 2), np.int64)
-    dist = np.empty(total)
-    _grid_pairs(positions, normals, radii, cos_min, sin_half, q, dims, order, skeys, cell, pairs, dist,
-                False)
+    pairs, dist = _grid_pairs(positions, normals, radii, cos_min, sin_half, float(max_offset),
+                              bool(arc), q, dims, order, skeys, cell)
     return pairs[:, 0], pairs[:, 1], dist
 
 
 @numba.njit(cache=True)
-def _grid_pairs(pos, nrm, r, cos_min, sin_half, q, dims, order, skeys, cell, pairs, dist,
-                count_only):
-    """Count (``count_only``) or write the SIG edges; the points are scanned in cell order and
-    each row of cells along z is one contiguous run of ``skeys`` (one binary search)."""
+def _grid_pairs(pos, nrm, r, cos_min, sin_half, max_offset, arc, q, dims, order, skeys, cell):
+    """The SIG edges; the points are scanned in cell order and each row of cells along z is one
+    contiguous run of ``skeys`` (one binary search).
+
+    Surface test (``max_offset >= 0``): the surfel ``k`` nearest to the edge midpoint ``m`` must be
+    ``i``, ``j`` or a surfel linkable to one of them (spheres meet, normals within the angle), and
+    ``|n_k . (m - p_k)| <= max_offset * |p_i - p_j|``.
+    """
     n = pos.shape[0]
     sp_ = np.empty((n, 3))
     sn = np.empty((n, 3))
@@ -351,6 +351,11 @@ def _grid_pairs(pos, nrm, r, cos_min, sin_half, q, dims, order, skeys, cell, pai
             sp_[a, c] = pos[o, c]
             sn[a, c] = nrm[o, c]
         sr[a] = r[o]
+    cap = 16 * n + 16
+    pairs = np.empty((cap, 2), np.int64)
+    dist = np.empty(cap)
+    near = np.empty(n, np.int64)  # surfels within 2 r_i of the current surfel (sorted indices)
+    m = np.empty(3)
     k = 0
     for a in range(n):
         i = order[a]
@@ -361,62 +366,104 @@ def _grid_pairs(pos, nrm, r, cos_min, sin_half, q, dims, order, skeys, cell, pai
         qi2 = q[i, 2] + 1
         z0 = max(qi2 - reach, 0)
         z1 = min(qi2 + reach, dims[2] - 1)
+        lim_near = 4.0 * ri * ri
+        nn = 0
         for cx in range(max(qi0 - reach, 0), min(qi0 + reach, dims[0] - 1) + 1):
             for cy in range(max(qi1 - reach, 0), min(qi1 + reach, dims[1] - 1) + 1):
                 base = (cx * dims[1] + cy) * dims[2]
                 kend = base + z1
                 b = np.searchsorted(skeys, base + z0)
                 while b < n and skeys[b] <= kend:
-                    rj = sr[b]
-                    if rj > ri or (rj == ri and b <= a):
-                        b += 1
-                        continue
                     d2 = 0.0
                     for c in range(3):
                         t = sp_[a, c] - sp_[b, c]
                         d2 += t * t
-                    lim = ri + rj
-                    if d2 >= lim * lim or (sn[a, 0] * sn[b, 0] + sn[a, 1] * sn[b, 1]
-                                           + sn[a, 2] * sn[b, 2]) <= cos_min:
-                        b += 1
-                        continue
-                    # the chord must leave both tangent planes by less than max_angle / 2
-                    ta = 0.0
-                    tb = 0.0
-                    for c in range(3):
-                        t = sp_[b, c] - sp_[a, c]
-                        ta += t * sn[a, c]
-                        tb += t * sn[b, c]
-                    lim_t = sin_half * sin_half * d2
-                    if ta * ta < lim_t and tb * tb < lim_t:
-                        if not count_only:
-                            pairs[k, 0] = i
-                            pairs[k, 1] = order[b]
-                            dist[k] = np.sqrt(d2)
-                        k += 1
+                    if d2 < lim_near:
+                        near[nn] = b
+                        nn += 1
                     b += 1
-    out = np.zeros(1, np.int64)
-    out[0] = k
-    return out
+        for t_ in range(nn):
+            b = near[t_]
+            rj = sr[b]
+            if rj > ri or (rj == ri and b <= a):
+                continue
+            d2 = 0.0
+            for c in range(3):
+                t = sp_[a, c] - sp_[b, c]
+                d2 += t * t
+            lim = ri + rj
+            if d2 >= lim * lim or (sn[a, 0] * sn[b, 0] + sn[a, 1] * sn[b, 1]
+                                   + sn[a, 2] * sn[b, 2]) <= cos_min:
+                continue
+            # the chord must leave both tangent planes by less than max_angle / 2
+            ta = 0.0
+            tb = 0.0
+            for c in range(3):
+                t = sp_[b, c] - sp_[a, c]
+                ta += t * sn[a, c]
+                tb += t * sn[b, c]
+            lim_t = sin_half * sin_half * d2
+            if not (ta * ta < lim_t and tb * tb < lim_t):
+                continue
+            if max_offset >= 0.0 and not _midpoint_ok(a, b, d2, sp_, sn, sr, near, nn, cos_min,
+                                                      max_offset, m):
+                continue
+            if k == cap:
+                cap *= 2
+                p2 = np.empty((cap, 2), np.int64)
+                d2a = np.empty(cap)
+                p2[:k] = pairs[:k]
+                d2a[:k] = dist[:k]
+                pairs = p2
+                dist = d2a
+            pairs[k, 0] = i
+            pairs[k, 1] = order[b]
+            dd = np.sqrt(d2)
+            if arc and d2 > 0.0:  # tangent-arc length (see _arc_lengths)
+                half = 0.5 * (np.arcsin(min(abs(ta) / dd, 1.0)) + np.arcsin(min(abs(tb) / dd, 1.0)))
+                if half > 1e-6:
+                    dd *= half / np.sin(half)
+            dist[k] = dd
+            k += 1
+    return pairs[:k].copy(), dist[:k].copy()
 
 
-def _surface_edges(positions, normals, radii, rows, cols, dist, max_offset):
-    """Keep the edges whose midpoint lies near the surface (the shortcut test).
-
-    The surface near an edge ``(i, j)`` is represented by the disks (centre ``p_k``, normal
-    ``n_k``, radius ``r_k``) of ``i``, ``j`` and their graph neighbours; the edge is kept when the
-    distance from its midpoint to the nearest of these disks is at most ``max_offset * |p_i - p_j|``.
-    A chord of a smooth surface stays within its sagitta (``L**2 / 8R`` for curvature radius ``R``),
-    while an edge jumping a gap or cutting across a concave fold has its midpoint in the air.
-    Neighbourhoods replace a KD-tree query per midpoint (O(edges x degree) in a numba kernel).
-    """
-    n = len(positions)
-    csr = _symmetric_csr(rows, cols, dist, n)
-    keep = _midpoint_test(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
-                          np.ascontiguousarray(radii, dtype=np.float64),
-                          csr.indptr.astype(np.int64), csr.indices.astype(np.int64),
-                          np.asarray(rows, np.int64), np.asarray(cols, np.int64), max_offset)
-    return rows[keep], cols[keep], dist[keep]
+@numba.njit(cache=True)
+def _midpoint_ok(a, b, d2, sp_, sn, sr, near, nn, cos_min, max_offset, m):
+    """The surface test of edge ``(a, b)`` (sorted indices); ``near`` holds every surfel within
+    ``2 r_a`` of ``a``, which includes the nearest surfel to the midpoint."""
+    for c in range(3):
+        m[c] = 0.5 * (sp_[a, c] + sp_[b, c])
+    best = -1
+    bd = np.inf
+    for t_ in range(nn):
+        kk = near[t_]
+        dd = 0.0
+        for c in range(3):
+            t = m[c] - sp_[kk, c]
+            dd += t * t
+        if dd < bd:
+            bd = dd
+            best = kk
+    h = 0.0
+    for c in range(3):
+        h += (m[c] - sp_[best, c]) * sn[best, c]
+    if h * h > max_offset * max_offset * d2:
+        return False
+    if best == a or best == b:
+        return True
+    # the nearest surfel must belong to the same sheet: linkable to a or b (sphere and normal
+    # tests); a surfel of another part, nearer than the surface the edge should follow, is not
+    for e in (a, b):
+        dd = 0.0
+        for c in range(3):
+            t = sp_[e, c] - sp_[best, c]
+            dd += t * t
+        lim = sr[e] + sr[best]
+        if dd < lim * lim and (sn[e, 0] * sn[best, 0] + sn[e, 1] * sn[best, 1]
+                               + sn[e, 2] * sn[best, 2]) > cos_min:
+            return True
+    return False
 
 
 def _arc_lengths(positions, normals, rows, cols, dist):
@@ -438,7 +485,7 @@ def _arc_lengths(positions, normals, rows, cols, dist):
     return dist * factor
 
 
-def _add_mesh_edges(positions, faces, rows, cols, dist):
+def _add_mesh_edges(positions, normals, faces, rows, cols, dist, arc):
     """Add the mesh edges that the SIG tests left out (each once)."""
     n = len(positions)
     csr = _symmetric_csr(rows, cols, dist, n)
@@ -451,6 +498,8 @@ def _add_mesh_edges(positions, faces, rows, cols, dist):
     pairs = np.stack([np.minimum(a[miss], b[miss]), np.maximum(a[miss], b[miss])], 1)
     pairs = np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
     d = np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+    if arc:
+        d = _arc_lengths(positions, normals, pairs[:, 0], pairs[:, 1], d)
     return (np.concatenate([rows, pairs[:, 0]]), np.concatenate([cols, pairs[:, 1]]),
             np.concatenate([dist, d]))
 
@@ -464,51 +513,6 @@ def _absent(indptr, indices, a, b):
                 out[e] = False
                 break
     return out
-
-
-@numba.njit(cache=True)
-def _disk_distance2(x, k, pos, nrm, rad):
-    h = 0.0
-    d2 = 0.0
-    for c in range(3):
-        t = x[c] - pos[k, c]
-        h += t * nrm[k, c]
-        d2 += t * t
-    rho2 = d2 - h * h
-    e = 0.0
-    if rho2 > rad[k] * rad[k]:
-        e = np.sqrt(rho2) - rad[k]
-    return h * h + e * e
-
-
-@numba.njit(cache=True)
-def _midpoint_test(pos, nrm, rad, indptr, indices, rows, cols, max_offset):
-    m = rows.shape[0]
-    keep = np.zeros(m, np.bool_)
-    x = np.empty(3)
-    for e in range(m):
-        i = rows[e]
-        j = cols[e]
-        L2 = 0.0
-        for c in range(3):
-            x[c] = 0.5 * (pos[i, c] + pos[j, c])
-            t = pos[i, c] - pos[j, c]
-            L2 += t * t
-        lim = max_offset * max_offset * L2
-        ok = _disk_distance2(x, i, pos, nrm, rad) <= lim or \
-            _disk_distance2(x, j, pos, nrm, rad) <= lim
-        if not ok:
-            for a in range(indptr[i], indptr[i + 1]):
-                if _disk_distance2(x, indices[a], pos, nrm, rad) <= lim:
-                    ok = True
-                    break
-        if not ok:
-            for a in range(indptr[j], indptr[j + 1]):
-                if _disk_distance2(x, indices[a], pos, nrm, rad) <= lim:
-                    ok = True
-                    break
-        keep[e] = ok
-    return keep
 
 
 def _link_isolated(positions, normals, radii, rows, cols, dist):
