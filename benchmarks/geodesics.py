@@ -13,8 +13,9 @@ finely sampled unit sphere (level-6 icosphere, 40,962 surfels; exact geodesics a
 * heat: potpourri3d's point-cloud heat method (``PointCloudHeatSolver``) on the surfel centres;
 
 reported as mean and 95th percentile of the absolute relative error ``|d / d_exact - 1|`` (and the
-mean signed error). A second table sweeps the normal-angle threshold and the sphere-radius scale
-(graph distances only); a third times graph construction and one source to all on Igea (one core).
+mean signed error). A second table sweeps the normal-angle threshold, the sphere-radius scale and
+the surface-test limit ``max_offset`` (graph distances only; ``--no-sweep`` skips it); a third
+times graph construction and one source to all on Igea (one core).
 
 Run: ``python benchmarks/geodesics.py [--sources 20] [--ball 10000] [--models igea bunny_hr ...]``.
 """
@@ -31,7 +32,7 @@ import numpy as np
 
 from surfidx import TriangleMesh, read_surfels
 from surfidx.geodesics import GeodesicSolver
-from surfidx.graph import DEFAULT_MAX_ANGLE, DEFAULT_SCALE
+from surfidx.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 MODELS = {
@@ -42,6 +43,7 @@ MODELS = {
 }
 ANGLES = (30.0, 45.0, 60.0, 90.0, 120.0, 180.0)
 SCALES = (1.0, 1.5, 1.75, 2.0, 2.5)
+OFFSETS = (None, 0.05, 0.07, 0.15, 0.2)  # surface-test limits besides DEFAULT_MAX_OFFSET
 
 
 def icosphere_mesh(level):
@@ -152,17 +154,20 @@ def main(argv=None):
             row["heat"] = rel_stats(hd, exact)
         rows.append(row)
         if not args.no_sweep:
-            combos = [(a, DEFAULT_SCALE) for a in ANGLES] + [
-                (DEFAULT_MAX_ANGLE, sc) for sc in SCALES if sc != DEFAULT_SCALE]
-            for ang, sc in combos:
+            combos = ([(a, DEFAULT_SCALE, DEFAULT_MAX_OFFSET) for a in ANGLES]
+                      + [(DEFAULT_MAX_ANGLE, sc, DEFAULT_MAX_OFFSET) for sc in SCALES
+                         if sc != DEFAULT_SCALE]
+                      + [(DEFAULT_MAX_ANGLE, DEFAULT_SCALE, off) for off in OFFSETS])
+            for ang, sc, off in combos:
                 try:
-                    sv = GeodesicSolver(s, max_angle=ang, scale=sc)
+                    sv = GeodesicSolver(s, max_angle=ang, scale=sc, max_offset=off)
                     d = np.take_along_axis(sv.distances(sources), targets, axis=1)
-                    sweep.append((name, ang, sc, sv.graph.degrees.mean(), rel_stats(d, exact)))
+                    sweep.append((name, (ang, sc, off), sv.graph.degrees.mean(),
+                                  rel_stats(d, exact)))
                 except Exception as exc:  # a disconnected graph at a strict angle
-                    sweep.append((name, ang, sc, float("nan"), (np.nan, np.nan, np.nan)))
-                    print(f"  {name} angle {ang} scale {sc}: {type(exc).__name__}: {exc}"[:150],
-                          file=sys.stderr)
+                    sweep.append((name, (ang, sc, off), float("nan"), (np.nan, np.nan, np.nan)))
+                    print(f"  {name} angle {ang} scale {sc} offset {off}: {type(exc).__name__}: "
+                          f"{exc}"[:150], file=sys.stderr)
         stats = " ".join(f"{key} {row[key][0]:.2f}/{row[key][1]:.2f}%" for key in
                          ("graph", "refined", "heat") if key in row)
         print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s;"
@@ -185,21 +190,19 @@ def main(argv=None):
         else "n/a".center(20) for k in ("graph", "refined", "heat")))
 
     if sweep:
-        print("\nGraph distances: mean |relative error| % by normal-angle threshold and scale "
-              "(mean degree in brackets)")
-        combos = sorted({(a, sc) for _, a, sc, _, _ in sweep}, key=lambda x: (x[1] != DEFAULT_SCALE, x))
-        print(f"{'model':13s} " + " ".join(f"{f'{a:g}deg x{sc:g}':>14s}" for a, sc in combos))
+        print("\nGraph distances: mean |relative error| % by normal-angle threshold, scale and "
+              "surface-test limit (mean degree in brackets)")
+        combos = list(dict.fromkeys(c for _, c, _, _ in sweep))
+        label = lambda c: f"{c[0]:g}d x{c[1]:g} o{c[2] if c[2] is not None else '-'}"  # noqa: E731
+        print(f"{'model':13s} " + " ".join(f"{label(c):>17s}" for c in combos))
         for name in dict.fromkeys(m for m, *_ in sweep):
             cells = []
-            for a, sc in combos:
-                hit = [x for x in sweep if x[0] == name and x[1] == a and x[2] == sc][0]
-                cells.append(f"{hit[4][0]:6.2f} [{hit[3]:4.1f}]")
-            print(f"{name:13s} " + " ".join(f"{c:>14s}" for c in cells))
-        cells = []
-        for a, sc in combos:
-            vals = [x[4][0] for x in sweep if x[1] == a and x[2] == sc]
-            cells.append(f"{np.mean(vals):6.2f}")
-        print(f"{'mean':13s} " + " ".join(f"{c:>14s}" for c in cells))
+            for c in combos:
+                hit = [x for x in sweep if x[0] == name and x[1] == c][0]
+                cells.append(f"{hit[3][0]:6.2f} [{hit[2]:4.1f}]")
+            print(f"{name:13s} " + " ".join(f"{c:>17s}" for c in cells))
+        cells = [f"{np.mean([x[3][0] for x in sweep if x[1] == c]):6.2f}" for c in combos]
+        print(f"{'mean':13s} " + " ".join(f"{c:>17s}" for c in cells))
 
     if "igea" in args.models:
         s = load("igea")
