@@ -16,6 +16,14 @@ refinement (``refine=True``) straightens a path on the surface, as the SIG metho
 
 The coarse-to-fine schedule makes the low-frequency part of the straightening cheap, like a
 multigrid solver.
+
+Safety: the path must stay on the sheet of surface it started on. A move is rejected when the new
+nearest surfel of the point is not linked to its current one, or (when they were linked) to the
+surfels of its two polyline neighbours, or when it faces away from them (normals more than 90
+degrees apart: the other side of a thin part). Consecutive points thus sit on linked surfels,
+whose edge passed the graph's surface test, so a path never slides across a gap to another part
+(the scorpion's legs). Refinement only shortens: a refined path longer than the graph distance is
+dropped for the graph path.
 """
 
 from __future__ import annotations
@@ -52,7 +60,8 @@ class GeodesicPath:
         arc weights slightly more than the polyline of surfel centres), for a refined path the
         length of the refined polyline.
     refined : bool
-        Whether ``points`` is the refined polyline.
+        Whether ``points`` is the refined polyline (``False`` also when refinement was asked for
+        but gave a longer path than the graph, which is then returned).
     surfels : (m,) int64
         For each point, its surfel index when the point is a graph-path surfel, else -1.
     """
@@ -202,7 +211,9 @@ class GeodesicSolver:
                     continue
                 idx = _walk_predecessors(pred, int(s), int(t))
                 pts, _ = self._refine(idx)
-                out[a, b] = _polyline_length(pts)
+                # refinement only shortens: a refined polyline longer than the graph distance
+                # (projection onto tilted planes across the creases of a coarse mesh) is dropped
+                out[a, b] = min(_polyline_length(pts), d[t])
         return out
 
     def distance(self, a, b, *, refine: bool = False) -> float:
@@ -248,12 +259,16 @@ class GeodesicSolver:
             return GeodesicPath(idx, pts, 0.0, refine, idx.copy())
         _, pred = _dijkstra(self.graph.matrix, directed=True, indices=a, return_predecessors=True)
         idx = _walk_predecessors(pred, a, b)
-        if not refine:
-            pts = self._positions[idx].copy()
-            length = float(np.asarray(self.graph.matrix[idx[:-1], idx[1:]]).sum())
-            return GeodesicPath(idx, pts, length, False, idx.copy())
-        pts, sid = self._refine(idx)
-        return GeodesicPath(idx, pts, _polyline_length(pts), True, sid)
+        length = float(np.asarray(self.graph.matrix[idx[:-1], idx[1:]]).sum())
+        if refine:
+            pts, sid = self._refine(idx)
+            refined_length = _polyline_length(pts)
+            # refinement only shortens; a longer result (projection onto tilted planes across the
+            # creases of a coarse mesh) is dropped for the graph path (``refined`` is then False)
+            if refined_length <= length:
+                return GeodesicPath(idx, pts, refined_length, True, sid)
+        pts = self._positions[idx].copy()
+        return GeodesicPath(idx, pts, length, False, idx.copy())
 
     # ------------------------------------------------------------------ landmarks
     def landmarks(self, k: int, *, seed: int = 0) -> np.ndarray:
