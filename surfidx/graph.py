@@ -80,8 +80,9 @@ inside). The nearest surfel is exact: it lies within ``2 s r_i`` of the larger s
 neighbourhood the grid scan visits anyway, so the test costs no extra search (Igea: build 0.71 s
 before, 0.79 s with the test and arc weights).
 
-Chosen with ``benchmarks/geodesics.py`` (scale 2, angle 60, 10 sources x 200 targets; graph mean
-relative error %, before the test falconstatue 2.82, homer 1.68, scorpion 1.15):
+Chosen with ``benchmarks/geodesics.py`` (scale 2, angle 60, arc weights, mesh edges, no
+``MIDPOINT_SLACK`` length limit yet; 10 sources x 200 targets; graph mean relative error %; before
+the test falconstatue 2.82, homer 1.68, scorpion 1.15 on 20 sources):
 
 ============  =====  =====  =====  =====  =====
 max_offset    0.05   0.07   0.1    0.15   0.2
@@ -90,7 +91,7 @@ falconstatue  1.88   1.65   1.64   2.09   2.35
 homer         1.09   0.66   0.42   0.35   0.34
 scorpion      0.67   0.41   0.26   0.25   0.32
 bunny_hr      1.72   1.57   1.46   1.39   1.36
-koala         0.37   0.24   0.19
+koala         0.37   0.24   0.20   0.18   0.18
 sphere        1.46   1.46   1.46   1.46   1.46
 ============  =====  =====  =====  =====  =====
 
