@@ -152,8 +152,11 @@ def test_pinched_vertex_raises(models):
 def test_real_models_no_mesh_folds(models, name):
     s = read_surfels(models / name)
     m = parameterize(s, stress=False)
-    assert m.info["mesh_folds"] == 0
-    assert m.fold_fraction < 0.005
+    assert m.info["mesh_folds"] == 0      # the mesh embedding on the sphere is bijective
+    assert m.fold_fraction < 0.01         # Delaunay diagonal swaps where the map is anisotropic
+    # the symmetric Dirichlet balancing leaves less area distortion than the harmonic start
+    plain = parameterize(s, stress=False, iterations=0, balance_budget=0.0)
+    assert m.area_distortion < plain.area_distortion
 
 
 @pytest.mark.slow

@@ -37,11 +37,11 @@ def geodesic(input, source, target, refine, output, max_angle, bridge, as_json, 
     if output is not None:
         path.write_ply(output)
     if as_json:
-        echo_json({"distance": path.length, "path": path.indices, "refined": bool(refine),
+        echo_json({"distance": path.length, "path": path.indices, "refined": bool(path.refined),
                    "points": int(len(path.points))})
         return
     click.echo(f"distance {path.length:.9g}")
-    click.echo(f"refined  {'yes' if refine else 'no'} ({len(path.points)} points)")
+    click.echo(f"refined  {'yes' if path.refined else 'no'} ({len(path.points)} points)")
     click.echo("path     " + " ".join(str(int(i)) for i in path.indices))
     if output is not None:
         click.echo(f"{output}: {len(path.points)} path points")

@@ -1,0 +1,56 @@
+"""Symmetric Dirichlet balancing of spherical embeddings: exact gradient, monotone, fold-free."""
+
+import numpy as np
+
+from surfidx._balance import _Energy, balance
+from surfidx.parameterize import _orientation, _tutte_map, parameterize  # noqa: F401
+from test_parameterize import _limbs
+
+
+def _start():
+    s = _limbs()
+    from surfidx.parameterize import _oriented_faces
+
+    f = _oriented_faces(s)
+    x, _ = _tutte_map(s, iterations=0, gamma=0.15, time_budget=1.0, balance_budget=0.0)
+    return s.positions, f, x
+
+
+def test_gradient_matches_finite_differences():
+    p, f, x = _start()
+    energy = _Energy(p, f)
+    e, g = energy(x)
+    rng = np.random.default_rng(0)
+    dv = rng.normal(size=x.shape)
+    dv -= np.einsum("ij,ij->i", dv, x)[:, None] * x
+    h = 1e-7
+    fd = (energy(x + h * dv, grad=False)[0] - energy(x - h * dv, grad=False)[0]) / (2 * h)
+    assert abs(fd - np.sum(g * dv)) <= 1e-5 * abs(fd)
+
+
+def test_uniform_scaling_energy_is_exact():
+    """An icosphere mapped onto itself, scaled by the area-matching radius R: every triangle is
+    scaled by R, so the energy per area is 2 R² + 2 / R² (4 for an isometry)."""
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    energy = _Energy(v, f)
+    e, _ = energy(v)
+    r = energy.radius
+    assert abs(e / energy.area3.sum() - (2 * r ** 2 + 2 / r ** 2)) < 1e-9
+
+
+def test_balance_lowers_energy_and_never_folds():
+    p, f, x = _start()
+    x2, info = balance(x, p, f, iterations=300, time_budget=30.0)
+    assert info["steps"] > 0 and info["energy"] < 0.5 * info["energy_start"]
+    np.testing.assert_allclose(np.linalg.norm(x2, axis=1), 1.0, atol=1e-12)
+    assert np.all(_orientation(x2, f) > 0)
+
+
+def test_inverted_start_is_returned_unchanged():
+    p, f, x = _start()
+    bad = x.copy()
+    bad[:, 0] *= -1                      # a mirror: every triangle inverted
+    x2, info = balance(bad, p, f)
+    assert info["steps"] == 0 and np.array_equal(x2, bad)
