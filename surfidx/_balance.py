@@ -24,17 +24,39 @@ import numpy as np
 __all__ = ["balance"]
 
 
-def _cotangents(p, f):
+def _cotangents(p, f, *, max_cot: float = 4.0):
+    """Cotangents of each triangle's corner angles and its 3D area.
+
+    Near-degenerate triangles (a cotangent beyond ``max_cot``: an angle under 14° or over 166°)
+    have an ill-conditioned Jacobian that stalls the optimisation; their shape (not their area)
+    is blended halfway towards the equilateral triangle, twice if needed. Edge-length vectors of
+    triangles form a convex cone, so the blend is always a valid triangle.
+    """
     a, b, c = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
-    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    floor = max(float(np.median(area2)) * 1e-8, 1e-300)
-    area2 = np.maximum(area2, floor)
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    floor = max(float(np.median(area)) * 1e-8, 1e-300)
+    lens = np.column_stack([np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1),
+                            np.linalg.norm(b - a, axis=1)])   # edge opposite corner k
 
-    def cot(u, v):
-        return np.einsum("ij,ij->i", u, v) / area2
+    def cots(ln):
+        s = 0.5 * ln.sum(axis=1)
+        heron = np.sqrt(np.clip(s * (s - ln[:, 0]) * (s - ln[:, 1]) * (s - ln[:, 2]), 0, None))
+        ar = np.maximum(heron, floor)
+        sq = ln ** 2
+        tot = sq.sum(axis=1)[:, None]
+        return (tot - 2 * sq) / (4 * ar[:, None])
 
-    # cot of the angle at each corner; weight of the opposite edge
-    return np.column_stack([cot(b - a, c - a), cot(a - b, c - b), cot(a - c, b - c)]), area2 / 2
+    cot = cots(lens)
+    for _ in range(2):
+        bad = np.abs(cot).max(axis=1) > max_cot
+        if not bad.any():
+            break
+        eq = np.sqrt(4 * np.maximum(area[bad], floor) / np.sqrt(3.0))
+        lens[bad] = 0.5 * lens[bad] + 0.5 * eq[:, None]
+        cot = cots(lens)
+    # a sliver's image must not shrink to nothing either: its target area is floored at 1 % of
+    # the median (a degenerate 3D triangle otherwise pins the line search at a barrier)
+    return cot, np.maximum(area, 0.01 * float(np.median(area)))
 
 
 @numba.njit(cache=True)
@@ -56,10 +78,13 @@ def _energy_kernel(y, f, cot, area3, radius, grad):  # pragma: no cover - compil
         v0, v1, v2 = q[2, 0] - q[0, 0], q[2, 1] - q[0, 1], q[2, 2] - q[0, 2]
         c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
         s0, s1, s2 = q[0, 0] + q[1, 0] + q[2, 0], q[0, 1] + q[1, 1] + q[2, 1], q[0, 2] + q[1, 2] + q[2, 2]
-        if c0 * s0 + c1 * s1 + c2 * s2 <= 0.0:
+        # signed area projected on the tangent plane at the centroid direction u: it vanishes
+        # when the corners fall on one great circle (where the plain area |c|/2 does not)
+        sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
+        ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+        if ar <= 0.0:
             return np.inf, g
-        ln = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-        ar = 0.5 * ln
         d = 0.0
         for k in range(3):          # edge opposite corner k: from corner k+1 to k+2
             j, l = (k + 1) % 3, (k + 2) % 3
@@ -71,18 +96,22 @@ def _energy_kernel(y, f, cot, area3, radius, grad):  # pragma: no cover - compil
         if grad:
             k1 = 1.0 + r2
             k2 = -2.0 * d * r2 / ar
-            n0, n1, n2 = c0 / ln, c1 / ln, c2 / ln
+            # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|
+            cu = c0 * n0 + c1 * n1 + c2 * n2
+            h0 = 0.5 * (c0 - cu * n0) / sl
+            h1 = 0.5 * (c1 - cu * n1) / sl
+            h2 = 0.5 * (c2 - cu * n2) / sl
             for k in range(3):
                 j, l = (k + 1) % 3, (k + 2) % 3
                 # dD/dq_k: edges k-j (cot at l) and k-l (cot at j)
                 for c in range(3):
                     g[f[t, k], c] += radius * k1 * (cot[t, l] * (q[k, c] - q[j, c])
                                                     + cot[t, j] * (q[k, c] - q[l, c]))
-                # d area / d q_k = 1/2 n x (q_l - q_j)
+                # d ar / d q_k
                 w0, w1, w2 = q[l, 0] - q[j, 0], q[l, 1] - q[j, 1], q[l, 2] - q[j, 2]
-                g[f[t, k], 0] += radius * k2 * 0.5 * (n1 * w2 - n2 * w1)
-                g[f[t, k], 1] += radius * k2 * 0.5 * (n2 * w0 - n0 * w2)
-                g[f[t, k], 2] += radius * k2 * 0.5 * (n0 * w1 - n1 * w0)
+                g[f[t, k], 0] += radius * k2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
+                g[f[t, k], 1] += radius * k2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
+                g[f[t, k], 2] += radius * k2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
     if grad:
         for i in range(n):
             r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
@@ -150,6 +179,7 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
     t0 = time.perf_counter()
     steps = 0
     last = 1.0
+    stalls = 0
     for _ in range(iterations):
         if time.perf_counter() - t0 > time_budget:
             break
@@ -181,7 +211,12 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
                 break
             step *= 0.5
         else:
-            break
+            if not s_hist:          # even the scaled gradient step fails: converged
+                break
+            s_hist.clear()          # a stale curvature model: restart from the gradient
+            y_hist.clear()
+            last = 1.0
+            continue
         last = step
         s = (y2 - y).ravel()
         yk = (g2 - g).ravel()
@@ -195,7 +230,8 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
             if len(s_hist) > memory:
                 s_hist.pop(0)
                 y_hist.pop(0)
-        if rel < tol:
+        stalls = stalls + 1 if rel < tol else 0
+        if stalls >= 20:
             break
     x = y / np.linalg.norm(y, axis=1)[:, None]
     return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
