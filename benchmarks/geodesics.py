@@ -32,6 +32,7 @@ import numpy as np
 
 from surfidx import TriangleMesh, read_surfels
 from surfidx.geodesics import GeodesicSolver
+from surfidx.icosphere import icosphere
 from surfidx.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
@@ -46,32 +47,10 @@ SCALES = (1.0, 1.5, 1.75, 2.0, 2.5)
 OFFSETS = (None, 0.05, 0.07, 0.15, 0.2)  # surface-test limits besides DEFAULT_MAX_OFFSET
 
 
-def icosphere_mesh(level):
-    t = (1 + 5 ** 0.5) / 2
-    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-                  [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
-    f = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-                  [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-                  [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]])
-    v /= np.linalg.norm(v, axis=1)[:, None]
-    for _ in range(level):
-        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-        e.sort(axis=1)
-        uniq, inv = np.unique(e, axis=0, return_inverse=True)
-        mid = v[uniq].sum(axis=1)
-        mid /= np.linalg.norm(mid, axis=1)[:, None]
-        m = len(f)
-        ab, bc, ca = (inv[:m] + len(v), inv[m:2 * m] + len(v), inv[2 * m:] + len(v))
-        v = np.concatenate([v, mid])
-        f = np.concatenate([np.stack([f[:, 0], ab, ca], 1), np.stack([f[:, 1], bc, ab], 1),
-                            np.stack([f[:, 2], ca, bc], 1), np.stack([ab, bc, ca], 1)])
-    return v, f
-
-
 def load(name):
     if name == "sphere":
-        v, f = icosphere_mesh(6)
-        return TriangleMesh(v, f, name="sphere").to_surfels()
+        grid = icosphere(6)
+        return TriangleMesh(grid.vertices, grid.faces, name="sphere").to_surfels()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return read_surfels(DATA / MODELS[name])

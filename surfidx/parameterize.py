@@ -577,18 +577,11 @@ def _proxy_tutte_map(surfels: SurfelSet, **options):
     surfels; that mesh is mapped with :func:`_tutte_map`, and each surfel takes the sphere position
     of its closest point on the proxy (barycentric interpolation, renormalised).
     """
+    from .mesh import TriangleMesh
     from .proxy import proxy_mesh, transfer
 
     v, f = proxy_mesh(surfels)
-    e0, e1 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
-    fn = np.cross(e0, e1)
-    nrm = np.column_stack([sum(np.bincount(f[:, k], weights=fn[:, c], minlength=len(v))
-                               for k in range(3)) for c in range(3)])
-    ln = np.linalg.norm(nrm, axis=1)
-    nrm[ln <= 0] = (0.0, 0.0, 1.0)
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
-    spacing = float(np.mean(np.linalg.norm(e0, axis=1))) or 1.0
-    proxy = SurfelSet(v, nrm, np.full(len(v), spacing), faces=f, name=surfels.name)
+    proxy = TriangleMesh(v, f, name=surfels.name).to_surfels()  # every proxy vertex is used
     x, info = _tutte_map(proxy, **options)
     pts = transfer(surfels.positions, v, f, x)
     pts /= np.linalg.norm(pts, axis=1)[:, None]
