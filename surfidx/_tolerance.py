@@ -25,6 +25,12 @@ class Tolerances:
     geodesic_refine : float
         Geodesic path refinement stops a level when one sweep shortens the path by less than this
         fraction of its length.
+    geodesic_resolution : float
+        Final segment length of a refined path on a mesh, as a fraction of the local surfel
+        spacing (the mean graph link over the sphere scale).
+    geodesic_sheet_rings : int
+        A refined path on a mesh has jumped to another sheet when the nearest vertices of two
+        consecutive points are more than this many mesh rings apart.
     """
 
     unit_normal: float = 1e-3
@@ -32,6 +38,8 @@ class Tolerances:
     reconstruction: float = 1e-10
     psnr_agreement: float = 0.5
     geodesic_refine: float = 1e-6
+    geodesic_resolution: float = 0.25
+    geodesic_sheet_rings: int = 10
 
 
 TOL = Tolerances()

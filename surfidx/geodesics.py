@@ -24,6 +24,17 @@ degrees apart: the other side of a thin part). Consecutive points thus sit on li
 whose edge passed the graph's surface test, so a path never slides across a gap to another part
 (the scorpion's legs). Refinement only shortens: a refined path longer than the graph distance is
 dropped for the graph path.
+
+Meshed inputs (surfels with ``faces``): the points are projected onto the triangles incident to
+the nearest surfel and its graph neighbours instead of the smooth surfel planes, and the final
+segments are ``TOL.geodesic_resolution`` times the local spacing. On a coarse, faceted mesh with
+sliver triangles (falconstatue) the plane projection rounds the relief off and the chords of
+spacing-long segments cut through it, so refined paths came out shorter than the exact polyhedral
+geodesics (mean error 1.2 %, signed -1.1 %); the graph links are chords too, so the graph distance
+is no upper bound there and the refined length is kept even when longer. A refined path whose
+consecutive nearest vertices are more than ``TOL.geodesic_sheet_rings`` mesh rings apart has
+crossed a narrow gap between two sheets (through a graph link that passed the surface test): the
+mesh-edge path is refined instead, or its length returned when that jumps too.
 """
 
 from __future__ import annotations
@@ -32,6 +43,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 
 from ._errors import FileFormatError, InputError
@@ -161,6 +173,7 @@ class GeodesicSolver:
         # the fit bandwidth: the surfel radius, but no less than the nearest link
         self._spacing = spacing / max(self.graph.scale, 1.0)
         self._bandwidth = np.maximum(surfels.radii, self._spacing)
+        self._mesh_cache = None
 
     def __len__(self) -> int:
         return len(self.surfels)
@@ -205,15 +218,12 @@ class GeodesicSolver:
         for a, s in enumerate(src):
             d, pred = _dijkstra(self.graph.matrix, directed=True, indices=int(s),
                                return_predecessors=True)
+            mesh_pred = [None]  # mesh-edge Dijkstra from s, run at the first sheet jump
             for b, t in enumerate(tgt):
                 if t == s:
                     out[a, b] = 0.0
                     continue
-                idx = _walk_predecessors(pred, int(s), int(t))
-                pts, _ = self._refine(idx)
-                # refinement only shortens: a refined polyline longer than the graph distance
-                # (projection onto tilted planes across the creases of a coarse mesh) is dropped
-                out[a, b] = min(_polyline_length(pts), d[t])
+                out[a, b] = self._refined(int(s), int(t), pred, d[t], mesh_pred)[2]
         return out
 
     def distance(self, a, b, *, refine: bool = False) -> float:
@@ -261,12 +271,10 @@ class GeodesicSolver:
         idx = _walk_predecessors(pred, a, b)
         length = float(np.asarray(self.graph.matrix[idx[:-1], idx[1:]]).sum())
         if refine:
-            pts, sid = self._refine(idx)
-            refined_length = _polyline_length(pts)
-            # refinement only shortens; a longer result (projection onto tilted planes across the
-            # creases of a coarse mesh) is dropped for the graph path (``refined`` is then False)
-            if refined_length <= length:
-                return GeodesicPath(idx, pts, refined_length, True, sid)
+            ridx, pts, refined_length, sid = self._refined(a, b, pred, length, [None])
+            if pts is not None:
+                return GeodesicPath(ridx, pts, refined_length, True, sid)
+            idx, length = ridx, refined_length
         pts = self._positions[idx].copy()
         return GeodesicPath(idx, pts, length, False, idx.copy())
 
@@ -319,11 +327,82 @@ class GeodesicSolver:
             raise InputError(f"{name}: surfel index {v} is out of range 0..{n - 1}")
         return arr
 
+    def _refined(self, a, b, pred, graph_length, mesh_pred):
+        """Refine the graph path from ``a`` to ``b`` (``pred``: graph Dijkstra predecessors).
+
+        Without a mesh, refinement only shortens: a refined polyline longer than the graph
+        distance (projection onto tilted surfel planes across creases) is dropped. With a mesh the
+        refined polyline lies on the triangles and is kept even when longer: graph links are
+        chords, which cut through the relief of a coarse, faceted mesh (falconstatue), so the
+        graph distance is no upper bound. When the refined path jumps between sheets of the mesh
+        (a graph link across a narrow gap, which the surface test let through), the path of the
+        mesh-edge graph is refined instead (its Dijkstra from ``a`` is cached in
+        ``mesh_pred[0]``), and when that jumps too its mesh-edge length is returned.
+
+        Returns
+        -------
+        idx : (k,) int64
+            The graph (or mesh-edge) path.
+        points : (m, 3) float64 or None
+            The refined polyline; ``None`` when the graph path is kept.
+        length : float
+        surfels : (m,) int64 or None
+        """
+        idx = _walk_predecessors(pred, a, b)
+        faces, vf_ptr, vf_idx, mesh_graph = self._mesh()
+        pts, near = self._refine(idx)
+        length = _polyline_length(pts)
+        if mesh_graph is None:
+            if length > graph_length:
+                return idx, None, graph_length, None
+        elif _sheet_jump(near, faces, vf_ptr, vf_idx, TOL.geodesic_sheet_rings):
+            if mesh_pred[0] is None:
+                mesh_pred[0] = _dijkstra(mesh_graph, directed=True, indices=a,
+                                         return_predecessors=True)
+            md, mp = mesh_pred[0]
+            idx = _walk_predecessors(mp, a, b)
+            pts, near = self._refine(idx)
+            length = _polyline_length(pts)
+            if _sheet_jump(near, faces, vf_ptr, vf_idx, TOL.geodesic_sheet_rings):
+                return idx, None, float(md[b]), None
+        sid = np.full(len(pts), -1, np.int64)
+        sid[0], sid[-1] = a, b
+        return idx, pts, length, sid
+
     def _refine(self, idx):
-        pts, sid = _refine_path(idx, self._positions, self._normals, self._bandwidth,
-                                self._spacing, self._indptr, self._indices,
-                                TOL.geodesic_refine, 5000, 1.0)
-        return pts, sid
+        faces, vf_ptr, vf_idx, _ = self._mesh()
+        return _refine_path(idx, self._positions, self._normals, self._bandwidth, self._spacing,
+                            self._indptr, self._indices, faces, vf_ptr, vf_idx,
+                            TOL.geodesic_refine, 5000, 1.0, TOL.geodesic_resolution)
+
+    def _mesh(self):
+        """The triangles the refinement projects onto, the vertex-to-triangle incidence (CSR)
+        and the mesh-edge graph; empty (graph ``None``) when the surfels carry no faces (the
+        refinement then projects onto local surfel planes). Built at the first refinement, so
+        graph queries do not pay for it."""
+        if self._mesh_cache is None:
+            faces = self.surfels.faces
+            if faces is None or len(faces) == 0:
+                faces = np.zeros((0, 3), np.int64)
+                vf_ptr = np.zeros(1, np.int64)
+                vf_idx = np.zeros(0, np.int64)
+                mesh_graph = None
+            else:
+                faces = np.ascontiguousarray(faces, dtype=np.int64)
+                flat = faces.ravel()
+                order = np.argsort(flat, kind="stable")
+                vf_idx = (order // 3).astype(np.int64)
+                vf_ptr = np.zeros(len(self.surfels) + 1, np.int64)
+                np.cumsum(np.bincount(flat, minlength=len(self.surfels)), out=vf_ptr[1:])
+                e = np.unique(np.sort(np.stack([flat, faces[:, [1, 2, 0]].ravel()], 1), 1),
+                              axis=0)
+                e = np.concatenate([e, e[:, ::-1]])
+                w = np.linalg.norm(self._positions[e[:, 0]] - self._positions[e[:, 1]], axis=1)
+                n = len(self.surfels)
+                mesh_graph = sp.csr_matrix((np.maximum(w, np.finfo(float).tiny),
+                                            (e[:, 0], e[:, 1])), shape=(n, n))
+            self._mesh_cache = (faces, vf_ptr, vf_idx, mesh_graph)
+        return self._mesh_cache
 
 
 # ---------------------------------------------------------------------- convenience functions
@@ -494,7 +573,104 @@ def _project(x, s, pos, nrm, bw, indptr, indices, out, nout):
 
 
 @numba.njit(cache=True)
-def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
+def _closest_on_triangle(x, a, b, c, q):
+    """Closest point ``q`` to ``x`` on triangle ``abc`` (Ericson, Real-Time Collision Detection
+    5.1.5); returns the squared distance."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = x[0] - a[0], x[1] - a[1], x[2] - a[2]
+    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
+    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
+    bp0, bp1, bp2 = x[0] - b[0], x[1] - b[1], x[2] - b[2]
+    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
+    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
+    cp0, cp1, cp2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
+    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
+    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    if d1 <= 0.0 and d2 <= 0.0:
+        v, w = 0.0, 0.0
+    elif d3 >= 0.0 and d4 <= d3:
+        v, w = 1.0, 0.0
+    elif d6 >= 0.0 and d5 <= d6:
+        v, w = 0.0, 1.0
+    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v, w = d1 / (d1 - d3), 0.0
+    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        v, w = 0.0, d2 / (d2 - d6)
+    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        v = 1.0 - w
+    else:
+        den = va + vb + vc
+        if den <= 0.0:  # degenerate triangle: its first corner
+            v, w = 0.0, 0.0
+        else:
+            v, w = vb / den, vc / den
+    q[0] = a[0] + v * ab0 + w * ac0
+    q[1] = a[1] + v * ab1 + w * ac1
+    q[2] = a[2] + v * ab2 + w * ac2
+    d = 0.0
+    for k in range(3):
+        t = x[k] - q[k]
+        d += t * t
+    return d
+
+
+@numba.njit(cache=True)
+def _project_mesh(x, s, pos, indptr, indices, faces, vf_ptr, vf_idx, out, nout):
+    """Project ``x`` onto the mesh: the closest point on the triangles incident to the surfel
+    nearest ``x`` (greedy walk from ``s``) and to its graph neighbours.
+
+    Writes the point to ``out`` and the triangle normal to ``nout``; returns the nearest surfel.
+    """
+    s = _nearest_walk(x, s, pos, indptr, indices)
+    q = np.empty(3)
+    best = np.inf
+    bf = -1
+    for e in range(indptr[s] - 1, indptr[s + 1]):
+        v = s if e < indptr[s] else indices[e]
+        for g in range(vf_ptr[v], vf_ptr[v + 1]):
+            f = vf_idx[g]
+            d = _closest_on_triangle(x, pos[faces[f, 0]], pos[faces[f, 1]], pos[faces[f, 2]], q)
+            if d < best:
+                best = d
+                bf = f
+                for c in range(3):
+                    out[c] = q[c]
+    if bf < 0:  # no incident triangle (isolated vertex): the surfel itself
+        for c in range(3):
+            out[c] = pos[s, c]
+            nout[c] = 0.0
+        return s
+    a = faces[bf, 0]
+    b = faces[bf, 1]
+    c_ = faces[bf, 2]
+    ux, uy, uz = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1], pos[b, 2] - pos[a, 2]
+    wx, wy, wz = pos[c_, 0] - pos[a, 0], pos[c_, 1] - pos[a, 1], pos[c_, 2] - pos[a, 2]
+    nout[0] = uy * wz - uz * wy
+    nout[1] = uz * wx - ux * wz
+    nout[2] = ux * wy - uy * wx
+    ln = np.sqrt(nout[0] * nout[0] + nout[1] * nout[1] + nout[2] * nout[2])
+    if ln > 0.0:
+        for c in range(3):
+            nout[c] /= ln
+    return s
+
+
+@numba.njit(cache=True)
+def _project_surface(x, s, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, out, nout):
+    """Project onto the mesh when the surfels carry one, else onto the local MLS plane."""
+    if faces.shape[0] > 0:
+        return _project_mesh(x, s, pos, indptr, indices, faces, vf_ptr, vf_idx, out, nout)
+    return _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
+
+
+@numba.njit(cache=True)
+def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, tol,
+           max_iter):
     """Gauss-Seidel shortening of the interior points of polyline ``P`` on the surface.
 
     Each point moves towards the midpoint of its neighbours within its tangent plane (at most half
@@ -525,7 +701,8 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
                     dx[c] *= step_max / ln
             for c in range(3):
                 x[c] = P[i, c] + dx[c]
-            s = _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
+            s = _project_surface(x, s, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx,
+                                 out, nout)
             # safety: the point must stay on the same sheet of surface as the path. Its new
             # nearest surfel must be linked to its current one, and to the surfels of its two
             # polyline neighbours when the current one is: consecutive points then always sit on
@@ -581,10 +758,13 @@ def _length(P):
 
 
 @numba.njit(cache=True)
-def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coarse):
-    """Coarse-to-fine straightening of the graph path ``idx``; returns points and surfel ids."""
+def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_idx, tol,
+                 max_iter, coarse, fine):
+    """Coarse-to-fine straightening of the graph path ``idx``; returns the points and their
+    nearest surfels. On a mesh (``faces`` not empty) the points lie on its triangles and the final
+    segments are ``fine`` times the local spacing."""
     k = idx.shape[0]
-    if k <= 2:
+    if k < 2 or (k == 2 and faces.shape[0] == 0):
         P = np.empty((k, 3))
         for i in range(k):
             P[i] = pos[idx[i]]
@@ -602,6 +782,8 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
     for i in range(k):
         h += spacing[idx[i]]
     h /= k
+    if faces.shape[0] > 0:
+        h *= fine
     n_fine = max(2, int(np.ceil(total / h)))
     nseg = min(n_fine, max(2, int(np.ceil(total / (coarse * h)))))
     # initial coarse polyline: resample the graph polyline, project
@@ -622,7 +804,8 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
         for c in range(3):
             x[c] = (1 - f) * pos[idx[seg], c] + f * pos[idx[seg + 1], c]
         s0 = idx[seg] if f < 0.5 else idx[seg + 1]
-        s = _project(x, s0, pos, nrm, bw, indptr, indices, out, nout)
+        s = _project_surface(x, s0, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, out,
+                             nout)
         if _adjacent(s, idx[seg], indptr, indices) or _adjacent(s, idx[seg + 1], indptr, indices):
             P[q] = out
             Nn[q] = nout
@@ -638,7 +821,7 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
     Nn[0] = nrm[idx[0]]
     Nn[nseg] = nrm[idx[k - 1]]
     while True:
-        _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter)
+        _relax(P, S, Nn, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, tol, max_iter)
         if nseg >= n_fine:
             break
         # split every segment at its projected midpoint
@@ -653,13 +836,51 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
         for i in range(m - 1):
             for c in range(3):
                 x[c] = 0.5 * (P[i, c] + P[i + 1, c])
-            s = _project(x, S[i], pos, nrm, bw, indptr, indices, out, nout)
+            s = _project_surface(x, S[i], pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx,
+                                 out, nout)
             Q[2 * i + 1] = out
             T[2 * i + 1] = s
             M[2 * i + 1] = nout
         P, S, Nn = Q, T, M
         nseg = 2 * nseg
-    sid = np.full(P.shape[0], -1, np.int64)
-    sid[0] = idx[0]
-    sid[P.shape[0] - 1] = idx[k - 1]
-    return P, sid
+    return P, S
+
+
+@numba.njit(cache=True)
+def _sheet_jump(near, faces, vf_ptr, vf_idx, rings):
+    """Whether consecutive points of a refined path have nearest vertices more than ``rings``
+    mesh rings apart (the path crossed a gap between two sheets of the mesh)."""
+    n = vf_ptr.shape[0] - 1
+    mark = np.full(n, -1, np.int64)
+    front = np.empty(n, np.int64)
+    for i in range(near.shape[0] - 1):
+        a = near[i]
+        b = near[i + 1]
+        if a == b:
+            continue
+        # breadth-first search over mesh rings from a (marks tagged with i)
+        mark[a] = i
+        front[0] = a
+        lo = 0
+        hi = 1
+        found = False
+        for _ in range(rings):
+            end = hi
+            for q in range(lo, end):
+                v = front[q]
+                for g in range(vf_ptr[v], vf_ptr[v + 1]):
+                    f = vf_idx[g]
+                    for c in range(3):
+                        u = faces[f, c]
+                        if mark[u] != i:
+                            mark[u] = i
+                            front[hi] = u
+                            hi += 1
+                            if u == b:
+                                found = True
+            lo = end
+            if found:
+                break
+        if not found:
+            return True
+    return False

@@ -87,7 +87,10 @@ def test_sphere_refined_distances(sphere4):
     refined = solver.distances(src, targets=tg, refine=True)
     assert _rel(refined[ok], exact[ok]).mean() <= REFINED_TARGET
     assert _rel(refined[ok], exact[ok]).mean() < _rel(graph[ok], exact[ok]).mean() / 4
-    assert np.all(refined <= graph + 1e-12)
+    # without faces (surfel planes), refinement only shortens the graph paths
+    bare = GeodesicSolver(SurfelSet(s.positions, s.normals, s.radii))
+    assert np.all(bare.distances(src, targets=tg, refine=True)
+                  <= bare.distances(src, targets=tg) + 1e-12)
     # a source among the targets: distance 0
     assert solver.distances(src[:1], targets=[src[0]], refine=True)[0, 0] == 0.0
     # the one-pair helper agrees
@@ -162,13 +165,43 @@ def test_refined_path_on_surface_and_shorter(sphere4):
     # on the sphere: radius 1 up to the flatness of the surfel planes (spacing^2 / 8)
     spacing = np.median(solver.graph.matrix.data)
     assert np.abs(np.linalg.norm(r.points, axis=1) - 1).max() < spacing ** 2
-    # on the local surfel planes: distance to the nearest surfel's plane
-    near = np.argmin(((r.points[:, None, :] - s.positions[None]) ** 2).sum(-1), axis=1)
-    off = np.einsum("ij,ij->i", r.points - s.positions[near], s.normals[near])
+    # on the mesh: every point lies on one of the triangles
+    assert _mesh_distance(r.points, s).max() < 1e-9
+    # without faces: on the local surfel planes (distance to the nearest surfel's plane)
+    bare = GeodesicSolver(SurfelSet(s.positions, s.normals, s.radii)).path(a, b, refine=True)
+    near = np.argmin(((bare.points[:, None, :] - s.positions[None]) ** 2).sum(-1), axis=1)
+    off = np.einsum("ij,ij->i", bare.points - s.positions[near], s.normals[near])
     assert np.abs(off).max() < spacing ** 2
     # refined points are finer than the graph path and carry -1 for in-between points
     assert len(r.points) > len(g.points)
     assert r.surfels[0] == a and r.surfels[-1] == b and np.all(r.surfels[1:-1] == -1)
+
+
+def _mesh_distance(points, s):
+    """Distance of each point to the nearest triangle of ``s.faces`` (barycentric clamp)."""
+    from surfidx.geodesics import _closest_on_triangle
+
+    q = np.empty(3)
+    tri = s.positions[s.faces]
+    return np.sqrt([min(_closest_on_triangle(p, t[0], t[1], t[2], q) for t in tri)
+                    for p in points])
+
+
+def test_sheet_jump_between_unconnected_mesh_parts():
+    from surfidx.geodesics import _sheet_jump
+
+    # two strips of triangles 0-1-2-3 and 4-5-6-7, not sharing any vertex
+    faces = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6], [5, 7, 6]], np.int64)
+    flat = faces.ravel()
+    order = np.argsort(flat, kind="stable")
+    vf_idx = (order // 3).astype(np.int64)
+    vf_ptr = np.zeros(9, np.int64)
+    np.cumsum(np.bincount(flat, minlength=8), out=vf_ptr[1:])
+    assert not _sheet_jump(np.array([0, 1, 3, 3, 2]), faces, vf_ptr, vf_idx, 1)
+    assert _sheet_jump(np.array([0, 3, 5]), faces, vf_ptr, vf_idx, 10)
+    # 0 and 3 are 2 rings apart (through the shared edge 1-2)
+    assert _sheet_jump(np.array([0, 3]), faces, vf_ptr, vf_idx, 1)
+    assert not _sheet_jump(np.array([0, 3]), faces, vf_ptr, vf_idx, 2)
 
 
 def test_refined_path_on_a_flat_plane_is_straight():
