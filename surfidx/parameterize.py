@@ -558,13 +558,22 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     # the sphere; every iterate stays a fold-free embedding of the mesh (see surfidx._balance)
     from ._balance import balance
 
+    def spread(x):
+        asph = np.abs(_spherical_areas(x, f))
+        lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
+        return float(np.sqrt(np.average(lr ** 2, weights=share3)))
+
+    x_start, sd_start = x, spread(x)
     x, binfo = balance(x, p, f, iterations=balance_steps,
                        time_budget=max(balance_budget, 0.0))
     x = _centre(x, va, f)   # area-weighted centre of mass at the origin again (a tiny Möbius step)
+    sd = spread(x)
+    if sd > sd_start:
+        # from a deeply squeezed start (energy ~1e15) the budget may end with the few tiniest
+        # triangles grown at the expense of the bulk: keep the start, whose area spread is lower
+        x, sd = x_start, sd_start
+        binfo = dict(binfo, steps=0, energy=binfo["energy_start"])
     neg = int(np.count_nonzero(_orientation(x, f) <= 0))
-    asph = np.abs(_spherical_areas(x, f))
-    lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
-    sd = float(np.sqrt(np.average(lr ** 2, weights=share3)))
     return x, {"mesh_folds": neg, "mesh_area_distortion": sd, "iterations": accepted,
                "punctured_vertex": vertex, "balance_steps": binfo["steps"],
                "symmetric_dirichlet": float(binfo["energy"])}
