@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from ._errors import InputError, TopologyError
 from ._validate import as_array, check_positive_int
+from .mesh import spacing_radii
 from .surfels import SurfelSet
 
 __all__ = ["SphereOfInfluenceGraph", "sphere_of_influence_graph", "DEFAULT_MAX_ANGLE",
@@ -330,14 +331,7 @@ def neighbour_radii(positions, radii, *, radius: str = "surfel", k: int = 6) -> 
     if radius == "surfel":
         return radii.copy()
     kk = 1 if radius == "nearest" else check_positive_int(k, "k")
-    kk = min(kk, len(positions) - 1)
-    d, _ = cKDTree(positions).query(positions, k=kk + 1)
-    r = d[:, kk]
-    pos = r > 0
-    if not pos.any():
-        raise InputError("all surfels coincide; cannot derive radii from their spacing")
-    r[~pos] = r[pos].min()
-    return r
+    return spacing_radii(positions, k=kk, name="surfels")
 
 
 def _check_angle(max_angle) -> float:

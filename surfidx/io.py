@@ -164,14 +164,28 @@ def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool
         fdata = np.empty(len(surfels.faces), dtype=[("vertex_indices", "i4", (3,))])
         fdata["vertex_indices"] = surfels.faces
         elements.append(PlyElement.describe(fdata, "face"))
+    ply = PlyData(elements, text=text, comments=["written by surfidx"])
+    write_atomic(path, lambda tmp: ply.write(str(tmp)))
+
+
+def write_atomic(path, write, *, what: str = "") -> None:
+    """Write a file whole or not at all: ``write(tmp)`` fills ``path.part``, which then
+    replaces ``path``; on an OS error the partial file is removed.
+
+    Raises
+    ------
+    FileFormatError
+        Naming ``path`` (and ``what`` was being written) when the file cannot be written.
+    """
     path = Path(path)
     tmp = path.with_name(path.name + ".part")
     try:
-        PlyData(elements, text=text, comments=["written by surfidx"]).write(str(tmp))
+        write(tmp)
         os.replace(tmp, path)
     except OSError as exc:
         tmp.unlink(missing_ok=True)
-        raise FileFormatError(f"cannot write ({exc.strerror or exc})", path=path) from exc
+        raise FileFormatError(f"cannot write {what + ' ' if what else ''}({exc.strerror or exc})",
+                              path=path) from exc
 
 
 def read_texture(path) -> np.ndarray:

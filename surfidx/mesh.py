@@ -342,7 +342,7 @@ class TriangleMesh:
         return SurfelSet(pos, nrm, radii, colors, name=self.name)
 
 
-def spacing_radii(points: np.ndarray, *, k: int = 6) -> np.ndarray:
+def spacing_radii(points: np.ndarray, *, k: int = 6, name: str = "points") -> np.ndarray:
     """Radii from neighbour spacing: the distance to the ``k``-th nearest neighbour.
 
     For a uniform random sampling a disk of this radius holds ``k`` other samples on average, so a
@@ -352,6 +352,8 @@ def spacing_radii(points: np.ndarray, *, k: int = 6) -> np.ndarray:
     ----------
     points : (n, 3) float64
     k : int
+    name : str
+        What the points are, for error messages (e.g. ``"surfels"``).
 
     Returns
     -------
@@ -359,13 +361,13 @@ def spacing_radii(points: np.ndarray, *, k: int = 6) -> np.ndarray:
     """
     from scipy.spatial import cKDTree
 
-    points = as_array(points, "points", shape=(None, 3), min_len=2)
+    points = as_array(points, name, shape=(None, 3), min_len=2)
     kk = min(k, len(points) - 1)
     d, _ = cKDTree(points).query(points, k=kk + 1)
     r = d[:, kk]
     pos = r > 0
     if not pos.any():
-        raise InputError("all points coincide; cannot derive radii from their spacing")
+        raise InputError(f"all {name} coincide; cannot derive radii from their spacing")
     r[~pos] = r[pos].min()
     return r
 

@@ -23,7 +23,6 @@ right), positive azimuth moves the camera towards ``+x``, positive elevation rai
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numba
@@ -366,14 +365,10 @@ def save_png(image, path) -> None:
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8 or not arr.size:
         raise InputError(f"image must be an (h, w, 3) uint8 array, got shape {arr.shape} "
                          f"of {arr.dtype}")
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    try:
-        Image.fromarray(arr, "RGB").save(tmp, format="PNG")
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise FileFormatError(f"cannot write the PNG ({exc.strerror or exc})", path=path) from exc
+    from .io import write_atomic
+
+    write_atomic(path, lambda tmp: Image.fromarray(arr, "RGB").save(tmp, format="PNG"),
+                 what="the PNG")
 
 
 def read_polyline(path) -> np.ndarray:

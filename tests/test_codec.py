@@ -114,6 +114,12 @@ def test_cli_encode_decode(tmp_path, blob):
     assert r.exit_code == 1 and "bad.sfz: truncated" in r.output and "Traceback" not in r.output
     r = CliRunner().invoke(cli, ["decode", str(tmp_path / "none.sfz"), "-o", str(out)])
     assert r.exit_code == 1 and "no such file" in r.output
+    # an unwritable output: one line naming it, and no partial file left behind
+    nowhere = tmp_path / "no" / "dir" / "x.sfz"
+    r = CliRunner().invoke(cli, ["encode", str(src), "-o", str(nowhere), "--bits-per-surfel", "4",
+                                 "--level", "5"])
+    assert r.exit_code == 1 and "x.sfz: cannot write" in r.output, r.output
+    assert "Traceback" not in r.output and not nowhere.parent.exists()
     with pytest.raises(FileFormatError, match="no such file"):
         from surfidx.codec import read_sfz
         read_sfz(tmp_path / "none.sfz")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from . import cli
@@ -27,13 +25,12 @@ from ._common import command_errors, echo_json, input_options, read_input
 def encode(input, output, bits, no_color, level, method, texture, samples, as_json):
     """Encode a model into an embedded .sfz bitstream."""
     from ..codec import Encoder
+    from ..io import write_atomic
 
     s = read_input(input, texture, samples)
     enc = Encoder(s, level=level, color=False if no_color else None, method=method)
     data = enc.encode(bits)
-    tmp = Path(output).with_name(Path(output).name + ".part")
-    tmp.write_bytes(data)
-    tmp.replace(output)
+    write_atomic(output, lambda tmp: tmp.write_bytes(data))
     out = {"output": str(output), "surfels": len(s), "bytes": len(data),
            "bits_per_surfel": 8.0 * len(data) / len(s), "level": enc.level, "color": enc.color,
            "folded": enc.sphere_map.folded, "seconds": enc.setup_seconds}
