@@ -210,8 +210,7 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
     else:
         solve = apply = _identity
     deadline = time.perf_counter() + time_budget
-    y, steps = _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol)
-    e, _ = energy(y, grad=False)
+    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol)
     x = y / np.linalg.norm(y, axis=1)[:, None]
     return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
 
@@ -284,4 +283,4 @@ def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol):
         stalls = stalls + 1 if rel < tol else 0
         if stalls >= 20:
             break
-    return y, steps
+    return y, e, steps

@@ -496,13 +496,16 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     system = None
     t0 = time.perf_counter()
 
+    def spread(x):
+        """Area-weighted RMS of the log ratio of 3D to sphere area share over the faces."""
+        asph = np.abs(_spherical_areas(x, f))
+        lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
+        return float(np.sqrt(np.average(lr ** 2, weights=share3)))
+
     def evaluate(lw):
         x = system.sphere(system.solve(w0 @ sp.diags(np.exp(lw))), f)
         x = _centre(x, va, f)
-        asph = np.abs(_spherical_areas(x, f))
-        lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
-        sd = float(np.sqrt(np.average(lr ** 2, weights=share3)))
-        return x, lr, sd, int(np.count_nonzero(_orientation(x, f) <= 0))
+        return x, spread(x), int(np.count_nonzero(_orientation(x, f) <= 0))
 
     # log column weights: Yoshizawa-style reweighting, the weights toward a vertex whose
     # neighbourhood is squeezed on the sphere (3D share > sphere share) are lowered, so its
@@ -516,10 +519,10 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     starts = []
     for cand in _punctures(adj, va):
         system = _TutteSystem(p, f, cand, _ring(f, cand))
-        x, lr, sd, neg = evaluate(lw)
-        starts.append((neg, count_folds(surfels, x), cand, system, x, lr, sd))
+        x, sd, neg = evaluate(lw)
+        starts.append((neg, count_folds(surfels, x), cand, system, x, sd))
     pick = starts[-1] if starts[-1][:2] <= starts[0][:2] else starts[0]
-    neg, (start_folds, total), vertex, system, x, lr, sd = pick
+    neg, (start_folds, total), vertex, system, x, sd = pick
     # a step is accepted only when the spherical Delaunay triangulation of the mapped surfels
     # keeps at most the folds of the start (at most 0.01 % of the triangles where it had some)
     allowed = max(start_folds, int(1e-4 * total))
@@ -536,9 +539,9 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
         improved = False
         while g > 0.02:
             lw2 = lw - g * step
-            x2, lr2, sd2, neg2 = evaluate(lw2)
+            x2, sd2, neg2 = evaluate(lw2)
             if neg2 <= neg and sd2 < sd and count_folds(surfels, x2)[0] <= allowed:
-                lw, x, lr, sd, neg = lw2, x2, lr2, sd2, neg2
+                lw, x, sd, neg = lw2, x2, sd2, neg2
                 improved = True
                 accepted += 1
                 g = min(gamma, 1.5 * g)
@@ -551,19 +554,14 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
             switches += 1
             far = int(np.argmin(x @ x[system.vertex]))
             system = _TutteSystem(p, f, far, _ring(f, far))
-            x, lr, sd, neg = evaluate(lw)
+            x, sd, neg = evaluate(lw)
             g = gamma
     x = x / np.linalg.norm(x, axis=1)[:, None]
     # symmetric Dirichlet balancing: limbs squeezed by the harmonic start regain their share of
     # the sphere; every iterate stays a fold-free embedding of the mesh (see surfidx._balance)
     from ._balance import balance
 
-    def spread(x):
-        asph = np.abs(_spherical_areas(x, f))
-        lr = np.log(np.clip(share3 / np.maximum(asph / asph.sum(), 1e-300), 1e-300, 1e300))
-        return float(np.sqrt(np.average(lr ** 2, weights=share3)))
-
-    x_start, sd_start = x, spread(x)
+    x_start, sd_start = x, sd
     x, binfo = balance(x, p, f, iterations=balance_steps,
                        time_budget=max(balance_budget, 0.0))
     x = _centre(x, va, f)   # area-weighted centre of mass at the origin again (a tiny Möbius step)
