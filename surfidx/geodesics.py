@@ -50,6 +50,7 @@ from ._errors import FileFormatError, InputError
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
 from .graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE, SphereOfInfluenceGraph
+from .proxy import _closest_on_triangle as _triangle_bary
 from .surfels import SurfelSet
 
 __all__ = ["GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
@@ -574,46 +575,12 @@ def _project(x, s, pos, nrm, bw, indptr, indices, out, nout):
 
 @numba.njit(cache=True)
 def _closest_on_triangle(x, a, b, c, q):
-    """Closest point ``q`` to ``x`` on triangle ``abc`` (Ericson, Real-Time Collision Detection
-    5.1.5); returns the squared distance."""
-    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
-    ap0, ap1, ap2 = x[0] - a[0], x[1] - a[1], x[2] - a[2]
-    d1 = ab0 * ap0 + ab1 * ap1 + ab2 * ap2
-    d2 = ac0 * ap0 + ac1 * ap1 + ac2 * ap2
-    bp0, bp1, bp2 = x[0] - b[0], x[1] - b[1], x[2] - b[2]
-    d3 = ab0 * bp0 + ab1 * bp1 + ab2 * bp2
-    d4 = ac0 * bp0 + ac1 * bp1 + ac2 * bp2
-    cp0, cp1, cp2 = x[0] - c[0], x[1] - c[1], x[2] - c[2]
-    d5 = ab0 * cp0 + ab1 * cp1 + ab2 * cp2
-    d6 = ac0 * cp0 + ac1 * cp1 + ac2 * cp2
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    if d1 <= 0.0 and d2 <= 0.0:
-        v, w = 0.0, 0.0
-    elif d3 >= 0.0 and d4 <= d3:
-        v, w = 1.0, 0.0
-    elif d6 >= 0.0 and d5 <= d6:
-        v, w = 0.0, 1.0
-    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v, w = d1 / (d1 - d3), 0.0
-    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        v, w = 0.0, d2 / (d2 - d6)
-    elif va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        v = 1.0 - w
-    else:
-        den = va + vb + vc
-        if den <= 0.0:  # degenerate triangle: its first corner
-            v, w = 0.0, 0.0
-        else:
-            v, w = vb / den, vc / den
-    q[0] = a[0] + v * ab0 + w * ac0
-    q[1] = a[1] + v * ab1 + w * ac1
-    q[2] = a[2] + v * ab2 + w * ac2
+    """Closest point ``q`` to ``x`` on triangle ``abc`` (the proxy module's Ericson kernel);
+    returns the squared distance."""
+    u, v, w = _triangle_bary(x, a, b, c)
     d = 0.0
     for k in range(3):
+        q[k] = u * a[k] + v * b[k] + w * c[k]
         t = x[k] - q[k]
         d += t * t
     return d
