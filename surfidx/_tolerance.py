@@ -25,12 +25,16 @@ class Tolerances:
     geodesic_refine : float
         Geodesic path refinement stops a level when one sweep shortens the path by less than this
         fraction of its length.
-    geodesic_resolution : float
-        Final segment length of a refined path on a mesh, as a fraction of the local surfel
-        spacing (the mean graph link over the sphere scale).
-    geodesic_sheet_rings : int
-        A refined path on a mesh has jumped to another sheet when the nearest vertices of two
-        consecutive points are more than this many mesh rings apart.
+    geodesic_shorten : float
+        The shortening of a refined path on a mesh stops when no crossing point moves more than
+        this fraction of the path length in a sweep.
+    geodesic_steiner : int
+        Steiner points per mesh edge for refined paths on a mesh (falconstatue, mean excess over
+        exact geodesics: 4 points 0.22 %, 5 points 0.11 %, 7 points 0.06 % at 1.5x the time).
+    geodesic_corridor : float
+        Half-width of the corridor of triangles searched for a refined path on a mesh, as a
+        fraction of the mesh-edge path length (plus two of its longest edges); 0.05 lost the
+        true path on falconstatue (one pair 22 % long).
     """
 
     unit_normal: float = 1e-3
@@ -38,8 +42,9 @@ class Tolerances:
     reconstruction: float = 1e-10
     psnr_agreement: float = 0.5
     geodesic_refine: float = 1e-6
-    geodesic_resolution: float = 0.25
-    geodesic_sheet_rings: int = 10
+    geodesic_shorten: float = 1e-10
+    geodesic_steiner: int = 5
+    geodesic_corridor: float = 0.1
 
 
 TOL = Tolerances()

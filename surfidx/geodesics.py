@@ -25,16 +25,14 @@ whose edge passed the graph's surface test, so a path never slides across a gap 
 (the scorpion's legs). Refinement only shortens: a refined path longer than the graph distance is
 dropped for the graph path.
 
-Meshed inputs (surfels with ``faces``): the points are projected onto the triangles incident to
-the nearest surfel and its graph neighbours instead of the smooth surfel planes, and the final
-segments are ``TOL.geodesic_resolution`` times the local spacing. On a coarse, faceted mesh with
-sliver triangles (falconstatue) the plane projection rounds the relief off and the chords of
-spacing-long segments cut through it, so refined paths came out shorter than the exact polyhedral
-geodesics (mean error 1.2 %, signed -1.1 %); the graph links are chords too, so the graph distance
-is no upper bound there and the refined length is kept even when longer. A refined path whose
-consecutive nearest vertices are more than ``TOL.geodesic_sheet_rings`` mesh rings apart has
-crossed a narrow gap between two sheets (through a graph link that passed the surface test): the
-mesh-edge path is refined instead, or its length returned when that jumps too.
+Meshed inputs (surfels with ``faces``): the path is found on the triangles themselves
+(:mod:`surfidx._meshpaths`): a Steiner graph on a corridor of triangles around the mesh-edge
+shortest path, then its crossing points slid along their edges until the path is locally
+shortest. Every segment lies in a triangle, so the length is that of a path on the surface, never
+a chord cutting through the relief of a coarse, faceted mesh (falconstatue: the plane projection
+above rounded the relief off and measured 1.2 % short; chords of spacing-long segments between
+points on the triangles still missed by 0.6 %, both ways), and a mesh-edge corridor cannot cross a
+narrow gap between two sheets, as a graph link that passed the surface test can.
 """
 
 from __future__ import annotations
@@ -50,7 +48,7 @@ from ._errors import FileFormatError, InputError
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
 from .graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE, SphereOfInfluenceGraph
-from .proxy import _closest_on_triangle as _triangle_bary
+from ._meshpaths import mesh_edge_graph, shortest_path_on_mesh
 from .surfels import SurfelSet
 
 __all__ = ["GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
@@ -64,7 +62,8 @@ class GeodesicPath:
     Attributes
     ----------
     indices : (k,) int64
-        The surfels of the graph path, from source to target.
+        The surfels of the graph path, from source to target (for a path refined on a mesh, of
+        the mesh-edge path it was found around).
     points : (m, 3) float64
         The polyline: the surfel positions, or the refined points (endpoints are the surfel
         positions of the source and target).
@@ -329,80 +328,62 @@ class GeodesicSolver:
         return arr
 
     def _refined(self, a, b, pred, graph_length, mesh_pred):
-        """Refine the graph path from ``a`` to ``b`` (``pred``: graph Dijkstra predecessors).
+        """Refine the path from ``a`` to ``b`` (``pred``: graph Dijkstra predecessors).
 
-        Without a mesh, refinement only shortens: a refined polyline longer than the graph
-        distance (projection onto tilted surfel planes across creases) is dropped. With a mesh the
-        refined polyline lies on the triangles and is kept even when longer: graph links are
-        chords, which cut through the relief of a coarse, faceted mesh (falconstatue), so the
-        graph distance is no upper bound. When the refined path jumps between sheets of the mesh
-        (a graph link across a narrow gap, which the surface test let through), the path of the
-        mesh-edge graph is refined instead (its Dijkstra from ``a`` is cached in
-        ``mesh_pred[0]``), and when that jumps too its mesh-edge length is returned.
+        Without a mesh, the graph path is straightened on the surfel planes, and refinement only
+        shortens: a refined polyline longer than the graph distance is dropped. With a mesh the
+        path is found on its triangles (see the module notes) around the mesh-edge shortest path,
+        whose Dijkstra from ``a`` is cached in ``mesh_pred[0]``; its length is kept even when
+        above the graph distance (graph links are chords, which cut through the relief of a
+        coarse, faceted mesh, so the graph distance is no upper bound there).
 
         Returns
         -------
         idx : (k,) int64
-            The graph (or mesh-edge) path.
+            The graph path, or on a mesh the mesh-edge path.
         points : (m, 3) float64 or None
             The refined polyline; ``None`` when the graph path is kept.
         length : float
         surfels : (m,) int64 or None
         """
-        idx = _walk_predecessors(pred, a, b)
-        faces, vf_ptr, vf_idx, mesh_graph = self._mesh()
-        pts, near = self._refine(idx)
-        length = _polyline_length(pts)
-        if mesh_graph is None:
+        faces, edge_graph = self._mesh()
+        if edge_graph is None:
+            idx = _walk_predecessors(pred, a, b)
+            pts, _ = _refine_path(idx, self._positions, self._normals, self._bandwidth,
+                                  self._spacing, self._indptr, self._indices,
+                                  TOL.geodesic_refine, 5000, 1.0)
+            length = _polyline_length(pts)
             if length > graph_length:
                 return idx, None, graph_length, None
-        elif _sheet_jump(near, faces, vf_ptr, vf_idx, TOL.geodesic_sheet_rings):
+        else:
             if mesh_pred[0] is None:
-                mesh_pred[0] = _dijkstra(mesh_graph, directed=True, indices=a,
+                mesh_pred[0] = _dijkstra(edge_graph, directed=True, indices=a,
                                          return_predecessors=True)
             md, mp = mesh_pred[0]
             idx = _walk_predecessors(mp, a, b)
-            pts, near = self._refine(idx)
-            length = _polyline_length(pts)
-            if _sheet_jump(near, faces, vf_ptr, vf_idx, TOL.geodesic_sheet_rings):
-                return idx, None, float(md[b]), None
+            # around the mesh-edge path and the graph path: where they pass a bump on different
+            # sides (the bunny's ears), the geodesic may follow either
+            spine = np.union1d(idx, _walk_predecessors(pred, a, b))
+            longest = np.linalg.norm(np.diff(self._positions[idx], axis=0), axis=1).max()
+            pts, length = shortest_path_on_mesh(
+                a, b, spine, positions=self._positions, faces=faces, edge_graph=edge_graph,
+                steiner=TOL.geodesic_steiner, width=TOL.geodesic_corridor * md[b] + 2 * longest,
+                tol=TOL.geodesic_shorten * md[b])
         sid = np.full(len(pts), -1, np.int64)
         sid[0], sid[-1] = a, b
         return idx, pts, length, sid
 
-    def _refine(self, idx):
-        faces, vf_ptr, vf_idx, _ = self._mesh()
-        return _refine_path(idx, self._positions, self._normals, self._bandwidth, self._spacing,
-                            self._indptr, self._indices, faces, vf_ptr, vf_idx,
-                            TOL.geodesic_refine, 5000, 1.0, TOL.geodesic_resolution)
-
     def _mesh(self):
-        """The triangles the refinement projects onto, the vertex-to-triangle incidence (CSR)
-        and the mesh-edge graph; empty (graph ``None``) when the surfels carry no faces (the
-        refinement then projects onto local surfel planes). Built at the first refinement, so
-        graph queries do not pay for it."""
+        """The triangles and the mesh-edge graph; graph ``None`` when the surfels carry no faces
+        (refinement then works on the surfel planes). Built at the first refinement, so graph
+        queries do not pay for it."""
         if self._mesh_cache is None:
             faces = self.surfels.faces
             if faces is None or len(faces) == 0:
-                faces = np.zeros((0, 3), np.int64)
-                vf_ptr = np.zeros(1, np.int64)
-                vf_idx = np.zeros(0, np.int64)
-                mesh_graph = None
+                self._mesh_cache = (None, None)
             else:
                 faces = np.ascontiguousarray(faces, dtype=np.int64)
-                flat = faces.ravel()
-                order = np.argsort(flat, kind="stable")
-                vf_idx = (order // 3).astype(np.int64)
-                vf_ptr = np.zeros(len(self.surfels) + 1, np.int64)
-                np.cumsum(np.bincount(flat, minlength=len(self.surfels)), out=vf_ptr[1:])
-                e = np.unique(np.sort(np.stack([flat, faces[:, [1, 2, 0]].ravel()], 1), 1),
-                              axis=0)
-                e = np.concatenate([e, e[:, ::-1]])
-                w = np.linalg.norm(self._positions[e[:, 0]] - self._positions[e[:, 1]], axis=1)
-                n = len(self.surfels)
-                mesh_graph = sp.csr_matrix((np.maximum(w, np.finfo(float).tiny),
-                                            (e[:, 0], e[:, 1])), shape=(n, n))
-            self._mesh_cache = (faces, vf_ptr, vf_idx, mesh_graph)
+                self._mesh_cache = (faces, mesh_edge_graph(self._positions, faces))
         return self._mesh_cache
 
 
@@ -574,70 +555,7 @@ def _project(x, s, pos, nrm, bw, indptr, indices, out, nout):
 
 
 @numba.njit(cache=True)
-def _closest_on_triangle(x, a, b, c, q):
-    """Closest point ``q`` to ``x`` on triangle ``abc`` (the proxy module's Ericson kernel);
-    returns the squared distance."""
-    u, v, w = _triangle_bary(x, a, b, c)
-    d = 0.0
-    for k in range(3):
-        q[k] = u * a[k] + v * b[k] + w * c[k]
-        t = x[k] - q[k]
-        d += t * t
-    return d
-
-
-@numba.njit(cache=True)
-def _project_mesh(x, s, pos, indptr, indices, faces, vf_ptr, vf_idx, out, nout):
-    """Project ``x`` onto the mesh: the closest point on the triangles incident to the surfel
-    nearest ``x`` (greedy walk from ``s``) and to its graph neighbours.
-
-    Writes the point to ``out`` and the triangle normal to ``nout``; returns the nearest surfel.
-    """
-    s = _nearest_walk(x, s, pos, indptr, indices)
-    q = np.empty(3)
-    best = np.inf
-    bf = -1
-    for e in range(indptr[s] - 1, indptr[s + 1]):
-        v = s if e < indptr[s] else indices[e]
-        for g in range(vf_ptr[v], vf_ptr[v + 1]):
-            f = vf_idx[g]
-            d = _closest_on_triangle(x, pos[faces[f, 0]], pos[faces[f, 1]], pos[faces[f, 2]], q)
-            if d < best:
-                best = d
-                bf = f
-                for c in range(3):
-                    out[c] = q[c]
-    if bf < 0:  # no incident triangle (isolated vertex): the surfel itself
-        for c in range(3):
-            out[c] = pos[s, c]
-            nout[c] = 0.0
-        return s
-    a = faces[bf, 0]
-    b = faces[bf, 1]
-    c_ = faces[bf, 2]
-    ux, uy, uz = pos[b, 0] - pos[a, 0], pos[b, 1] - pos[a, 1], pos[b, 2] - pos[a, 2]
-    wx, wy, wz = pos[c_, 0] - pos[a, 0], pos[c_, 1] - pos[a, 1], pos[c_, 2] - pos[a, 2]
-    nout[0] = uy * wz - uz * wy
-    nout[1] = uz * wx - ux * wz
-    nout[2] = ux * wy - uy * wx
-    ln = np.sqrt(nout[0] * nout[0] + nout[1] * nout[1] + nout[2] * nout[2])
-    if ln > 0.0:
-        for c in range(3):
-            nout[c] /= ln
-    return s
-
-
-@numba.njit(cache=True)
-def _project_surface(x, s, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, out, nout):
-    """Project onto the mesh when the surfels carry one, else onto the local MLS plane."""
-    if faces.shape[0] > 0:
-        return _project_mesh(x, s, pos, indptr, indices, faces, vf_ptr, vf_idx, out, nout)
-    return _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
-
-
-@numba.njit(cache=True)
-def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, tol,
-           max_iter):
+def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
     """Gauss-Seidel shortening of the interior points of polyline ``P`` on the surface.
 
     Each point moves towards the midpoint of its neighbours within its tangent plane (at most half
@@ -668,8 +586,7 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, tol,
                     dx[c] *= step_max / ln
             for c in range(3):
                 x[c] = P[i, c] + dx[c]
-            s = _project_surface(x, s, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx,
-                                 out, nout)
+            s = _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
             # safety: the point must stay on the same sheet of surface as the path. Its new
             # nearest surfel must be linked to its current one, and to the surfels of its two
             # polyline neighbours when the current one is: consecutive points then always sit on
@@ -725,13 +642,11 @@ def _length(P):
 
 
 @numba.njit(cache=True)
-def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_idx, tol,
-                 max_iter, coarse, fine):
-    """Coarse-to-fine straightening of the graph path ``idx``; returns the points and their
-    nearest surfels. On a mesh (``faces`` not empty) the points lie on its triangles and the final
-    segments are ``fine`` times the local spacing."""
+def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coarse):
+    """Coarse-to-fine straightening of the graph path ``idx`` on the surfel planes; returns the
+    points and their nearest surfels."""
     k = idx.shape[0]
-    if k < 2 or (k == 2 and faces.shape[0] == 0):
+    if k <= 2:
         P = np.empty((k, 3))
         for i in range(k):
             P[i] = pos[idx[i]]
@@ -749,8 +664,6 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_
     for i in range(k):
         h += spacing[idx[i]]
     h /= k
-    if faces.shape[0] > 0:
-        h *= fine
     n_fine = max(2, int(np.ceil(total / h)))
     nseg = min(n_fine, max(2, int(np.ceil(total / (coarse * h)))))
     # initial coarse polyline: resample the graph polyline, project
@@ -771,8 +684,7 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_
         for c in range(3):
             x[c] = (1 - f) * pos[idx[seg], c] + f * pos[idx[seg + 1], c]
         s0 = idx[seg] if f < 0.5 else idx[seg + 1]
-        s = _project_surface(x, s0, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, out,
-                             nout)
+        s = _project(x, s0, pos, nrm, bw, indptr, indices, out, nout)
         if _adjacent(s, idx[seg], indptr, indices) or _adjacent(s, idx[seg + 1], indptr, indices):
             P[q] = out
             Nn[q] = nout
@@ -788,7 +700,7 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_
     Nn[0] = nrm[idx[0]]
     Nn[nseg] = nrm[idx[k - 1]]
     while True:
-        _relax(P, S, Nn, pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx, tol, max_iter)
+        _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter)
         if nseg >= n_fine:
             break
         # split every segment at its projected midpoint
@@ -803,51 +715,10 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, faces, vf_ptr, vf_
         for i in range(m - 1):
             for c in range(3):
                 x[c] = 0.5 * (P[i, c] + P[i + 1, c])
-            s = _project_surface(x, S[i], pos, nrm, bw, indptr, indices, faces, vf_ptr, vf_idx,
-                                 out, nout)
+            s = _project(x, S[i], pos, nrm, bw, indptr, indices, out, nout)
             Q[2 * i + 1] = out
             T[2 * i + 1] = s
             M[2 * i + 1] = nout
         P, S, Nn = Q, T, M
         nseg = 2 * nseg
     return P, S
-
-
-@numba.njit(cache=True)
-def _sheet_jump(near, faces, vf_ptr, vf_idx, rings):
-    """Whether consecutive points of a refined path have nearest vertices more than ``rings``
-    mesh rings apart (the path crossed a gap between two sheets of the mesh)."""
-    n = vf_ptr.shape[0] - 1
-    mark = np.full(n, -1, np.int64)
-    front = np.empty(n, np.int64)
-    for i in range(near.shape[0] - 1):
-        a = near[i]
-        b = near[i + 1]
-        if a == b:
-            continue
-        # breadth-first search over mesh rings from a (marks tagged with i)
-        mark[a] = i
-        front[0] = a
-        lo = 0
-        hi = 1
-        found = False
-        for _ in range(rings):
-            end = hi
-            for q in range(lo, end):
-                v = front[q]
-                for g in range(vf_ptr[v], vf_ptr[v + 1]):
-                    f = vf_idx[g]
-                    for c in range(3):
-                        u = faces[f, c]
-                        if mark[u] != i:
-                            mark[u] = i
-                            front[hi] = u
-                            hi += 1
-                            if u == b:
-                                found = True
-            lo = end
-            if found:
-                break
-        if not found:
-            return True
-    return False

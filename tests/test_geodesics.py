@@ -156,7 +156,7 @@ def test_refined_path_on_surface_and_shorter(sphere4):
     a, b = 3, 1999
     g = solver.path(a, b)
     r = solver.path(a, b, refine=True)
-    assert r.refined and np.array_equal(r.indices, g.indices)
+    assert r.refined and r.indices[0] == a and r.indices[-1] == b
     assert r.length < g.length
     exact = _arc(s, a, b)[0, 0]
     assert r.length == pytest.approx(exact, rel=REFINED_TARGET)
@@ -167,6 +167,8 @@ def test_refined_path_on_surface_and_shorter(sphere4):
     assert np.abs(np.linalg.norm(r.points, axis=1) - 1).max() < spacing ** 2
     # on the mesh: every point lies on one of the triangles
     assert _mesh_distance(r.points, s).max() < 1e-9
+    # and so does every segment (the midpoints are on triangles too: no chord cuts through)
+    assert _mesh_distance(0.5 * (r.points[1:] + r.points[:-1]), s).max() < 1e-9
     # without faces: on the local surfel planes (distance to the nearest surfel's plane)
     bare = GeodesicSolver(SurfelSet(s.positions, s.normals, s.radii)).path(a, b, refine=True)
     near = np.argmin(((bare.points[:, None, :] - s.positions[None]) ** 2).sum(-1), axis=1)
@@ -179,29 +181,14 @@ def test_refined_path_on_surface_and_shorter(sphere4):
 
 def _mesh_distance(points, s):
     """Distance of each point to the nearest triangle of ``s.faces`` (barycentric clamp)."""
-    from surfidx.geodesics import _closest_on_triangle
+    from surfidx.proxy import _closest_on_triangle
 
-    q = np.empty(3)
     tri = s.positions[s.faces]
-    return np.sqrt([min(_closest_on_triangle(p, t[0], t[1], t[2], q) for t in tri)
-                    for p in points])
-
-
-def test_sheet_jump_between_unconnected_mesh_parts():
-    from surfidx.geodesics import _sheet_jump
-
-    # two strips of triangles 0-1-2-3 and 4-5-6-7, not sharing any vertex
-    faces = np.array([[0, 1, 2], [1, 3, 2], [4, 5, 6], [5, 7, 6]], np.int64)
-    flat = faces.ravel()
-    order = np.argsort(flat, kind="stable")
-    vf_idx = (order // 3).astype(np.int64)
-    vf_ptr = np.zeros(9, np.int64)
-    np.cumsum(np.bincount(flat, minlength=8), out=vf_ptr[1:])
-    assert not _sheet_jump(np.array([0, 1, 3, 3, 2]), faces, vf_ptr, vf_idx, 1)
-    assert _sheet_jump(np.array([0, 3, 5]), faces, vf_ptr, vf_idx, 10)
-    # 0 and 3 are 2 rings apart (through the shared edge 1-2)
-    assert _sheet_jump(np.array([0, 3]), faces, vf_ptr, vf_idx, 1)
-    assert not _sheet_jump(np.array([0, 3]), faces, vf_ptr, vf_idx, 2)
+    out = []
+    for p in points:
+        q = [np.dot(_closest_on_triangle(p, *t), t) for t in tri]
+        out.append(np.min(np.linalg.norm(np.asarray(q) - p, axis=1)))
+    return np.asarray(out)
 
 
 def test_refined_path_on_a_flat_plane_is_straight():
@@ -448,3 +435,49 @@ def test_u_strip_paths_do_not_cut_across():
     assert np.all(on_arm | on_bend)
     # the default solver (normal test on) agrees
     assert GeodesicSolver(s).distance(a, b, refine=True) == pytest.approx(exact, rel=0.01)
+
+
+def _u_strip_mesh(arm=1.0, gap=0.12, h=0.02, width=0.2):
+    """The U strip of :func:`_u_strip`, triangulated (two triangles per grid cell)."""
+    s, t, m = _u_strip(arm, gap, h, width)
+    rows = len(s) // m
+    q = np.arange((rows - 1) * (m - 1))
+    r, c = q // (m - 1), q % (m - 1)
+    v = r * m + c
+    faces = np.concatenate([np.stack([v, v + 1, v + m], 1), np.stack([v + 1, v + m + 1, v + m], 1)])
+    return SurfelSet(s.positions, s.normals, s.radii, faces=faces), m
+
+
+def test_u_strip_mesh_paths_follow_the_triangles():
+    s, m = _u_strip_mesh()
+    a, b = 5 * m, 5 * m + m - 1
+    # the exact polyhedral geodesic between the two ends of a row: the row's polyline
+    exact = np.linalg.norm(np.diff(s.positions[a:b + 1], axis=0), axis=1).sum()
+    solver = GeodesicSolver(s, max_angle=180.0)
+    p = solver.path(a, b, refine=True)
+    assert p.refined and p.length == pytest.approx(exact, rel=1e-9)
+    # between two rows: the unfolded strip is a rectangle, the geodesic its diagonal
+    c = 9 * m + m - 1
+    rise = s.positions[c, 1] - s.positions[b, 1]
+    assert solver.distance(a, c, refine=True) == pytest.approx(np.hypot(exact, rise), rel=1e-9)
+    # every point and segment midpoint on the strip's triangles
+    mids = np.concatenate([p.points, 0.5 * (p.points[1:] + p.points[:-1])])
+    assert _mesh_distance(mids, s).max() < 1e-9
+
+
+def test_mesh_path_on_a_flat_jittered_mesh_is_straight():
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(0, 1, (400, 2))
+    xy = np.concatenate([xy, [[0.05, 0.1], [0.93, 0.8]]])
+    faces = Delaunay(xy).simplices.astype(np.int64)
+    pos = np.column_stack([xy, np.zeros(len(xy))])
+    s = SurfelSet(pos, np.tile([0, 0, 1.0], (len(xy), 1)), np.full(len(xy), 0.1), faces=faces)
+    solver = GeodesicSolver(s)
+    a, b = len(xy) - 2, len(xy) - 1
+    straight = np.linalg.norm(pos[a] - pos[b])
+    r = solver.path(a, b, refine=True)
+    assert r.length == pytest.approx(straight, rel=1e-9)
+    # found around the mesh-edge path, which zig-zags
+    assert np.linalg.norm(np.diff(pos[r.indices], axis=0), axis=1).sum() > straight * 1.01
