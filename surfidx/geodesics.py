@@ -5,9 +5,8 @@ Graph paths zig-zag through the surfel centres and so overestimate geodesic leng
 refinement (``refine=True``) straightens a path on the surface, as the SIG method proposes:
 
 1. the graph path is resampled uniformly at coarse resolution (4 segments);
-2. each interior point moves towards the midpoint of its neighbours, the move restricted to the
-   local tangent plane and to half the local surfel radius, then is projected back onto the
-   surface: a moving-least-squares plane fitted (Gaussian weights) to the nearest surfel and its
+2. each interior point moves towards the midpoint of its neighbours, the move limited to half
+   its shorter adjacent segment, then is projected back onto the surface: a moving-least-squares plane fitted (Gaussian weights) to the nearest surfel and its
    graph neighbours, the nearest surfel being tracked by a greedy walk on the graph (so points
    never jump to the other side of a thin part);
 3. the iteration (Gauss-Seidel) runs to convergence, then every segment is split at its projected
@@ -217,7 +216,7 @@ class GeodesicSolver:
         for a, s in enumerate(src):
             d, pred = _dijkstra(self.graph.matrix, directed=True, indices=int(s),
                                return_predecessors=True)
-            mesh_pred = [None]  # mesh-edge Dijkstra from s, run at the first sheet jump
+            mesh_pred = [None]  # mesh-edge Dijkstra from s, run at the first path on a mesh
             for b, t in enumerate(tgt):
                 if t == s:
                     out[a, b] = 0.0
@@ -348,7 +347,7 @@ class GeodesicSolver:
         faces, edge_graph = self._mesh()
         if edge_graph is None:
             idx = _walk_predecessors(pred, a, b)
-            pts, _ = _refine_path(idx, self._positions, self._normals, self._bandwidth,
+            pts = _refine_path(idx, self._positions, self._normals, self._bandwidth,
                                   self._spacing, self._indptr, self._indices,
                                   TOL.geodesic_refine, 5000, 1.0)
             length = _polyline_length(pts)
@@ -495,10 +494,10 @@ def _nearest_walk(x, s, pos, indptr, indices):
 
 
 @numba.njit(cache=True)
-def _project(x, s, pos, nrm, bw, indptr, indices, out, nout):
+def _project(x, s, pos, nrm, bw, indptr, indices, out):
     """Project ``x`` onto the MLS plane around surfel ``s`` (after walking to the nearest one).
 
-    Writes the point to ``out`` and the plane normal to ``nout``; returns the nearest surfel.
+    Writes the point to ``out``; returns the nearest surfel.
     """
     for c in range(3):
         out[c] = x[c]
@@ -547,24 +546,20 @@ def _project(x, s, pos, nrm, bw, indptr, indices, out, nout):
         out[0] -= h * nx
         out[1] -= h * ny
         out[2] -= h * nz
-        nout[0] = nx
-        nout[1] = ny
-        nout[2] = nz
     return s
 
 
 @numba.njit(cache=True)
-def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
+def _relax(P, S, pos, nrm, bw, indptr, indices, tol, max_iter):
     """Gauss-Seidel shortening of the interior points of polyline ``P`` on the surface.
 
-    Each point moves towards the midpoint of its neighbours within its tangent plane (at most half
-    the shorter adjacent segment), then is projected; stops when a sweep shortens the polyline by
+    Each point moves towards the midpoint of its neighbours (at most half the shorter adjacent
+    segment), then is projected; stops when a sweep shortens the polyline by
     less than ``tol`` times its length.
     """
     m = P.shape[0]
     x = np.empty(3)
     out = np.empty(3)
-    nout = np.empty(3)
     dx = np.empty(3)
     prev = _length(P)
     # successive over-relaxation: the optimal factor of the 1-D Laplacian, capped for stability
@@ -585,7 +580,7 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
                     dx[c] *= step_max / ln
             for c in range(3):
                 x[c] = P[i, c] + dx[c]
-            s = _project(x, s, pos, nrm, bw, indptr, indices, out, nout)
+            s = _project(x, s, pos, nrm, bw, indptr, indices, out)
             # safety: the point must stay on the same sheet of surface as the path. Its new
             # nearest surfel must be linked to its current one, and to the surfels of its two
             # polyline neighbours when the current one is: consecutive points then always sit on
@@ -604,7 +599,6 @@ def _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter):
                 continue
             for c in range(3):
                 P[i, c] = out[c]
-                Nn[i, c] = nout[c]
             S[i] = s
         cur = _length(P)
         if prev - cur < tol * cur:
@@ -643,13 +637,13 @@ def _length(P):
 @numba.njit(cache=True)
 def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coarse):
     """Coarse-to-fine straightening of the graph path ``idx`` on the surfel planes; returns the
-    points and their nearest surfels."""
+    points."""
     k = idx.shape[0]
     if k <= 2:
         P = np.empty((k, 3))
         for i in range(k):
             P[i] = pos[idx[i]]
-        return P, idx.copy()
+        return P
     # arc-length parametrisation of the graph polyline
     cum = np.zeros(k)
     for i in range(1, k):
@@ -668,9 +662,7 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
     # initial coarse polyline: resample the graph polyline, project
     P = np.empty((nseg + 1, 3))
     S = np.empty(nseg + 1, np.int64)
-    Nn = np.empty((nseg + 1, 3))
     out = np.empty(3)
-    nout = np.empty(3)
     x = np.empty(3)
     seg = 0
     for q in range(nseg + 1):
@@ -683,41 +675,34 @@ def _refine_path(idx, pos, nrm, bw, spacing, indptr, indices, tol, max_iter, coa
         for c in range(3):
             x[c] = (1 - f) * pos[idx[seg], c] + f * pos[idx[seg + 1], c]
         s0 = idx[seg] if f < 0.5 else idx[seg + 1]
-        s = _project(x, s0, pos, nrm, bw, indptr, indices, out, nout)
+        s = _project(x, s0, pos, nrm, bw, indptr, indices, out)
         if _adjacent(s, idx[seg], indptr, indices) or _adjacent(s, idx[seg + 1], indptr, indices):
             P[q] = out
-            Nn[q] = nout
             S[q] = s
         else:  # the projection left the edge's neighbourhood: keep the point on the edge
             P[q] = x
-            Nn[q] = nrm[s0]
             S[q] = s0
     P[0] = pos[idx[0]]
     P[nseg] = pos[idx[k - 1]]
     S[0] = idx[0]
     S[nseg] = idx[k - 1]
-    Nn[0] = nrm[idx[0]]
-    Nn[nseg] = nrm[idx[k - 1]]
     while True:
-        _relax(P, S, Nn, pos, nrm, bw, indptr, indices, tol, max_iter)
+        _relax(P, S, pos, nrm, bw, indptr, indices, tol, max_iter)
         if nseg >= n_fine:
             break
         # split every segment at its projected midpoint
         m = P.shape[0]
         Q = np.empty((2 * m - 1, 3))
         T = np.empty(2 * m - 1, np.int64)
-        M = np.empty((2 * m - 1, 3))
         for i in range(m):
             Q[2 * i] = P[i]
             T[2 * i] = S[i]
-            M[2 * i] = Nn[i]
         for i in range(m - 1):
             for c in range(3):
                 x[c] = 0.5 * (P[i, c] + P[i + 1, c])
-            s = _project(x, S[i], pos, nrm, bw, indptr, indices, out, nout)
+            s = _project(x, S[i], pos, nrm, bw, indptr, indices, out)
             Q[2 * i + 1] = out
             T[2 * i + 1] = s
-            M[2 * i + 1] = nout
-        P, S, Nn = Q, T, M
+        P, S = Q, T
         nseg = 2 * nseg
-    return P, S
+    return P
