@@ -55,12 +55,19 @@ def mesh_edge_graph(positions, faces) -> sp.csr_matrix:
     -------
     (n, n) scipy.sparse.csr_matrix
     """
-    flat = faces.ravel()
-    e = np.unique(np.sort(np.stack([flat, faces[:, [1, 2, 0]].ravel()], 1), 1), axis=0)
+    e, _ = _face_edges(faces)
     e = np.concatenate([e, e[:, ::-1]])
     w = np.linalg.norm(positions[e[:, 0]] - positions[e[:, 1]], axis=1)
     n = len(positions)
     return sp.csr_matrix((np.maximum(w, np.finfo(float).tiny), (e[:, 0], e[:, 1])), shape=(n, n))
+
+
+def _face_edges(faces):
+    """The undirected edges of ``faces`` as sorted vertex pairs ``(e, 2)``, and for each face
+    the ids of its edges ``(f, 3)`` (corner c owns edge (c, c + 1))."""
+    ends = np.sort(np.stack([faces.ravel(), faces[:, [1, 2, 0]].ravel()], 1), 1)
+    edges, fe = np.unique(ends, axis=0, return_inverse=True)
+    return edges, fe.reshape(-1, 3)
 
 
 @lru_cache(maxsize=8)
@@ -108,11 +115,7 @@ def shortest_path_on_mesh(a: int, b: int, spine, *, positions, faces, edge_graph
     on_spine = np.zeros(len(positions), bool)
     on_spine[spine] = True
     tri = faces[inside[faces].all(1) | on_spine[faces].any(1)]
-    # the corridor's edges, numbered; face corner c owns edge (c, c + 1)
-    ends = np.stack([tri.ravel(), tri[:, [1, 2, 0]].ravel()], 1)
-    lo_hi = np.sort(ends, 1)
-    edges, fe = np.unique(lo_hi, axis=0, return_inverse=True)
-    fe = fe.reshape(-1, 3)
+    edges, fe = _face_edges(tri)
     m = steiner
     t = np.arange(1, m + 1) / (m + 1)
     p0, p1 = positions[edges[:, 0]], positions[edges[:, 1]]
