@@ -45,7 +45,8 @@ from scipy.sparse.csgraph import dijkstra as _csgraph_dijkstra
 from ._errors import FileFormatError, InputError
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
-from .graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE, SphereOfInfluenceGraph
+from .graph import (DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE,
+                    SphereOfInfluenceGraph, _nearest_among)
 from ._meshpaths import mesh_edge_graph, shortest_path_on_mesh
 from .surfels import SurfelSet
 
@@ -476,20 +477,10 @@ def _nearest_walk(x, s, pos, indptr, indices):
         t = x[c] - pos[s, c]
         bd += t * t
     for _ in range(100000):
-        moved = False
-        cur = best
-        for e in range(indptr[cur], indptr[cur + 1]):
-            j = indices[e]
-            d = 0.0
-            for c in range(3):
-                t = x[c] - pos[j, c]
-                d += t * t
-            if d < bd:
-                bd = d
-                best = j
-                moved = True
-        if not moved:
+        nxt, bd = _nearest_among(x, pos, indices, indptr[best], indptr[best + 1], best, bd)
+        if nxt == best:
             break
+        best = nxt
     return best
 
 

@@ -467,22 +467,28 @@ def _grid_pairs(pos, nrm, r, cos_min, sin_half, max_offset, mid_slack, arc, q, d
 
 
 @numba.njit(cache=True)
+def _nearest_among(x, pos, cand, lo, hi, best, bd):
+    """The point of ``cand[lo:hi]`` nearest ``x`` when nearer than ``best`` (squared distance
+    ``bd``); returns the winner and its squared distance."""
+    for q in range(lo, hi):
+        j = cand[q]
+        d = 0.0
+        for c in range(3):
+            t = x[c] - pos[j, c]
+            d += t * t
+        if d < bd:
+            bd = d
+            best = j
+    return best, bd
+
+
+@numba.njit(cache=True)
 def _midpoint_ok(a, b, d2, sp_, sn, sr, near, nn, cos_min, max_offset, mid_slack, m):
     """The surface test of edge ``(a, b)`` (sorted indices); ``near`` holds every surfel within
     ``2 r_a`` of ``a``, which includes the nearest surfel to the midpoint."""
     for c in range(3):
         m[c] = 0.5 * (sp_[a, c] + sp_[b, c])
-    best = -1
-    bd = np.inf
-    for t_ in range(nn):
-        kk = near[t_]
-        dd = 0.0
-        for c in range(3):
-            t = m[c] - sp_[kk, c]
-            dd += t * t
-        if dd < bd:
-            bd = dd
-            best = kk
+    best, bd = _nearest_among(m, sp_, near, 0, nn, -1, np.inf)
     h = 0.0
     for c in range(3):
         h += (m[c] - sp_[best, c]) * sn[best, c]
