@@ -128,9 +128,11 @@ class TriangleMesh:
         used = np.unique(f)
         nv, nf = len(used), len(f)
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-        ekeys, ecount = np.unique(e, axis=0, return_counts=True)
-        ne = len(ekeys)
         n = len(self.vertices)
+        # one integer key per undirected edge: a 1-D unique is far faster than unique(axis=0)
+        keys, ecount = np.unique(e[:, 0] * np.int64(max(n, 1)) + e[:, 1], return_counts=True)
+        ekeys = np.column_stack([keys // max(n, 1), keys % max(n, 1)])
+        ne = len(ekeys)
         if nf:
             adj = sp.coo_matrix((np.ones(len(ekeys)), (ekeys[:, 0], ekeys[:, 1])), shape=(n, n))
             ncomp, lab = connected_components(adj, directed=False)
@@ -168,8 +170,8 @@ class TriangleMesh:
         a, b = cs[:-1][same], cs[1:][same]
         g = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * m, 3 * m))
         _, lab = connected_components(g, directed=False)
-        fans = np.unique(np.stack([corner_v, lab], axis=1), axis=0)
-        per_v = np.bincount(fans[:, 0], minlength=n)
+        fans = np.unique(corner_v * np.int64(3 * m) + lab)       # distinct (vertex, fan) pairs
+        per_v = np.bincount(fans // (3 * m), minlength=n)
         del corner_f
         return int((per_v > 1).sum())
 
