@@ -1,17 +1,20 @@
-"""Fold-free distortion balancing of a spherical mesh embedding (symmetric Dirichlet energy).
+"""Fold-free distortion balancing and untangling of a spherical mesh embedding.
 
-A Tutte (harmonic) embedding is fold-free but squeezes limbs exponentially. Starting from it, we
-minimise the symmetric Dirichlet energy of the piecewise-linear map from the 3D triangles to the
-chord triangles of the sphere (scaled to the surface's area),
+Two energies of the piecewise-linear map from the 3D triangles to the chord triangles of the sphere
+(scaled to the surface's area), with ``J`` a triangle's Jacobian, ``det = a_t / A_t`` the ratio of
+its image area to its 3D area and ``D_t = ½ Σ_i cot α_i |q_j − q_k|² = A_t ‖J_t‖²`` (cotangents
+of its 3D angles):
 
-    E = Σ_t A_t (‖J_t‖²_F + ‖J_t⁻¹‖²_F) = Σ_t D_t (1 + (A_t / a_t)²),
+* symmetric Dirichlet ``Σ A (‖J‖² + ‖J⁻¹‖²) = Σ D (1 + (A / a)²)`` (Smith & Schaefer 2015;
+  Rabinovich et al. 2017): 4 per unit area for an isometry;
+* conformal-plus-area ``Σ A (‖J‖² / det + λ (det + 1 / det))`` (Garanzha et al. 2021): smallest
+  for a similarity of unit area ratio; λ weighs area against angle preservation.
 
-where ``D_t = ½ Σ_i cot α_i |q_j − q_k|²`` is the Dirichlet energy of triangle t (cotangents of
-its 3D angles), ``A_t`` its 3D area and ``a_t`` the area of its image. The energy is smallest (4 per
-unit area) for an isometry, penalises squeezed triangles like stretched ones, and grows without
-bound as an image triangle degenerates, so a line search that rejects inverted triangles keeps
-every iterate fold-free (Smith & Schaefer 2015; Rabinovich et al. 2017 use the same energy for
-locally injective planar maps). L-BFGS over the unnormalised positions ``y`` with ``x = y / |y|``.
+Both grow without bound as an image triangle degenerates, so a line search that rejects inverted
+triangles keeps every iterate fold-free. L-BFGS over the unnormalised positions ``y`` with
+``x = y / |y|``. :func:`untangle` replaces ``det`` in the second energy by
+``chi(det, eps) = (det + sqrt(eps² + det²)) / 2``, finite for inverted triangles, and shrinks
+``eps`` as the energy falls: a folded map becomes fold-free.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import time
 import numba
 import numpy as np
 
-__all__ = ["balance"]
+__all__ = ["balance", "untangle"]
 
 
 def _cotangents(p, f, *, max_cot: float = 4.0):
@@ -60,7 +63,11 @@ def _cotangents(p, f, *, max_cot: float = 4.0):
 
 
 @numba.njit(cache=True)
-def _energy_kernel(y, f, cot, area3, radius, grad):  # pragma: no cover - compiled
+def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cover - compiled
+    """Energy and gradient. ``eps < 0``: the symmetric Dirichlet energy (infinite when a triangle
+    inverts). ``eps >= 0``: ``(D + lam A (det² + 1)) / chi(det, eps)`` (Garanzha et al. 2021),
+    ``A (‖J‖² / det + lam (det + 1 / det))`` at ``eps = 0``, finite for inverted triangles
+    when ``eps > 0``. ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge lengths / 2)."""
     n = y.shape[0]
     x = np.empty((n, 3))
     for i in range(n):
@@ -83,7 +90,7 @@ def _energy_kernel(y, f, cot, area3, radius, grad):  # pragma: no cover - compil
         sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
         n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
         ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
-        if ar <= 0.0:
+        if ar <= 0.0 and eps <= 0.0:
             return np.inf, g
         d = 0.0
         for k in range(3):          # edge opposite corner k: from corner k+1 to k+2
@@ -91,11 +98,23 @@ def _energy_kernel(y, f, cot, area3, radius, grad):  # pragma: no cover - compil
             el2 = ((q[l, 0] - q[j, 0]) ** 2 + (q[l, 1] - q[j, 1]) ** 2
                    + (q[l, 2] - q[j, 2]) ** 2)
             d += 0.5 * cot[t, k] * el2
-        r2 = (area3[t] / ar) ** 2
-        e += d * (1.0 + r2)
-        if grad:
+        if eps < 0.0:
+            r2 = (area3[t] / ar) ** 2
+            e += d * (1.0 + r2)
             k1 = 1.0 + r2
             k2 = -2.0 * d * r2 / ar
+        else:
+            det = ar / area3[t]
+            root = np.sqrt(eps * eps + det * det)
+            # (det + root) / 2 without cancellation where det < 0
+            chi = 0.5 * (det + root) if det >= 0.0 else 0.5 * eps * eps / (root - det)
+            if chi <= 0.0:
+                return np.inf, g
+            et = (d + lam * area3[t] * (det * det + 1.0)) / chi
+            e += et
+            k1 = 1.0 / chi
+            k2 = 2.0 * lam * det / chi - et / chi * 0.5 * (1.0 + det / root) / area3[t]
+        if grad:
             # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|
             cu = c0 * n0 + c1 * n1 + c2 * n2
             h0 = 0.5 * (c0 - cu * n0) / sl
@@ -128,11 +147,21 @@ def _dot(a, b):
 
 
 class _Energy:
-    def __init__(self, p, f):
+    def __init__(self, p, f, *, max_cot: float = 4.0):
         self.f = np.ascontiguousarray(f, dtype=np.int64)
-        self.cot, self.area3 = _cotangents(p, f)
+        self.cot, self.area3 = _cotangents(p, f, max_cot=max_cot)
         self.radius = float(np.sqrt(self.area3.sum() / (4 * np.pi)))
         self.n = len(p)
+        self.eps = -1.0     # < 0: symmetric Dirichlet; >= 0: the untangling energy
+        self.lam = 0.5
+
+    def min_det(self, y):
+        """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
+        x = y / np.linalg.norm(y, axis=1)[:, None] * self.radius
+        a, b, c = x[self.f[:, 0]], x[self.f[:, 1]], x[self.f[:, 2]]
+        s = a + b + c
+        ar = 0.5 * np.einsum("ij,ij->i", np.cross(b - a, c - a), s) / np.linalg.norm(s, axis=1)
+        return float((ar / self.area3).min())
 
     def preconditioner(self, *, shift: float):
         """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
@@ -163,14 +192,15 @@ class _Energy:
 
     def __call__(self, y, *, grad: bool = True):
         e, g = _energy_kernel(np.ascontiguousarray(y), self.f, self.cot, self.area3,
-                              self.radius, grad)
+                              self.radius, grad, self.eps, self.lam)
         if not np.isfinite(e):
             return np.inf, None
         return e, (g if grad else None)
 
 
 def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory: int = 8,
-            tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3):
+            tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
+            lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
     """Lower the symmetric Dirichlet distortion of a fold-free spherical embedding.
 
     Parameters
@@ -186,11 +216,19 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
         Stop after this many L-BFGS steps or seconds.
     memory : int
         L-BFGS history length.
-    tol : float
-        Stop when 20 steps in a row lower the energy by less than this fraction.
+    tol, patience : float, int
+        Stop when ``patience`` steps in a row lower the energy by less than the fraction ``tol``.
     precondition : bool
         Precondition L-BFGS with the 3D cotangent Laplacian (plus ``shift`` times its mean
         diagonal): the accelerated quadratic proxy of Kovalsky, Galun & Lipman (2016).
+    lam : float, optional
+        None: the symmetric Dirichlet energy. A number: the conformal-plus-area energy
+        ``Σ A (‖J‖² / det + lam (det + 1 / det))`` (Garanzha et al. 2021 with ``eps = 0``),
+        ``det`` the ratio of image to 3D area: ``lam`` weighs area against angle preservation.
+        Both grow without bound as a triangle degenerates.
+    max_cot : float
+        3D triangles with a cotangent beyond this are treated as fatter (see ``_cotangents``);
+        ``inf`` keeps every triangle's shape.
 
     Returns
     -------
@@ -199,7 +237,9 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
     info : dict
         ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``.
     """
-    energy = _Energy(p, f)
+    energy = _Energy(p, f, max_cot=max_cot)
+    if lam is not None:
+        energy.eps, energy.lam = 0.0, float(lam)
     total = energy.area3.sum()
     y = np.array(x, dtype=np.float64)
     e0, _ = energy(y, grad=False)
@@ -210,16 +250,74 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
     else:
         solve = apply = _identity
     deadline = time.perf_counter() + time_budget
-    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol)
+    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol, patience)
     x = y / np.linalg.norm(y, axis=1)[:, None]
     return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
+
+
+def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float = 10.0,
+             lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
+             eps_max: float = 0.1):
+    """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
+
+    Minimises ``Σ A (‖J‖² + lam (det² + 1)) / chi(det, eps)``, ``chi(d, eps) = (d + sqrt(eps² +
+    d²)) / 2``, a regularisation of a shape-and-area energy that stays finite on inverted
+    triangles, by rounds of preconditioned L-BFGS while ``eps`` shrinks with the energy's progress
+    (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
+    toward a positive area; it stops once no triangle is inverted.
+
+    Parameters
+    ----------
+    x : (n, 3) float64
+        Unit vectors, a map of the mesh that may fold (globally oriented like the faces).
+    p : (n, 3) float64
+    f : (m, 3) int64
+    rounds, inner : int
+        Most ``eps`` rounds, L-BFGS steps in each.
+    precondition : bool
+        As in :func:`balance`; a map that is already right at large scales (the prolongation of
+        a coarse map) untangles as fast without.
+    time_budget : float
+        Seconds.
+
+    Returns
+    -------
+    x : (n, 3) float64
+    info : dict
+        ``min_det`` (positive: fold-free), ``rounds``.
+    """
+    energy = _Energy(p, f)
+    energy.lam = float(lam)
+    y = np.array(x, dtype=np.float64)
+    mindet = energy.min_det(y)
+    if mindet > 0:
+        return x, {"min_det": mindet, "rounds": 0}
+    solve, apply = energy.preconditioner(shift=shift) if precondition else (_identity, _identity)
+    deadline = time.perf_counter() + time_budget
+    # on the sphere no fixed boundary stops a collapse: eps stays small against the typical
+    # area ratio (1), so the barrier of the triangles that are not inverted keeps working
+    eps = min(float(np.sqrt(1e-12 + 0.04 * min(mindet, 0.0) ** 2)), eps_max)
+    k = 0
+    for k in range(1, rounds + 1):
+        if mindet > 0 or time.perf_counter() > deadline:
+            break
+        energy.eps = eps
+        e_prev, _ = energy(y, grad=False)
+        y, e, _ = _lbfgs(energy, y, solve, apply, inner, deadline, memory, 0.0)
+        mindet = energy.min_det(y)
+        sigma = max(1.0 - e / e_prev, 0.1)
+        mu = (1.0 - sigma) * 0.5 * (mindet + np.sqrt(eps * eps + mindet * mindet))
+        eps = min(max(2.0 * np.sqrt(mu * (mu - mindet)), 1e-10), eps_max) if mindet < mu else 1e-10
+    energy.eps = -1.0
+    x = y / np.linalg.norm(y, axis=1)[:, None]
+    return x, {"min_det": mindet, "rounds": k}
 
 
 def _identity(r):
     return r
 
 
-def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol):
+def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol, patience=20):
     """L-BFGS on the sphere, initial inverse Hessian ``γ P⁻¹`` (``solve`` applies ``P⁻¹``,
     ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a fold-rejecting
     backtracking line search."""
@@ -271,8 +369,8 @@ def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol):
         s = (y2 - y).ravel()
         yk = (g2 - g).ravel()
         rel = (e - e2) / e
-        y = y2 / np.linalg.norm(y2, axis=1)[:, None]   # stay on the sphere (the energy is
-        e, g = energy(y)                                # invariant along the radius)
+        r = np.linalg.norm(y2, axis=1)[:, None]   # stay on the sphere: the energy is invariant
+        y, e, g = y2 / r, e2, g2 * r               # along the radius, its gradient scales by r
         steps += 1
         if _dot(s, yk) > 1e-12 * _dot(s, s):
             s_hist.append(s)
@@ -281,6 +379,6 @@ def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol):
                 s_hist.pop(0)
                 y_hist.pop(0)
         stalls = stalls + 1 if rel < tol else 0
-        if stalls >= 20:
+        if stalls >= patience:
             break
     return y, e, steps

@@ -1,8 +1,9 @@
-"""Symmetric Dirichlet balancing of spherical embeddings: exact gradient, monotone, fold-free."""
+"""Balancing and untangling of spherical embeddings: exact gradients, monotone, fold-free."""
 
 import numpy as np
+import pytest
 
-from surfidx._balance import _Energy, balance
+from surfidx._balance import _Energy, balance, untangle
 from surfidx.parameterize import _orientation, _tutte_map, parameterize  # noqa: F401
 from test_parameterize import _limbs
 
@@ -16,9 +17,13 @@ def _start():
     return s.positions, f, x
 
 
-def test_gradient_matches_finite_differences():
+@pytest.mark.parametrize("eps, lam", [(-1.0, 1.0), (0.0, 1.0), (0.0, 0.3), (0.05, 1.0)],
+                         ids=["symmetric-dirichlet", "conformal-area", "conformal-area-0.3",
+                              "untangling"])
+def test_gradient_matches_finite_differences(eps, lam):
     p, f, x = _start()
     energy = _Energy(p, f)
+    energy.eps, energy.lam = eps, lam
     e, g = energy(x)
     rng = np.random.default_rng(0)
     dv = rng.normal(size=x.shape)
@@ -80,3 +85,36 @@ def test_preconditioning_lowers_energy_faster_on_limbs():
     x2, pre = balance(x, p, f, iterations=40, time_budget=60.0, precondition=True)
     assert pre["energy"] < plain["energy"]
     assert np.all(_orientation(x2, f) > 0)
+
+
+def test_conformal_area_energy_of_uniform_scaling_is_exact():
+    """Icosphere onto itself scaled by R: det = R², ‖J‖² = 2 R², so the energy per area is
+    ‖J‖²/det + lam (det + 1/det) = 2 + lam (R² + 1/R²)."""
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    energy = _Energy(v, f)
+    energy.eps, energy.lam = 0.0, 0.5
+    e, _ = energy(v)
+    r2 = energy.radius ** 2
+    assert abs(e / energy.area3.sum() - (2 + 0.5 * (r2 + 1 / r2))) < 1e-4
+
+
+def test_untangle_removes_inverted_triangles():
+    p, f, x = _start()
+    bad = x.copy()
+    rng = np.random.default_rng(1)
+    # scramble a patch: 40 vertices near one point swapped among themselves
+    near = np.argsort(np.linalg.norm(x - x[0], axis=1))[:40]
+    bad[near] = x[rng.permutation(near)]
+    assert np.count_nonzero(_orientation(bad, f) <= 0) > 10
+    x2, info = untangle(bad, p, f, time_budget=30.0)
+    assert info["min_det"] > 0 and info["rounds"] >= 1
+    assert np.all(_orientation(x2, f) > 0)
+    np.testing.assert_allclose(np.linalg.norm(x2, axis=1), 1.0, atol=1e-12)
+
+
+def test_untangle_returns_a_fold_free_map_unchanged():
+    p, f, x = _start()
+    x2, info = untangle(x, p, f)
+    assert info["rounds"] == 0 and np.array_equal(x2, x)

@@ -1,0 +1,312 @@
+"""Topology-preserving mesh decimation by rounds of independent half-edge collapses.
+
+The coarse-to-fine spherical map (:mod:`surfidx.parameterize`) maps a coarse version of the mesh
+first, where area balancing converges in a fraction of a second, and then carries that map down to
+every vertex. The coarse mesh must triangulate the same sphere, so every collapse keeps the mesh a
+closed 2-manifold of genus 0:
+
+* half-edge collapses (vertex ``r`` merged into its neighbour ``k``, which keeps its position), so
+  the coarse vertices are a subset of the input's and every removed vertex knows the ring it was
+  removed from;
+* the link condition (``r`` and ``k`` share exactly the two neighbours opposite the edge; Dey et
+  al. 1999), which is what keeps a closed triangulated surface a manifold of the same genus;
+* no vertex of degree below 3 afterwards, no triangle turned over (its normal rotates less than
+  60°) or turned into a sliver;
+* collapses of one round are independent: the closed 1-rings of their edges are disjoint, so all
+  of a round's checks hold at once and the round is applied with array operations.
+
+Shortest edges go first, so the coarse mesh is roughly uniform and keeps thin limbs as long as
+their edges are not the shortest. :func:`decimate` records the rounds; a removed vertex's ring is
+the list of its neighbours when it was removed, all of them present in every coarser mesh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+__all__ = ["Hierarchy", "decimate"]
+
+_MAX_DEGREE = 12     # a kept vertex may not grow beyond this many neighbours
+_COS_TURN = 0.5      # a collapse may rotate a triangle's normal by at most 60 degrees
+_SLIVER = 0.05       # and leaves no triangle with area below this fraction of its longest edge²
+
+
+@dataclass
+class Hierarchy:
+    """A decimation: the coarse mesh and, round by round, which vertex went where.
+
+    Attributes
+    ----------
+    faces : (m, 3) int64
+        The coarse mesh's faces, in the input's vertex numbering.
+    vertices : (k,) int64
+        The input vertices the coarse mesh keeps.
+    rounds : list of tuple
+        One ``(removed, ring_ptr, ring)`` per round, finest first: ``removed`` (r,) int64, and
+        the neighbours of ``removed[i]`` at its removal in ``ring[ring_ptr[i]:ring_ptr[i+1]]``.
+    """
+
+    faces: np.ndarray
+    vertices: np.ndarray
+    rounds: list
+
+    def prolong(self, values, positions, *, unit: bool = False):
+        """Carry per-vertex values from the coarse mesh back to every vertex.
+
+        Rounds are undone coarsest first; each removed vertex takes the mean of its ring's values
+        with its 3D mean value coordinates (Floater 2003: positive, and exact for a map that is
+        affine near the vertex), its ring being complete by then.
+
+        Parameters
+        ----------
+        values : (n, d) float64
+            Values on all n input vertices; only the coarse ones (``self.vertices``) are read.
+        positions : (n, 3) float64
+            The input's 3D positions (for the weights).
+        unit : bool
+            Renormalise each new value to unit length (points on the sphere).
+
+        Returns
+        -------
+        (n, d) float64
+        """
+        out = np.array(values, dtype=np.float64)
+        for removed, ptr, ring in reversed(self.rounds):
+            counts = np.diff(ptr)
+            owner = np.repeat(np.arange(len(removed)), counts)
+            nxt = np.arange(len(ring)) + 1
+            nxt[ptr[1:] - 1] = ptr[:-1]                  # the ring is cyclic
+            e = positions[ring] - positions[removed][owner]
+            length = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+            cos = np.einsum("ij,ij->i", e, e[nxt]) / (length * length[nxt])
+            half = np.tan(0.5 * np.arccos(np.clip(cos, -1.0, 1.0)))   # angle at the vertex
+            prv = np.empty_like(nxt)
+            prv[nxt] = np.arange(len(ring))
+            w = np.maximum((half + half[prv]) / length, 1e-300)
+            acc = np.zeros((len(removed), out.shape[1]))
+            np.add.at(acc, owner, w[:, None] * out[ring])
+            if unit:
+                acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
+            else:
+                acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
+            out[removed] = acc
+        return out
+
+
+@numba.njit(cache=True)
+def _neighbours(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
+    """Neighbours of ``v`` (unordered, each once) into ``out``; returns their count."""
+    m = 0
+    for q in range(vf_ptr[v], vf_ptr[v + 1]):
+        t = vf_idx[q]
+        for c in range(3):
+            w = faces[t, c]
+            if w == v:
+                continue
+            seen = False
+            for s in range(m):
+                if out[s] == w:
+                    seen = True
+                    break
+            if not seen:
+                out[m] = w
+                m += 1
+    return m
+
+
+@numba.njit(cache=True)
+def _cyclic_ring(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
+    """Neighbours of ``v`` in counter-clockwise order (closed manifold: one cycle) into
+    ``out``; returns their count."""
+    m = vf_ptr[v + 1] - vf_ptr[v]
+    a = np.empty(m, np.int64)
+    b = np.empty(m, np.int64)
+    for i in range(m):
+        t = vf_idx[vf_ptr[v] + i]
+        for c in range(3):
+            if faces[t, c] == v:
+                a[i] = faces[t, (c + 1) % 3]
+                b[i] = faces[t, (c + 2) % 3]
+    out[0] = a[0]
+    for s in range(1, m):
+        nxt = -1
+        for i in range(m):
+            if a[i] == out[s - 1]:
+                nxt = b[i]
+                break
+        out[s] = nxt
+    return m
+
+
+@numba.njit(cache=True)
+def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, deg, cos_turn, sliver):  # pragma: no cover
+    """Geometric checks of merging ``r`` into ``k``: no face around ``r`` turns over or thins."""
+    for q in range(vf_ptr[r], vf_ptr[r + 1]):
+        t = vf_idx[q]
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        if a == k or b == k or c == k:
+            continue
+        na = np.empty(3)
+        nb = np.empty(3)
+        for step in range(2):
+            x0, x1, x2 = a, b, c
+            if step == 1:
+                if x0 == r:
+                    x0 = k
+                elif x1 == r:
+                    x1 = k
+                else:
+                    x2 = k
+            u0 = pos[x1, 0] - pos[x0, 0]
+            u1 = pos[x1, 1] - pos[x0, 1]
+            u2 = pos[x1, 2] - pos[x0, 2]
+            v0 = pos[x2, 0] - pos[x0, 0]
+            v1 = pos[x2, 1] - pos[x0, 1]
+            v2 = pos[x2, 2] - pos[x0, 2]
+            out = na if step == 0 else nb
+            out[0] = u1 * v2 - u2 * v1
+            out[1] = u2 * v0 - u0 * v2
+            out[2] = u0 * v1 - u1 * v0
+            if step == 1:
+                w0 = pos[x2, 0] - pos[x1, 0]
+                w1 = pos[x2, 1] - pos[x1, 1]
+                w2 = pos[x2, 2] - pos[x1, 2]
+                longest = max(u0 * u0 + u1 * u1 + u2 * u2, v0 * v0 + v1 * v1 + v2 * v2,
+                              w0 * w0 + w1 * w1 + w2 * w2)
+                area2 = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
+                if area2 < 2.0 * sliver * longest:
+                    return False
+        la = np.sqrt(na[0] ** 2 + na[1] ** 2 + na[2] ** 2)
+        lb = np.sqrt(nb[0] ** 2 + nb[1] ** 2 + nb[2] ** 2)
+        if na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2] < cos_turn * la * lb:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn,
+            sliver):  # pragma: no cover - compiled
+    """Greedy independent set of valid half-edge collapses, in the given edge order.
+
+    Returns ``removed``, ``kept`` and the rings of the removed vertices (CSR)."""
+    n = pos.shape[0]
+    locked = np.zeros(n, np.bool_)
+    mark = np.zeros(n, np.int64)
+    removed = np.empty(budget, np.int64)
+    kept = np.empty(budget, np.int64)
+    ring_ptr = np.zeros(budget + 1, np.int64)
+    ring = np.empty(budget * (max_degree + 2), np.int64)
+    nu = np.empty(64, np.int64)
+    nv = np.empty(64, np.int64)
+    count = 0
+    stamp = 0
+    for e in range(edges.shape[0]):
+        if count >= budget:
+            break
+        u, v = edges[e, 0], edges[e, 1]
+        if locked[u] or locked[v]:
+            continue
+        if deg[u] > 60 or deg[v] > 60:
+            continue
+        mu = _neighbours(u, vf_ptr, vf_idx, faces, nu)
+        mv = _neighbours(v, vf_ptr, vf_idx, faces, nv)
+        busy = False
+        for s in range(mu):
+            if locked[nu[s]]:
+                busy = True
+        for s in range(mv):
+            if locked[nv[s]]:
+                busy = True
+        if busy:
+            continue
+        stamp += 1
+        for s in range(mu):
+            mark[nu[s]] = stamp
+        common = 0
+        low = 1 << 30
+        for s in range(mv):
+            if mark[nv[s]] == stamp:
+                common += 1
+                low = min(low, deg[nv[s]])
+        if common != 2 or low <= 3 or mu + mv - 4 > max_degree:
+            continue
+        # remove the endpoint of lower degree first (keeps degrees even), else the other
+        order0, order1 = (v, u) if deg[v] <= deg[u] else (u, v)
+        done = False
+        for attempt in range(2):
+            r, k = (order0, order1) if attempt == 0 else (order1, order0)
+            if deg[r] < 3:
+                continue
+            if _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, deg, cos_turn, sliver):
+                removed[count] = r
+                kept[count] = k
+                start = ring_ptr[count]
+                nr = _cyclic_ring(r, vf_ptr, vf_idx, faces, ring[start:start + max_degree + 2])
+                ring_ptr[count + 1] = start + nr
+                count += 1
+                done = True
+                break
+        if done:
+            locked[u] = True
+            locked[v] = True
+            for s in range(mu):
+                locked[nu[s]] = True
+            for s in range(mv):
+                locked[nv[s]] = True
+    return removed[:count], kept[:count], ring_ptr[:count + 1], ring[:ring_ptr[count]]
+
+
+def _vertex_faces(faces: np.ndarray, n: int):
+    flat = faces.ravel()
+    order = np.argsort(flat, kind="stable")
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
+    return ptr, (order // 3).astype(np.int64)
+
+
+def decimate(positions: np.ndarray, faces: np.ndarray, target: int) -> Hierarchy:
+    """Decimate a closed manifold triangle mesh to about ``target`` vertices, keeping its topology.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    faces : (m, 3) int64
+        Closed, manifold, consistently wound; every vertex used.
+    target : int
+        Vertices to keep (at least 4). Fewer collapses are made when no more pass the checks.
+
+    Returns
+    -------
+    Hierarchy
+    """
+    p = np.ascontiguousarray(positions, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    n = len(p)
+    alive = n
+    rounds = []
+    target = max(int(target), 4)
+    while alive > target:
+        deg = np.bincount(f.ravel(), minlength=n)    # closed manifold: faces = neighbours
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = e[e[:, 0] < e[:, 1]]                     # each undirected edge once
+        length = np.einsum("ij,ij->i", p[e[:, 0]] - p[e[:, 1]], p[e[:, 0]] - p[e[:, 1]])
+        # squared lengths rounded relative to their mean, ties kept in edge order: the order
+        # (hence the coarse mesh) does not change with a rotation or scaling of the input
+        key = np.round(length / length.mean(), 9)
+        e = np.ascontiguousarray(e[np.argsort(key, kind="stable")])
+        ptr, idx = _vertex_faces(f, n)
+        removed, kept, ring_ptr, ring = _select(e, p, ptr, idx, f, deg, alive - target,
+                                                _MAX_DEGREE, _COS_TURN, _SLIVER)
+        if not len(removed):
+            break
+        remap = np.arange(n)
+        remap[removed] = kept
+        f = remap[f]
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+        rounds.append((removed, ring_ptr, ring))
+        alive -= len(removed)
+    vertices = np.unique(f)
+    return Hierarchy(np.ascontiguousarray(f), vertices, rounds)

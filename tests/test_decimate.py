@@ -1,0 +1,76 @@
+"""Topology-preserving decimation: the coarse mesh triangulates the same sphere, prolongation is a
+partition of unity and keeps coarse values."""
+
+import numpy as np
+import pytest
+
+from surfidx import TriangleMesh, read_surfels
+from surfidx._decimate import decimate
+from surfidx.parameterize import _oriented_faces
+
+from conftest import icosphere_mesh
+
+
+def _check_sphere_like(v, f):
+    topo = TriangleMesh(v, f).topology()
+    assert topo.closed and topo.genus == 0 and topo.components == 1
+    assert topo.nonmanifold_vertices == 0
+
+
+@pytest.mark.parametrize("target", [200, 40, 4])
+def test_icosphere_keeps_its_topology(target):
+    v, f = icosphere_mesh(4)
+    h = decimate(v, f, target)
+    assert len(h.vertices) >= target and len(h.vertices) < len(v)
+    assert set(np.unique(h.faces)) == set(h.vertices)
+    _check_sphere_like(v, h.faces)
+    # winding kept: every directed edge once, and the enclosed volume is positive
+    he = np.concatenate([h.faces[:, [0, 1]], h.faces[:, [1, 2]], h.faces[:, [2, 0]]])
+    assert len(np.unique(he, axis=0)) == len(he)
+    a, b, c = v[h.faces[:, 0]], v[h.faces[:, 1]], v[h.faces[:, 2]]
+    assert np.einsum("ij,ij->", np.cross(a, b), c) > 0
+
+
+def test_real_model_keeps_its_topology(models):
+    s = read_surfels(models / "spot/spot_triangulated.obj")
+    f = _oriented_faces(s)
+    h = decimate(s.positions, f, len(s) // 4)
+    assert len(h.vertices) <= len(s) // 4 + 1
+    _check_sphere_like(s.positions, h.faces)
+
+
+def test_prolong_keeps_coarse_values_and_constants():
+    v, f = icosphere_mesh(3)
+    h = decimate(v, f, 60)
+    rng = np.random.default_rng(0)
+    vals = np.full((len(v), 2), np.nan)
+    vals[h.vertices] = rng.normal(size=(len(h.vertices), 2))
+    out = h.prolong(vals, v)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[h.vertices], vals[h.vertices])
+    const = np.where(np.isnan(vals), np.nan, 3.0)
+    np.testing.assert_allclose(h.prolong(const, v), 3.0, atol=1e-12)
+    # on the sphere: unit vectors stay unit vectors
+    x = h.prolong(np.where(np.isnan(vals[:, :1]), np.nan, 1.0) * v, v, unit=True)
+    np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-12)
+
+
+def test_prolong_is_exact_for_affine_values_on_a_flat_star():
+    """Mean value weights reproduce affine functions of a planar neighbourhood (Floater 2003)."""
+    v, f = icosphere_mesh(3)
+    h = decimate(v, f, 300)
+    removed, ptr, ring = h.rounds[0]
+    flat = v.copy()
+    flat[:, 2] = 0.0   # mean value weights of a flattened star: affine values are reproduced
+    i = int(np.argmax(v[removed, 2]))   # near the pole, where flattening keeps the star
+    star = np.concatenate([[removed[i]], ring[ptr[i]:ptr[i + 1]]])
+    vals = np.full((len(v), 1), np.nan)
+    vals[:, 0] = 2.0 * flat[:, 0] - flat[:, 1] + 0.5
+    from surfidx._decimate import Hierarchy
+
+    one = Hierarchy(h.faces, np.setdiff1d(np.arange(len(v)), [removed[i]]),
+                    [(removed[i:i + 1], np.array([0, ptr[i + 1] - ptr[i]]), star[1:])])
+    vals2 = vals.copy()
+    vals2[removed[i]] = np.nan
+    out = one.prolong(vals2, flat)
+    assert out[removed[i], 0] == pytest.approx(vals[removed[i], 0], abs=1e-12)
