@@ -201,7 +201,8 @@ class _Energy:
 def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory: int = 8,
             tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
             lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
-    """Lower the symmetric Dirichlet distortion of a fold-free spherical embedding.
+    """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
+    spherical embedding.
 
     Parameters
     ----------

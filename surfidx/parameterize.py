@@ -580,7 +580,7 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
             x, sd, neg = evaluate(lw)
             g = gamma
     x = x / np.linalg.norm(x, axis=1)[:, None]
-    # symmetric Dirichlet balancing: limbs squeezed by the harmonic start regain their share of
+    # distortion balancing: limbs squeezed by the harmonic start regain their share of
     # the sphere; every iterate stays a fold-free embedding of the mesh (see surfidx._balance)
     from ._balance import balance
 
@@ -776,7 +776,8 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     time_budget : float
         Seconds after which the reweighting stops and keeps its best iterate.
     balance_budget : float
-        Seconds for the symmetric Dirichlet balancing that follows (0 skips it).
+        Seconds, at most, for each level's untangling and for its balancing (0: no balancing, and
+        a level whose prolongation folds falls back to the single-level map).
     stress : bool
         Compute the landmark stress figure (geodesics from ``landmarks`` sources).
 
