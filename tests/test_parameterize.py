@@ -196,6 +196,17 @@ def test_multilevel_map_has_levels_down_to_a_small_base():
     assert m.info["mesh_folds"] == 0 and "fallback" not in m.info
 
 
+def test_level_left_with_few_inverted_triangles_is_kept(monkeypatch):
+    """Up to _INVERTED_KEPT of a level's triangles may stay inverted (the map keeps its levels);
+    here every share is allowed and no time is given to untangle."""
+    import surfidx.parameterize as P
+
+    monkeypatch.setattr(P, "_INVERTED_KEPT", 1.0)
+    m = parameterize(_limbs(4), stress=False, balance_budget=0.0)
+    assert "fallback" not in m.info and m.info["levels"] >= 3
+    assert m.info["mesh_folds"] > 0 and m.info["balance_steps"] == 0
+
+
 def test_level_that_cannot_be_untangled_falls_back_to_single_level():
     """With no time to untangle, a level that folded on prolongation falls back to the
     single-level Tutte map, which is fold-free by construction."""
