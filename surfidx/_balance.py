@@ -315,6 +315,8 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
 
 
 _PATCH_RINGS = 4   # rings of vertices around the inverted triangles that a patch frees
+_DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
+                   # left at 1e-8 pins the balancing's line search at its barrier: glasses copy)
 
 
 def _near_inverted(energy, y, *, rings: int):
@@ -382,12 +384,12 @@ def _untangle_rounds(energy, y, *, rounds, inner, deadline, memory, precondition
     eps = min(float(np.sqrt(1e-12 + 0.04 * min(mindet, 0.0) ** 2)), eps_max)
     k = 0
     for k in range(1, rounds + 1):
-        if mindet > 0 or time.perf_counter() > deadline:
+        if mindet > _DET_GOAL or time.perf_counter() > deadline:
             break
         energy.eps = eps
         e_prev, _ = energy(y, grad=False)
         y, e, _ = _lbfgs(energy, y, solve, apply, inner, deadline, memory, 0.0,
-                         stop=lambda z: energy.min_det(z) > 0)
+                         stop=lambda z: energy.min_det(z) > _DET_GOAL)
         mindet = energy.min_det(y)
         sigma = max(1.0 - e / e_prev, 0.1)
         mu = (1.0 - sigma) * 0.5 * (mindet + np.sqrt(eps * eps + mindet * mindet))
