@@ -32,6 +32,7 @@ __all__ = ["Hierarchy", "decimate"]
 _MAX_DEGREE = 12     # a kept vertex may not grow beyond this many neighbours
 _COS_TURN = 0.5      # a collapse may rotate a triangle's normal by at most 60 degrees
 _SLIVER = 0.05       # and leaves no triangle with area below this fraction of its longest edge²
+_MAX_SCAN = 64       # vertices of higher degree (rare fan centres) are left alone
 
 
 @dataclass
@@ -142,7 +143,7 @@ def _cyclic_ring(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, deg, cos_turn, sliver):  # pragma: no cover
+def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, cos_turn, sliver):  # pragma: no cover
     """Geometric checks of merging ``r`` into ``k``: no face around ``r`` turns over or thins."""
     for q in range(vf_ptr[r], vf_ptr[r + 1]):
         t = vf_idx[q]
@@ -199,8 +200,8 @@ def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn
     kept = np.empty(budget, np.int64)
     ring_ptr = np.zeros(budget + 1, np.int64)
     ring = np.empty(budget * (max_degree + 2), np.int64)
-    nu = np.empty(64, np.int64)
-    nv = np.empty(64, np.int64)
+    nu = np.empty(_MAX_SCAN, np.int64)
+    nv = np.empty(_MAX_SCAN, np.int64)
     count = 0
     stamp = 0
     for e in range(edges.shape[0]):
@@ -209,7 +210,7 @@ def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn
         u, v = edges[e, 0], edges[e, 1]
         if locked[u] or locked[v]:
             continue
-        if deg[u] > 60 or deg[v] > 60:
+        if deg[u] > _MAX_SCAN or deg[v] > _MAX_SCAN:
             continue
         mu = _neighbours(u, vf_ptr, vf_idx, faces, nu)
         mv = _neighbours(v, vf_ptr, vf_idx, faces, nv)
@@ -240,7 +241,7 @@ def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn
             r, k = (order0, order1) if attempt == 0 else (order1, order0)
             if deg[r] < 3:
                 continue
-            if _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, deg, cos_turn, sliver):
+            if _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, cos_turn, sliver):
                 removed[count] = r
                 kept[count] = k
                 start = ring_ptr[count]
