@@ -43,4 +43,5 @@ def test_genus_error_is_one_line(tmp_path, models):
                                  "-o", str(tmp_path / "x.ply")])
     assert r.exit_code != 0
     assert "genus 1" in r.output and "Traceback" not in r.output
+    assert "rocker-arm.obj: " in r.output          # the message names the file
     assert len(r.output.strip().splitlines()) == 1

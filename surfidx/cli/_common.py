@@ -17,6 +17,8 @@ __all__ = ["command_errors", "echo_json", "read_input", "input_options"]
 def command_errors(func):
     """Map library errors to ``click.ClickException`` (one line, exit 1), and OS errors too.
 
+    An error that names no file is prefixed with the command's ``input`` argument, if any.
+
     Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format.
     """
 
@@ -27,7 +29,11 @@ def command_errors(func):
             try:
                 return func(*args, **kwargs)
             except SurfidxError as exc:
-                raise click.ClickException(str(exc)) from None
+                # name the input file when the library could not (a topology or data problem
+                # found after reading it)
+                src = kwargs.get("input")
+                msg = str(exc) if exc.path is not None or src is None else f"{src}: {exc}"
+                raise click.ClickException(msg) from None
             except MemoryError:
                 raise click.ClickException("out of memory; try a smaller input or level") from None
             except OSError as exc:
