@@ -9,7 +9,7 @@ import warnings
 import click
 import numpy as np
 
-from .._errors import SurfidxError
+from .._errors import SurfidxError, TopologyError
 
 __all__ = ["command_errors", "echo_json", "read_input", "input_options"]
 
@@ -17,7 +17,8 @@ __all__ = ["command_errors", "echo_json", "read_input", "input_options"]
 def command_errors(func):
     """Map library errors to ``click.ClickException`` (one line, exit 1), and OS errors too.
 
-    An error that names no file is prefixed with the command's ``input`` argument, if any.
+    A :class:`~surfidx.TopologyError` (found after reading, so naming no file) is prefixed with
+    the command's ``input`` argument, if any.
 
     Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format.
     """
@@ -29,11 +30,10 @@ def command_errors(func):
             try:
                 return func(*args, **kwargs)
             except SurfidxError as exc:
-                # name the input file when the library could not (a topology or data problem
-                # found after reading it)
+                # a topology problem is found after reading: name the input file it concerns
                 src = kwargs.get("input")
-                msg = str(exc) if exc.path is not None or src is None else f"{src}: {exc}"
-                raise click.ClickException(msg) from None
+                named = exc.path is not None or src is None or not isinstance(exc, TopologyError)
+                raise click.ClickException(str(exc) if named else f"{src}: {exc}") from None
             except MemoryError:
                 raise click.ClickException("out of memory; try a smaller input or level") from None
             except OSError as exc:
