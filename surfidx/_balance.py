@@ -155,13 +155,30 @@ class _Energy:
         self.eps = -1.0     # < 0: symmetric Dirichlet; >= 0: the untangling energy
         self.lam = 0.5
 
-    def min_det(self, y):
-        """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
+    def dets(self, y):
+        """Each triangle's ratio of image to 3D area (negative: inverted), ``(m,)``."""
         x = y / np.linalg.norm(y, axis=1)[:, None] * self.radius
         a, b, c = x[self.f[:, 0]], x[self.f[:, 1]], x[self.f[:, 2]]
         s = a + b + c
         ar = 0.5 * np.einsum("ij,ij->i", np.cross(b - a, c - a), s) / np.linalg.norm(s, axis=1)
-        return float((ar / self.area3).min())
+        return ar / self.area3
+
+    def min_det(self, y):
+        """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
+        return float(self.dets(y).min())
+
+    def restrict(self, faces):
+        """The same energy over the triangles selected by the mask ``faces`` (their 3D shapes,
+        radius and settings kept), on their vertices renumbered; returns it and those vertices
+        ``(k,)`` in the original numbering."""
+        verts = np.unique(self.f[faces])
+        local = np.full(self.n, -1, dtype=np.int64)
+        local[verts] = np.arange(len(verts))
+        sub = _Energy.__new__(_Energy)
+        sub.f = np.ascontiguousarray(local[self.f[faces]])
+        sub.cot, sub.area3 = self.cot[faces], self.area3[faces]
+        sub.radius, sub.n, sub.eps, sub.lam = self.radius, len(verts), self.eps, self.lam
+        return sub, verts
 
     def preconditioner(self, *, shift: float, keep=None):
         """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
@@ -267,7 +284,9 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     d²)) / 2``, a regularisation of a shape-and-area energy that stays finite on inverted
     triangles, by rounds of preconditioned L-BFGS while ``eps`` shrinks with the energy's progress
     (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
-    toward a positive area; it stops once no triangle is inverted.
+    toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
+    The vertices within ``_PATCH_RINGS`` edges of an inverted triangle are untangled first, the
+    others held (when they are fewer than half); the whole map only if that fails.
 
     Parameters
     ----------
@@ -278,8 +297,8 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     rounds, inner : int
         Most ``eps`` rounds, L-BFGS steps in each.
     precondition : bool
-        As in :func:`balance`; a map that is already right at large scales (the prolongation of
-        a coarse map) untangles as fast without.
+        As in :func:`balance` (without it, a prolonged Igea-size map untangles several times
+        slower).
     time_budget : float
         Seconds.
 
@@ -287,7 +306,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     -------
     x : (n, 3) float64
     info : dict
-        ``min_det`` (positive: fold-free), ``rounds``.
+        ``min_det`` (positive: fold-free), ``rounds``, and ``patch`` (1) when the patch did it.
     """
     energy = _Energy(p, f)
     energy.lam = float(lam)
@@ -309,7 +328,6 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
             return y / np.linalg.norm(y, axis=1)[:, None], {"min_det": energy.min_det(y),
                                                             "rounds": done, "patch": 1}
     y, done = _untangle_rounds(energy, y, **options)
-    energy.eps = -1.0
     return y / np.linalg.norm(y, axis=1)[:, None], {"min_det": energy.min_det(y),
                                                     "rounds": abs(done)}
 
@@ -324,11 +342,8 @@ def _near_inverted(energy, y, *, rings: int):
     import scipy.sparse as sp
 
     f, n = energy.f, energy.n
-    x = y / np.linalg.norm(y, axis=1)[:, None]
-    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
-    bad = np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c) <= 0
     mark = np.zeros(n)
-    mark[f[bad].ravel()] = 1.0
+    mark[f[energy.dets(y) <= 0].ravel()] = 1.0
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
     adj = adj + adj.T
@@ -342,16 +357,7 @@ class _Patch:
     alone, the others held where they are (same interface as :class:`_Energy`)."""
 
     def __init__(self, energy, y, free):
-        f = energy.f
-        sel = free[f].any(axis=1)
-        verts = np.unique(f[sel])
-        local = np.full(energy.n, -1, dtype=np.int64)
-        local[verts] = np.arange(len(verts))
-        self.base = _Energy.__new__(_Energy)
-        self.base.f = np.ascontiguousarray(local[f[sel]])
-        self.base.cot, self.base.area3 = energy.cot[sel], energy.area3[sel]
-        self.base.radius, self.base.n = energy.radius, len(verts)
-        self.base.eps, self.base.lam = energy.eps, energy.lam
+        self.base, verts = energy.restrict(free[energy.f].any(axis=1))
         self.free = free[verts]
         self.y = np.array(y[verts])
 
