@@ -6,7 +6,8 @@ refinement (``refine=True``) straightens a path on the surface, as the SIG metho
 
 1. the graph path is resampled uniformly at coarse resolution (4 segments);
 2. each interior point moves towards the midpoint of its neighbours, the move limited to half
-   its shorter adjacent segment, then is projected back onto the surface: a moving-least-squares plane fitted (Gaussian weights) to the nearest surfel and its
+   its shorter adjacent segment, then is projected back onto the surface: a
+   moving-least-squares plane fitted (Gaussian weights) to the nearest surfel and its
    graph neighbours, the nearest surfel being tracked by a greedy walk on the graph (so points
    never jump to the other side of a thin part);
 3. the iteration (Gauss-Seidel) runs to convergence, then every segment is split at its projected

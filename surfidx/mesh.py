@@ -130,8 +130,9 @@ class TriangleMesh:
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
         n = len(self.vertices)
         # one integer key per undirected edge: a 1-D unique is far faster than unique(axis=0)
-        keys, ecount = np.unique(e[:, 0] * np.int64(max(n, 1)) + e[:, 1], return_counts=True)
-        ekeys = np.column_stack([keys // max(n, 1), keys % max(n, 1)])
+        base = np.int64(max(n, 1))
+        keys, ecount = np.unique(e[:, 0] * base + e[:, 1], return_counts=True)
+        ekeys = np.column_stack([keys // base, keys % base])
         ne = len(ekeys)
         if nf:
             adj = sp.coo_matrix((np.ones(len(ekeys)), (ekeys[:, 0], ekeys[:, 1])), shape=(n, n))

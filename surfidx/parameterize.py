@@ -224,6 +224,12 @@ def _areas3(p, tri):
                                 axis=1)
 
 
+def _vertex_areas(f, a3, n):
+    """Each vertex's summed 3D area of its triangles ``a3`` (floored above zero), ``(n,)``: the
+    weights of the Möbius normalisation."""
+    return np.maximum(np.bincount(f.ravel(), np.repeat(a3, 3), minlength=n), 1e-300)
+
+
 def area_distortion(surfels: SurfelSet, sphere_points, *, triangles=None) -> float:
     """Area-weighted RMS of ``log(spherical area share / 3D area share)``.
 
@@ -515,7 +521,7 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     if not a3.sum() > 0:
         raise InputError("the surface has zero area")
     share3 = a3 / a3.sum()
-    va = np.maximum(np.bincount(f.ravel(), np.repeat(a3, 3), minlength=n), 1e-300)
+    va = _vertex_areas(f, a3, n)
     w0 = _mean_value_weights(p, f)
     adj = (w0 > 0).astype(np.float64)
     adj = adj + adj.T + sp.identity(n, format="csr")
@@ -647,8 +653,7 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     x, binfo = balance(x, p, f, iterations=_LEVEL_STEPS, time_budget=balance_budget,
                        lam=_LAM, max_cot=np.inf,
                        **(_LOOSE_STOP if n > _LOOSE_ABOVE else _STRICT_STOP))
-    va = np.maximum(np.bincount(f.ravel(), np.repeat(_areas3(p, f), 3), minlength=n), 1e-300)
-    x = _centre(x, va, f)
+    x = _centre(x, _vertex_areas(f, _areas3(p, f), n), f)
     neg = int(np.count_nonzero(_orientation(x, f) <= 0))
     return x, {"mesh_folds": neg, "levels": info["levels"] + 1,
                "base_vertices": info["base_vertices"],
