@@ -306,7 +306,8 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     -------
     x : (n, 3) float64
     info : dict
-        ``min_det`` (positive: fold-free), ``rounds``, and ``patch`` (1) when the patch did it.
+        ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted; counted only
+        when untangling was needed), ``rounds``, and ``patch`` (1) when the patch did it.
     """
     energy = _Energy(p, f)
     energy.lam = float(lam)
@@ -325,11 +326,17 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
         z, done = _untangle_rounds(patch, y[free], **options)
         if done > 0:
             y[free] = z
-            return y / np.linalg.norm(y, axis=1)[:, None], {"min_det": energy.min_det(y),
-                                                            "rounds": done, "patch": 1}
+            return _untangled(energy, y, rounds=done, patch=1)
     y, done = _untangle_rounds(energy, y, **options)
-    return y / np.linalg.norm(y, axis=1)[:, None], {"min_det": energy.min_det(y),
-                                                    "rounds": abs(done)}
+    return _untangled(energy, y, rounds=abs(done))
+
+
+def _untangled(energy, y, **info):
+    """:func:`untangle`'s result: unit vectors, and ``min_det`` and the count of ``inverted``
+    triangles beside ``info``."""
+    dets = energy.dets(y)
+    return y / np.linalg.norm(y, axis=1)[:, None], {
+        "min_det": float(dets.min()), "inverted": int(np.count_nonzero(dets <= 0)), **info}
 
 
 _PATCH_RINGS = 4   # rings of vertices around the inverted triangles that a patch frees

@@ -644,12 +644,10 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     # bounded by rounds; the time limit is only a guard (a budget that binds makes the result
     # depend on the machine's load: under load the finest level of a limbed model failed)
     x, uinfo = untangle(x, p, f, time_budget=_UNTANGLE_TIME * balance_budget)
-    if not uinfo["min_det"] > 0:
-        # a few triangles left inverted (slivers of a randomly split mesh can pin the
-        # untangling) cost a few folds; the single-level map instead squeezes every limb
-        left = int(np.count_nonzero(_orientation(x, f) <= 0))
-        if left > _INVERTED_KEPT * len(f):
-            raise _Untangled(n)
+    # a few triangles left inverted (slivers of a randomly split mesh can pin the untangling)
+    # cost a few folds; the single-level map instead squeezes every limb
+    if uinfo.get("inverted", 0) > _INVERTED_KEPT * len(f):
+        raise _Untangled(n)
     x, binfo = balance(x, p, f, iterations=_LEVEL_STEPS, time_budget=balance_budget,
                        lam=_LAM, max_cot=np.inf,
                        **(_LOOSE_STOP if n > _LOOSE_ABOVE else _STRICT_STOP))
