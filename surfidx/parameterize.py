@@ -592,8 +592,13 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     x = x / np.linalg.norm(x, axis=1)[:, None]
     # distortion balancing: limbs squeezed by the harmonic start regain their share of
     # the sphere; every iterate stays a fold-free embedding of the mesh (see surfidx._balance)
-    from ._balance import balance
+    from ._balance import balance, untangle
 
+    if neg:
+        # a limb squeezed below the floating-point floor left triangles inverted (balancing
+        # needs a fold-free start): untangle first, as the multilevel map does at each level
+        x, _ = untangle(x, p, f, time_budget=_UNTANGLE_TIME * balance_budget)
+        sd = spread(x)
     x_start, sd_start = x, sd
     x, binfo = balance(x, p, f, iterations=balance_steps, time_budget=max(balance_budget, 0.0),
                        lam=_LAM, max_cot=np.inf)

@@ -54,6 +54,25 @@ def icosphere_mesh(level: int = 3):
     return v, f
 
 
+def tube_mesh(k=8, m=60, h=0.8):
+    """(vertices, faces) of a long closed tube: ``m`` rings of ``k`` vertices ``h`` apart, closed
+    by a pole at each end."""
+    a = 2 * np.pi * np.arange(k) / k
+    rings = [np.c_[np.cos(a + (j % 2) * np.pi / k), np.sin(a + (j % 2) * np.pi / k),
+                   np.full(k, j * h)] for j in range(m)]
+    v = np.vstack(rings + [[0, 0, -1.0], [0, 0, (m - 1) * h + 1.0]])
+    f = []
+    for j in range(m - 1):
+        for i in range(k):
+            a0, a1 = j * k + i, j * k + (i + 1) % k
+            b0, b1 = (j + 1) * k + i, (j + 1) * k + (i + 1) % k
+            f += [[a0, a1, b0], [a1, b1, b0]] if j % 2 == 0 else [[a0, a1, b1], [a0, b1, b0]]
+    s, t = m * k, m * k + 1
+    for i in range(k):
+        f += [[s, (i + 1) % k, i], [t, (m - 1) * k + i, (m - 1) * k + (i + 1) % k]]
+    return v, np.array(f)
+
+
 @pytest.fixture
 def sphere_surfels():
     """A unit-sphere SurfelSet (level-3 icosphere, 642 surfels) with a colour gradient."""

@@ -7,7 +7,7 @@ from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_sur
 from surfidx.parameterize import (METHODS, SphericalMap, area_distortion, count_folds,
                                   hull_triangles, parameterize)
 
-from conftest import icosphere_mesh
+from conftest import icosphere_mesh, tube_mesh
 
 
 def _limbs(level=3):
@@ -65,6 +65,20 @@ def test_area_balancing_grows_limbs():
     m = parameterize(s, stress=False)
     assert m.info["balance_steps"] >= 1 and m.info["mesh_folds"] == 0
     assert m.area_distortion < 0.5 * plain.area_distortion
+
+
+def test_squeezed_tutte_start_is_untangled_before_balancing():
+    """A tube 80 girths long: the Tutte start squeezes its far end below the floating-point floor
+    (inverted triangles), which balancing alone cannot start from; it is untangled first."""
+    from surfidx.parameterize import _tutte_map
+
+    s = TriangleMesh(*tube_mesh(m=100), name="tube").to_surfels()
+    options = dict(iterations=0, gamma=1.0, time_budget=10.0)
+    _, start = _tutte_map(s, balance_budget=0.0, **options)   # no time to untangle or balance
+    assert start["mesh_folds"] > 0
+    _, info = _tutte_map(s, balance_budget=1.0, **options)
+    assert info["mesh_folds"] == 0 and info["balance_steps"] > 0
+    assert info["mesh_area_distortion"] < 0.2 * start["mesh_area_distortion"]
 
 
 def test_mobius_normalised(sphere_surfels):
