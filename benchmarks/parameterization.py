@@ -8,12 +8,18 @@ coverage holes (share of input surfels with no reconstructed surfel within twice
 spacing) and time. Prints a table; the last column says whether the issue's targets (folds
 ≤ 0.01 %, holes ≤ 0.5 %, PSNR_D2 ≥ 70 dB) are met.
 
+``--collection`` instead maps every genus-0 model of ``../shared/data/retrieval`` (models the
+project was not tuned on, listed in its ``meta.csv``) and prints one summary row per method: how
+many models meet each target, fallbacks to the single-level map, mean and median figures.
+
 Run: ``python benchmarks/parameterization.py [--models a.obj,b.ply] [--methods tutte,mds]``
+or ``python benchmarks/parameterization.py --collection [--workers 2]``
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 import time
 import warnings
@@ -32,6 +38,7 @@ MODELS = ["igea.ply", "bunny_hr.obj", "horse.ply", "armadillo.obj", "nefertiti.o
           "scorpion.obj", "falconstatue.obj", "homer.obj", "spot/spot_triangulated.obj",
           "ycb_banana/textured_simple_reoriented.obj"]
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
+COLLECTION = DATA.parent / "retrieval"
 
 
 def holes(reference, test) -> float:
@@ -41,8 +48,8 @@ def holes(reference, test) -> float:
     return float(np.mean(d > 2 * spacing))
 
 
-def run(name: str, method: str) -> dict:
-    s = surfidx.read_surfels(DATA / name)
+def run(name: str, method: str, *, root: Path = DATA) -> dict:
+    s = surfidx.read_surfels(root / name)
     m = parameterize(s, method=method)
     level = choose_level(len(s))
     t = time.perf_counter()
@@ -54,17 +61,59 @@ def run(name: str, method: str) -> dict:
             "n": len(s), "fold%": 100 * m.fold_fraction, "folds": m.folded,
             "stress": m.landmark_stress, "area_dist": m.area_distortion, "level": level,
             "psnr_d1": ev["psnr_d1"], "psnr_d2": ev["psnr_d2"], "holes%": 100 * holes(s, g),
-            "t_map": m.seconds, "t_resample": t_res,
+            "t_map": m.seconds, "t_resample": t_res, "fallback": int(m.info.get("fallback", 0)),
             "targets": "met" if (m.fold_fraction <= 1e-4 and holes(s, g) <= 0.005
                                  and ev["psnr_d2"] >= 70) else "missed"}
+
+
+def _collection_job(job):
+    warnings.simplefilter("ignore")
+    name, method = job
+    try:
+        return run(name, method, root=COLLECTION)
+    except surfidx.SurfidxError as exc:
+        return {"model": name, "method": method, "error": str(exc)}
+
+
+def collection(methods, workers: int) -> None:
+    """One summary row per method over the genus-0 models of the retrieval collection."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with open(COLLECTION / "meta.csv", newline="") as fh:
+        names = [r["path"] for r in csv.DictReader(fh) if int(r["genus"]) == 0]
+    cols = ["method", "models", "errors", "fold-free", "folds<=0.01%", "folds<=0.1%", "folds>1%",
+            "holes<=0.5%", "psnr_d2>=70", "all targets", "fallbacks", "median fold%",
+            "mean fold%", "mean holes%", "median psnr_d2", "map s (sum)"]
+    print(" | ".join(cols))
+    print(" | ".join("---" for _ in cols))
+    for method in methods:
+        with ProcessPoolExecutor(max(workers, 1)) as ex:
+            rows = list(ex.map(_collection_job, [(n, method) for n in names]))
+        ok = [r for r in rows if "error" not in r]
+        fr = np.array([r["fold%"] for r in ok])
+        ho = np.array([r["holes%"] for r in ok])
+        d2 = np.array([r["psnr_d2"] for r in ok])
+        vals = [method, len(rows), len(rows) - len(ok), int((fr == 0).sum()),
+                int((fr <= 0.01).sum()), int((fr <= 0.1).sum()), int((fr > 1).sum()),
+                int((ho <= 0.5).sum()), int((d2 >= 70).sum()),
+                sum(r["targets"] == "met" for r in ok), sum(r["fallback"] for r in ok),
+                f"{np.median(fr):.4f}", f"{fr.mean():.3f}", f"{ho.mean():.2f}",
+                f"{np.median(d2):.1f}", f"{sum(r['t_map'] for r in ok):.0f}"]
+        print(" | ".join(str(v) for v in vals), flush=True)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--methods", default="tutte,mds")
+    ap.add_argument("--collection", action="store_true",
+                    help="summarise the genus-0 models of ../shared/data/retrieval instead")
+    ap.add_argument("--workers", type=int, default=1, help="processes for --collection")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
+    if args.collection:
+        collection(args.methods.split(","), args.workers)
+        return 0
     cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "level", "psnr_d1",
             "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
     print(" | ".join(cols))
