@@ -306,15 +306,15 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     -------
     x : (n, 3) float64
     info : dict
-        ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted; counted only
-        when untangling was needed), ``rounds``, and ``patch`` (1) when the patch did it.
+        ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted), ``rounds``,
+        and ``patch`` (1) when the patch did it.
     """
     energy = _Energy(p, f)
     energy.lam = float(lam)
     y = np.array(x, dtype=np.float64)
     mindet = energy.min_det(y)
     if mindet > 0:
-        return x, {"min_det": mindet, "rounds": 0}
+        return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
     deadline = time.perf_counter() + time_budget
     options = dict(rounds=rounds, inner=inner, deadline=deadline, memory=memory,
                    precondition=precondition, shift=shift, eps_max=eps_max)

@@ -651,7 +651,7 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     x, uinfo = untangle(x, p, f, time_budget=_UNTANGLE_TIME * balance_budget)
     # a few triangles left inverted (slivers of a randomly split mesh can pin the untangling)
     # cost a few folds; the single-level map instead squeezes every limb
-    if uinfo.get("inverted", 0) > _INVERTED_KEPT * len(f):
+    if uinfo["inverted"] > _INVERTED_KEPT * len(f):
         raise _Untangled(n)
     x, binfo = balance(x, p, f, iterations=_LEVEL_STEPS, time_budget=balance_budget,
                        lam=_LAM, max_cot=np.inf,

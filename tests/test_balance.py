@@ -120,7 +120,7 @@ def test_untangle_removes_inverted_triangles():
 def test_untangle_returns_a_fold_free_map_unchanged():
     p, f, x = _start()
     x2, info = untangle(x, p, f)
-    assert info["rounds"] == 0 and np.array_equal(x2, x)
+    assert info["rounds"] == 0 and info["inverted"] == 0 and np.array_equal(x2, x)
 
 
 def test_untangle_of_folds_everywhere_moves_the_whole_map():
