@@ -5,8 +5,9 @@ import pytest
 
 from surfidx import InputError, SurfelSet
 from surfidx.icosphere import icosphere
-from surfidx.parameterize import parameterize
-from surfidx.resample import grid_to_mesh, grid_to_surfels, layer_names, locate, resample
+from surfidx.parameterize import _orientation, parameterize
+from surfidx.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, map_triangles,
+                              resample)
 
 
 def _random_sites(n=500, seed=1):
@@ -44,12 +45,74 @@ def test_linear_function_reproduced(sphere_surfels):
     vals = s.positions @ g + 0.7
     layers = SurfelSet(np.column_stack([vals, vals, vals]), s.normals, s.radii)
     grid = icosphere(4).vertices
-    out = resample(layers, s.positions, 4)
-    tri, idx, bary = locate(s.positions, grid)
+    out = resample(layers, s.positions, 4, phong=0.0)
+    tri, idx, bary = locate(s.positions, grid, triangles=map_triangles(layers, s.positions))
     proj = np.einsum("qk,qkl->ql", bary, s.positions[tri[idx]])
     np.testing.assert_allclose(out[:, 0], proj @ g + 0.7, atol=1e-12)
     const = SurfelSet(np.ones((len(s), 3)) * 5, s.normals, s.radii)
-    np.testing.assert_allclose(resample(const, s.positions, 3), 5.0, atol=1e-12)
+    np.testing.assert_allclose(resample(const, s.positions, 3, phong=0.0), 5.0, atol=1e-12)
+
+
+def _distance_to_triangles(q, v, f):
+    """Distance of each point ``q`` to the triangle it is a barycentric combination of (the
+    closest of all faces), by brute force."""
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    best = np.full(len(q), np.inf)
+    for i in range(len(f)):
+        m = np.column_stack([b[i] - a[i], c[i] - a[i]])
+        uv, *_ = np.linalg.lstsq(m, (q - a[i]).T, rcond=None)
+        u, w = uv
+        inside = (u >= -1e-9) & (w >= -1e-9) & (u + w <= 1 + 1e-9)
+        d = np.linalg.norm((m @ uv).T + a[i] - q, axis=1)
+        best = np.where(inside, np.minimum(best, d), best)
+    return best
+
+
+def test_mesh_is_resampled_on_its_own_triangles(sphere_surfels):
+    """A mesh the map embeds is interpolated in its faces: linear grid points lie on the input's
+    triangles, not on chords of the Delaunay triangulation of the mapped vertices."""
+    s = sphere_surfels
+    rng = np.random.default_rng(5)
+    bumpy = s.positions * (1 + 0.2 * rng.random(len(s)))[:, None]   # not convex: hull != faces
+    layers = SurfelSet(bumpy, s.normals, s.radii, faces=s.faces)
+    tri = map_triangles(layers, s.positions)
+    assert {tuple(sorted(t)) for t in tri} == {tuple(sorted(t)) for t in s.faces}
+    out = resample(layers, s.positions, 3, phong=0.0)
+    assert _distance_to_triangles(out, bumpy, s.faces).max() < 1e-9
+
+
+def test_a_face_the_map_inverts_falls_back_to_the_hull(sphere_surfels):
+    s = sphere_surfels
+    pts = s.positions.copy()
+    pts[[0, 1]] = pts[[1, 0]]         # two swapped vertices invert 4 triangles on the sphere
+    faces = {tuple(sorted(t)) for t in s.faces}
+    cloud = SurfelSet(s.positions, s.normals, s.radii)                     # no faces
+    for surfels, x in ((s, pts), (cloud, s.positions)):
+        tri = map_triangles(surfels, x)
+        # the convex hull: 2n - 4 counter-clockwise triangles (the icosphere's cocircular points
+        # let qhull split some quads the other way, so it need not be the faces)
+        assert len(tri) == 2 * len(x) - 4 and np.all(_orientation(x, tri) > 0)
+    assert {tuple(sorted(t)) for t in map_triangles(s, pts)} != faces
+
+
+def test_phong_lifts_grid_points_onto_the_surfel_planes(sphere_surfels):
+    """On the unit sphere with exact normals the Phong points lie closer to the sphere than the
+    chord points below it, and phong=0 is the linear point."""
+    s = sphere_surfels
+    lin = resample(s, s.positions, 4, phong=0.0, color=False)
+    lifted = resample(s, s.positions, 4, color=False)
+    e_lin = np.abs(np.linalg.norm(lin, axis=1) - 1)
+    e_phong = np.abs(np.linalg.norm(lifted, axis=1) - 1)
+    assert e_phong.mean() < 0.6 * e_lin.mean()      # measured: 0.49
+    assert resample(s, s.positions, 2).shape[1] == 6
+
+
+def test_resample_option_errors(sphere_surfels):
+    with pytest.raises(InputError, match="phong must lie in \\[0, 1\\], got 1.5"):
+        resample(sphere_surfels, sphere_surfels.positions, 2, phong=1.5)
+    plain = SurfelSet(sphere_surfels.positions, sphere_surfels.normals, sphere_surfels.radii)
+    with pytest.raises(InputError, match="color=True, but the surfels have no colours"):
+        resample(plain, plain.positions, 2, color=True)
 
 
 def test_resample_and_reconstruct_sphere(sphere_surfels):
