@@ -404,12 +404,27 @@ def _vertex_areas(level: int) -> np.ndarray:
     return out
 
 
-def choose_level(n_surfels: int, *, oversampling: float = 1.5, max_level: int = MAX_LEVEL) -> int:
+def choose_level(n_surfels: int, *, oversampling: float = 4.0, max_level: int = MAX_LEVEL) -> int:
     """The grid level for a model of ``n_surfels`` surfels.
 
     Rule: the smallest ``L`` with ``10·4^L + 2 ≥ oversampling · n_surfels``, capped at
-    ``max_level``. With the default ``oversampling=1.5`` the grid has 1.5–6 samples per surfel, so
-    the resampling does not lose detail where the spherical map compresses the surface.
+    ``max_level``. With the default ``oversampling=4`` the grid has 4–16 samples per surfel. The
+    grid samples the smooth (Phong-lifted) surface between the surfels and must still sample the
+    parts the spherical map compresses; measured at the default map, infinite-rate PSNR_D2 (dB)
+    and coverage holes against the input, level chosen with oversampling 1.5 → 4:
+
+    ========== ======= ================ ========================
+    model      surfels level 1.5 → 4    PSNR_D2, holes
+    ========== ======= ================ ========================
+    scorpion   49,997  7 → 8            68.6 → 77.8, 2.87 → 0 %
+    armadillo  14,587  6 → 7            65.6 → 71.0
+    homer       6,002  5 → 6            55.7 → 65.8, 0.42 → 0 %
+    spot        2,930  5 → 6            62.3 → 69.4
+    ========== ======= ================ ========================
+
+    The coder pays little for the finer grid at a given rate (homer and armadillo: within 0.5 dB
+    at 0.5–1.39 bits/surfel, +1.0 to +4.5 dB at 3.56; encoding takes 0.02 s at level 7).
+    Igea (134,345 surfels) keeps level 8.
 
     Parameters
     ----------

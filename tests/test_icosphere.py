@@ -198,10 +198,11 @@ def test_construction_time_level8():
 
 def test_choose_level():
     assert choose_level(1) == 0
-    assert choose_level(8) == 0                 # 12 >= 1.5 * 8
-    assert choose_level(9) == 1                 # 12 < 13.5
-    assert choose_level(100_000) == 7           # 163,842 >= 150,000
-    assert choose_level(120_000) == 8           # 163,842 < 180,000
+    assert choose_level(3) == 0                 # 12 >= 4 * 3
+    assert choose_level(4) == 1                 # 12 < 16
+    assert choose_level(40_000) == 7            # 163,842 >= 160,000
+    assert choose_level(41_000) == 8            # 163,842 < 164,000
+    assert choose_level(134_345) == 8           # Igea: 655,362 >= 537,380
     assert choose_level(100_000, oversampling=1.0) == 7
     assert choose_level(10 ** 9) == MAX_LEVEL
     assert choose_level(10 ** 9, max_level=6) == 6
