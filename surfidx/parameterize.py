@@ -67,6 +67,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ._errors import InputError, TopologyError
+from ._foldrepair import folded_mask, repair_folds
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
@@ -204,11 +205,7 @@ def count_folds(surfels: SurfelSet, sphere_points, *, triangles=None) -> tuple[i
     pts = _check_points(surfels, sphere_points)
     tri = hull_triangles(pts) if triangles is None else as_array(
         triangles, "triangles", dtype=np.int64, shape=(None, 3))
-    p = surfels.positions
-    n3 = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
-    nsum = surfels.normals[tri].sum(axis=1)
-    bad = int(np.count_nonzero(np.einsum("ij,ij->i", n3, nsum) < 0))
-    return min(bad, len(tri) - bad), len(tri)
+    return int(np.count_nonzero(folded_mask(surfels.positions, surfels.normals, tri))), len(tri)
 
 
 def _spherical_areas(pts, tri):
@@ -668,13 +665,20 @@ class _Untangled(Exception):
     """A level of the multilevel map kept inverted triangles (the caller falls back)."""
 
 
-def _mesh_map(surfels: SurfelSet, **options):
-    """The multilevel map, or the single-level one where a level could not be untangled."""
+def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
+    """The multilevel map, or the single-level one where a level could not be untangled; then
+    the folded Delaunay triangles are repaired by local moves (:mod:`surfidx._foldrepair`)."""
+    f = _oriented_faces(surfels)
     try:
-        return _multilevel_map(surfels, **options)
+        x, info = _multilevel_map(surfels, faces=f, **options)
     except _Untangled:
         x, info = _tutte_map(surfels, **options)
-        return x, dict(info, levels=1, base_vertices=len(surfels), fallback=1)
+        info = dict(info, levels=1, base_vertices=len(surfels), fallback=1)
+    if repair:
+        x, rinfo = repair_folds(x, surfels.positions, surfels.normals, f, hull=hull_triangles)
+        info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
+                    repair_rounds=rinfo["rounds"])
+    return x, info
 
 
 def _proxy_tutte_map(surfels: SurfelSet, **options):
@@ -689,7 +693,7 @@ def _proxy_tutte_map(surfels: SurfelSet, **options):
 
     v, f = proxy_mesh(surfels)
     proxy = TriangleMesh(v, f, name=surfels.name).to_surfels()  # every proxy vertex is used
-    x, info = _mesh_map(proxy, **options)
+    x, info = _mesh_map(proxy, repair=False, **options)   # the surfels' hull is not the proxy's
     pts = transfer(surfels.positions, v, f, x)
     pts /= np.linalg.norm(pts, axis=1)[:, None]
     info = dict(info, proxy_vertices=len(v), proxy_faces=len(f))

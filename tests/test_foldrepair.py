@@ -1,0 +1,71 @@
+"""Local repair of folded Delaunay triangles: fewer folds, never more, no inverted mesh triangle."""
+
+import numpy as np
+import pytest
+
+from surfidx import TriangleMesh, read_surfels
+from surfidx._foldrepair import folded_mask, repair_folds
+from surfidx.parameterize import _mesh_map, _orientation, _oriented_faces, hull_triangles
+
+from conftest import tube_mesh
+
+
+@pytest.fixture(scope="module")
+def tube_map():
+    """A tube 75 girths long, mapped without the repair: its rows fold (measured 14 triangles)."""
+    s = TriangleMesh(*tube_mesh(k=8, m=60, h=0.8), name="tube").to_surfels()
+    x, _ = _mesh_map(s, repair=False, iterations=40, gamma=0.15, time_budget=20.0,
+                     balance_budget=15.0)
+    return s, _oriented_faces(s), x
+
+
+def _folds(s, x):
+    return int(folded_mask(s.positions, s.normals, hull_triangles(x)).sum())
+
+
+def test_repair_lowers_folds_and_keeps_the_mesh_fold_free(tube_map):
+    s, f, x = tube_map
+    before = _folds(s, x)
+    assert before > 0 and np.all(_orientation(x, f) > 0)
+    y, info = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles)
+    assert info["folds_before"] == before
+    assert info["folds"] == _folds(s, y) < before          # measured 14 -> 9
+    assert np.all(_orientation(y, f) > 0)                  # no mesh triangle inverted
+    np.testing.assert_allclose(np.linalg.norm(y, axis=1), 1.0, atol=1e-12)
+    moved = np.linalg.norm(y - x, axis=1) > 0
+    assert 0 < moved.sum() == info["moved"]
+
+
+def test_repair_leaves_a_fold_free_map_alone(sphere_surfels):
+    s = sphere_surfels
+    f = _oriented_faces(s)
+    y, info = repair_folds(s.positions, s.positions, s.normals, f, hull=hull_triangles)
+    assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "moved": 0}
+    np.testing.assert_array_equal(y, s.positions)
+
+
+def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
+    s = sphere_surfels
+    tri = hull_triangles(s.positions)
+    assert not folded_mask(s.positions, s.normals, tri).any()
+    assert not folded_mask(s.positions, s.normals, tri[:, [0, 2, 1]]).any()   # all mirrored
+
+
+def test_parameterize_reports_the_repair(tube_map):
+    from surfidx.parameterize import parameterize
+
+    s, _, x = tube_map
+    m = parameterize(s, stress=False)
+    assert m.info["folds_repaired"] >= 1 and m.info["mesh_folds"] == 0
+    assert m.folded == _folds(s, m.points)
+
+
+@pytest.mark.slow
+def test_repair_on_horse(models):
+    """Horse's legs: the default map (with the repair) keeps at most 0.03 % folded triangles
+    (measured 19 of 96,966; 82 without the repair)."""
+    from surfidx.parameterize import parameterize
+
+    m = parameterize(read_surfels(models / "horse.ply"), stress=False)
+    assert m.info["folds_repaired"] >= 40
+    assert m.fold_fraction <= 3e-4
