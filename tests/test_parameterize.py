@@ -195,8 +195,8 @@ def test_horse_full_size(models):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue #4 target not met yet: about 20 folded Delaunay triangles "
-                          "(0.02 %) on horse where the area-balanced map is anisotropic",
+@pytest.mark.xfail(reason="issue #4 target not met yet: about 12 folded Delaunay triangles "
+                          "(0.012 %) on horse where the area-balanced map is anisotropic",
                    strict=True)
 def test_horse_delaunay_fold_target(models):
     m = parameterize(read_surfels(models / "horse.ply"), stress=False)
