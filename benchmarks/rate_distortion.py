@@ -175,8 +175,7 @@ def run_surfidx(surfels, rates, level, method) -> dict:
 
     n = len(surfels)
     t0 = time.perf_counter()
-    if method is None and surfels.faces is None:
-        method = "mds"  # surface samples carry no triangulation for the default (Tutte) map
+    # surface samples (no faces) get the default map too: through a closed proxy mesh
     kw = {} if method is None else {"method": method}
     enc = codec.Encoder(surfels, level=level, **kw)
     wall_setup = time.perf_counter() - t0
