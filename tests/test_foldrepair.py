@@ -51,6 +51,31 @@ def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
     assert not folded_mask(s.positions, s.normals, tri[:, [0, 2, 1]]).any()   # all mirrored
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_local_delaunay_update_equals_the_global_hull(seed):
+    """Moving a few vertices, the locally updated triangulation is the convex hull of the moved
+    map, and its folded mask that of the hull (random points: no cocircular ties)."""
+    from surfidx._foldrepair import _Hull
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(2000, 3))
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    p = x * rng.uniform(0.5, 1.5, size=(2000, 1))          # a bumpy star-shaped surface
+    normals = x + 0.5 * rng.normal(size=x.shape)             # some folds
+    state = _Hull(x, p, normals, hull_triangles)
+    moved = np.zeros(len(x), bool)
+    moved[rng.choice(len(x), 10, replace=False)] = True
+    y = x.copy()
+    y[moved] += [0.005, 0.05][seed % 2] * rng.normal(size=(10, 3))
+    y /= np.linalg.norm(y, axis=1)[:, None]
+    tri, bad = state.moved(x, y, moved)
+    ref = hull_triangles(y)
+    assert {tuple(sorted(t)) for t in tri.tolist()} == {tuple(sorted(t)) for t in ref.tolist()}
+    got = {tuple(sorted(t)) for t in tri[bad].tolist()}
+    want = ref[folded_mask(p, normals, ref)]
+    assert len(want) > 0 and got == {tuple(sorted(t)) for t in want.tolist()}
+
+
 def test_parameterize_reports_the_repair(tube_map):
     from surfidx.parameterize import parameterize
 
