@@ -195,12 +195,12 @@ def test_horse_full_size(models):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue #4 target not met yet: about 12 folded Delaunay triangles "
-                          "(0.012 %) on horse where the area-balanced map is anisotropic",
-                   strict=True)
 def test_horse_delaunay_fold_target(models):
+    """Issue #4's fold target on horse: at most 0.01 % folded Delaunay triangles (measured 7 of
+    96,966 with the repair, 73-110 without; the rest are near-collinear triples on the legs)."""
     m = parameterize(read_surfels(models / "horse.ply"), stress=False)
     assert m.fold_fraction <= 1e-4
+    assert m.info["folds_repaired"] >= 40
 
 
 def test_multilevel_map_has_levels_down_to_a_small_base():
