@@ -239,7 +239,9 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
     mesh = _Mesh(f, len(x))
     x0 = x = np.array(x, dtype=np.float64)
     state = _Hull(x, p, normals, hull)
-    info = {"folds_before": int(state.bad.sum()), "rounds": 0, "moved": 0}
+    info = {"folds_before": int(state.bad.sum()), "rounds": 0, "moved": 0, "folds": 0}
+    if not info["folds_before"]:
+        return x, info
     tried = {}                 # folded triangle (sorted corners) -> moves tried on it so far
     for _ in range(rounds):
         t = state.tri[state.bad]
