@@ -76,19 +76,23 @@ def _walk(queries, pts, tri, nbr, start, eps):
     nq = queries.shape[0]
     out_t = np.empty(nq, np.int64)
     out_b = np.empty((nq, 3))
+    # a walk crosses O(sqrt(m)) triangles of a triangulation of the sphere; one that goes on much
+    # longer is cycling among degenerate triangles (folded maps) and is cut short
+    steps = 2 * int(np.sqrt(tri.shape[0])) + 50
     for k in range(nq):
         q = queries[k]
         t = start[k]
         found = False
-        for _ in range(4 * tri.shape[0] + 10):
+        for step in range(steps):
             i0, i1, i2 = tri[t, 0], tri[t, 1], tri[t, 2]
             l0, l1, l2, s = _bary(q, pts[i0], pts[i1], pts[i2])
             if s > 0 and l0 >= -eps and l1 >= -eps and l2 >= -eps:
                 found = True
                 break
-            # cross the edge opposite the most negative coordinate
+            # cross the edge opposite the most negative coordinate; out of a degenerate triangle
+            # by each edge in turn (always the same one can cycle between two of them)
             if s <= 0:
-                j = 0
+                j = (step + k) % 3
             elif l0 <= l1 and l0 <= l2:
                 j = 0
             elif l1 <= l2:
@@ -98,21 +102,80 @@ def _walk(queries, pts, tri, nbr, start, eps):
             t = nbr[t, j]
             if t < 0:
                 break
-        if not found:  # exhaustive fallback: the triangle with the largest smallest coordinate
-            best = -np.inf
-            for tt in range(tri.shape[0]):
-                l0, l1, l2, s = _bary(q, pts[tri[tt, 0]], pts[tri[tt, 1]], pts[tri[tt, 2]])
-                if s > 0:
-                    m = min(l0, min(l1, l2))
-                    if m > best:
-                        best = m
-                        t = tt
-        l0, l1, l2, s = _bary(q, pts[tri[t, 0]], pts[tri[t, 1]], pts[tri[t, 2]])
+        if not found:
+            t = -1
+        else:
+            l0, l1, l2, s = _bary(q, pts[tri[t, 0]], pts[tri[t, 1]], pts[tri[t, 2]])
+            out_b[k, 0] = l0
+            out_b[k, 1] = l1
+            out_b[k, 2] = l2
         out_t[k] = t
-        out_b[k, 0] = l0
-        out_b[k, 1] = l1
-        out_b[k, 2] = l2
     return out_t, out_b
+
+
+@numba.njit(cache=True)
+def _scan(queries, pts, tri, ptr, cand):
+    """For each query, the triangle with the largest smallest coordinate among ``cand[ptr[k]:
+    ptr[k + 1]]`` (all triangles when that range is empty), and its coordinates."""
+    nq = queries.shape[0]
+    out_t = np.zeros(nq, np.int64)
+    out_b = np.full((nq, 3), -1.0)         # -1: no triangle in front of the query
+    for k in range(nq):
+        q = queries[k]
+        lo, hi = ptr[k], ptr[k + 1]
+        count = hi - lo if hi > lo else tri.shape[0]
+        best = -np.inf
+        for i in range(count):
+            tt = cand[lo + i] if hi > lo else i
+            l0, l1, l2, s = _bary(q, pts[tri[tt, 0]], pts[tri[tt, 1]], pts[tri[tt, 2]])
+            if s > 0:
+                m = min(l0, min(l1, l2))
+                if m > best:
+                    best = m
+                    out_t[k] = tt
+                    out_b[k, 0] = l0
+                    out_b[k, 1] = l1
+                    out_b[k, 2] = l2
+    return out_t, out_b
+
+
+_SCAN_WORK = 5e7   # most query-triangle tests of the exhaustive fallback in one call
+
+
+def _settle(queries, pts, tri, idx, bary, eps=1e-12):
+    """Locate the queries a walk could not settle (``idx < 0``; only where the triangulation is
+    not a proper one of the sphere, e.g. a folded map's hull): among the triangles around 8 near
+    sites, then, where none holds the query and the work stays bounded, among all; a query no
+    triangle faces takes the nearest site's value."""
+    from scipy.spatial import cKDTree
+
+    bad = np.flatnonzero(idx < 0)
+    if not len(bad):
+        return
+    order = np.argsort(tri.ravel(), kind="stable")
+    inc = order // 3                                              # triangles, by corner
+    first = np.searchsorted(tri.ravel()[order], np.arange(len(pts) + 1))
+    # approximate neighbours (within twice the nearest distance): an exact search from a query
+    # far from every site (a map that left part of the sphere empty) visits all of them
+    _, near = cKDTree(pts).query(queries[bad], k=min(8, len(pts)), eps=1.0)
+    near = near.reshape(len(bad), -1).ravel()
+    lens = first[near + 1] - first[near]
+    ptr = np.concatenate([[0], np.cumsum(lens.reshape(len(bad), -1).sum(axis=1))])
+    offset = np.arange(lens.sum()) - np.repeat(np.cumsum(lens) - lens, lens)
+    cand = inc[np.repeat(first[near], lens) + offset]
+    t, b = _scan(queries[bad], pts, tri, ptr, cand)
+    idx[bad], bary[bad] = t, b
+    left = bad[b.min(axis=1) < -eps]
+    if len(left) and len(left) * len(tri) <= _SCAN_WORK:
+        t, b = _scan(queries[left], pts, tri, np.zeros(len(left) + 1, np.int64),
+                     np.zeros(0, np.int64))
+        better = b.min(axis=1) > bary[left].min(axis=1)
+        idx[left[better]], bary[left[better]] = t[better], b[better]
+    none = bad[bary[bad].min(axis=1) <= -1.0]     # no triangle faces it: take the nearest site
+    if len(none):
+        site = near.reshape(len(bad), -1)[np.searchsorted(bad, none), 0]
+        idx[none] = inc[first[site]]
+        bary[none] = (tri[idx[none]] == site[:, None]).astype(np.float64)
 
 
 @numba.njit(cache=True)
@@ -199,6 +262,7 @@ def locate(sphere_points, queries, *, triangles=None, start=None):
     else:
         start = np.clip(as_array(start, "start", dtype=np.int64, shape=(len(qs),)), 0, len(tri) - 1)
     idx, bary = _walk(qs, pts, tri, nbr, start, 1e-12)
+    _settle(qs, pts, tri, idx, bary)
     return tri, idx, bary
 
 
@@ -241,9 +305,11 @@ def locate_grid(sphere_points, grid, *, triangles=None):
     bary = np.empty((len(q), 3))
     c0 = counts[0]
     idx[:c0], bary[:c0] = _walk(q[:c0], pts, tri, nbr, _nearest_starts(pts, tri, q[:c0]), 1e-12)
+    _settle(q[:c0], pts, tri, idx[:c0], bary[:c0])
     for lo, hi in zip(counts[:-1], counts[1:]):
         start = idx[grid.edge_parents[lo:hi, 0]]
-        idx[lo:hi], bary[lo:hi] = _walk(q[lo:hi], pts, tri, nbr, start, 1e-12)
+        idx[lo:hi], bary[lo:hi] = _walk(q[lo:hi], pts, tri, nbr, np.maximum(start, 0), 1e-12)
+        _settle(q[lo:hi], pts, tri, idx[lo:hi], bary[lo:hi])
     return tri, idx, bary
 
 
