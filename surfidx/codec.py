@@ -236,7 +236,8 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None)
     return values, header
 
 
-def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False, path=None):
+def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
+           level: int | None = None, path=None):
     """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
 
     Parameters
@@ -246,15 +247,31 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         Serve the embedded stream at this lower rate.
     mesh : bool
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
+    level : int, optional
+        Return the decoded surface on the grid of this level (0 … the stream's level; default:
+        the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
+        ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
+        vertices per input surfel, see :func:`surfidx.icosphere.choose_level`).
     path : str, optional
 
     Returns
     -------
     SurfelSet or TriangleMesh
+
+    Raises
+    ------
+    InputError
+        A level outside 0 … the stream's level.
     """
+    from .icosphere import vertex_count
     from .resample import grid_to_mesh, grid_to_surfels
 
-    values, _ = decode_grid(data, bits_per_surfel=bits_per_surfel, path=path)
+    values, header = decode_grid(data, bits_per_surfel=bits_per_surfel, path=path)
+    if level is not None:
+        if not (isinstance(level, (int, np.integer)) and 0 <= level <= header.level):
+            raise InputError(f"level must be an integer from 0 to the stream's grid level "
+                             f"{header.level}, got {level!r}")
+        values = values[:vertex_count(int(level))]
     name = Path(path).stem if path else None
     return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
 

@@ -20,13 +20,13 @@ from test_ingest import fake_processor, make_tree
 DECODED = []
 
 
-def fake_decode(stream: bytes, *, bits_per_surfel=None) -> SurfelSet:
+def fake_decode(stream: bytes, *, bits_per_surfel=None, **level) -> SurfelSet:
     """A stand-in for surfidx.codec.decode: a surfel set built from the stream's bytes; a lower
-    rate keeps a prefix (one surfel per 4 bytes, at least 3)."""
-    DECODED.append((len(stream), bits_per_surfel))
+    rate keeps a prefix (one surfel per 4 bytes, at least 3), a ``level`` the first level + 3."""
+    DECODED.append((len(stream), bits_per_surfel, *level.values()))
     data = np.frombuffer(stream, np.uint8).astype(np.float64)
     n = len(data) // 4 if bits_per_surfel is None else max(3, int(bits_per_surfel))
-    n = min(n, len(data) // 4)
+    n = min(n, len(data) // 4, level.get("level", n) + 3)
     pos = data[: 3 * n].reshape(n, 3)
     normals = np.tile([0.0, 0.0, 1.0], (n, 1))
     return SurfelSet(pos, normals, np.full(n, 0.5), name="decoded")
@@ -124,6 +124,8 @@ def test_get_writes_ply_at_rate(filled, tmp_path):
     r = invoke(["get", "id:1", "--db", db, "-o", out, "--bits-per-surfel", 5])
     assert r.exit_code == 0 and "5 surfels of model 1 (m0) at 5 bits/surfel" in r.stdout
     assert len(read_surfels(out)) == 5 and DECODED[-1] == (64, 5.0)
+    r = invoke(["get", "m4", "--db", db, "-o", out, "--level", 2])      # passed to the decoder
+    assert r.exit_code == 0 and len(read_surfels(out)) == 5 and DECODED[-1] == (64, None, 2)
 
 
 def test_ls_show_errors(filled):

@@ -61,6 +61,24 @@ def test_high_rate_reproduces_the_grid(blob):
     assert header.color and header.n_surfels == len(blob)
 
 
+def test_decode_at_a_coarser_level(blob):
+    """A coarser level keeps the prefix of the decoded grid: the same surface, fewer surfels."""
+    from surfidx.icosphere import vertex_count
+
+    data = encode(blob, bits_per_surfel=4.0, level=4)
+    full = decode(data)
+    for level in (0, 2, 3):
+        s = decode(data, level=level)
+        assert len(s) == vertex_count(level)
+        np.testing.assert_array_equal(s.positions, full.positions[:vertex_count(level)])
+        np.testing.assert_array_equal(s.colors, full.colors[:vertex_count(level)])
+    assert decode(data, level=2, mesh=True).topology().genus == 0
+    for bad in (5, -1, 2.5):
+        with pytest.raises(InputError, match="level must be an integer from 0 to the stream's "
+                                             "grid level 4"):
+            decode(data, level=bad)
+
+
 def test_geometry_only_and_mesh_output(blob):
     data = encode(blob, bits_per_surfel=4.0, level=4, color=False)
     s = decode(data)
@@ -108,6 +126,10 @@ def test_cli_encode_decode(tmp_path, blob):
     assert len(read_surfels(out)) == 10 * 4 ** 5 + 2
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "m.ply"), "--mesh"])
     assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--level", "3"])
+    assert r.exit_code == 0 and len(read_surfels(out)) == 10 * 4 ** 3 + 2, r.output
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--level", "6"])
+    assert r.exit_code == 1 and "grid level 5, got 6" in r.output and "Traceback" not in r.output
     bad = tmp_path / "bad.sfz"
     bad.write_bytes(sfz.read_bytes()[:40])
     r = CliRunner().invoke(cli, ["decode", str(bad), "-o", str(out)])

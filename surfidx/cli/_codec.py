@@ -48,14 +48,16 @@ def encode(input, output, bits, no_color, level, method, texture, samples, as_js
 @click.option("--bits-per-surfel", "bits", type=float, default=None,
               help="Decode only the prefix of the embedded stream that fits this rate.")
 @click.option("--mesh", is_flag=True, help="Write a triangle mesh with the grid's connectivity.")
+@click.option("--level", type=int, default=None,
+              help="Grid level of the output (default: the stream's; lower: fewer surfels).")
 @command_errors
-def decode(input, output, bits, mesh):
+def decode(input, output, bits, mesh, level):
     """Decode a .sfz file (optionally at a lower rate) to PLY."""
     from ..codec import decode as _decode, read_sfz
     from ..io import write_ply
 
     data = read_sfz(input)
-    model = _decode(data, bits_per_surfel=bits, mesh=mesh, path=input)
+    model = _decode(data, bits_per_surfel=bits, mesh=mesh, level=level, path=input)
     if mesh:
         _write_mesh(model, output)
         click.echo(f"{output}: mesh with {len(model.vertices)} vertices, {len(model.faces)} faces")

@@ -231,8 +231,10 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
               help="Surfel PLY to write.")
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Decode only this rate's prefix of the stream (default: all of it).")
+@click.option("--level", type=int, default=None,
+              help="Grid level of the output (default: the stream's; lower: fewer surfels).")
 @command_errors
-def get(model, db_path, output, bits_per_surfel):
+def get(model, db_path, output, bits_per_surfel, level):
     """Decode a stored model (ID, id:ID or NAME) to a surfel PLY, optionally at a lower rate."""
     from ..io import write_ply
 
@@ -240,7 +242,8 @@ def get(model, db_path, output, bits_per_surfel):
         mid = db.resolve(parse_model_ref(model))
         stream = db.get_stream(mid)
         name = db.get_model(mid)["name"]
-    surfels = _decoder()(stream, bits_per_surfel=bits_per_surfel)
+    options = {} if level is None else {"level": level}
+    surfels = _decoder()(stream, bits_per_surfel=bits_per_surfel, **options)
     write_ply(surfels, output)
     rate = "full rate" if bits_per_surfel is None else f"{bits_per_surfel:g} bits/surfel"
     click.echo(f"{output}: {len(surfels)} surfels of model {mid} ({name}) at {rate}")
