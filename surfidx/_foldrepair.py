@@ -74,6 +74,12 @@ def _against_normals(p, normals, t):
     return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
 
 
+def _orientation(x, f):
+    """Orientation of each mesh triangle on the sphere: ``(b - a) × (c - a) · (a + b + c)``."""
+    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
+
+
 def _unit(v):
     return v / np.linalg.norm(v, axis=1)[:, None]
 
@@ -105,17 +111,13 @@ class _Mesh:
             mask = mask | (self.adj @ mask.astype(np.int8) > 0)
         return mask
 
-    def orientation(self, x, faces):
-        a, b, c = x[self.f[faces, 0]], x[self.f[faces, 1]], x[self.f[faces, 2]]
-        return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
-
     def undo_inverting(self, x, y, moved, *, halvings: int = 3):
         """Shorten (in ``y``) each move of a vertex of a mesh triangle that ``y`` inverts: halve
         it up to ``halvings`` times, then put the vertex back; returns the vertices still moved."""
         step = np.zeros(len(x), np.int64)
         while moved.any():
             faces = np.unique(self.vf[np.flatnonzero(moved)].indices)
-            inv = faces[self.orientation(y, faces) <= 0]
+            inv = faces[_orientation(y, self.f[faces]) <= 0]
             back = np.unique(self.f[inv].ravel())
             back = back[moved[back]]
             if not len(back):

@@ -67,7 +67,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ._errors import InputError, TopologyError
-from ._foldrepair import folded_mask, repair_folds
+from ._foldrepair import _orientation, folded_mask, repair_folds
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
@@ -468,12 +468,6 @@ class _TutteSystem:
         return x
 
 
-def _orientation(x, f):
-    """Orientation of each mesh triangle on the sphere: ``(b - a) × (c - a) · (a + b + c)``."""
-    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
-
-
 def _mobius(x, a):
     """The Möbius automorphism of the unit ball sending ``a`` (``|a| < 1``) to the origin, applied
     to unit vectors ``x`` (Ahlfors): orientation preserving, maps the sphere onto itself."""
@@ -509,9 +503,10 @@ def _centre(x, weights, f, *, iterations: int = 60, tol: float = 1e-10):
 
 
 def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget: float,
-               balance_steps: int = 3000, balance_budget: float = 15.0):
-    """Single-level map: Tutte embedding, reweighting, then distortion balancing."""
-    f = _oriented_faces(surfels)
+               balance_steps: int = 3000, balance_budget: float = 15.0, faces=None):
+    """Single-level map: Tutte embedding, reweighting, then distortion balancing (``faces``: those
+    of :func:`_oriented_faces`, when already computed)."""
+    f = _oriented_faces(surfels) if faces is None else faces
     p = surfels.positions
     n = len(p)
     a3 = _areas3(p, f)
@@ -672,7 +667,7 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
     try:
         x, info = _multilevel_map(surfels, faces=f, **options)
     except _Untangled:
-        x, info = _tutte_map(surfels, **options)
+        x, info = _tutte_map(surfels, faces=f, **options)
         info = dict(info, levels=1, base_vertices=len(surfels), fallback=1)
     if repair:
         x, rinfo = repair_folds(x, surfels.positions, surfels.normals, f, hull=hull_triangles)
