@@ -35,6 +35,9 @@ class Tolerances:
         Half-width of the corridor of triangles searched for a refined path on a mesh, as a
         fraction of the mesh-edge path length (plus two of its longest edges); 0.05 lost the
         true path on falconstatue (one pair 22 % long).
+    degenerate_angle : float
+        Angles (radians) below this count as degenerate: cotangent weights are clipped at
+        ``±1/degenerate_angle`` so sliver triangles of a squeezed map keep a finite Laplacian.
     sphere_cover : float
         Largest relative deviation from 4π of the summed spherical areas of a mesh's mapped faces
         (all counter-clockwise) for them to count as covering the sphere once.
@@ -48,6 +51,7 @@ class Tolerances:
     geodesic_shorten: float = 1e-10
     geodesic_steiner: int = 5
     geodesic_corridor: float = 0.1
+    degenerate_angle: float = 1e-4
     sphere_cover: float = 1e-6
 
 

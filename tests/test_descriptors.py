@@ -27,7 +27,8 @@ def test_object_rotation_translation_scale_invariance():
         np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
     assert set(a.vectors) == {"shape", "layers", "texture", "spectrum"}
     assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
-    assert a.params["version"] == 2 and a.params["shape"]["shells"] == 8
+    assert a.params["version"] == 3 and a.params["shape"]["shells"] == 8
+    assert a.params["shape"]["spectral_k"] == 30
     # a reflection too, and the descriptor does see a different shape
     c = describe_grid(np.c_[0.3 * s * [1, -1, 1] - 5, col], 5)
     np.testing.assert_allclose(a.vectors["shape"], c.vectors["shape"], atol=1e-5)
@@ -92,3 +93,39 @@ def test_bad_input():
         describe_grid(v * [1.0, 0.0, 0.0], 3)
     with pytest.raises(InputError, match="lmax must be an integer"):
         describe_grid(v, 3, lmax=1)
+
+
+def test_spectral_part_is_the_sphere_laplacian_spectrum():
+    """On the unit sphere the Laplace–Beltrami eigenvalues are l(l+1), multiplicity 2l+1."""
+    from surfidx.descriptors import SPECTRAL_K, _log_spectrum
+
+    exact = np.concatenate([np.full(2 * l + 1, l * (l + 1.0)) for l in range(1, 7)])[:SPECTRAL_K]
+    want = np.log(exact / np.arange(1, SPECTRAL_K + 1))
+    for level in (3, 5):   # the dense and the shift-invert solver
+        got = _log_spectrum(icosphere(level).vertices, level)
+        assert np.max(np.abs(got - want)) < (0.02 if level == 5 else 0.06)
+
+
+def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
+    """Bending a surface without stretching keeps its spectrum; a map squeezing grid points onto
+    each other (zero-area triangles) still gives a finite descriptor."""
+    from surfidx.descriptors import _log_spectrum
+
+    v = icosphere(4).vertices
+    flat = v * [1.0, 1.0, 0.05]            # a thin disc, then bent around the x axis
+    r = 1.5
+    bent = np.c_[flat[:, 0], r * np.sin(flat[:, 1] / r), r * (1 - np.cos(flat[:, 1] / r))]
+    bent = bent + np.c_[np.zeros((len(v), 1)), -flat[:, [2]] * np.sin(flat[:, 1] / r)[:, None],
+                        flat[:, [2]] * np.cos(flat[:, 1] / r)[:, None]]
+    a, b = _log_spectrum(flat, 4), _log_spectrum(bent, 4)
+    other = _log_spectrum(v * [1.0, 2.0, 0.05], 4)
+    assert np.linalg.norm(a - b) < 0.2 * np.linalg.norm(a - other)
+    squeezed = v.copy()
+    squeezed[squeezed[:, 2] > 0.9] = [0.0, 0.0, 1.0]
+    assert np.all(np.isfinite(_log_spectrum(squeezed, 4)))
+    assert np.all(np.isfinite(describe_grid(squeezed, 4).vectors["shape"]))
+
+
+def test_describe_grid_rejects_level_zero():
+    with pytest.raises(InputError, match="level >= 1"):
+        describe_grid(icosphere(0).vertices, 0)
