@@ -375,6 +375,54 @@ class Database:
             if self.conn.execute("DELETE FROM models WHERE id = ?", (model_id,)).rowcount == 0:
                 raise DatabaseError(f"no model with id {model_id}", path=self.path)
 
+    def set_descriptors(self, model_id: int, descriptors: dict, convention: dict) -> None:
+        """Replace one model's descriptor vectors, in one transaction.
+
+        Parameters
+        ----------
+        model_id : int
+        descriptors : dict of str -> (d,) array_like
+            The new vectors by kind; kinds not named here are deleted.
+        convention : dict
+            Their conventions (:func:`surfidx.descriptors.descriptor_params`), written to every
+            row's ``convention`` and to the model's ``params["descriptors"]``.
+
+        Raises
+        ------
+        DatabaseError
+            No model has this id.
+        InputError
+            A non-finite vector or a convention that is not JSON.
+        """
+        model_id = self._check_id(model_id)
+        conv = _to_json(convention, f"model {model_id} descriptor convention")
+        rows = []
+        for kind, vec in sorted(descriptors.items()):
+            v = as_array(vec, f"model {model_id} descriptor {kind!r}", dtype=np.float32,
+                         shape=(None,))
+            rows.append((model_id, str(kind), int(v.size), v.astype("<f4").tobytes(), conv))
+        with self.transaction():
+            got = self.conn.execute("SELECT params FROM models WHERE id = ?",
+                                    (model_id,)).fetchone()
+            if got is None:
+                raise DatabaseError(f"no model with id {model_id}", path=self.path)
+            params = json.loads(got[0])
+            params["descriptors"] = json.loads(conv)
+            self.conn.execute("UPDATE models SET params = ? WHERE id = ?",
+                              (_to_json(params, f"model {model_id} params"), model_id))
+            self.conn.execute("DELETE FROM descriptors WHERE model_id = ?", (model_id,))
+            self.conn.executemany(
+                "INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
+                "VALUES (?, ?, ?, ?, ?)", rows)
+
+    def descriptor_conventions(self) -> dict:
+        """Model ids by descriptor convention: ``{convention JSON text: [ids ascending]}``."""
+        out = {}
+        for conv, mid in self.conn.execute(
+                "SELECT DISTINCT convention, model_id FROM descriptors ORDER BY model_id"):
+            out.setdefault(conv, []).append(int(mid))
+        return out
+
     # ------------------------------------------------------------------ reading models
     def has_hash(self, content_hash: str) -> bool:
         """Whether a model with this content hash is stored."""
@@ -571,7 +619,7 @@ class Database:
         ------
         DatabaseError
             Vectors of one kind differ in dimension or in convention (``params["descriptors"]``
-            at ingest time): re-ingest those models with the same parameters.
+            at ingest time): ``surfidx redescribe`` recomputes them.
         InputError
             ``kinds`` is empty.
         """
@@ -604,13 +652,14 @@ class Database:
         dims = {r[1] for r in rows}
         if len(dims) > 1:
             raise DatabaseError(f"descriptors of kind {kind!r} have different dimensions "
-                                f"{sorted(dims)}; re-ingest with one descriptor setting",
-                                path=self.path)
+                                f"{sorted(dims)}; run `surfidx redescribe` to recompute them "
+                                "with this surfidx's descriptors", path=self.path)
         conventions = {r[2] for r in rows}
         if len(conventions) > 1:
             raise DatabaseError(f"descriptors of kind {kind!r} were made with different "
-                                f"conventions {sorted(conventions)[:2]}; re-ingest with one "
-                                "descriptor setting", path=self.path)
+                                f"conventions {sorted(conventions)[:2]}; run `surfidx "
+                                "redescribe` to recompute them with this surfidx's descriptors",
+                                path=self.path)
         d = dims.pop()
         ids = np.fromiter((r[0] for r in rows), np.int64, len(rows))
         matrix = np.frombuffer(b"".join(r[3] for r in rows), "<f4").reshape(len(rows), d)

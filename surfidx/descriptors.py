@@ -73,7 +73,8 @@ from ._validate import as_array
 from .icosphere import icosphere
 from .klt import KLT
 
-__all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "DEFAULT_LMAX",
+__all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
+           "DEFAULT_LMAX",
            "SH_NORMALIZATION", "DESCRIPTOR_VERSION"]
 
 DEFAULT_LMAX = 24
@@ -308,14 +309,23 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         vectors["texture"] = np.concatenate(
             [np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(), mean_col])
     vectors = {k: np.asarray(v, np.float32) for k, v in vectors.items()}
-    params = {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION,
-              "shape": {"shells": SHELLS, "shell_lmax": SHELL_LMAX, "shell_rmax": SHELL_RMAX,
-                        "shell_kappa": SHELL_KAPPA, "d2_bins": D2_BINS, "d2_rmax": D2_RMAX,
-                        "d2_pairs": D2_PAIRS, "radial_bins": RADIAL_BINS,
-                        "radial_rmax": RADIAL_RMAX, "spectral_k": SPECTRAL_K,
-                        "spectral_level": SPECTRAL_LEVEL, "seed": SEED,
-                        "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
-    return DescriptorSet(vectors, params)
+    return DescriptorSet(vectors, descriptor_params(lmax=lmax))
+
+
+def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
+    """The conventions :func:`describe_grid` stores with its vectors (``DescriptorSet.params``).
+
+    Two descriptor sets are comparable when these are equal; the database keeps them with every
+    vector (``descriptors.convention``) and ``surfidx redescribe`` recomputes the vectors whose
+    conventions differ from this surfidx's.
+    """
+    return {"lmax": int(lmax), "normalization": SH_NORMALIZATION, "version": DESCRIPTOR_VERSION,
+            "shape": {"shells": SHELLS, "shell_lmax": SHELL_LMAX, "shell_rmax": SHELL_RMAX,
+                      "shell_kappa": SHELL_KAPPA, "d2_bins": D2_BINS, "d2_rmax": D2_RMAX,
+                      "d2_pairs": D2_PAIRS, "radial_bins": RADIAL_BINS,
+                      "radial_rmax": RADIAL_RMAX, "spectral_k": SPECTRAL_K,
+                      "spectral_level": SPECTRAL_LEVEL, "seed": SEED,
+                      "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
 
 
 def descriptor_distance(a: dict, b: dict, *, shape_weight: float = 0.7) -> float:

@@ -1,4 +1,5 @@
-"""``surfidx ingest``, ``query``, ``get``, ``ls``, ``show`` and ``errors``: the model database.
+"""``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors`` and ``redescribe``: the model
+database.
 
 The model processor (``surfidx.pipeline.process_model``) and the stream decoder
 (``surfidx.codec.decode``) are imported when a command needs them; tests (and embedding
@@ -18,7 +19,8 @@ from .._errors import DatabaseError, InputError, SurfidxError
 from . import cli
 from ._common import command_errors, echo_json
 
-__all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "parse_model_ref"]
+__all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
+           "parse_model_ref"]
 
 _DB_HELP = "Database file (default surfidx.db, or $SURFIDX_DB)."
 
@@ -334,3 +336,26 @@ def _print_errors(db_path, run_id, as_json):
         click.echo("no ingest failures")
         return
     _table(rows, [("run_id", "run"), ("at", "at"), ("path", "path"), ("error", "error")])
+
+
+@cli.command("redescribe")
+@_db_option
+@click.option("--all", "everything", is_flag=True,
+              help="Recompute every model, not only those with outdated descriptors.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def redescribe_command(db_path, everything, as_json):
+    """Recompute stored descriptors from the stored assets (after an upgrade changed them)."""
+    from ..pipeline import redescribe
+
+    with _open(db_path) as db:
+        out = redescribe(db, everything=everything)
+    if as_json:
+        echo_json(out)
+    else:
+        click.echo(f"redescribed {out['redescribed']}, up to date {out['current']}, "
+                   f"failed {len(out['failed'])}")
+        for mid, msg in out["failed"].items():
+            click.echo(f"  failed id {mid}: {msg}")
+    if out["failed"]:
+        raise click.ClickException(f"{len(out['failed'])} model(s) could not be redescribed")
