@@ -1,8 +1,8 @@
 """Query-by-example latency of surfidx.search at 10k and 100k stored models (synthetic rows).
 
 Fills a temporary surfidx database with random descriptors of the sizes surfidx.descriptors makes
-at lmax = 24 ("shape" 75 floats, "spectrum" 3, "texture" 78 for the 70 % coloured models) by bulk
-SQL inserts, then times:
+(taken from ``describe_grid`` on a small grid at the given lmax: today "shape" 198 floats,
+"spectrum" 3, "texture" 78 for the 70 % coloured models) by bulk SQL inserts, then times:
 
 * load: ``SearchIndex(db)`` (reading the descriptor matrices from SQLite),
 * top-10: one ``SearchIndex.query(..., k=10)`` (median and worst of 50 random queries).
@@ -23,11 +23,22 @@ from surfidx.database import Database, utc_now
 from surfidx.search import SearchIndex
 
 
+def sizes(lmax: int) -> dict:
+    """Vector length per descriptor kind, as surfidx.descriptors makes them."""
+    from surfidx.descriptors import describe_grid
+    from surfidx.icosphere import icosphere
+
+    v = icosphere(3).vertices
+    vals = np.c_[v * [1.0, 1.5, 2.0], 127 * (v + 1)]
+    return {k: int(x.size) for k, x in describe_grid(vals, 3, lmax=lmax).vectors.items()}
+
+
 def fill(db: Database, m: int, lmax: int, rng) -> None:
-    dim = 3 * (lmax + 1)
+    d = sizes(lmax)
+    dim, dtex = d["shape"], d["texture"]
     shape = rng.standard_normal((m, dim)).astype("<f4")
     spectrum = rng.random((m, 3)).astype("<f4")
-    texture = rng.standard_normal((m, dim + 3)).astype("<f4")
+    texture = rng.standard_normal((m, dtex)).astype("<f4")
     color = rng.random(m) < 0.7
     now = utc_now()
     with db.transaction():
@@ -45,7 +56,7 @@ def fill(db: Database, m: int, lmax: int, rng) -> None:
             ((i + 1, "spectrum", 3, spectrum[i].tobytes()) for i in range(m)))
         db.conn.executemany(
             "INSERT INTO descriptors (model_id, kind, dimension, vector) VALUES (?, ?, ?, ?)",
-            ((i + 1, "texture", dim + 3, texture[i].tobytes()) for i in range(m) if color[i]))
+            ((i + 1, "texture", dtex, texture[i].tobytes()) for i in range(m) if color[i]))
 
 
 def main() -> None:
@@ -55,8 +66,9 @@ def main() -> None:
     ap.add_argument("--queries", type=int, default=50)
     args = ap.parse_args()
     rng = np.random.default_rng(0)
-    d = 3 * (args.lmax + 1)
-    print(f"descriptors: shape {d} + spectrum 3 + texture {d + 3} float32, 70 % coloured; "
+    d = sizes(args.lmax)
+    print(f"descriptors: shape {d['shape']} + spectrum 3 + texture {d['texture']} float32, "
+          "70 % coloured; "
           f"{args.queries} queries, k = 10, default shape weight")
     print(f"{'models':>8} {'fill s':>8} {'load ms':>8} {'top-10 median ms':>17} "
           f"{'top-10 max ms':>14}")
