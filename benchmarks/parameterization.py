@@ -51,7 +51,7 @@ def holes(reference, test) -> float:
 def run(name: str, method: str, *, root: Path = DATA) -> dict:
     s = surfidx.read_surfels(root / name)
     m = parameterize(s, method=method)
-    level = choose_level(len(s))
+    level = choose_level(len(s), sparse_sampling=m.sparse_sampling)
     t = time.perf_counter()
     vals = resample(s, m.points, level)
     g = grid_to_surfels(vals)
@@ -60,7 +60,8 @@ def run(name: str, method: str, *, root: Path = DATA) -> dict:
     gaps = holes(s, g)
     return {"model": name.split("/")[0], "method": method,
             "n": len(s), "fold%": 100 * m.fold_fraction, "folds": m.folded,
-            "stress": m.landmark_stress, "area_dist": m.area_distortion, "level": level,
+            "stress": m.landmark_stress, "area_dist": m.area_distortion,
+            "sparse": m.sparse_sampling, "level": level,
             "psnr_d1": ev["psnr_d1"], "psnr_d2": ev["psnr_d2"], "holes%": 100 * gaps,
             "t_map": m.seconds, "t_resample": t_res, "fallback": int(m.info.get("fallback", 0)),
             "targets": "met" if (m.fold_fraction <= 1e-4 and gaps <= 0.005
@@ -115,7 +116,8 @@ def main(argv=None) -> int:
     if args.collection:
         collection(args.methods.split(","), args.workers)
         return 0
-    cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "level", "psnr_d1",
+    cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "sparse", "level",
+            "psnr_d1",
             "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
     print(" | ".join(cols))
     print(" | ".join("---" for _ in cols))

@@ -129,7 +129,7 @@ def compute(job: dict) -> dict:
     grid = None
     try:
         m = parameterize(surfels, method=job["method"], stress=False)
-        level = choose_level(len(surfels))
+        level = choose_level(len(surfels), sparse_sampling=m.sparse_sampling)
         grid = resample(surfels, m.points, level)
         rec.update(level=level, area_distortion=float(m.area_distortion), folded=int(m.folded),
                    map_seconds=float(m.seconds))

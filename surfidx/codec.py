@@ -107,13 +107,14 @@ class Encoder:
             raise InputError(f"color_weight must be a positive number, got {color_weight!r}")
         self.n_surfels = len(surfels)
         self.color = bool(color)
-        self.level = choose_level(self.n_surfels) if level is None else level
         t = {}
         t0 = time.perf_counter()
         if sphere_map is None:
             sphere_map = parameterize(surfels, method=method, stress=False)
         self.sphere_map = sphere_map
         t["map"] = time.perf_counter() - t0
+        self.level = choose_level(self.n_surfels, sparse_sampling=sphere_map.sparse_sampling) \
+            if level is None else level
         t0 = time.perf_counter()
         grid = resample(surfels, sphere_map.points, self.level, color=self.color)
         self.grid = grid

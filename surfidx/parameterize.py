@@ -73,7 +73,7 @@ from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
 
 __all__ = ["SphericalMap", "parameterize", "count_folds", "hull_triangles", "landmark_stress",
-           "area_distortion", "METHODS"]
+           "area_distortion", "sparse_sampling", "METHODS"]
 
 METHODS = ("tutte", "mds")
 """Names accepted by :func:`parameterize` (the first is the default)."""
@@ -113,6 +113,10 @@ class SphericalMap:
         Wall time of the mapping.
     info : dict
         Method details (iterations, scale, landmark count ...).
+    sparse_sampling : float
+        :func:`sparse_sampling` of the map: how densely an even grid on the sphere samples the
+        sparsest-mapped surfels, relative to their count (1 for an even map); it sets the grid
+        level with the surfel count (:func:`surfidx.icosphere.choose_level`).
     """
 
     points: np.ndarray
@@ -123,6 +127,7 @@ class SphericalMap:
     area_distortion: float
     seconds: float
     info: dict = field(default_factory=dict)
+    sparse_sampling: float = 1.0
 
     @property
     def fold_fraction(self) -> float:
@@ -135,6 +140,7 @@ class SphericalMap:
                 "triangles": self.triangles, "fold_fraction": self.fold_fraction,
                 "landmark_stress": self.landmark_stress,
                 "area_distortion": self.area_distortion, "seconds": self.seconds,
+                "sparse_sampling": self.sparse_sampling,
                 **{k: v for k, v in self.info.items() if np.isscalar(v)}}
 
 
@@ -251,6 +257,42 @@ def area_distortion(surfels: SurfelSet, sphere_points, *, triangles=None) -> flo
     ratio = (asph / asph.sum()) / np.maximum(w, 1e-300)
     lr = np.log(np.clip(ratio, 1e-30, 1e30))
     return float(np.sqrt(np.average(lr ** 2, weights=w)))
+
+
+SPARSE_QUANTILE = 0.05   # the "sparsest-mapped surfels" of sparse_sampling: this share of them
+
+
+def sparse_sampling(surfels: SurfelSet, sphere_points, *, triangles=None,
+                    quantile: float = SPARSE_QUANTILE) -> float:
+    """How well an even grid on the sphere samples the surfels the map squeezes most.
+
+    Each surfel owns a third of its triangles' spherical area ``a_i``; an even grid of ``N``
+    points puts about ``N a_i / 4π`` of them near it. The figure is the ``quantile`` of
+    ``n a_i / 4π`` over the ``n`` surfels: a grid of ``N`` points gives the sparsest-mapped
+    ``quantile`` share of the surfels fewer than ``N / n`` times this many grid points each.
+    1 for a map that spreads the surfels evenly; area balancing keeps it at 0.1–0.7.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+    sphere_points : (n, 3) float64
+    triangles : (m, 3) int64, optional
+        Triangles to measure on (default: the hull of ``sphere_points``).
+    quantile : float
+        In (0, 1).
+
+    Returns
+    -------
+    float
+    """
+    pts = _check_points(surfels, sphere_points)
+    if not 0.0 < float(quantile) < 1.0:
+        raise InputError(f"quantile must lie in (0, 1), got {quantile!r}")
+    tri = hull_triangles(pts) if triangles is None else as_array(
+        triangles, "triangles", dtype=np.int64, shape=(None, 3))
+    a = np.abs(_spherical_areas(pts, tri))
+    share = np.bincount(tri.ravel(), np.repeat(a / 3.0, 3), minlength=len(pts))
+    return float(np.quantile(len(pts) * share / (4.0 * np.pi), float(quantile)))
 
 
 # ---------------------------------------------------------------------- graph and geodesics
@@ -837,9 +879,10 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     tri = hull_triangles(pts)
     folded, total = count_folds(surfels, pts, triangles=tri)
     ad = area_distortion(surfels, pts, triangles=tri)
+    sparse = sparse_sampling(surfels, pts, triangles=tri)
     st = float("nan")
     if stress:
         if lm is None:
             lm, dist = _geodesics(surfels, min(landmarks, len(surfels)), seed)
         st = landmark_stress(pts, lm, dist)
-    return SphericalMap(pts, method, folded, total, st, ad, seconds, info)
+    return SphericalMap(pts, method, folded, total, st, ad, seconds, info, sparse)

@@ -5,7 +5,7 @@ import pytest
 
 from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_surfels
 from surfidx.parameterize import (METHODS, SphericalMap, area_distortion, count_folds,
-                                  hull_triangles, parameterize)
+                                  hull_triangles, parameterize, sparse_sampling)
 
 from conftest import icosphere_mesh, tube_mesh
 
@@ -43,6 +43,27 @@ def test_identity_map_of_sphere_is_fold_free_and_area_exact(sphere_surfels):
     assert area_distortion(sphere_surfels, p) < 0.01  # chord vs spherical areas only
     # a mirror is not a fold
     assert count_folds(sphere_surfels, p * [1, 1, -1])[0] == 0
+
+
+def test_sparse_sampling_of_even_and_squeezed_maps(sphere_surfels):
+    """The identity map of an icosphere spreads the surfels evenly (about 1); squeezing a cap
+    of the sphere into a tenth of its area gives the surfels there a tenth of the grid."""
+    p = sphere_surfels.positions
+    even = sparse_sampling(sphere_surfels, p)
+    assert 0.7 < even <= 1.0
+    z = p[:, 2]
+    squeezed = p.copy()
+    cap = z > 0.5
+    theta = np.arccos(np.clip(z[cap], -1, 1))          # polar angle < 60 degrees
+    scale = np.sin(0.1 * theta) / np.maximum(np.sin(theta), 1e-12)
+    squeezed[cap, :2] *= scale[:, None]
+    squeezed[cap, 2] = np.cos(0.1 * theta)
+    low = sparse_sampling(sphere_surfels, squeezed)
+    assert low < 0.05 * even
+    assert parameterize(sphere_surfels, stress=False).sparse_sampling == pytest.approx(
+        sparse_sampling(sphere_surfels, parameterize(sphere_surfels, stress=False).points))
+    with pytest.raises(InputError, match="quantile must lie in"):
+        sparse_sampling(sphere_surfels, p, quantile=1.5)
 
 
 def test_count_folds_detects_a_fold(sphere_surfels):

@@ -59,7 +59,7 @@ def resample(input, output, level, method, as_mesh, texture, samples, as_json):
 
     s = read_input(input, texture, samples)
     m = run(s, method=method, stress=False)
-    lev = choose_level(len(s)) if level is None else level
+    lev = choose_level(len(s), sparse_sampling=m.sparse_sampling) if level is None else level
     vals = resample_grid(s, m.points, lev)
     g = grid_to_surfels(vals, name=s.name)
     if as_mesh:
