@@ -575,7 +575,8 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
             or not 0 <= final_plane <= _MAX_PLANE:
         raise InputError(f"final_plane must be an integer in [0, {_MAX_PLANE}], got "
                          f"{final_plane!r}")
-    q = np.floor(np.abs(c) / step32 + 0.5)
+    with np.errstate(over="ignore"):     # a step too small overflows to inf: refused below
+        q = np.floor(np.abs(c) / step32 + 0.5)
     if q.size and q.max() >= 2.0 ** _MAX_PLANE:
         raise InputError(f"step {step32} is too small for coefficients up to {np.abs(c).max()}: "
                          f"quantised magnitudes must stay below 2**{_MAX_PLANE}")
