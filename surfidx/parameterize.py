@@ -85,6 +85,7 @@ _LEVEL_STEPS = 300  # balancing steps at each level, at most, and fewer once con
 _STRICT_STOP = dict(tol=1e-7, patience=20)   # 20 steps in a row lower the energy by < 1e-7
 _LOOSE_STOP = dict(tol=1e-5, patience=5)     # ... on levels above _LOOSE_ABOVE vertices, where a
 _LOOSE_ABOVE = 20000                         # step costs 10-100 ms (Igea: 11.6 -> 10 s in all)
+_FINAL_STEPS = 1500  # the finest level may take more steps: long limbs still gain area after 300
 _UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
 _LAM = 0.5          # area weight of the balancing energy (against angle preservation)
@@ -653,7 +654,7 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
 
 def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget: float,
                     balance_budget: float, coarse: int = _COARSE, ratio: int = _RATIO,
-                    faces=None):
+                    faces=None, steps: int = _LEVEL_STEPS):
     """Coarse-to-fine map (Praun & Hoppe 2003 in spirit): decimate by ``ratio``, map the coarser
     mesh (recursively, down to ``coarse`` vertices, which :func:`_tutte_map` maps), carry the map
     to every vertex, untangle what folded on the way and balance at this level's resolution.
@@ -689,7 +690,7 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     # cost a few folds; the single-level map instead squeezes every limb
     if uinfo["inverted"] > _INVERTED_KEPT * len(f):
         raise _Untangled(n)
-    x, binfo = balance(x, p, f, iterations=_LEVEL_STEPS, time_budget=balance_budget,
+    x, binfo = balance(x, p, f, iterations=steps, time_budget=balance_budget,
                        lam=_LAM, max_cot=np.inf,
                        **(_LOOSE_STOP if n > _LOOSE_ABOVE else _STRICT_STOP))
     x = _centre(x, _vertex_areas(f, _areas3(p, f), n), f)
@@ -709,7 +710,7 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
     the folded Delaunay triangles are repaired by local moves (:mod:`surfidx._foldrepair`)."""
     f = _oriented_faces(surfels)
     try:
-        x, info = _multilevel_map(surfels, faces=f, **options)
+        x, info = _multilevel_map(surfels, faces=f, steps=_FINAL_STEPS, **options)
     except _Untangled:
         x, info = _tutte_map(surfels, faces=f, **options)
         info = dict(info, levels=1, base_vertices=len(surfels), fallback=1)
