@@ -170,7 +170,8 @@ class SearchIndex:
             want = self.stored[kind].shape[1]
             if len(self) and v.size != want:
                 raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
-                                 f"ones have {want}; use the same descriptor settings")
+                                 f"ones have {want}; use the same descriptor settings (after "
+                                 "an upgrade: `surfidx redescribe` updates the stored ones)")
             q[kind] = v
         first = self.kinds[0]
         if distance is None and first != "shape":

@@ -524,7 +524,7 @@ def test_search_errors_and_empty(db):
     db.add(make_model(1))
     with pytest.raises(InputError, match="query has no 'shape' descriptor"):
         search(db, {"texture": np.ones(8)})
-    with pytest.raises(InputError, match="has 3 values but the stored ones have 16"):
+    with pytest.raises(InputError, match=r"has 3 values but the stored ones have 16; .*surfidx redescribe"):
         search(db, {"shape": np.ones(3)})
     with pytest.raises(InputError, match=r"shape_weight must be in \[0, 1\]"):
         search(db, {"shape": np.ones(16)}, shape_weight=1.5)
