@@ -160,7 +160,8 @@ class _Hull:
         bad = _against_normals(p, normals, tri)
         self.mirror = np.count_nonzero(bad) > len(tri) - np.count_nonzero(bad)
         self.tri, self.bad = tri, bad ^ self.mirror
-        self._cache = None
+        self._of = None          # (x, tri) the cached figures below belong to
+        self._caps = self._tree = self._keys = None
 
     def _folded(self, t):
         return _against_normals(self.p, self.normals, t) ^ self.mirror
@@ -172,10 +173,11 @@ class _Hull:
 
         tri, n = self.tri, self.n
         mv = np.flatnonzero(moved)
-        if self._cache is None or self._cache[0] is not x or self._cache[1] is not tri:
+        if self._of is None or self._of[0] is not x or self._of[1] is not tri:
             # circumcircles and a KD-tree of the current map, reused while it stays current
-            self._cache = (x, tri, *_circumcaps(x, tri), cKDTree(x))
-        centre, radius, tree = self._cache[2:5]
+            self._of, self._caps, self._tree, self._keys = (x, tri), _circumcaps(x, tri), \
+                cKDTree(x), None
+        (centre, radius), tree = self._caps, self._tree
         few = len(mv) <= _FEW_MOVED
         if few:      # chord distance from every circumcentre to the nearest moved vertex
             near = np.sqrt(np.maximum(2.0 - 2.0 * (centre @ y[mv].T).max(axis=1), 0.0))
@@ -200,10 +202,10 @@ class _Hull:
         keep = tri[~gone]
         if n ** 3 < 2 ** 62:
             w = np.array([n * n, n, 1])
-            if len(self._cache) == 5:       # keys of the current triangles, as a set
+            if self._keys is None:          # keys of the current triangles, and as a set
                 keys = np.sort(tri, axis=1) @ w
-                self._cache = (*self._cache, keys, set(keys.tolist()))
-            keys, keyset = self._cache[5:]
+                self._keys = keys, set(keys.tolist())
+            keys, keyset = self._keys
             gone_keys = set(keys[gone].tolist())
             lk = (np.sort(local, axis=1) @ w).tolist()
             local = local[[not (k in keyset and k not in gone_keys) for k in lk]]
@@ -268,7 +270,8 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
         The repaired embedding; no face more inverted than before.
     info : dict
         ``folds_before``, ``folds`` (folded hull triangles), ``rounds`` (rounds that kept a move),
-        ``moved`` (moves kept, summed over the rounds).
+        ``moved`` (moves kept, summed over the rounds) and, when the random search ran,
+        ``searched`` (the folds it removed).
     """
     mesh = _Mesh(f, len(x))
     x0 = x = np.array(x, dtype=np.float64)
