@@ -77,7 +77,7 @@ def folded_mask(positions, normals, triangles) -> np.ndarray:
     (m,) bool
     """
     bad = _against_normals(positions, normals, triangles)
-    return ~bad if np.count_nonzero(bad) > len(bad) - np.count_nonzero(bad) else bad
+    return bad ^ _mirrored(bad)
 
 
 def _against_normals(p, normals, t):
@@ -85,9 +85,19 @@ def _against_normals(p, normals, t):
     return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
 
 
+def _mirrored(bad) -> bool:
+    """Whether most triangles disagree with the normals: a global mirror, not folds."""
+    return bool(np.count_nonzero(bad) > len(bad) - np.count_nonzero(bad))
+
+
 def _orientation(x, f):
     """Orientation of each mesh triangle on the sphere: ``(b - a) × (c - a) · (a + b + c)``."""
-    a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+    return _corner_orientation(x[f])
+
+
+def _corner_orientation(c):
+    """:func:`_orientation` of triangles given by their corners, ``(m, 3, 3)``."""
+    a, b, c = c[:, 0], c[:, 1], c[:, 2]
     return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
 
 
@@ -158,7 +168,7 @@ class _Hull:
         self.n = len(x)
         tri = hull(x)
         bad = _against_normals(p, normals, tri)
-        self.mirror = np.count_nonzero(bad) > len(tri) - np.count_nonzero(bad)
+        self.mirror = _mirrored(bad)
         self.tri, self.bad = tri, bad ^ self.mirror
         self._of = None          # (x, tri) the cached figures below belong to
         self._caps = self._tree = self._keys = None
@@ -179,10 +189,14 @@ class _Hull:
                 cKDTree(x), None
         (centre, radius), tree = self._caps, self._tree
         few = len(mv) <= _FEW_MOVED
-        if few:      # chord distance from every circumcentre to the nearest moved vertex
-            near = np.sqrt(np.maximum(2.0 - 2.0 * (centre @ y[mv].T).max(axis=1), 0.0))
-        else:
-            near, _ = cKDTree(y[mv]).query(centre, k=1)
+
+        def to_moved(c):
+            """Chord distance from each unit vector ``c`` to the nearest moved vertex."""
+            if few:
+                return np.sqrt(np.maximum(2.0 - 2.0 * (c @ y[mv].T).max(axis=1), 0.0))
+            return cKDTree(y[mv]).query(c, k=1)[0]
+
+        near = to_moved(centre)
         gone = moved[tri].any(axis=1) | (near < radius * (1.0 - 1e-10))
         cavity = np.union1d(np.unique(tri[gone]), mv)
         try:
@@ -195,7 +209,7 @@ class _Hull:
         if few:
             dist, idx = tree.query(centre, k=len(mv) + 1)
             dist = np.where(moved[idx], np.inf, dist).min(axis=1)
-            nearest = np.minimum(dist, cKDTree(y[mv]).query(centre, k=1)[0])
+            nearest = np.minimum(dist, to_moved(centre))
         else:
             nearest, _ = cKDTree(y).query(centre, k=1)
         local = local[nearest >= radius * (1.0 - 1e-10)]
@@ -328,7 +342,7 @@ def _search(x, state, mesh):
     removed = 0
     evals = int(np.clip(_SEARCH_WORK / len(x), 10, _SEARCH_TRIALS))
     for t in state.tri[state.bad]:
-        if not _against_normals(state.p, state.normals, t[None])[0] ^ state.mirror:
+        if not state._folded(t[None])[0]:
             continue                                    # already gone with an earlier move
         cand = np.unique(np.concatenate([t, mesh.adj[t].indices]))
         left = evals
@@ -340,11 +354,14 @@ def _search(x, state, mesh):
             h = float(np.mean(np.linalg.norm(x[nb] - x[v], axis=1)))
             d = rng.standard_normal(3)
             d -= (d @ x[v]) * x[v]
-            y = x.copy()
-            y[v] = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(0.05, 1.0))[None])[0]
+            new = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(0.05, 1.0))[None])[0]
             faces = mesh.f[mesh.vf[v].indices]
-            if np.any(_orientation(y, faces) <= 0):
-                continue
+            corners = x[faces]
+            corners[faces == v] = new
+            if np.any(_corner_orientation(corners) <= 0):
+                continue                     # inverts a mesh triangle: rejected before any copy
+            y = x.copy()
+            y[v] = new
             moved = np.zeros(len(x), bool)
             moved[v] = True
             left -= 1
