@@ -188,14 +188,10 @@ class _Energy:
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
 
-        f, cot = self.f, self.cot
-        rows = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
-        cols = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
-        w = 0.5 * np.concatenate([cot[:, 0], cot[:, 1], cot[:, 2]])
-        off = sp.coo_matrix((w, (rows, cols)), shape=(self.n, self.n)).tocsr()
-        off = off + off.T
-        diag = np.asarray(off.sum(axis=1)).ravel()
-        lap = sp.diags(diag + shift * float(np.abs(diag).mean())) - off
+        from .mesh import cotangent_laplacian
+
+        lap = cotangent_laplacian(self.f, self.cot, self.n)
+        lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
         if keep is not None:        # the rows and columns of the free vertices only
             lap = lap.tocsr()[keep][:, keep]
         lap = lap.tocsc()

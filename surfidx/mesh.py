@@ -18,7 +18,7 @@ from ._errors import InputError
 from ._validate import as_array
 from .surfels import SurfelSet
 
-__all__ = ["TriangleMesh", "Topology", "sample_texture", "spacing_radii"]
+__all__ = ["TriangleMesh", "Topology", "sample_texture", "spacing_radii", "cotangent_laplacian"]
 
 
 @dataclass(frozen=True)
@@ -402,3 +402,28 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = t[y0c, x0c] * (1 - fx) + t[y0c, x1c] * fx
     bot = t[y1c, x0c] * (1 - fx) + t[y1c, x1c] * fx
     return top * (1 - fy) + bot * fy
+
+
+def cotangent_laplacian(faces: np.ndarray, cot: np.ndarray, n: int) -> sp.csr_matrix:
+    """The cotangent Laplacian (stiffness matrix) of a triangle mesh.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    cot : (m, 3) float64
+        Cotangent of each triangle's angle at each corner.
+    n : int
+        Vertex count.
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix
+        ``L_ij = -½ Σ cot`` of the angles opposite edge ``ij``, ``L_ii = -Σ_j L_ij``: symmetric,
+        rows summing to 0.
+    """
+    rows = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    cols = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    w = 0.5 * np.concatenate([cot[:, 0], cot[:, 1], cot[:, 2]])
+    off = sp.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
+    off = off + off.T
+    return (sp.diags(np.asarray(off.sum(axis=1)).ravel()) - off).tocsr()

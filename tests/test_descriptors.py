@@ -129,3 +129,29 @@ def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
 def test_describe_grid_rejects_level_zero():
     with pytest.raises(InputError, match="level >= 1"):
         describe_grid(icosphere(0).vertices, 0)
+
+
+def test_cotangent_laplacian_identities():
+    """Symmetric, rows summing to 0, and x^T L x is the Dirichlet energy: for a linear function
+    f = a.p on a closed surface, sum over triangles of area * |grad f|^2 restricted to the plane."""
+    from surfidx.mesh import cotangent_laplacian
+
+    ico = icosphere(3)
+    p = ico.vertices * [1.0, 1.5, 2.0]
+    f = ico.faces
+    v = p[f]
+    cot = np.empty((len(f), 3))
+    for a in range(3):
+        e1, e2 = v[:, (a + 1) % 3] - v[:, a], v[:, (a + 2) % 3] - v[:, a]
+        cot[:, a] = np.einsum("ij,ij->i", e1, e2) / np.linalg.norm(np.cross(e1, e2), axis=1)
+    lap = cotangent_laplacian(f, cot, len(p))
+    assert abs(lap - lap.T).max() < 1e-12
+    np.testing.assert_allclose(np.asarray(lap.sum(axis=1)).ravel(), 0.0, atol=1e-10)
+    g = np.array([0.3, -0.2, 0.9])
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    n /= 2 * area[:, None]
+    tangential = g - (n @ g)[:, None] * n
+    want = float(np.sum(area * np.einsum("ij,ij->i", tangential, tangential)))
+    x = p @ g
+    assert float(x @ (lap @ x)) == pytest.approx(want, rel=1e-10)
