@@ -91,6 +91,20 @@ def _json_default(o):
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
+_INSERT_DESCRIPTOR = ("INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
+                      "VALUES (?, ?, ?, ?, ?)")
+
+
+def _descriptor_rows(descriptors: dict, convention: str, label: str) -> list:
+    """(kind, dimension, little-endian float32 bytes, convention) per descriptor, by kind;
+    non-finite or non-vector values raise :class:`InputError` naming ``label``."""
+    rows = []
+    for kind, vec in sorted(descriptors.items()):
+        v = as_array(vec, f"{label} descriptor {kind!r}", dtype=np.float32, shape=(None,))
+        rows.append((str(kind), int(v.size), v.astype("<f4").tobytes(), convention))
+    return rows
+
+
 def _to_json(value, name: str) -> str:
     try:
         return json.dumps(value, default=_json_default, sort_keys=True, allow_nan=False)
@@ -317,9 +331,7 @@ class Database:
                 "INSERT INTO assets (model_id, stream, format_version, bits_per_surfel, bytes, "
                 "psnr_d1, psnr_d2, psnr_y) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (model_id, *asset))
-            self.conn.executemany(
-                "INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
-                "VALUES (?, ?, ?, ?, ?)", [(model_id, *d) for d in descs])
+            self.conn.executemany(_INSERT_DESCRIPTOR, [(model_id, *d) for d in descs])
             self.conn.execute("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                               (model_id, png))
         return model_id
@@ -355,11 +367,7 @@ class Database:
         asset = (stream, int(model.format_version), float(model.rate), len(stream), *q)
         convention = _to_json(params.get("descriptors", {}),
                               f"model {name!r} params['descriptors']")
-        descs = []
-        for kind, vec in sorted((model.descriptors or {}).items()):
-            v = as_array(vec, f"model {name!r} descriptor {kind!r}", dtype=np.float32,
-                         shape=(None,))
-            descs.append((str(kind), int(v.size), v.astype("<f4").tobytes(), convention))
+        descs = _descriptor_rows(model.descriptors or {}, convention, f"model {name!r}")
         return row, asset, descs, bytes(model.thumbnail)
 
     def delete(self, model_id: int) -> None:
@@ -396,11 +404,7 @@ class Database:
         """
         model_id = self._check_id(model_id)
         conv = _to_json(convention, f"model {model_id} descriptor convention")
-        rows = []
-        for kind, vec in sorted(descriptors.items()):
-            v = as_array(vec, f"model {model_id} descriptor {kind!r}", dtype=np.float32,
-                         shape=(None,))
-            rows.append((model_id, str(kind), int(v.size), v.astype("<f4").tobytes(), conv))
+        rows = [(model_id, *d) for d in _descriptor_rows(descriptors, conv, f"model {model_id}")]
         with self.transaction():
             got = self.conn.execute("SELECT params FROM models WHERE id = ?",
                                     (model_id,)).fetchone()
@@ -411,9 +415,7 @@ class Database:
             self.conn.execute("UPDATE models SET params = ? WHERE id = ?",
                               (_to_json(params, f"model {model_id} params"), model_id))
             self.conn.execute("DELETE FROM descriptors WHERE model_id = ?", (model_id,))
-            self.conn.executemany(
-                "INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
-                "VALUES (?, ?, ?, ?, ?)", rows)
+            self.conn.executemany(_INSERT_DESCRIPTOR, rows)
 
     def descriptor_conventions(self) -> dict:
         """Model ids by descriptor convention: ``{convention JSON text: [ids ascending]}``."""

@@ -226,17 +226,15 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
 
     want = descriptor_params(lmax=DEFAULT_LMAX if lmax is None else lmax)
     want = json.loads(json.dumps(want))
-    by_conv = db.descriptor_conventions()
     ids = sorted(m["id"] for m in db.list_models())
     current = set()
     if not everything:
-        for conv, mids in by_conv.items():
-            if json.loads(conv) == want:
-                current.update(mids)
-        # a model with some kinds current and others not is recomputed
-        for conv, mids in by_conv.items():
-            if json.loads(conv) != want:
-                current.difference_update(mids)
+        # current: every stored kind made with this surfidx's conventions (a model with some
+        # kinds current and others not is recomputed, as is one without descriptors)
+        stale = set()
+        for conv, mids in db.descriptor_conventions().items():
+            (current if json.loads(conv) == want else stale).update(mids)
+        current -= stale
     todo = [i for i in ids if i not in current]
     done, failed = 0, {}
     for model_id in todo:
