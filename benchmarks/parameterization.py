@@ -117,8 +117,7 @@ def main(argv=None) -> int:
         collection(args.methods.split(","), args.workers)
         return 0
     cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "sparse", "level",
-            "psnr_d1",
-            "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
+            "psnr_d1", "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
     print(" | ".join(cols))
     print(" | ".join("---" for _ in cols))
     for name in args.models.split(","):

@@ -68,8 +68,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     d = sizes(args.lmax)
     print(f"descriptors: shape {d['shape']} + spectrum 3 + texture {d['texture']} float32, "
-          "70 % coloured; "
-          f"{args.queries} queries, k = 10, default shape weight")
+          f"70 % coloured; {args.queries} queries, k = 10, default shape weight")
     print(f"{'models':>8} {'fill s':>8} {'load ms':>8} {'top-10 median ms':>17} "
           f"{'top-10 max ms':>14}")
     with tempfile.TemporaryDirectory() as tmp:

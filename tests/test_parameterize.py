@@ -60,8 +60,8 @@ def test_sparse_sampling_of_even_and_squeezed_maps(sphere_surfels):
     squeezed[cap, 2] = np.cos(0.1 * theta)
     low = sparse_sampling(sphere_surfels, squeezed)
     assert low < 0.05 * even
-    assert parameterize(sphere_surfels, stress=False).sparse_sampling == pytest.approx(
-        sparse_sampling(sphere_surfels, parameterize(sphere_surfels, stress=False).points))
+    m = parameterize(sphere_surfels, stress=False)
+    assert m.sparse_sampling == pytest.approx(sparse_sampling(sphere_surfels, m.points))
     with pytest.raises(InputError, match="quantile must lie in"):
         sparse_sampling(sphere_surfels, p, quantile=1.5)
 
@@ -217,7 +217,7 @@ def test_horse_full_size(models):
 
 @pytest.mark.slow
 def test_horse_delaunay_fold_target(models):
-    """Issue #4's fold target on horse: at most 0.01 % folded Delaunay triangles (measured 7 of
+    """Issue #4's fold target on horse: at most 0.01 % folded Delaunay triangles (measured 5 of
     96,966 with the repair, 73-110 without; the rest are near-collinear triples on the legs)."""
     m = parameterize(read_surfels(models / "horse.ply"), stress=False)
     assert m.fold_fraction <= 1e-4
