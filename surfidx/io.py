@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import FileFormatError, InputError, SurfidxError
-from .mesh import TriangleMesh
+from .mesh import MAX_EDGE_RATIO, TriangleMesh
 from .pointcloud import points_to_surfels
 from .surfels import SurfelSet
 
@@ -23,7 +23,8 @@ SUPPORTED_SUFFIXES = (".ply", ".obj", ".off")
 
 
 # ---------------------------------------------------------------------- public API
-def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 0) -> SurfelSet:
+def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 0,
+                 max_edge_ratio: float | None = MAX_EDGE_RATIO) -> SurfelSet:
     """Read any supported file as surfels.
 
     Parameters
@@ -37,6 +38,10 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
         For meshes: sample this many surfels uniformly over the surface instead of one per vertex.
     seed : int
         Seed of that sampling.
+    max_edge_ratio : float or None
+        For meshes converted one surfel per vertex: triangles with edges longer than this many
+        times the median edge are first bisected, their new vertices becoming surfels too
+        (:meth:`TriangleMesh.to_surfels`); ``None`` keeps exactly one surfel per vertex.
 
     Returns
     -------
@@ -58,7 +63,8 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
         if isinstance(mesh, TriangleMesh):
             with warnings.catch_warnings():
                 warnings.simplefilter("default")
-                return mesh.to_surfels(samples=samples, seed=seed)
+                return mesh.to_surfels(samples=samples, seed=seed,
+                                       max_edge_ratio=max_edge_ratio)
         if samples is not None:
             raise InputError("--samples needs a mesh; this file holds points only")
         return _points_from_ply_data(mesh, path)

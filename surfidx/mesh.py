@@ -3,6 +3,16 @@
 Surfels are placed at the used vertices, in the mesh's vertex order, or sampled uniformly over the
 surface. Normals are area-weighted face normals oriented outward, radii the smallest that let the
 disks cover every incident triangle, colours come from vertex colours or from the texture.
+
+A surfel stands for the surface around its vertex, so a triangle far larger than its neighbours
+(a decimated mesh's flat base, a long sliver across a planar region) is not represented by its
+corners' disks: they are tilted by the neighbouring faces and would have to be many times wider
+than the local spacing. Before the per-vertex conversion such triangles are bisected along their
+longest edge (Rivara 1984; conforming, angles stay bounded) until no edge exceeds
+:data:`MAX_EDGE_RATIO` times the median edge length, and the new vertices become surfels too,
+after the mesh's own. On falconstatue six base triangles, 3 % of the area, held 95 % of the
+squared point-to-plane error of an exact sample of the surface against the vertex surfels
+(47.1 dB); with 4 % more surfels it scores 69.4 dB.
 """
 
 from __future__ import annotations
@@ -18,7 +28,18 @@ from ._errors import InputError
 from ._validate import as_array
 from .surfels import SurfelSet
 
-__all__ = ["TriangleMesh", "Topology", "sample_texture", "spacing_radii", "cotangent_laplacian"]
+__all__ = ["TriangleMesh", "Topology", "MAX_EDGE_RATIO", "sample_texture", "spacing_radii",
+           "cotangent_laplacian"]
+
+#: Per-vertex conversion bisects edges longer than this many times the median edge length.
+#: Measured (surfels added; D2 of an exact surface sample against the surfels, dB) on falconstatue:
+#: no refinement 47.1; ratio 6: +0.9 %, 67.4; 4: +4.0 %, 69.4; 3: +12.4 %, 70.7. Scorpion at 4:
+#: +1.3 %, 68.4 -> 76.3; uniform meshes (Igea, bunny, armadillo, spot, banana) are unchanged.
+MAX_EDGE_RATIO = 4.0
+
+#: Bisection gives up when it would more than multiply the vertex count by this (plus 1000): the
+#: mesh then mixes triangles of wildly different sizes. The benchmark models grow by at most 4 %.
+_MAX_BISECTION_GROWTH = 5
 
 
 @dataclass(frozen=True)
@@ -177,7 +198,8 @@ class TriangleMesh:
         return int((per_v > 1).sum())
 
     # ------------------------------------------------------------------ conversion
-    def to_surfels(self, *, samples: int | None = None, seed: int = 0) -> SurfelSet:
+    def to_surfels(self, *, samples: int | None = None, seed: int = 0,
+                   max_edge_ratio: float | None = MAX_EDGE_RATIO) -> SurfelSet:
         """Convert to surfels.
 
         Parameters
@@ -187,12 +209,16 @@ class TriangleMesh:
             instead of placing one surfel per used vertex.
         seed : int
             Random seed of the uniform sampling.
+        max_edge_ratio : float or None
+            Per-vertex conversion first bisects triangles whose edges exceed this many times the
+            median edge length (see :meth:`bisected`); ``None`` keeps the mesh as it is.
 
         Returns
         -------
         SurfelSet
             Per-vertex surfels keep the mesh's vertex order with unused vertices dropped (a
-            ``UserWarning`` says how many); ``faces`` then index the surfels.
+            ``UserWarning`` says how many), followed by the vertices that bisection added;
+            ``faces`` then index the surfels.
 
         Raises
         ------
@@ -204,6 +230,11 @@ class TriangleMesh:
         areas = self.face_areas()
         if not areas.sum() > 0:
             raise InputError("the mesh has zero surface area")
+        max_edge = 0.0 if max_edge_ratio is None else max_edge_ratio * self.median_edge_length()
+        if samples is None and max_edge > 0:
+            mesh = self.bisected(max_edge)
+            if mesh is not self:
+                return mesh.to_surfels(max_edge_ratio=None)
         vnormals = self._vertex_normals(areas)
         if samples is not None:
             return self._sample(int(samples), seed, areas, vnormals)
@@ -220,6 +251,76 @@ class TriangleMesh:
         colors = None if colors is None else colors[used]
         return SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
                          name=self.name)
+
+    def median_edge_length(self) -> float:
+        """Median length of the faces' edges (an edge shared by two faces counts twice)."""
+        v = self.vertices[self.faces]
+        return float(np.median(np.linalg.norm(v - np.roll(v, -1, axis=1), axis=2)))
+
+    def bisected(self, max_edge: float) -> TriangleMesh:
+        """The mesh with every edge longer than ``max_edge`` split by longest-edge bisection.
+
+        Each round splits, at its midpoint, every edge that is the longest edge (ties broken by
+        vertex indices) of each face holding it, and each of those faces into two along it; a
+        face whose longest edge waits for a neighbour's split keeps it for a later round. Every
+        round therefore keeps the mesh conforming (no vertex in the middle of an edge), splits at
+        least the mesh's longest edge, and keeps face winding. New vertices are appended after
+        the existing ones, with vertex colours and texture coordinates interpolated.
+
+        Parameters
+        ----------
+        max_edge : float
+            Longest edge allowed, in model units; must be positive.
+
+        Returns
+        -------
+        TriangleMesh
+            ``self`` when no edge is longer, else a new mesh.
+
+        Raises
+        ------
+        InputError
+            When ``max_edge`` is not positive, or when the refinement would multiply the vertex
+            count by more than 5 (a few triangles vastly larger than the rest).
+        """
+        if not (np.isfinite(max_edge) and max_edge > 0):
+            raise InputError(f"max_edge must be a positive length, got {max_edge!r}")
+        verts, faces = self.vertices, self.faces
+        colors = None if self.vertex_colors is None else self.vertex_colors.astype(np.float64)
+        uv, uv_faces = self.uv, self.uv_faces
+        if uv is None or uv_faces is None:
+            uv = uv_faces = None
+        limit = _MAX_BISECTION_GROWTH * len(verts) + 1000
+        while (split := _bisection_round(verts, faces, max_edge)) is not None:
+            if len(verts) > limit:
+                raise InputError(
+                    f"bisecting edges longer than {max_edge:.3g} would add over "
+                    f"{limit - len(self.vertices)} vertices: a few triangles are vastly larger "
+                    "than the rest; convert with max_edge_ratio=None or sample the surface "
+                    "(--samples)")
+            rows, k, edge_rank = split
+            a, b, c = (faces[rows, (k + i) % 3] for i in range(3))
+            first = np.unique(edge_rank, return_index=True)[1]  # one face per split edge
+            mid = len(verts) + edge_rank
+            verts = np.vstack([verts, 0.5 * (verts[a[first]] + verts[b[first]])])
+            if colors is not None:
+                colors = np.vstack([colors, 0.5 * (colors[a[first]] + colors[b[first]])])
+            keep = np.ones(len(faces), bool)
+            keep[rows] = False
+            faces = np.vstack([faces[keep], np.stack([a, mid, c], 1), np.stack([mid, b, c], 1)])
+            if uv is not None:
+                ua, ub, uc = (uv_faces[rows, (k + i) % 3] for i in range(3))
+                # one new texture coordinate per split face, so seams stay seams
+                um = len(uv) + np.arange(len(rows))
+                uv = np.vstack([uv, 0.5 * (uv[ua] + uv[ub])])
+                uv_faces = np.vstack([uv_faces[keep], np.stack([ua, um, uc], 1),
+                                      np.stack([um, ub, uc], 1)])
+        if len(verts) == len(self.vertices):
+            return self
+        if colors is not None:
+            colors = np.clip(np.round(colors), 0, 255).astype(np.uint8)
+        return TriangleMesh(verts, faces, vertex_colors=colors, uv=uv, uv_faces=uv_faces,
+                            texture=self.texture, name=self.name)
 
     def _orientation_sign(self) -> float:
         """-1 when the mesh is closed and its winding encloses negative volume (inward), else +1.
@@ -343,6 +444,42 @@ class TriangleMesh:
             colors = np.clip(np.round(sample_texture(self.texture, uv)), 0, 255).astype(np.uint8)
         radii = spacing_radii(pos)
         return SurfelSet(pos, nrm, radii, colors, name=self.name)
+
+
+def _bisection_round(verts: np.ndarray, faces: np.ndarray, max_edge: float):
+    """Edges one round of longest-edge bisection splits, or ``None`` when none is too long.
+
+    Returns ``(rows, k, edge_rank)``: the faces split, the corner where each one's split edge
+    starts (edge ``k`` runs from corner ``k`` to ``k + 1``), and the rank of that edge among the
+    split edges (its new vertex is ``len(verts) + rank``).
+    """
+    a, b = faces, np.roll(faces, -1, axis=1)
+    length = np.linalg.norm(verts[b] - verts[a], axis=2)
+    key = np.minimum(a, b) * np.int64(len(verts)) + np.maximum(a, b)
+    # longest edge per face, ties broken by the larger key so both faces of an edge agree
+    k = _longest(length, key)
+    fl = length[np.arange(len(faces)), k]
+    cand = np.flatnonzero(fl > max_edge)
+    if not len(cand):
+        return None
+    ck = key[cand, k[cand]]
+    all_keys, all_count = np.unique(key, return_counts=True)
+    keys, count = np.unique(ck, return_counts=True)
+    # split an edge only when it is the longest edge of every face holding it
+    keys = keys[count == all_count[np.searchsorted(all_keys, keys)]]
+    rows = cand[np.isin(ck, keys)]
+    k = k[rows]
+    return rows, k, np.searchsorted(keys, key[rows, k])
+
+
+def _longest(length: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """(m,) index of each row's longest edge; among equal lengths the one with the larger key."""
+    k = np.argmax(length, axis=1)
+    top = length[np.arange(len(length)), k][:, None]
+    tie = (length == top).sum(axis=1) > 1
+    if tie.any():
+        k[tie] = np.argmax(np.where(length[tie] == top[tie], key[tie], -1), axis=1)
+    return k
 
 
 def spacing_radii(points: np.ndarray, *, k: int = 6, name: str = "points") -> np.ndarray:

@@ -9,16 +9,17 @@ from surfidx.cli import cli
 
 
 def test_convert_and_info(tmp_path, models):
+    """homer.obj's 6,002 vertices, plus 242 where its longest edges are bisected."""
     out = tmp_path / "homer.ply"
     r = CliRunner().invoke(cli, ["convert", str(models / "homer.obj"), "-o", str(out)])
     assert r.exit_code == 0, r.output
-    assert "6002 surfels" in r.output
-    assert len(read_surfels(out)) == 6002
+    assert "6244 surfels" in r.output
+    assert len(read_surfels(out)) == 6244
     r = CliRunner().invoke(cli, ["info", str(models / "homer.obj"), "--json"])
     info = json.loads(r.output)
-    assert info["surfels"] == 6002 and info["closed"] and info["genus"] == 0
+    assert info["surfels"] == 6244 and info["closed"] and info["genus"] == 0
     r = CliRunner().invoke(cli, ["info", str(out)])
-    assert r.exit_code == 0 and "6002" in r.output
+    assert r.exit_code == 0 and "6244" in r.output
 
 
 def test_convert_with_texture_and_samples(tmp_path, models):
