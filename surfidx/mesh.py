@@ -223,16 +223,19 @@ class TriangleMesh:
         Raises
         ------
         InputError
-            When the mesh has no faces or zero total area.
+            When the mesh has no faces or zero total area, or ``max_edge_ratio`` is not positive.
         """
         if not len(self.faces):
             raise InputError("the mesh has no faces; read it as a point cloud instead")
         areas = self.face_areas()
         if not areas.sum() > 0:
             raise InputError("the mesh has zero surface area")
-        max_edge = 0.0 if max_edge_ratio is None else max_edge_ratio * self.median_edge_length()
-        if samples is None and max_edge > 0:
-            mesh = self.bisected(max_edge)
+        if samples is None and max_edge_ratio is not None:
+            if not (np.isfinite(max_edge_ratio) and max_edge_ratio > 0):
+                raise InputError(f"max_edge_ratio must be a positive number or None, got "
+                                 f"{max_edge_ratio!r}")
+            max_edge = max_edge_ratio * self.median_edge_length()
+            mesh = self.bisected(max_edge) if max_edge > 0 else self  # most edges degenerate
             if mesh is not self:
                 return mesh.to_surfels(max_edge_ratio=None)
         vnormals = self._vertex_normals(areas)

@@ -108,6 +108,8 @@ def test_bisection_errors():
         mesh.bisected(0.0)
     with pytest.raises(InputError, match="a few triangles are vastly larger than the rest"):
         mesh.bisected(1e-4)
+    with pytest.raises(InputError, match="max_edge_ratio must be a positive number or None, got -1"):
+        mesh.to_surfels(max_edge_ratio=-1)
 
 
 def test_textured_obj_colours(models):
