@@ -131,6 +131,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
     from .io import read_surfels
+    from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
     from .render import render
 
@@ -157,8 +158,10 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size))
     timings["thumbnail"] = time.perf_counter() - t0
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
-              "color_weight": COLOR_WEIGHT, "samples": samples, "texture": None if texture is None
-              else str(texture), "folded": int(enc.sphere_map.folded),
+              "color_weight": COLOR_WEIGHT, "samples": samples,
+              "max_edge_ratio": MAX_EDGE_RATIO if samples is None else None,
+              "texture": None if texture is None else str(texture),
+              "folded": int(enc.sphere_map.folded),
               "descriptors": desc.params}
     return ProcessedModel(
         name=Path(path).stem, source=str(Path(path).resolve()),

@@ -400,3 +400,21 @@ def test_scheduler_without_distributed_says_how_to_install(tmp_path, monkeypatch
         ingest.run([tmp_path / "data"], db=tmp_path / "x.db", scheduler="local",
                    processor=fake_processor, progress=False)
     assert not (tmp_path / "x.db").exists()
+
+
+def test_processed_model_records_the_mesh_conversion(tmp_path):
+    """The stored parameters say how a mesh became surfels: bisection threshold, or sampling."""
+    from conftest import icosphere_mesh
+
+    from surfidx.mesh import MAX_EDGE_RATIO
+    from surfidx.pipeline import process_model
+
+    v, f = icosphere_mesh(3)
+    path = tmp_path / "blob.off"
+    lines = ["OFF", f"{len(v)} {len(f)} 0"] + [" ".join(map(str, p)) for p in v * [1, 1.2, 0.9]]
+    path.write_text("\n".join(lines + [f"3 {a} {b} {c}" for a, b, c in f]) + "\n")
+    per_vertex = process_model(path, bits_per_surfel=4.0, level=4, thumbnail_size=32)
+    assert per_vertex.params["max_edge_ratio"] == MAX_EDGE_RATIO
+    assert per_vertex.params["samples"] is None and per_vertex.n_surfels == len(v)
+    sampled = process_model(path, bits_per_surfel=4.0, level=4, thumbnail_size=32, samples=900)
+    assert sampled.params["max_edge_ratio"] is None and sampled.n_surfels == 900
