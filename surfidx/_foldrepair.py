@@ -356,12 +356,12 @@ def _search(x, state, mesh):
             if not left:
                 break
             v = int(rng.choice(cand))
-            nb = mesh.adj[v].indices
+            nb = _row(mesh.adj, v)
             h = float(np.mean(np.linalg.norm(x[nb] - x[v], axis=1)))
             d = rng.standard_normal(3)
             d -= (d @ x[v]) * x[v]
             new = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(0.05, 1.0))[None])[0]
-            faces = mesh.f[mesh.vf[v].indices]
+            faces = mesh.f[_row(mesh.vf, v)]
             corners = x[faces]
             corners[faces == v] = new
             if np.any(_corner_orientation(corners) <= 0):
@@ -378,6 +378,12 @@ def _search(x, state, mesh):
                 break
         budget += left                                  # what this fold left goes to the rest
     return x, removed
+
+
+def _row(matrix: sp.csr_matrix, v: int) -> np.ndarray:
+    """Column indices of row ``v`` of a CSR matrix (``matrix[v].indices`` builds a matrix first:
+    about 0.1 ms, most of a search draw's cost)."""
+    return matrix.indices[matrix.indptr[v]:matrix.indptr[v + 1]]
 
 
 def _improving(mesh, tri, bad, tri2, bad2, moved):
