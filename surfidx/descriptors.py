@@ -80,7 +80,7 @@ from ._errors import InputError
 from ._tolerance import TOL
 from ._validate import as_array
 from .icosphere import icosphere, vertex_count
-from .mesh import cotangent_laplacian
+from .mesh import cotangent_laplacian, vertex_area_shares
 from .klt import KLT
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
@@ -172,7 +172,7 @@ def _grid_areas(x: np.ndarray, level: int) -> np.ndarray:
     f = icosphere(level).faces
     v = x[f]
     a = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
-    return np.bincount(f.ravel(), weights=np.repeat(a / 3.0, 3), minlength=len(x))
+    return vertex_area_shares(f, a, len(x))
 
 
 def _hist(values, weights, bins, rmax):
@@ -258,7 +258,7 @@ def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
         cot[:, a] = np.einsum("ij,ij->i", e1, e2) / np.maximum(area2, 1e-300)
     cot = np.clip(cot, -1.0 / TOL.degenerate_angle, 1.0 / TOL.degenerate_angle)
     stiff = cotangent_laplacian(f, cot, n)
-    mass = np.bincount(f.ravel(), weights=np.repeat(area2 / 6.0, 3), minlength=n)
+    mass = vertex_area_shares(f, 0.5 * area2, n)
     mass = np.maximum(mass, TOL.degenerate_area * total / n)
     k = SPECTRAL_K
     if n <= 700:

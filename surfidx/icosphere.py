@@ -62,6 +62,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._validate import check_positive_int
+from .mesh import vertex_area_shares
 
 __all__ = ["Icosphere", "icosphere", "vertex_count", "choose_level", "MAX_LEVEL", "SPARSE_MIN",
            "BUTTERFLY_WEIGHTS"]
@@ -401,7 +402,7 @@ def _vertex_areas(level: int) -> np.ndarray:
     den = 1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \
         + np.einsum("ij,ij->i", c, a)
     area = 2.0 * np.arctan2(num, den)  # spherical excess (Van Oosterom & Strackee)
-    out = np.bincount(ico.faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
+    out = vertex_area_shares(ico.faces, area, len(v))
     out.flags.writeable = False
     return out
 

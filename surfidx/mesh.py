@@ -29,7 +29,7 @@ from ._validate import as_array
 from .surfels import SurfelSet
 
 __all__ = ["TriangleMesh", "Topology", "MAX_EDGE_RATIO", "sample_texture", "spacing_radii",
-           "cotangent_laplacian"]
+           "cotangent_laplacian", "vertex_area_shares"]
 
 #: Per-vertex conversion bisects edges longer than this many times the median edge length.
 #: Measured (surfels added; D2 of an exact surface sample against the surfels, dB) on falconstatue:
@@ -542,6 +542,25 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = t[y0c, x0c] * (1 - fx) + t[y0c, x1c] * fx
     bot = t[y1c, x0c] * (1 - fx) + t[y1c, x1c] * fx
     return top * (1 - fy) + bot * fy
+
+
+def vertex_area_shares(faces: np.ndarray, areas: np.ndarray, n: int) -> np.ndarray:
+    """Each vertex's share of the area: a third of each incident triangle's (barycentric cells).
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    areas : (m,) float64
+        Triangle areas (3D or spherical).
+    n : int
+        Vertex count.
+
+    Returns
+    -------
+    (n,) float64
+        Summing to ``areas.sum()``; 0 for a vertex in no triangle.
+    """
+    return np.bincount(faces.ravel(), weights=np.repeat(areas / 3.0, 3), minlength=n)
 
 
 def cotangent_laplacian(faces: np.ndarray, cot: np.ndarray, n: int) -> sp.csr_matrix:

@@ -70,6 +70,7 @@ from ._errors import InputError, TopologyError
 from ._foldrepair import _orientation, folded_mask, repair_folds
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
+from .mesh import vertex_area_shares
 from .surfels import SurfelSet
 
 __all__ = ["SphericalMap", "parameterize", "count_folds", "hull_triangles", "landmark_stress",
@@ -294,7 +295,7 @@ def sparse_sampling(surfels: SurfelSet, sphere_points, *, triangles=None,
         raise InputError(f"quantile must lie in (0, 1), got {quantile!r}")
     pts, tri = _points_and_triangles(surfels, sphere_points, triangles)
     a = np.abs(_spherical_areas(pts, tri))
-    share = np.bincount(tri.ravel(), np.repeat(a / 3.0, 3), minlength=len(pts))
+    share = vertex_area_shares(tri, a, len(pts))
     return float(np.quantile(len(pts) * share / (4.0 * np.pi), float(quantile)))
 
 
