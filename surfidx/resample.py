@@ -15,20 +15,21 @@ Barycentric coordinates are those of the central (gnomonic) projection of the qu
 plane of its chord triangle: they are non-negative inside, sum to 1, reproduce constants exactly
 and reproduce exactly any function that is affine on each chord triangle.
 
-Positions are then lifted off the flat triangle by a Phong tessellation (Boubekeur & Alexa 2008)
-whose corner weights are sharpened like blended splats: ``p* = p - α Σ_i w_i ((p - v_i) · n_i) n_i``,
-``p = Σ_i b_i v_i`` the linear point, ``(p - v_i) · n_i`` its height above the tangent plane (the
-disk) of corner ``i`` and ``w_i = b_i^s / Σ_j b_j^s``. ``s = 1`` is the paper's Phong point
-``(1 - α) p + α Σ_i b_i π_i(p)``; a larger ``s`` lets the disk of the nearest corner dominate near
-it, so a grid point lies on the surface the surfels' disks describe (the point-to-plane error
-against the surfels measures exactly this) while staying continuous across every edge (a corner
-off the edge has ``b = 0``) and exact on planes. ``α = PHONG_ALPHA = 0.9``, ``s = PHONG_SHARPNESS
-= 4`` (``phong=0`` keeps the linear point). Colours stay linear.
+Positions are then lifted off the flat triangle by a Phong tessellation (Boubekeur & Alexa
+2008) whose corner weights are sharpened like blended splats:
+``p* = p - α Σ_i w_i ((p - v_i) · n_i) n_i``, with ``p = Σ_i b_i v_i`` the linear point,
+``(p - v_i) · n_i`` its height above the tangent plane (the disk) of corner ``i`` and
+``w_i = b_i^s / Σ_j b_j^s``. ``s = 1`` is the paper's Phong point ``(1 - α) p + α Σ_i b_i π_i(p)``;
+a larger ``s`` lets the disk of the nearest corner dominate near it, so a grid point lies on the
+surface the surfels' disks describe (the point-to-plane error against the surfels measures
+exactly this), continuous across every edge (a corner off the edge has ``b = 0``) and exact on
+planes. ``α = PHONG_ALPHA = 0.9``, ``s = PHONG_SHARPNESS = 4`` (``phong=0`` keeps the linear
+point). Colours stay linear.
 
-Infinite-rate PSNR_D2 against the input at the default grid level. Hull and linear → own faces and
-Phong (α 0.75, s 1): Igea 83.7 → 87.7 dB, bunny_hr 71.4 → 79.5, horse 71.6 → 77.3, nefertiti
-73.8 → 77.5, koala 77.9 → 79.8, scorpion 65.8 → 68.6, armadillo 63.6 → 65.6, spot 58.9 → 62.3
-(maps of that time). Phong (α 0.75, s 1) → sharpened (α 0.9, s 4), today's maps: Igea 87.7 →
+Infinite-rate PSNR_D2 against the input at the default grid level. Hull and linear → own faces
+and Phong (α 0.75, s 1), maps of that time: Igea 83.7 → 87.7 dB, bunny_hr 71.4 → 79.5, horse
+71.6 → 77.3, nefertiti 73.8 → 77.5, koala 77.9 → 79.8, scorpion 65.8 → 68.6, armadillo 63.6 →
+65.6, spot 58.9 → 62.3. Phong (α 0.75, s 1) → sharpened (α 0.9, s 4), today's maps: Igea 87.7 →
 90.2, bunny_hr 79.5 → 83.3, horse 77.6 → 77.6, armadillo 71.0 → 75.0, nefertiti 79.1 → 79.8,
 koala 86.5 → 86.9, scorpion 78.3 → 78.4, falconstatue 70.6 → 70.8, homer 72.4 → 73.2, spot
 69.4 → 72.0, ycb_banana 78.0 → 77.9.
@@ -49,8 +50,8 @@ from ._tolerance import TOL
 from .parameterize import _check_points, _orientation, _spherical_areas, hull_triangles
 from .surfels import SurfelSet
 
-__all__ = ["PHONG_ALPHA", "PHONG_SHARPNESS", "locate", "locate_grid", "map_triangles", "resample", "grid_to_surfels",
-           "grid_to_mesh", "layer_names"]
+__all__ = ["PHONG_ALPHA", "PHONG_SHARPNESS", "locate", "locate_grid", "map_triangles", "resample",
+           "grid_to_surfels", "grid_to_mesh", "layer_names"]
 
 PHONG_ALPHA = 0.9
 """Blend of the Phong-tessellation lift in :func:`resample` (0: linear, 1: full projection)."""
