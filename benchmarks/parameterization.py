@@ -72,13 +72,14 @@ def _collection_job(job):
     warnings.simplefilter("ignore")
     name, method = job
     try:
-        return run(name, method, root=COLLECTION)
+        return {**run(name, method, root=COLLECTION), "model": name}
     except surfidx.SurfidxError as exc:
         return {"model": name, "method": method, "error": str(exc)}
 
 
-def collection(methods, workers: int) -> None:
-    """One summary row per method over the genus-0 models of the retrieval collection."""
+def collection(methods, workers: int, *, rows_csv=None) -> None:
+    """One summary row per method over the genus-0 models of the retrieval collection; with
+    ``rows_csv``, every model's figures are written there too."""
     from concurrent.futures import ProcessPoolExecutor
 
     with open(COLLECTION / "meta.csv", newline="") as fh:
@@ -88,9 +89,11 @@ def collection(methods, workers: int) -> None:
             "mean fold%", "mean holes%", "median psnr_d2", "map s (sum)"]
     print(" | ".join(cols))
     print(" | ".join("---" for _ in cols))
+    all_rows = []
     for method in methods:
         with ProcessPoolExecutor(max(workers, 1)) as ex:
             rows = list(ex.map(_collection_job, [(n, method) for n in names]))
+        all_rows += rows
         ok = [r for r in rows if "error" not in r]
         fr = np.array([r["fold%"] for r in ok])
         ho = np.array([r["holes%"] for r in ok])
@@ -102,6 +105,12 @@ def collection(methods, workers: int) -> None:
                 f"{np.median(fr):.4f}", f"{fr.mean():.3f}", f"{ho.mean():.2f}",
                 f"{np.median(d2):.1f}", f"{sum(r['t_map'] for r in ok):.0f}"]
         print(" | ".join(str(v) for v in vals), flush=True)
+    if rows_csv is not None:
+        keys = list(dict.fromkeys(k for r in all_rows for k in r))
+        with open(rows_csv, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(all_rows)
 
 
 def main(argv=None) -> int:
@@ -111,10 +120,11 @@ def main(argv=None) -> int:
     ap.add_argument("--collection", action="store_true",
                     help="summarise the genus-0 models of ../shared/data/retrieval instead")
     ap.add_argument("--workers", type=int, default=1, help="processes for --collection")
+    ap.add_argument("--rows", metavar="OUT.csv", help="--collection: every model's figures")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     if args.collection:
-        collection(args.methods.split(","), args.workers)
+        collection(args.methods.split(","), args.workers, rows_csv=args.rows)
         return 0
     cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "sparse", "level",
             "psnr_d1", "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
