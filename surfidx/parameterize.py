@@ -23,7 +23,9 @@ Default method ``"tutte"`` (the fold-free route, coarse to fine)
    fold-free embedding of the mesh; it trades angle against area distortion, so limbs keep the
    share of the sphere the grid needs (horse: holes 30 % -> 0.01 %, infinite-rate PSNR_D2
    29 -> 71 dB). Möbius normalisation (4) ends each level.
-   Should a level fail to untangle, the whole surface is mapped by the single-level route.
+   Should a level fail to untangle, the hierarchy is built again to another coarsest size
+   (``_COARSE_LADDER``), and only when every one fails is the whole surface mapped by the
+   single-level route.
 
 Single-level route (``_tutte_map``)
 -----------------------------------
@@ -81,6 +83,12 @@ METHODS = ("tutte", "mds")
 
 _MIN_SURFELS = 8
 _COARSE = 64        # the multilevel map's coarsest mesh has at most this many vertices
+_COARSE_LADDER = (_COARSE, 4 * _COARSE, _COARSE // 2)
+"""Coarsest sizes tried in turn when a level cannot be untangled. A prolonged map of a few dozen
+vertices can fold so deeply (a thin frame of glasses, armadillo's fingers) that untangling, which
+on the sphere has no fixed boundary, collapses the whole map into a point; another hierarchy
+rarely does. The single-level map, which squeezes every limb, is the last resort (retrieval
+collection: fallbacks 4 -> 0, a pair of glasses 40 % coverage holes -> 0)."""
 _RATIO = 4          # ... and each level has this many times the vertices of the next coarser
 _LEVEL_STEPS = 300  # balancing steps at each level, at most, and fewer once converged:
 _STRICT_STOP = dict(tol=1e-7, patience=20)   # 20 steps in a row lower the energy by < 1e-7
@@ -710,11 +718,18 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
     """The multilevel map, or the single-level one where a level could not be untangled; then
     the folded Delaunay triangles are repaired by local moves (:mod:`surfidx._foldrepair`)."""
     f = _oriented_faces(surfels)
-    try:
-        x, info = _multilevel_map(surfels, faces=f, steps=_FINAL_STEPS, **options)
-    except _Untangled:
+    for tries, coarse in enumerate(_COARSE_LADDER):
+        try:
+            x, info = _multilevel_map(surfels, faces=f, steps=_FINAL_STEPS, coarse=coarse,
+                                      **options)
+            info = dict(info, coarse=coarse, retries=tries)
+            break
+        except _Untangled:
+            continue
+    else:
         x, info = _tutte_map(surfels, faces=f, **options)
-        info = dict(info, levels=1, base_vertices=len(surfels), fallback=1)
+        info = dict(info, levels=1, base_vertices=len(surfels), fallback=1,
+                    retries=len(_COARSE_LADDER))
     if repair:
         x, rinfo = repair_folds(x, surfels.positions, surfels.normals, f, hull=hull_triangles)
         info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],

@@ -248,7 +248,38 @@ def test_level_that_cannot_be_untangled_falls_back_to_single_level():
     s = _limbs(4)
     m = parameterize(s, stress=False, balance_budget=0.0)
     assert m.info.get("fallback") == 1 and m.info["levels"] == 1
-    assert m.info["mesh_folds"] == 0
+    assert m.info["mesh_folds"] == 0 and m.info["retries"] == 3
+
+
+def test_level_that_fails_is_retried_with_another_hierarchy(monkeypatch):
+    """A hierarchy whose level cannot be untangled is built again to the next coarsest size of
+    _COARSE_LADDER before the single-level map is tried."""
+    import surfidx.parameterize as P
+
+    tried = []
+    real = P._multilevel_map
+
+    def failing_first(surfels, *, coarse, **options):
+        if not tried or tried[-1] != coarse:
+            tried.append(coarse)
+        if coarse == P._COARSE_LADDER[0]:
+            raise P._Untangled(len(surfels))
+        return real(surfels, coarse=coarse, **options)
+
+    monkeypatch.setattr(P, "_multilevel_map", failing_first)
+    m = parameterize(_limbs(4), stress=False)
+    assert tried[:2] == list(P._COARSE_LADDER[:2])
+    assert "fallback" not in m.info and m.info["retries"] == 1
+    assert m.info["coarse"] == P._COARSE_LADDER[1] and m.info["mesh_folds"] == 0
+
+
+def test_glasses_whose_coarse_map_collapses_are_mapped_without_holes(shared_data):
+    """A pair of glasses (retrieval d024): its 64-vertex hierarchy untangles into a collapsed
+    map; the single-level fallback left 40 % coverage holes and 1.9 % folds."""
+    s = read_surfels(shared_data / "retrieval" / "meshes" / "d024.off")
+    m = parameterize(s, stress=False)
+    assert "fallback" not in m.info and m.info["retries"] >= 1
+    assert m.fold_fraction < 1e-3 and m.sparse_sampling > 0.01
 
 
 def test_point_cloud_mapped_through_proxy_mesh():
