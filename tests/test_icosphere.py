@@ -209,12 +209,14 @@ def test_choose_level():
     # a map that squeezes part of the surface: one level more when its sparsest-mapped surfels
     # get under SPARSE_MIN grid points each (homer: 6,002 surfels, sparse sampling ~0.03) ...
     assert choose_level(6002) == 6 and choose_level(6002, sparse_sampling=0.03) == 7
-    assert choose_level(6002, sparse_sampling=0.04) == 6     # 40,962 * 0.04 >= 0.25 * 6,002
+    assert choose_level(6002, sparse_sampling=0.08) == 6     # 40,962 * 0.08 >= 0.5 * 6,002
+    assert choose_level(6002, sparse_sampling=0.07) == 7
     # ... and never more than one
     assert choose_level(6002, sparse_sampling=1e-6) == 7
+    assert choose_level(6002, sparse_sampling=0.0) == 7     # squeezed to nothing
     assert choose_level(10 ** 9, sparse_sampling=1e-6) == MAX_LEVEL
     with pytest.raises(InputError, match="sparse_sampling must lie in"):
-        choose_level(10, sparse_sampling=0.0)
+        choose_level(10, sparse_sampling=-0.1)
     with pytest.raises(InputError, match="n_surfels must be at least 1"):
         choose_level(0)
     with pytest.raises(InputError, match="oversampling must be a positive"):
