@@ -134,6 +134,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
     from .render import render
+    from .resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     timings = {}
     t0 = time.perf_counter()
@@ -157,9 +158,11 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     t0 = time.perf_counter()
     thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size))
     timings["thumbnail"] = time.perf_counter() - t0
+    from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
               "color_weight": COLOR_WEIGHT, "samples": samples,
-              "max_edge_ratio": MAX_EDGE_RATIO if samples is None else None,
+              "max_edge_ratio": MAX_EDGE_RATIO if from_mesh else None,
+              "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS},
               "texture": None if texture is None else str(texture),
               "folded": int(enc.sphere_map.folded),
               "descriptors": desc.params}

@@ -408,6 +408,7 @@ def test_processed_model_records_the_mesh_conversion(tmp_path):
 
     from surfidx.mesh import MAX_EDGE_RATIO
     from surfidx.pipeline import process_model
+    from surfidx.resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     v, f = icosphere_mesh(3)
     path = tmp_path / "blob.off"
@@ -418,3 +419,19 @@ def test_processed_model_records_the_mesh_conversion(tmp_path):
     assert per_vertex.params["samples"] is None and per_vertex.n_surfels == len(v)
     sampled = process_model(path, bits_per_surfel=4.0, level=4, thumbnail_size=32, samples=900)
     assert sampled.params["max_edge_ratio"] is None and sampled.n_surfels == 900
+    # the resampling lift is recorded with the data it produced
+    assert per_vertex.params["lift"] == {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS}
+
+
+def test_processed_surfel_file_records_no_mesh_conversion(tmp_path):
+    """A surfel file was not converted from a mesh: no bisection threshold is recorded."""
+    from conftest import icosphere_mesh
+
+    from surfidx import SurfelSet, write_ply
+    from surfidx.pipeline import process_model
+
+    v, _ = icosphere_mesh(3)
+    path = tmp_path / "blob.ply"
+    write_ply(SurfelSet(v, v, np.full(len(v), 0.1)), path)
+    model = process_model(path, bits_per_surfel=4.0, level=4, thumbnail_size=32)
+    assert model.params["max_edge_ratio"] is None and model.params["samples"] is None
