@@ -10,10 +10,12 @@ spacing) and time. Prints a table; the last column says whether the issue's targ
 
 ``--collection`` instead maps every genus-0 model of ``../shared/data/retrieval`` (models the
 project was not tuned on, listed in its ``meta.csv``) and prints one summary row per method: how
-many models meet each target, fallbacks to the single-level map, mean and median figures.
+many models meet each target, fallbacks to the single-level map, mean and median figures;
+``--points`` drops the faces first, so every model is mapped as a point cloud (through a proxy
+mesh), and ``--rows OUT.csv`` writes each model's figures.
 
 Run: ``python benchmarks/parameterization.py [--models a.obj,b.ply] [--methods tutte,mds]``
-or ``python benchmarks/parameterization.py --collection [--workers 2]``
+or ``python benchmarks/parameterization.py --collection [--workers 2] [--points] [--rows F]``
 """
 
 from __future__ import annotations
@@ -48,8 +50,10 @@ def holes(reference, test) -> float:
     return float(np.mean(d > 2 * spacing))
 
 
-def run(name: str, method: str, *, root: Path = DATA) -> dict:
+def run(name: str, method: str, *, root: Path = DATA, points: bool = False) -> dict:
     s = surfidx.read_surfels(root / name)
+    if points:      # the same surfels as a point cloud: mapped through a proxy mesh
+        s = surfidx.SurfelSet(s.positions, s.normals, s.radii, colors=s.colors)
     m = parameterize(s, method=method)
     level = choose_level(len(s), sparse_sampling=m.sparse_sampling)
     t = time.perf_counter()
@@ -70,14 +74,14 @@ def run(name: str, method: str, *, root: Path = DATA) -> dict:
 
 def _collection_job(job):
     warnings.simplefilter("ignore")
-    name, method = job
+    name, method, points = job
     try:
-        return {**run(name, method, root=COLLECTION), "model": name}
+        return {**run(name, method, root=COLLECTION, points=points), "model": name}
     except surfidx.SurfidxError as exc:
         return {"model": name, "method": method, "error": str(exc)}
 
 
-def collection(methods, workers: int, *, rows_csv=None) -> None:
+def collection(methods, workers: int, *, rows_csv=None, points: bool = False) -> None:
     """One summary row per method over the genus-0 models of the retrieval collection; with
     ``rows_csv``, every model's figures are written there too."""
     from concurrent.futures import ProcessPoolExecutor
@@ -92,7 +96,7 @@ def collection(methods, workers: int, *, rows_csv=None) -> None:
     all_rows = []
     for method in methods:
         with ProcessPoolExecutor(max(workers, 1)) as ex:
-            rows = list(ex.map(_collection_job, [(n, method) for n in names]))
+            rows = list(ex.map(_collection_job, [(n, method, points) for n in names]))
         all_rows += rows
         ok = [r for r in rows if "error" not in r]
         fr = np.array([r["fold%"] for r in ok])
@@ -121,10 +125,12 @@ def main(argv=None) -> int:
                     help="summarise the genus-0 models of ../shared/data/retrieval instead")
     ap.add_argument("--workers", type=int, default=1, help="processes for --collection")
     ap.add_argument("--rows", metavar="OUT.csv", help="--collection: every model's figures")
+    ap.add_argument("--points", action="store_true",
+                    help="--collection: drop the faces, map every model as a point cloud")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     if args.collection:
-        collection(args.methods.split(","), args.workers, rows_csv=args.rows)
+        collection(args.methods.split(","), args.workers, rows_csv=args.rows, points=args.points)
         return 0
     cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "sparse", "level",
             "psnr_d1", "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
