@@ -251,6 +251,12 @@ def _proposals(x, p, t, kinds, mesh):
     k = (_largest_angle_corner(p, t) + corner) % 3
     rows = np.arange(len(t))
     v, a, c = t[rows, k], t[rows, (k + 1) % 3], t[rows, (k + 2) % 3]
+    with np.errstate(invalid="ignore", divide="ignore"):   # undefined moves are dropped below
+        return _moves(x, v, a, c, margin, mesh)
+
+
+def _moves(x, v, a, c, margin, mesh):
+    """:func:`_proposals`' targets for corners ``v`` of triangles ``(v, a, c)``."""
     v, first = np.unique(v, return_index=True)
     a, c, margin = a[first], c[first], margin[first]
     g = _unit(np.cross(x[a], x[c]))                 # normal of the great circle through a and c
@@ -260,7 +266,10 @@ def _proposals(x, p, t, kinds, mesh):
     if mid.any():
         w = -margin[mid][:, None]
         out[mid] = _unit((1.0 - w) * x[v[mid]] + w * _unit(mesh.adj[v[mid]] @ x))
-    return v, out
+    # no move where it is undefined: two corners on one point (no great circle through them), or
+    # a vertex without mesh neighbours (a point cloud's triangulation less its folded triangles)
+    ok = np.isfinite(out).all(axis=1)
+    return v[ok], out[ok]
 
 
 def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
@@ -357,6 +366,8 @@ def _search(x, state, mesh):
                 break
             v = int(rng.choice(cand))
             nb = _row(mesh.adj, v)
+            if not len(nb):
+                continue                     # no mesh neighbour: no step length to draw from
             h = float(np.mean(np.linalg.norm(x[nb] - x[v], axis=1)))
             d = rng.standard_normal(3)
             d -= (d @ x[v]) * x[v]

@@ -36,6 +36,19 @@ def test_repair_lowers_folds_and_keeps_the_mesh_fold_free(tube_map):
     assert 0 < moved.sum() <= info["moved"]      # a vertex may move in several rounds
 
 
+def test_repair_on_a_triangulation_with_isolated_vertices(tube_map):
+    """A point cloud's repair mesh (its Delaunay triangulation less the folded triangles) can
+    leave a fold's corner with no triangle: moves needing its neighbours are skipped, never NaN."""
+    s, _, x = tube_map
+    tri = hull_triangles(x)
+    bad = folded_mask(s.positions, s.normals, tri)
+    lonely = np.unique(tri[bad])
+    mesh = tri[~bad & ~np.isin(tri, lonely).any(axis=1)]
+    y, info = repair_folds(x, s.positions, s.normals, mesh, hull=hull_triangles)
+    assert np.all(np.isfinite(y))
+    assert info["folds"] == _folds(s, y) <= info["folds_before"] == int(bad.sum())
+
+
 def test_repair_leaves_a_fold_free_map_alone(sphere_surfels):
     s = sphere_surfels
     f = _oriented_faces(s)

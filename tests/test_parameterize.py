@@ -7,7 +7,7 @@ from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_sur
 from surfidx.parameterize import (METHODS, SphericalMap, area_distortion, count_folds,
                                   hull_triangles, parameterize, sparse_sampling)
 
-from conftest import icosphere_mesh, tube_mesh
+from conftest import EXAMPLES, icosphere_mesh, tube_mesh
 
 
 def _limbs(level=3):
@@ -292,6 +292,39 @@ def test_point_cloud_mapped_through_proxy_mesh():
     np.testing.assert_allclose(np.linalg.norm(m.points, axis=1), 1.0, atol=1e-12)
     assert m.fold_fraction <= 0.01
     assert len(np.unique(np.round(m.points, 9), axis=0)) == len(cloud)
+
+
+def test_point_cloud_folds_are_repaired_on_its_own_delaunay_triangulation():
+    """The bundled spot as a point cloud: the proxy map leaves folded Delaunay triangles of the
+    surfels (14); the repair, keeping the surfels' other Delaunay triangles embedded, removes
+    them all."""
+    s = read_surfels(EXAMPLES / "spot" / "spot_triangulated.obj")
+    cloud = SurfelSet(s.positions, s.normals, s.radii)
+    m = parameterize(cloud, stress=False)
+    assert m.info["folds_repaired"] > 0 and m.folded == 0
+    assert count_folds(cloud, m.points)[0] == 0
+
+
+def test_proxy_whose_map_falls_back_is_simplified_and_mapped_again(monkeypatch):
+    """When the proxy's map falls back to the single-level route (marching-cubes slivers can
+    stop every hierarchy), a proxy with half its vertices collapsed is mapped instead."""
+    import surfidx.parameterize as P
+
+    sizes = []
+    real = P._mesh_map
+
+    def first_falls_back(surfels, **options):
+        sizes.append(len(surfels))
+        x, info = real(surfels, **options)
+        return x, (dict(info, fallback=1) if len(sizes) == 1 else info)
+
+    monkeypatch.setattr(P, "_mesh_map", first_falls_back)
+    s = _limbs()
+    cloud = SurfelSet(s.positions, s.normals, s.radii)
+    m = parameterize(cloud, stress=False)
+    assert len(sizes) == 2 and sizes[1] <= sizes[0] // 2 + 1
+    assert m.info["proxy_simplified"] == 1 and m.info["proxy_vertices"] == sizes[1]
+    assert "fallback" not in m.info and m.fold_fraction <= 0.01
 
 
 def test_point_cloud_of_genus_one_refused():
