@@ -272,7 +272,7 @@ def _moves(x, v, a, c, margin, mesh):
     return v[ok], out[ok]
 
 
-def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
+def repair_folds(x, p, normals, f, *, hull, rounds: int = 40, search: bool = True):
     """Lower the count of folded Delaunay triangles of a spherical mesh embedding by local moves.
 
     Parameters
@@ -289,6 +289,9 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
         has had them all.
     hull : callable
         ``hull(x) -> (k, 3) int64`` counter-clockwise convex hull of unit vectors.
+    search : bool
+        Follow the rounds with the random search (:func:`_search`) when they leave at most
+        ``_SEARCH_FOLDS`` folds.
 
     Returns
     -------
@@ -333,7 +336,7 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40):
         x, state.tri, state.bad = y, tri2, bad2
         info["rounds"] += 1
         info["moved"] += int(kept.sum())
-    if 0 < int(state.bad.sum()) <= _SEARCH_FOLDS:
+    if search and 0 < int(state.bad.sum()) <= _SEARCH_FOLDS:
         x, found = _search(x, state, mesh)
         info["searched"] = found
     folds = int(folded_mask(p, normals, hull(x)).sum())   # the global hull, once

@@ -49,6 +49,11 @@ c. Balancing with the energy of 3.
    steps that never invert a mesh triangle. This fixes the three non-rotational Möbius degrees of
    freedom, so the map is canonical up to a rotation.
 
+5. Fold repair (:mod:`surfidx._foldrepair`): single-vertex moves that lower the count of folded
+   triangles of the surfels' spherical Delaunay triangulation, never inverting a mesh triangle.
+   Where folds remain, a second pass tries every move afresh with the triangulation's unfolded
+   triangles kept embedded too (their neighbourhoods propose other moves; ``_SECOND_PASS``).
+
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
 ties are broken by index), so a rotated input gives the same sphere points up to a rotation.
 
@@ -107,6 +112,8 @@ _LOOSE_ABOVE = 20000                         # step costs 10-100 ms (Igea: 11.6 
 _FINAL_STEPS = 1500  # the finest level may take more steps: long limbs still gain area after 300
 _UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
+_SECOND_PASS = True
+_SECOND_SEARCH = False
 _LAM = 0.5          # area weight of the balancing energy (against angle preservation)
 
 
@@ -744,6 +751,15 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
         x, rinfo = repair_folds(x, surfels.positions, surfels.normals, f, hull=hull_triangles)
         info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
                     repair_rounds=rinfo["rounds"])
+        if rinfo["folds"] and _SECOND_PASS:
+            # a second pass, every move tried afresh, with the surfels' Delaunay triangles that
+            # are not folded kept embedded too (their neighbourhoods propose other moves)
+            tri = hull_triangles(x)
+            bad = folded_mask(surfels.positions, surfels.normals, tri)
+            x, r2 = repair_folds(x, surfels.positions, surfels.normals,
+                                 np.concatenate([f, tri[~bad]]), hull=hull_triangles,
+                                 search=_SECOND_SEARCH)
+            info["folds_repaired"] += r2["folds_before"] - r2["folds"]
     return x, info
 
 

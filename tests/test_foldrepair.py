@@ -49,6 +49,31 @@ def test_repair_on_a_triangulation_with_isolated_vertices(tube_map):
     assert info["folds"] == _folds(s, y) <= info["folds_before"] == int(bad.sum())
 
 
+def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map, monkeypatch):
+    """The mesh map's second repair pass (the unfolded Delaunay triangles kept embedded too)
+    ends with at most the first pass's folds and every mesh triangle still counter-clockwise;
+    without its search, the first pass's result is where it starts."""
+    import surfidx.parameterize as P
+
+    s, f, _ = tube_map
+    options = dict(iterations=40, gamma=0.15, time_budget=20.0, balance_budget=15.0)
+    monkeypatch.setattr(P, "_SECOND_PASS", False)
+    x1, i1 = P._mesh_map(s, **options)
+    monkeypatch.setattr(P, "_SECOND_PASS", True)
+    x2, i2 = P._mesh_map(s, **options)
+    assert _folds(s, x2) <= _folds(s, x1)
+    assert i2["folds_repaired"] >= i1["folds_repaired"]
+    assert np.all(_orientation(x2, f) > 0)
+
+
+def test_repair_without_search_stops_after_the_rounds(tube_map):
+    s, f, x = tube_map
+    _, searched = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles)
+    _, info = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles, search=False)
+    assert "searched" in searched and "searched" not in info
+    assert info["folds"] >= searched["folds"]
+
+
 def test_repair_leaves_a_fold_free_map_alone(sphere_surfels):
     s = sphere_surfels
     f = _oriented_faces(s)
