@@ -113,6 +113,12 @@ _FINAL_STEPS = 1500  # the finest level may take more steps: long limbs still ga
 _UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
 _SECOND_PASS = True
+_MAX_AREA_DISTORTION = 4.0
+"""A single-level fallback map (no level of the hierarchies could be untangled) whose area
+distortion exceeds this is refused: on the 77 genus-0 retrieval
+models, as meshes and as point clouds, every map that resampled without holes measured at most
+2.1, every map that left 16-79 % of the surfels without a grid point (single-level fallbacks of
+point clouds whose proxies could not be untangled) at least 5.5."""
 _SECOND_SEARCH = False
 _LAM = 0.5          # area weight of the balancing energy (against angle preservation)
 
@@ -806,6 +812,12 @@ def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):
                                       hull=hull_triangles)
             info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
                         repair_rounds=rinfo["rounds"])
+            if rinfo["folds"] and _SECOND_PASS:   # afresh, on the repaired triangulation
+                tri = hull_triangles(pts)
+                bad = folded_mask(surfels.positions, surfels.normals, tri)
+                pts, r2 = repair_folds(pts, surfels.positions, surfels.normals, tri[~bad],
+                                       hull=hull_triangles, search=_SECOND_SEARCH)
+                info["folds_repaired"] += r2["folds_before"] - r2["folds"]
     info = dict(info, proxy_vertices=len(v), proxy_faces=len(f))
     return pts, info
 
@@ -923,7 +935,9 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         Unknown method, bad options, too few surfels.
     TopologyError
         Several pieces, holes, pinched vertices, genus > 0, inconsistent winding (for a point
-        cloud: a proxy surface that is not one closed genus-0 piece).
+        cloud: a proxy surface that is not one closed genus-0 piece); a default map that
+        squeezes parts of the surface to nothing (area distortion above
+        ``_MAX_AREA_DISTORTION`` after no level could be untangled).
     """
     surfels = _check_surfels(surfels)
     if method not in METHODS:
@@ -952,6 +966,14 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     tri = hull_triangles(pts)
     folded, total = count_folds(surfels, pts, triangles=tri)
     ad = area_distortion(surfels, pts, triangles=tri)
+    if method == "tutte" and info.get("fallback") and ad > _MAX_AREA_DISTORTION:
+        what = "its proxy surface" if info.get("proxy_vertices") else "the mesh"
+        raise TopologyError(
+            f"the spherical map squeezes parts of the surface to nothing (area distortion "
+            f"{ad:.1f}; maps that resample well stay below {_MAX_AREA_DISTORTION:g}): no level "
+            f"of {what} could be untangled, so the grid would miss those parts; thin or touching "
+            "parts are the usual cause" + (": mesh the scan, or sample it more densely"
+                                           if info.get("proxy_vertices") else ""))
     sparse = sparse_sampling(surfels, pts, triangles=tri)
     st = float("nan")
     if stress:

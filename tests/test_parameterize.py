@@ -327,6 +327,18 @@ def test_proxy_whose_map_falls_back_is_simplified_and_mapped_again(monkeypatch):
     assert "fallback" not in m.info and m.fold_fraction <= 0.01
 
 
+def test_squeezed_fallback_map_is_refused(monkeypatch):
+    """A single-level fallback whose area distortion exceeds _MAX_AREA_DISTORTION is refused with
+    a TopologyError; a multilevel map is never refused for it."""
+    import surfidx.parameterize as P
+
+    monkeypatch.setattr(P, "_MAX_AREA_DISTORTION", 0.01)
+    assert "fallback" not in parameterize(_limbs(), stress=False).info
+    with pytest.raises(TopologyError, match=r"squeezes parts of the surface to nothing "
+                                            r"\(area distortion .*no level of the mesh"):
+        parameterize(_limbs(4), stress=False, balance_budget=0.0)
+
+
 def test_point_cloud_of_genus_one_refused():
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 80, endpoint=False),
                        np.linspace(0, 2 * np.pi, 40, endpoint=False))
