@@ -800,6 +800,10 @@ def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):
         x2, info2 = _mesh_map(proxy2, repair=False, **options)
         if not info2.get("fallback"):
             v, f, x, info = v2, f2, x2, dict(info2, proxy_simplified=1)
+        else:
+            # then a proxy on a coarser grid (a pair of glasses' cloud, d062: both fell back,
+            # the proxy at 0.8 times the automatic resolution maps at once)
+            v, f, x, info = _coarser_proxy_map(surfels, (v, f, x, info), **options)
     pts = transfer(surfels.positions, v, f, x)
     pts /= np.linalg.norm(pts, axis=1)[:, None]
     if repair:
@@ -820,6 +824,26 @@ def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):
                 info["folds_repaired"] += r2["folds_before"] - r2["folds"]
     info = dict(info, proxy_vertices=len(v), proxy_faces=len(f))
     return pts, info
+
+
+def _coarser_proxy_map(surfels: SurfelSet, current, **options):
+    """The proxy at ``_PROXY_COARSER`` times the automatic grid resolution and its map, or
+    ``current`` (vertices, faces, map, info) when that proxy is not genus 0 or falls back too."""
+    from .mesh import TriangleMesh
+    from .proxy import _spacing, proxy_mesh
+
+    p = surfels.positions
+    cells = _PROXY_COARSER * float((p.max(axis=0) - p.min(axis=0)).max()) / _spacing(p)
+    try:
+        v, f = proxy_mesh(surfels, resolution=int(np.clip(np.ceil(cells), 24, 200)))
+    except TopologyError:
+        return current
+    x, info = _mesh_map(TriangleMesh(v, f, name=surfels.name).to_surfels(), repair=False,
+                        **options)
+    return current if info.get("fallback") else (v, f, x, dict(info, proxy_coarser=1))
+
+
+_PROXY_COARSER = 0.8
 
 
 # ---------------------------------------------------------------------- original method (MDS)

@@ -327,6 +327,32 @@ def test_proxy_whose_map_falls_back_is_simplified_and_mapped_again(monkeypatch):
     assert "fallback" not in m.info and m.fold_fraction <= 0.01
 
 
+def test_proxy_whose_simplified_map_falls_back_too_is_rebuilt_coarser(monkeypatch):
+    """When the simplified proxy's map falls back as well, a proxy on a coarser grid is mapped;
+    when that one falls back too, the first proxy's map is kept (and judged as a fallback)."""
+    import surfidx.parameterize as P
+
+    s = _limbs()
+    cloud = SurfelSet(s.positions, s.normals, s.radii)
+    for failing, coarser in ((2, True), (3, False)):
+        sizes = []
+        real = P._mesh_map
+
+        def fails(surfels, **options):
+            sizes.append(len(surfels))
+            x, info = real(surfels, **options)
+            return x, (dict(info, fallback=1) if len(sizes) <= failing else info)
+
+        monkeypatch.setattr(P, "_mesh_map", fails)
+        monkeypatch.setattr(P, "_MAX_AREA_DISTORTION", np.inf)
+        m = parameterize(cloud, stress=False)
+        assert len(sizes) == 3
+        assert m.info.get("proxy_coarser") == (1 if coarser else None)
+        assert ("fallback" in m.info) is not coarser
+        assert (m.info["proxy_vertices"] == sizes[2]) is coarser
+        monkeypatch.undo()
+
+
 def test_squeezed_fallback_map_is_refused(monkeypatch):
     """A single-level fallback whose area distortion exceeds _MAX_AREA_DISTORTION is refused with
     a TopologyError; a multilevel map is never refused for it."""
