@@ -777,7 +777,8 @@ def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):
     not the proxy's), and each surfel takes the sphere position of its closest point on the proxy
     (barycentric interpolation, renormalised). Where the proxy's map falls back to the
     single-level route, a proxy with half of its vertices collapsed (shortest edges first) is
-    mapped instead. With ``repair``, the folded triangles of the surfels' own spherical Delaunay
+    mapped instead, and should that fall back too, a proxy on a coarser grid
+    (:func:`_coarser_proxy_map`). With ``repair``, the folded triangles of the surfels' own spherical Delaunay
     triangulation are then repaired as a mesh's are (:func:`surfidx._foldrepair.repair_folds`),
     the triangulation's other triangles standing in for the mesh that must stay embedded.
     """
