@@ -19,12 +19,16 @@ __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "h
            "storable"]
 
 MAGIC = b"\x89SFZ"
-FORMAT_VERSION = 2
-"""Version 2 (this one): KLT basis as float16, one unit weight per geometry/colour group.
-Version 1 stored the basis and one weight per layer as float32 (132 bytes more with colour)."""
+FORMAT_VERSION = 3
+"""Version 3 (this one): optional local-frame tangent weight and density-weight field after the
+coder header (flag bits 2 and 3). Version 2 (still read): the same without them. Version 1 stored
+the basis and one weight per layer as float32 (132 bytes more with colour)."""
+READ_VERSIONS = (2, 3)
 
 FLAG_COLOR = 1
 FLAG_LIFTED = 2
+FLAG_FRAMES = 4
+FLAG_WEIGHTED = 8
 
 # magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
 _FIXED = struct.Struct("<4sBBBBIBBH")
@@ -55,6 +59,11 @@ class Header:
         Per-layer unit weights applied before the KLT: one value for x, y, z and one for r, g, b.
     coder : bytes
         The zerotree coder's own small header (top bit plane, step, ...).
+    tangent_weight : float or None
+        Local-frame wavelets of the geometry layers with this weight on the tangential components
+        (:func:`surfidx.wavelets.forward`); None: plain per-layer wavelets.
+    weight_field : bytes
+        The density-weight field (:func:`surfidx.density.pack_field`); empty: unweighted.
     """
 
     n_surfels: int
@@ -67,6 +76,8 @@ class Header:
     coder: bytes = b""
     map_method: int = 0
     version: int = FORMAT_VERSION
+    tangent_weight: float | None = None
+    weight_field: bytes = b""
     extra: dict = field(default_factory=dict)
 
     @property
@@ -78,10 +89,24 @@ def _n_weights(k: int) -> int:
     return 1 if k <= 3 else 2
 
 
-def header_size(layers: int, coder_bytes: int) -> int:
-    """Bytes of a container's header for ``layers`` KLT layers and a coder header of given size."""
+def header_size(layers: int, coder_bytes: int, *, frames: bool = False,
+                field_bytes: int | None = None) -> int:
+    """Bytes of a container's header.
+
+    Parameters
+    ----------
+    layers : int
+        KLT layers (3 or 6).
+    coder_bytes : int
+        Size of the coder's header.
+    frames : bool
+        Whether the header stores a tangent weight (4 bytes).
+    field_bytes : int, optional
+        Size of a stored density-weight field (plus its 2-byte length); None: no field.
+    """
     k = layers
-    return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + _TAIL.size
+    extra = (4 if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
+    return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
 
 
 def storable(mean, basis, weights):
@@ -145,9 +170,21 @@ def pack(header: Header, stream: bytes) -> bytes:
     flags = (FLAG_COLOR if header.color else 0) | (FLAG_LIFTED if header.lifted else 0)
     if len(header.coder) > 0xFFFF:
         raise InputError("coder header longer than 65535 bytes")
+    extra = b""
+    if header.tangent_weight is not None:
+        tw = np.float32(header.tangent_weight)
+        if not (0 < tw <= 1):
+            raise InputError(f"tangent_weight must be in (0, 1], got {header.tangent_weight!r}")
+        flags |= FLAG_FRAMES
+        extra += tw.astype("<f4").tobytes()
+    if header.weight_field:
+        if len(header.weight_field) > 0xFFFF:
+            raise InputError("density-weight field longer than 65535 bytes")
+        flags |= FLAG_WEIGHTED
+        extra += struct.pack("<H", len(header.weight_field)) + bytes(header.weight_field)
     body = _FIXED.pack(MAGIC, FORMAT_VERSION, flags, header.level, k, header.n_surfels,
                        header.map_method, 0, len(header.coder))
-    body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder)
+    body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder) + extra
     body += struct.pack("<I", len(stream))
     return body + struct.pack("<II", zlib.crc32(body), zlib.crc32(stream)) + bytes(stream)
 
@@ -179,19 +216,33 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     magic, version, flags, level, k, n, method, _, clen = _FIXED.unpack_from(data, 0)
     if magic != MAGIC:
         raise BitstreamError("not a surfidx .sfz file (bad magic number)", path=path)
-    if version != FORMAT_VERSION:
+    if version not in READ_VERSIONS:
         raise BitstreamError(f"unsupported format version {version} (this surfidx reads "
-                             f"version {FORMAT_VERSION}); upgrade surfidx", path=path)
+                             f"versions {', '.join(map(str, READ_VERSIONS))}); upgrade surfidx",
+                             path=path)
     if k not in (3, 6):
         raise BitstreamError(f"corrupt header (layer count {k}, expected 3 or 6)", path=path)
+    if version < 3 and flags & (FLAG_FRAMES | FLAG_WEIGHTED):
+        raise BitstreamError(f"corrupt header (flags {flags:#04x} unknown to version {version})",
+                             path=path)
     nw = _n_weights(k)
-    tail_off = _FIXED.size + 4 * k + 2 * k * k + 4 * nw + clen
+    coder_end = _FIXED.size + 4 * k + 2 * k * k + 4 * nw + clen
+    tail_off = coder_end + (4 if flags & FLAG_FRAMES else 0)
+    field_len = 0
+    if flags & FLAG_WEIGHTED:
+        if len(data) >= tail_off + 2:
+            field_len = struct.unpack_from("<H", data, tail_off)[0]
+        tail_off += 2 + field_len
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
     s_len, hcrc, scrc = _TAIL.unpack_from(data, tail_off)
     if zlib.crc32(data[:tail_off + 4]) != hcrc:
         raise BitstreamError("header checksum mismatch: the file is damaged", path=path)
+    if flags & ~(FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED):
+        raise BitstreamError(f"corrupt header (unknown flags {flags:#04x})", path=path)
+    if flags & FLAG_WEIGHTED and field_len == 0:
+        raise BitstreamError("corrupt header (empty density-weight field)", path=path)
     if k not in (3, 6) or (k == 6) != bool(flags & FLAG_COLOR) or level > 12:
         raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
                              path=path)
@@ -211,10 +262,16 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(basis)) and np.all(np.isfinite(w))):
         raise BitstreamError("corrupt header (non-finite KLT values)", path=path)
     weights = np.repeat(w, 3)
+    tangent_weight = None
+    if flags & FLAG_FRAMES:
+        tangent_weight = float(np.frombuffer(data, "<f4", 1, coder_end)[0])
+        if not (0 < tangent_weight <= 1):
+            raise BitstreamError(f"corrupt header (tangent weight {tangent_weight!r})", path=path)
     header = Header(
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
-        mean=mean, basis=basis, weights=weights, coder=bytes(data[tail_off - clen:tail_off]),
-        map_method=method, version=version)
+        mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
+        map_method=method, version=version, tangent_weight=tangent_weight,
+        weight_field=bytes(data[tail_off - field_len:tail_off]) if field_len else b"")
     return header, stream
 
 

@@ -90,7 +90,7 @@ class KLT:
 
     # ------------------------------------------------------------------ fitting
     @classmethod
-    def fit(cls, layers, *, weights=None, sample_weights=None) -> "KLT":
+    def fit(cls, layers, *, weights=None, sample_weights=None, groups=None) -> "KLT":
         """Fit the transform to data.
 
         Parameters
@@ -102,6 +102,11 @@ class KLT:
             trade colour against geometry. Stored with the transform.
         sample_weights : (n,) float64, optional
             Non-negative weight of each sample (e.g. grid vertex areas) in the mean and covariance.
+        groups : sequence of int, optional
+            Sizes of consecutive layer groups decorrelated separately, e.g. ``(3, 3)``: the basis
+            is then block-diagonal (each group ordered by decreasing eigenvalue, groups in their
+            input order), so the first group's coefficients are a rotation of its layers alone —
+            what local-frame wavelets of geometry need. Default: one group of all layers.
 
         Returns
         -------
@@ -111,12 +116,17 @@ class KLT:
         ------
         InputError
             On a non-2-D or non-finite ``layers``, fewer than 2 samples, wrong-length or
-            non-positive ``weights``, or negative/all-zero ``sample_weights``.
+            non-positive ``weights``, negative/all-zero ``sample_weights``, or ``groups`` that do
+            not add up to the layer count.
         """
         x = as_array(layers, "layers", shape=(None, None), min_len=2)
         n, k = x.shape
         if k < 1:
             raise InputError("layers must have at least one column")
+        sizes = (k,) if groups is None else tuple(int(g) for g in groups)
+        if any(g < 1 for g in sizes) or sum(sizes) != k:
+            raise InputError(f"groups must be positive layer counts adding up to {k}, got "
+                             f"{tuple(groups)}")
         w = np.ones(k) if weights is None else as_array(weights, "weights", shape=(k,))
         if not np.all(w > 0):
             i = int(np.flatnonzero(~(w > 0))[0])
@@ -133,10 +143,15 @@ class KLT:
         zc = z - mean
         cov = (zc * p[:, None]).T @ zc
         cov = 0.5 * (cov + cov.T)
-        evals, evecs = np.linalg.eigh(cov)
-        order = np.argsort(-evals, kind="stable")
-        evals = np.clip(evals[order], 0.0, None)
-        basis = evecs[:, order].T.copy()
+        evals, basis = np.zeros(k), np.zeros((k, k))
+        start = 0
+        for g in sizes:
+            sl = slice(start, start + g)
+            ev, vec = np.linalg.eigh(cov[sl, sl])
+            order = np.argsort(-ev, kind="stable")
+            evals[sl] = np.clip(ev[order], 0.0, None)
+            basis[sl, sl] = vec[:, order].T
+            start += g
         pivot = np.argmax(np.abs(basis), axis=1)  # first one on exact ties
         signs = np.sign(basis[np.arange(k), pivot])
         signs[signs == 0] = 1.0

@@ -161,6 +161,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
               "color_weight": COLOR_WEIGHT, "samples": samples,
+              "tangent_weight": enc.tangent_weight, "density_weighted": bool(enc.weight_field),
               "max_edge_ratio": MAX_EDGE_RATIO if from_mesh else None,
               "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS},
               "texture": None if texture is None else str(texture),

@@ -124,3 +124,75 @@ def test_layer_count_and_non_finite_values():
     h.basis = h.basis * 1e6  # overflows float16
     with pytest.raises(InputError, match="must be finite in float32/float16"):
         pack(h, b"")
+
+
+def _reseal(data: bytearray, tail_off: int) -> bytes:
+    """Recompute the header checksum after editing header bytes (tail at ``tail_off``)."""
+    import struct
+    import zlib
+
+    struct.pack_into("<I", data, tail_off + 4, zlib.crc32(bytes(data[:tail_off + 4])))
+    return bytes(data)
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_frames_and_weight_field_round_trip(color):
+    h = _header(color)
+    h.tangent_weight = 0.5
+    h.weight_field = b"\x02field-bytes"
+    stream = bytes(range(100))
+    data = pack(h, stream)
+    assert len(data) == header_size(h.layers, len(h.coder), frames=True,
+                                     field_bytes=len(h.weight_field)) + len(stream)
+    h2, s2 = unpack(data)
+    assert (h2.tangent_weight, h2.weight_field, s2) == (0.5, b"\x02field-bytes", stream)
+    plain, _ = unpack(pack(_header(color), stream))
+    assert plain.tangent_weight is None and plain.weight_field == b""
+    assert unpack(truncate(data, len(data) - 10))[0].weight_field == h.weight_field
+
+
+def test_version_2_files_still_read():
+    h = _header(False)
+    data = bytearray(pack(h, b"stream"))
+    data[4] = 2
+    tail_off = header_size(3, len(h.coder)) - 12
+    h2, s2 = unpack(_reseal(data, tail_off))
+    assert (h2.version, h2.tangent_weight, h2.weight_field, s2) == (2, None, b"", b"stream")
+    data[5] |= 4   # a version-2 file cannot have local frames
+    with pytest.raises(BitstreamError, match="flags 0x06 unknown to version 2"):
+        unpack(_reseal(data, tail_off))
+
+
+def test_new_header_fields_are_validated():
+    h = _header(False)
+    h.tangent_weight = 1.5
+    with pytest.raises(InputError, match=r"tangent_weight must be in \(0, 1\], got 1.5"):
+        pack(h, b"")
+    h = _header(False)
+    h.weight_field = bytes(70000)
+    with pytest.raises(InputError, match="density-weight field longer than 65535"):
+        pack(h, b"")
+    # damaged but correctly sealed headers: unknown flags, a zero tangent weight, an empty field
+    h = _header(False)
+    tail_off = header_size(3, len(h.coder)) - 12
+    data = bytearray(pack(h, b"s"))
+    data[5] |= 0x40
+    with pytest.raises(BitstreamError, match="unknown flags 0x42"):
+        unpack(_reseal(data, tail_off))
+    h.tangent_weight = 0.5
+    data = bytearray(pack(h, b"s"))
+    tail_off = header_size(3, len(h.coder), frames=True) - 12
+    data[tail_off - 4:tail_off] = bytes(4)
+    with pytest.raises(BitstreamError, match="corrupt header \\(tangent weight 0.0\\)"):
+        unpack(_reseal(data, tail_off))
+    h = _header(False)
+    h.weight_field = b"\x01"
+    data = bytearray(pack(h, b"s"))
+    tail_off = header_size(3, len(h.coder), field_bytes=1) - 12
+    data[tail_off - 3:tail_off] = bytes(3)   # field length 0, and one stray byte
+    with pytest.raises(BitstreamError):
+        unpack(_reseal(data, tail_off))
+    data = bytearray(pack(h, b"s"))
+    data = data[:tail_off - 3] + bytearray(2) + data[tail_off:]
+    with pytest.raises(BitstreamError, match="empty density-weight field"):
+        unpack(_reseal(data, tail_off - 1))

@@ -149,3 +149,22 @@ def test_bad_input():
     raw[6 + 24:6 + 24 + 72] = np.zeros(9, "<f8").tobytes()  # singular basis
     with pytest.raises(BitstreamError, match="corrupt KLT record"):
         KLT.from_bytes(bytes(raw))
+
+
+def test_groups_give_a_block_diagonal_basis():
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(500, 6)) @ rng.normal(size=(6, 6))   # all layers correlated
+    t = KLT.fit(x, groups=(3, 3))
+    assert np.all(t.basis[:3, 3:] == 0) and np.all(t.basis[3:, :3] == 0)
+    np.testing.assert_allclose(t.basis @ t.basis.T, np.eye(6), atol=1e-12)
+    assert np.all(np.diff(t.eigenvalues[:3]) <= 0) and np.all(np.diff(t.eigenvalues[3:]) <= 0)
+    # the first group's coefficients are its own KLT: the same as fitting those layers alone
+    alone = KLT.fit(x[:, :3])
+    np.testing.assert_allclose(t.forward(x)[:, :3], alone.forward(x[:, :3]), atol=1e-10)
+    assert np.abs(t.inverse(t.forward(x)) - x).max() < TOL.reconstruction
+    np.testing.assert_array_equal(KLT.fit(x, groups=(6,)).basis, KLT.fit(x).basis)
+    with pytest.raises(InputError, match=r"groups must be positive layer counts adding up to 6, "
+                                         r"got \(3, 2\)"):
+        KLT.fit(x, groups=(3, 2))
+    with pytest.raises(InputError, match="groups must be positive"):
+        KLT.fit(x, groups=(6, 0))

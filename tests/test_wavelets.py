@@ -192,3 +192,70 @@ def test_bad_input():
         level_norms(2.0)
     with pytest.raises(InputError, match="coarse_level must be at most level=2"):
         scaling_integrals(2, 3)
+
+
+# ---------------------------------------------------------------- local frames
+def _bumpy(level, k=3, seed=0):
+    v = icosphere(level).vertices
+    rng = np.random.default_rng(seed)
+    p = v * (1 + 0.2 * np.sin(3 * v[:, :1]) * np.cos(2 * v[:, 1:2]))[:, None].reshape(-1, 1)
+    p = p * [1.0, 1.4, 0.7] + rng.normal(scale=1e-3, size=p.shape)
+    extra = rng.normal(size=(len(v), k - 3))
+    return np.hstack([p, extra])
+
+
+@pytest.mark.parametrize("level", [0, 1, 3, 5])
+@pytest.mark.parametrize("k", [3, 6])
+@pytest.mark.parametrize("weight", [0.3, 1.0])
+def test_frames_reconstruct_exactly(level, k, weight):
+    x = _bumpy(level, k)
+    for normalized in (False, True):
+        c = forward(x, level, normalized=normalized, frames=True, tangent_weight=weight)
+        y = inverse(c, level, normalized=normalized, frames=True, tangent_weight=weight)
+        assert np.abs(y - x).max() < TOL.reconstruction
+        if k > 3:  # the other layers are untouched by the frames
+            np.testing.assert_array_equal(c[:, 3:], forward(x[:, 3:], level,
+                                                            normalized=normalized))
+
+
+def test_frames_rotate_with_the_surface():
+    """Normal components are invariant under a rigid motion; the frames move with the surface."""
+    from scipy.spatial.transform import Rotation
+
+    level = 4
+    x = _bumpy(level)
+    c = forward(x, level, frames=True, tangent_weight=0.5)
+    rot = Rotation.random(random_state=7).as_matrix()
+    c2 = forward(x @ rot.T + [3.0, -1.0, 2.0], level, frames=True, tangent_weight=0.5)
+    details = slice(12, None)
+    np.testing.assert_allclose(c2[details], c[details], atol=1e-10)
+    plain = forward(x, level)
+    # the weight scales exactly the two tangential components
+    c1 = forward(x, level, frames=True, tangent_weight=1.0)
+    np.testing.assert_allclose(c[details, 1:], 0.5 * c1[details, 1:], atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(c1[details], axis=1),
+                               np.linalg.norm(plain[details], axis=1), rtol=1e-10, atol=1e-14)
+
+
+def test_frames_put_a_normal_displacement_on_the_normal_component():
+    """A small bump along the sphere's normal changes mostly the details' normal components
+    (12x the tangential change; x, y, z components share it 1 : 2)."""
+    level = 5
+    v = icosphere(level).vertices
+    bumped = v * (1 + 0.01 * np.sin(7 * v[:, 0]) * np.cos(5 * v[:, 1]))[:, None]
+    d = (forward(bumped, level, frames=True) - forward(v, level, frames=True))[12:]
+    assert np.sum(d[:, 0] ** 2) > 10 * np.sum(d[:, 1:] ** 2)
+
+
+def test_frames_bad_input():
+    x = _bumpy(2)
+    with pytest.raises(InputError, match="tangent_weight applies only with frames=True"):
+        forward(x, 2, tangent_weight=0.5)
+    with pytest.raises(InputError, match=r"tangent_weight must be in \(0, 1\], got 0"):
+        forward(x, 2, frames=True, tangent_weight=0)
+    with pytest.raises(InputError, match=r"tangent_weight must be in \(0, 1\], got 1.5"):
+        inverse(x, 2, frames=True, tangent_weight=1.5)
+    with pytest.raises(InputError, match="frames=True needs at least three layers"):
+        forward(x[:, :2], 2, frames=True)
+    with pytest.raises(InputError, match="frames=True needs at least three layers"):
+        inverse(x[:, 0], 2, frames=True)

@@ -19,21 +19,34 @@ from ._common import command_errors, echo_json, input_options, read_input
               help="Icosahedral grid level (default: chosen from the surfel count).")
 @click.option("--method", type=click.Choice(["tutte", "mds"]), default="tutte",
               help="Spherical map: fold-free Tutte with area balancing, or the original MDS.")
+@click.option("--tangent-weight", type=float, default=None,
+              help="Weight in (0, 1] of the tangential geometry details in local frames "
+                   "(default 0.5).")
+@click.option("--no-frames", is_flag=True, help="Code x, y, z details as they are (no local frames).")
+@click.option("--density-weighting/--no-density-weighting", default=None,
+              help="Weight coefficients by the input's surfel density on the sphere (default: "
+                   "when the estimated gain is at least 1 dB).")
 @input_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
-def encode(input, output, bits, no_color, level, method, texture, samples, as_json):
+def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
+           density_weighting, texture, samples, as_json):
     """Encode a model into an embedded .sfz bitstream."""
-    from ..codec import Encoder
+    from ..codec import TANGENT_WEIGHT, Encoder
     from ..io import write_atomic
 
+    if no_frames and tangent_weight is not None:
+        raise click.UsageError("--tangent-weight and --no-frames exclude each other")
+    tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
     s = read_input(input, texture, samples)
-    enc = Encoder(s, level=level, color=False if no_color else None, method=method)
+    enc = Encoder(s, level=level, color=False if no_color else None, method=method,
+                  tangent_weight=tw, density_weighting=density_weighting)
     data = enc.encode(bits)
     write_atomic(output, lambda tmp: tmp.write_bytes(data))
     out = {"output": str(output), "surfels": len(s), "bytes": len(data),
            "bits_per_surfel": 8.0 * len(data) / len(s), "level": enc.level, "color": enc.color,
-           "folded": enc.sphere_map.folded, "seconds": enc.setup_seconds}
+           "folded": enc.sphere_map.folded, "tangent_weight": enc.tangent_weight,
+           "density_weighted": bool(enc.weight_field), "seconds": enc.setup_seconds}
     if as_json:
         echo_json(out)
     else:
