@@ -109,8 +109,12 @@ class Encoder:
     klt : KLT
     sphere_map : SphericalMap
     level : int
+    tangent_weight : float or None
+        The tangent weight the container stores (float32-rounded), None without local frames.
     weight_field : bytes
         The stored density-weight field (empty when unweighted).
+    density_gain : float
+        :func:`surfidx.density.weighting_gain` of the field, in dB (computed either way).
     setup_seconds : dict of str -> float
     """
 

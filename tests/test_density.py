@@ -104,3 +104,17 @@ def test_errors():
         except BitstreamError:
             continue
         assert len(q) == vertex_count(level) and Q_MIN <= q.min() and q.max() <= Q_MAX
+
+
+def test_impossible_and_out_of_range_fields_are_refused():
+    from surfidx.density import _N_CTX, _encode_residuals
+    from surfidx.entropy import new_encoder, new_models
+
+    with pytest.raises(BitstreamError, match="impossible code"):
+        unpack_field(b"\x00\xff\xff\xff\xff\x00")
+    # residuals that leave the stored range: 15 on every level-0 vertex (the coder allows it)
+    r = np.full(12, 15, np.int64)
+    buf = np.zeros(256, np.uint8)
+    size = _encode_residuals(r, np.zeros(12, np.int64), buf, new_encoder(), new_models(_N_CTX))
+    with pytest.raises(BitstreamError, match="values out of range"):
+        unpack_field(b"\x00" + bytes(buf[:size]))
