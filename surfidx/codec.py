@@ -18,7 +18,10 @@ Two weightings fit the coder's uniform thresholds to point-to-plane distortion o
   are coded as normal and tangential components, the tangential ones multiplied by
   :data:`TANGENT_WEIGHT` (scorpion at 1.39 / 2 / 3.56 bits/surfel: 0.25, 0.5, 0.6, 0.7 gave
   62.2 / 62.6 / 62.4 / 62.5, 64.4 / 65.3 / 65.1 / 64.9 and 68.4 / 69.4 / 69.1 / 68.8 dB PSNR_D2;
-  Igea +2.9 / +2.9 / +1.7 dB at 0.89 / 1.39 / 3.56 over no frames);
+  Igea +2.9 / +2.9 / +1.7 dB at 0.89 / 1.39 / 3.56 over no frames). The frames are closed-loop
+  (:func:`surfidx.wavelets.forward_anchored`): computed from the coarse surface quantised to a
+  per-level anchor bit plane stored in the header, which a decoder that has that plane
+  reproduces exactly;
 * **density weights** (:mod:`surfidx.density`): coefficients where the map squeezes many input
   surfels into little of the sphere count more; the field is stored in the header, and used only
   when its estimated gain is worth its bytes.
@@ -168,22 +171,33 @@ class Encoder:
         self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
                        eigenvalues=fit.eigenvalues)
         self.tangent_weight = tangent_weight
-        self.coeffs = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True,
-                                       normalized=True, frames=frames,
-                                       tangent_weight=1.0 if tangent_weight is None
-                                       else tangent_weight)
+        layers = self.klt.forward(self.grid)
+        plain = wavelets.forward(layers, self.level, lifted=True, normalized=True)
         flevel = density.field_level(self.n_surfels, self.level)
         field = density.weight_field(sphere_map.points, flevel)
         self.density_gain = density.weighting_gain(field, flevel)
         if density_weighting is None:
             density_weighting = self.density_gain >= density.MIN_GAIN_DB
         self.weight_field = density.pack_field(field, flevel) if density_weighting else b""
+        scales = wavelets.level_norms(self.level)[icosphere(self.level).level_of]
         if density_weighting:
-            self.coeffs *= density.vertex_scales(field, flevel, self.level)[:, None]
-        top = float(np.abs(self.coeffs).max())
+            dscale = density.vertex_scales(field, flevel, self.level)
+            plain *= dscale[:, None]
+            scales = scales * dscale
+        # local frames never lengthen a geometry detail vector: bound the top by the lengths
+        top = max(float(np.sqrt(np.einsum("ij,ij->i", plain[:, :3], plain[:, :3])).max()),
+                  float(np.abs(plain[:, 3:]).max()) if k > 3 else 0.0)
         if not top > 0:
             raise InputError("the resampled model is constant; nothing to code")
         self.step = float(np.float32(top * 2.0 ** -_PLANES))
+        if frames:
+            self.anchors = wavelets.choose_anchors(plain, self.level, self.step)
+            self.coeffs = wavelets.forward_anchored(layers, self.level,
+                                                    tangent_weight=tangent_weight, scales=scales,
+                                                    step=self.step, anchors=self.anchors)
+        else:
+            self.anchors = None
+            self.coeffs = plain
         self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
             else 0
         t["transform"] = time.perf_counter() - t0
@@ -193,6 +207,7 @@ class Encoder:
         """Bytes of the container header for this model."""
         return container.header_size(
             self.coeffs.shape[1], zerotree.HEADER_SIZE, frames=self.tangent_weight is not None,
+            anchors=0 if self.anchors is None else len(self.anchors),
             field_bytes=len(self.weight_field) if self.weight_field else None)
 
     def encode(self, bits_per_surfel: float) -> bytes:
@@ -226,7 +241,8 @@ class Encoder:
             n_surfels=self.n_surfels, level=self.level, color=self.color, lifted=True,
             mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
             coder=zerotree.pack_header(zh), map_method=self.map_method,
-            tangent_weight=self.tangent_weight, weight_field=self.weight_field)
+            tangent_weight=self.tangent_weight, weight_field=self.weight_field,
+            anchors=None if self.anchors is None else tuple(int(a) for a in self.anchors))
         return container.pack(header, stream)
 
 
@@ -280,25 +296,35 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None)
     except InputError:
         raise BitstreamError(f"grid level {header.level} is out of range", path=path) from None
     k = header.layers
-    w = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
-                        ico.children_indices, header=zh)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
+                                ico.children_indices, header=zh, planes=True)
+    scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
     if header.weight_field:
         field, flevel = density.unpack_field(header.weight_field, path=path)
         if flevel > header.level:
             raise BitstreamError(f"corrupt header (density-weight field level {flevel} above "
                                  f"the grid level {header.level})", path=path)
-        w /= density.vertex_scales(field, flevel, header.level)[:, None]
+        scales = scales * density.vertex_scales(field, flevel, header.level)
     frames = header.tangent_weight is not None
     if frames and k > 3 and (np.any(np.asarray(header.basis)[:3, 3:] != 0)
                              or np.any(np.asarray(header.basis)[3:, :3] != 0)):
         raise BitstreamError("corrupt header (local frames with a KLT basis that mixes geometry "
                              "and colour)", path=path)
+    if frames and (len(header.anchors) != header.level or not header.lifted
+                   or any(b > a for a, b in zip(header.anchors, header.anchors[1:]))):
+        raise BitstreamError(f"corrupt header (frame anchors {list(header.anchors)} for grid "
+                             f"level {header.level})", path=path)
     try:
         klt = KLT.from_arrays(header.mean, header.basis, header.weights)
     except InputError as exc:
         raise BitstreamError(f"corrupt KLT header ({exc.reason})", path=path) from None
-    c = wavelets.inverse(w, header.level, lifted=header.lifted, normalized=True, frames=frames,
-                         tangent_weight=1.0 if not frames else header.tangent_weight)
+    if frames:
+        c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
+                                      scales=scales, anchors=header.anchors,
+                                      anchor_values=lambda a, rows: zerotree.anchor_values(
+                                          planes, a, rows=rows, layers=3))
+    else:
+        c = wavelets.inverse(w / scales[:, None], header.level, lifted=header.lifted)
     values = klt.inverse(c)
     if not np.all(np.isfinite(values)):
         raise BitstreamError("decoding produced non-finite values: the file is damaged",

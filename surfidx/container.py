@@ -32,7 +32,8 @@ FLAG_WEIGHTED = 8
 
 # magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
 _FIXED = struct.Struct("<4sBBBBIBBH")
-_TAIL = struct.Struct("<III")  # stream length, header crc (of everything before it), stream crc
+_TAIL = struct.Struct("<III")
+_MAX_ANCHOR = 61  # stream length, header crc (of everything before it), stream crc
 
 
 @dataclass
@@ -64,6 +65,9 @@ class Header:
         (:func:`surfidx.wavelets.forward`); None: plain per-layer wavelets.
     weight_field : bytes
         The density-weight field (:func:`surfidx.density.pack_field`); empty: unweighted.
+    anchors : tuple of int
+        With local frames: the bit plane of each level's frame anchor
+        (:func:`surfidx.wavelets.forward_anchored`), one per grid level, non-increasing.
     """
 
     n_surfels: int
@@ -78,6 +82,7 @@ class Header:
     version: int = FORMAT_VERSION
     tangent_weight: float | None = None
     weight_field: bytes = b""
+    anchors: tuple = ()
     extra: dict = field(default_factory=dict)
 
     @property
@@ -89,7 +94,7 @@ def _n_weights(k: int) -> int:
     return 1 if k <= 3 else 2
 
 
-def header_size(layers: int, coder_bytes: int, *, frames: bool = False,
+def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors: int = 0,
                 field_bytes: int | None = None) -> int:
     """Bytes of a container's header.
 
@@ -100,12 +105,15 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False,
     coder_bytes : int
         Size of the coder's header.
     frames : bool
-        Whether the header stores a tangent weight (4 bytes).
+        Whether the header stores local-frame parameters: a tangent weight (4 bytes), an anchor
+        count (1 byte) and ``anchors`` anchor planes (1 byte each).
+    anchors : int
+        Number of anchor planes (the grid level).
     field_bytes : int, optional
         Size of a stored density-weight field (plus its 2-byte length); None: no field.
     """
     k = layers
-    extra = (4 if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
+    extra = (5 + anchors if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
     return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
 
 
@@ -175,8 +183,12 @@ def pack(header: Header, stream: bytes) -> bytes:
         tw = np.float32(header.tangent_weight)
         if not (0 < tw <= 1):
             raise InputError(f"tangent_weight must be in (0, 1], got {header.tangent_weight!r}")
+        anchors = [int(a) for a in header.anchors]
+        if len(anchors) > 255 or any(not 0 <= a <= _MAX_ANCHOR for a in anchors):
+            raise InputError(f"frame anchors must be at most 255 planes in 0..{_MAX_ANCHOR}, got "
+                             f"{anchors}")
         flags |= FLAG_FRAMES
-        extra += tw.astype("<f4").tobytes()
+        extra += tw.astype("<f4").tobytes() + bytes([len(anchors)]) + bytes(anchors)
     if header.weight_field:
         if len(header.weight_field) > 0xFFFF:
             raise InputError("density-weight field longer than 65535 bytes")
@@ -227,7 +239,12 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
                              path=path)
     nw = _n_weights(k)
     coder_end = _FIXED.size + 4 * k + 2 * k * k + 4 * nw + clen
-    tail_off = coder_end + (4 if flags & FLAG_FRAMES else 0)
+    tail_off = coder_end
+    n_anchors = 0
+    if flags & FLAG_FRAMES:
+        if len(data) >= coder_end + 5:
+            n_anchors = data[coder_end + 4]
+        tail_off += 5 + n_anchors
     field_len = 0
     if flags & FLAG_WEIGHTED:
         if len(data) >= tail_off + 2:
@@ -262,15 +279,18 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(basis)) and np.all(np.isfinite(w))):
         raise BitstreamError("corrupt header (non-finite KLT values)", path=path)
     weights = np.repeat(w, 3)
-    tangent_weight = None
+    tangent_weight, anchors = None, ()
     if flags & FLAG_FRAMES:
         tangent_weight = float(np.frombuffer(data, "<f4", 1, coder_end)[0])
         if not (0 < tangent_weight <= 1):
             raise BitstreamError(f"corrupt header (tangent weight {tangent_weight!r})", path=path)
+        anchors = tuple(int(a) for a in data[coder_end + 5:coder_end + 5 + n_anchors])
+        if any(a > _MAX_ANCHOR for a in anchors):
+            raise BitstreamError(f"corrupt header (frame anchors {list(anchors)})", path=path)
     header = Header(
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
         mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
-        map_method=method, version=version, tangent_weight=tangent_weight,
+        map_method=method, version=version, tangent_weight=tangent_weight, anchors=anchors,
         weight_field=bytes(data[tail_off - field_len:tail_off]) if field_len else b"")
     return header, stream
 

@@ -52,6 +52,7 @@ step as float32 — :func:`encode` rounds the step to float32 first, so the stor
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -62,7 +63,7 @@ from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, 
     new_models
 
 __all__ = ["encode", "decode", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
-           "check_forest"]
+           "check_forest", "DecodedPlanes", "quantize_to_plane", "anchor_values"]
 
 VERSION = 1
 """Version of the zerotree stream format (the first header byte)."""
@@ -280,7 +281,8 @@ def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth, pare
 @njit(cache=True)
 def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, indices, depth,
          tb, dtop, ltop, mag, sgn):
-    """The SPIHT passes; returns (complete, sigp, neg, known, lo)."""
+    """The SPIHT passes; returns (complete, sigp, neg, known, lo, done): ``done`` is the lowest
+    plane whose sorting and refinement passes all finished (``top + 1`` if none did)."""
     sigp = np.full((k, n), -1, dtype=np.int8)
     neg = np.zeros((k, n), dtype=np.uint8)
     known = np.zeros((k, n), dtype=np.int64)
@@ -328,11 +330,11 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 ctx = _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, 0)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo
+                    return False, sigp, neg, known, lo, p + 1
                 if b == 1:
                     if not _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth,
                                               parent, sigp, neg, known, lo, lsp, lsp_len, sgn):
-                        return False, sigp, neg, known, lo
+                        return False, sigp, neg, known, lo, p + 1
                 else:
                     lip[l, w] = i
                     w += 1
@@ -363,7 +365,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if dtop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo
+                        return False, sigp, neg, known, lo, p + 1
                     if b == 0:
                         lis[l, w] = e
                         w += 1
@@ -377,12 +379,12 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         ctx = _sig_ctx(l, c, p, depth, parent, indptr, indices, sigp, 1)
                         b = _code(mode, est, dst, buf, models, ctx, b, budget)
                         if b < 0:
-                            return False, sigp, neg, known, lo
+                            return False, sigp, neg, known, lo, p + 1
                         if b == 1:
                             if not _newly_significant(mode, est, dst, buf, models, budget, l, c, p,
                                                       depth, parent, sigp, neg, known, lo, lsp,
                                                       lsp_len, sgn):
-                                return False, sigp, neg, known, lo
+                                return False, sigp, neg, known, lo, p + 1
                         else:
                             lip[l, lip_len[l]] = c
                             lip_len[l] += 1
@@ -408,7 +410,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if ltop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo
+                        return False, sigp, neg, known, lo, p + 1
                     if b == 0:
                         lis[l, w] = e
                         w += 1
@@ -437,10 +439,10 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                     b = np.int64((mag[l, i] >> p) & 1)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo
+                    return False, sigp, neg, known, lo, p + 1
                 known[l, i] |= np.int64(b) << p
                 lo[l, i] = p
-    return True, sigp, neg, known, lo
+    return True, sigp, neg, known, lo, final
 
 
 def _reconstruct(sigp, neg, known, lo, step):
@@ -450,6 +452,82 @@ def _reconstruct(sigp, neg, known, lo, step):
     val = np.where(sigp >= 0, (val + frac) * step, 0.0)
     val[neg.astype(bool)] *= -1.0
     return np.ascontiguousarray(val.T)
+
+
+# ---------------------------------------------------------------- anchors
+@dataclass(frozen=True)
+class DecodedPlanes:
+    """What a decoder knows of the quantised magnitudes.
+
+    Attributes
+    ----------
+    magnitudes : (n, k) int64
+        The decoded bits of ``q = floor(|c| / step + 1/2)`` (bits below a coefficient's lowest
+        decoded plane are 0).
+    negative : (n, k) bool
+    done : int
+        Every plane ``>= done`` was decoded in full, so every ``q``'s bits from ``done`` up are
+        known exactly.
+    step : float
+    """
+
+    magnitudes: np.ndarray
+    negative: np.ndarray
+    done: int
+    step: float
+
+
+def _anchor(q: np.ndarray, negative: np.ndarray, plane: int, step: float) -> np.ndarray:
+    qa = (q >> plane) << plane
+    half = np.ldexp(1.0, plane - 1) - 0.5 if plane >= 1 else 0.0
+    val = np.where(qa > 0, (qa.astype(np.float64) + half) * step, 0.0)
+    return np.where(negative, -val, val)
+
+
+def quantize_to_plane(coeffs, plane: int, step: float) -> np.ndarray:
+    """Coefficients as a decoder that knows their bits down to ``plane`` reconstructs them.
+
+    Parameters
+    ----------
+    coeffs : (n, k) float64
+    plane : int
+        Lowest known bit plane (>= 0).
+    step : float
+        The coder's quantisation step.
+
+    Returns
+    -------
+    (n, k) float64
+        ``(q_a + 2**(plane-1) - 1/2) · step`` with the sign, ``q_a`` the quantised magnitude with
+        its bits below ``plane`` cleared (``q_a · step`` for plane 0; 0 where ``q_a = 0``): what
+        :func:`anchor_values` gives at the decoder once plane ``plane`` is decoded.
+    """
+    c = np.asarray(coeffs, np.float64)
+    q = np.floor(np.abs(c) / step + 0.5).astype(np.int64)
+    return _anchor(q, c < 0, int(plane), float(step))
+
+
+def anchor_values(decoded: DecodedPlanes, plane: int, *, rows: int | None = None,
+                  layers: int | None = None) -> np.ndarray | None:
+    """:func:`quantize_to_plane` of the encoder's coefficients, from a decoder's bits.
+
+    Parameters
+    ----------
+    decoded : DecodedPlanes
+    plane : int
+    rows, layers : int, optional
+        Only the first ``rows`` coefficients of the first ``layers`` layers (default all).
+
+    Returns
+    -------
+    (rows, layers) float64 or None
+        Bit-identical to the encoder's ``quantize_to_plane(coeffs[:rows, :layers], plane, step)``
+        when every plane down to ``plane`` was decoded (``decoded.done <= plane``); else None.
+    """
+    if decoded.done > plane:
+        return None
+    sl = (slice(rows), slice(layers))
+    return _anchor(decoded.magnitudes[sl], decoded.negative[sl], int(plane), decoded.step)
 
 
 # ---------------------------------------------------------------- header
@@ -610,7 +688,7 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
 
 
 def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *, header,
-           max_bytes: int | None = None):
+           max_bytes: int | None = None, planes: bool = False):
     """Decode a stream of :func:`encode`, or any prefix of it.
 
     Parameters
@@ -627,12 +705,16 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
         The encoder's header, as a dict or packed by :func:`pack_header`.
     max_bytes : int, optional
         Decode only the first ``max_bytes`` bytes (default: all of ``stream``).
+    planes : bool
+        Also return the decoded bits (:class:`DecodedPlanes`), for :func:`anchor_values`.
 
     Returns
     -------
     coeffs : (n, k) float64
         Reconstruction: midpoints of the intervals the decoded bits leave, 0 where a coefficient
         is not yet significant. Bit-identical to decoding ``encode(..., max_bytes=len(prefix))``.
+    decoded : DecodedPlanes
+        Only with ``planes=True``.
 
     Raises
     ------
@@ -666,7 +748,14 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
         dec_init(dst, data)
     est = new_encoder()
     z8 = np.zeros((k, 1), dtype=np.int8)
-    _, sigp, neg, known, lo = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top, final, parent, indptr,
-                                   indices, depth, z8, z8, z8, np.zeros((k, 1), dtype=np.int64),
-                                   np.zeros((k, 1), dtype=np.uint8))
-    return _reconstruct(sigp, neg, known, lo, step)
+    _, sigp, neg, known, lo, done = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
+                                         final, parent, indptr, indices, depth, z8, z8, z8,
+                                         np.zeros((k, 1), dtype=np.int64),
+                                         np.zeros((k, 1), dtype=np.uint8))
+    values = _reconstruct(sigp, neg, known, lo, step)
+    if not planes:
+        return values
+    return values, DecodedPlanes(magnitudes=np.ascontiguousarray(known.T),
+                                 negative=np.ascontiguousarray(neg.T.astype(bool)),
+                                 done=int(min(done, top + 1)) if top >= 0 else int(final),
+                                 step=float(step))

@@ -168,7 +168,9 @@ def test_frames_and_weights_are_stored_and_undone(blob):
     plain = Encoder(blob, level=4, tangent_weight=None, density_weighting=False)
     h2, _ = unpack(plain.encode(4.0))
     assert h2.tangent_weight is None and h2.weight_field == b""
-    assert plain.header_bytes() + 4 + len(e.weight_field) + 2 == e.header_bytes()
+    # tangent weight, anchor count and one anchor plane per level; the field and its length
+    assert plain.header_bytes() + 5 + 4 + len(e.weight_field) + 2 == e.header_bytes()
+    assert header.anchors == tuple(int(a) for a in e.anchors) and len(header.anchors) == 4
 
 
 def test_frames_and_weights_errors(blob):
@@ -228,3 +230,14 @@ def test_real_model_psnr_floors_and_the_weightings_gain(models):
         new = psnr_d2(s, decode(e.encode(rate)))
         old = psnr_d2(s, decode(plain.encode(rate)))
         assert new >= floor and new >= old + 1.5, (rate, new, old)
+
+
+def test_damaged_frame_anchors(blob):
+    from surfidx.container import pack, unpack
+
+    header, stream = unpack(Encoder(blob, level=3).encode(4.0))
+    assert len(header.anchors) == 3
+    for bad in ((5, 4), (1, 2, 3), (9, 9, 9, 9)):
+        header.anchors = bad
+        with pytest.raises(BitstreamError, match=r"corrupt header \(frame anchors "):
+            decode(pack(header, stream))

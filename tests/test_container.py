@@ -182,7 +182,7 @@ def test_new_header_fields_are_validated():
     h.tangent_weight = 0.5
     data = bytearray(pack(h, b"s"))
     tail_off = header_size(3, len(h.coder), frames=True) - 12
-    data[tail_off - 4:tail_off] = bytes(4)
+    data[tail_off - 5:tail_off - 1] = bytes(4)   # the tangent weight, before the anchor count
     with pytest.raises(BitstreamError, match="corrupt header \\(tangent weight 0.0\\)"):
         unpack(_reseal(data, tail_off))
     h = _header(False)
@@ -196,3 +196,21 @@ def test_new_header_fields_are_validated():
     data = data[:tail_off - 3] + bytearray(2) + data[tail_off:]
     with pytest.raises(BitstreamError, match="empty density-weight field"):
         unpack(_reseal(data, tail_off - 1))
+
+
+def test_frame_anchors_round_trip_and_are_validated():
+    h = _header(False)
+    h.tangent_weight, h.anchors = 0.5, (20, 17, 17, 9, 0)
+    data = pack(h, b"xyz")
+    assert len(data) == header_size(3, len(h.coder), frames=True, anchors=5) + 3
+    h2, _ = unpack(data)
+    assert h2.anchors == (20, 17, 17, 9, 0)
+    h.anchors = (70,)
+    with pytest.raises(InputError, match=r"frame anchors must be at most 255 planes in 0..61"):
+        pack(h, b"")
+    h.anchors = (3,)
+    data = bytearray(pack(h, b"s"))
+    tail_off = header_size(3, len(h.coder), frames=True, anchors=1) - 12
+    data[tail_off - 1] = 99
+    with pytest.raises(BitstreamError, match=r"corrupt header \(frame anchors \[99\]\)"):
+        unpack(_reseal(data, tail_off))

@@ -284,3 +284,32 @@ def test_speed_100k_nodes():
     t_dec = time.perf_counter() - t
     assert len(stream) == budget
     assert t_enc < 2.0 and t_dec < 2.0, (t_enc, t_dec)
+
+
+def test_anchor_values_match_the_encoder_once_the_plane_is_decoded():
+    from surfidx.icosphere import icosphere
+    from surfidx.zerotree import anchor_values, quantize_to_plane
+
+    ico = icosphere(4)
+    rng = np.random.default_rng(5)
+    c = rng.laplace(size=(ico.n_vertices, 3)) * np.exp(-1.5 * ico.level_of)[:, None]
+    for budget in (300, 2000, 20000):
+        stream, header = encode(c, ico.tree_parent, ico.children_indptr, ico.children_indices,
+                                step=1e-5, max_bytes=budget)
+        values, planes = decode(stream, ico.n_vertices, 3, ico.tree_parent, ico.children_indptr,
+                                ico.children_indices, header=header, planes=True)
+        np.testing.assert_array_equal(values, decode(stream, ico.n_vertices, 3, ico.tree_parent,
+                                                     ico.children_indptr, ico.children_indices,
+                                                     header=header))
+        assert header["final_plane"] <= planes.done <= header["top_plane"] + 1
+        for plane in range(planes.done, header["top_plane"] + 2):
+            np.testing.assert_array_equal(anchor_values(planes, plane),
+                                          quantize_to_plane(c, plane, header["step"]))
+        assert anchor_values(planes, planes.done - 1) is None or planes.done == 0
+        np.testing.assert_array_equal(anchor_values(planes, planes.done, rows=50, layers=2),
+                                      quantize_to_plane(c[:50, :2], planes.done, header["step"]))
+    # a plane's anchor is the decoded value once that plane is the last one
+    full, planes = decode(stream, ico.n_vertices, 3, ico.tree_parent, ico.children_indptr,
+                          ico.children_indices, header=header, planes=True)
+    if planes.done == 0:
+        np.testing.assert_array_equal(anchor_values(planes, 0), full)
