@@ -534,16 +534,14 @@ def forward_anchored(values, level: int, *, tangent_weight: float, scales, step:
     from .zerotree import quantize_to_plane
 
     geometries = []
+    rotated = raw[:, :3].copy()   # rows lo:hi are rotated in place at level j
     for j in range(lev):
         lo, hi = c[j], c[j + 1]
         y = quantize_to_plane(coded[:lo, :3], int(anchors[j]), step) / s[:lo]
         _synthesise_to(y, lev, j, geometries, tw)
         geometries.append(y)
-        d = raw[lo:hi].copy()
-        holder = np.zeros((hi, d.shape[1]))
-        holder[lo:hi] = d
-        _frames_step(holder, lev, j, tw, True, y)
-        coded[lo:hi, :3] = holder[lo:hi, :3] * s[lo:hi]
+        _frames_step(rotated, lev, j, tw, True, y)
+        coded[lo:hi, :3] = rotated[lo:hi] * s[lo:hi]
     return coded
 
 
