@@ -241,3 +241,24 @@ def test_damaged_frame_anchors(blob):
         header.anchors = bad
         with pytest.raises(BitstreamError, match=r"corrupt header \(frame anchors "):
             decode(pack(header, stream))
+
+
+def test_cli_info_of_a_stream(tmp_path, blob):
+    sfz = tmp_path / "b.sfz"
+    data = Encoder(blob, level=4, density_weighting=True).encode(3.0)
+    sfz.write_bytes(data)
+    r = CliRunner().invoke(cli, ["info", str(sfz), "--json"])
+    assert r.exit_code == 0, r.output
+    info = json.loads(r.output)
+    assert info["bytes"] == len(data) and info["input_surfels"] == len(blob)
+    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 3
+    assert info["local_frames"] and info["tangent_weight"] == 0.5
+    assert len(info["frame_anchors"]) == 4 and info["density_weighted"]
+    assert info["weight_field_level"] is not None and abs(info["bits_per_surfel"] - 3.0) < 0.01
+    r = CliRunner().invoke(cli, ["info", str(sfz)])
+    assert r.exit_code == 0 and "tangent_weight" in r.output and "0.5" in r.output
+    bad = tmp_path / "bad.sfz"
+    bad.write_bytes(data[:30])
+    r = CliRunner().invoke(cli, ["info", str(bad)])
+    assert r.exit_code == 1 and "bad.sfz: truncated header" in r.output
+    assert "Traceback" not in r.output

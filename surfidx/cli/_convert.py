@@ -32,9 +32,13 @@ def convert(input, output, texture, samples, text):
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
 def info(input, texture, samples, as_json):
-    """Surfel count, bounding box, colour and (for meshes) closedness and genus."""
+    """Surfel count, bounding box, colour and (for meshes) closedness and genus; for a .sfz
+    stream, its container header."""
     from ..io import read_mesh
 
+    if Path(input).suffix.lower() == ".sfz":
+        _echo(_stream_info(input), as_json)
+        return
     s = read_input(input, texture, samples)
     lo, hi = s.bounds
     out = {"file": str(input), "surfels": len(s), "color": s.has_color,
@@ -48,6 +52,35 @@ def info(input, texture, samples, as_json):
                     "genus": topo.genus})
     else:
         out["mesh"] = False
+    _echo(out, as_json)
+
+
+def _stream_info(path) -> dict:
+    """The container header of a .sfz file, as the fields a user asks about."""
+    from ..codec import MAP_METHODS, read_sfz
+    from ..container import unpack
+    from ..density import unpack_field
+
+    data = read_sfz(path)
+    header, stream = unpack(data, path=path)
+    out = {"file": str(path), "format_version": header.version, "bytes": len(data),
+           "input_surfels": header.n_surfels,
+           "bits_per_surfel": 8.0 * len(data) / header.n_surfels, "grid_level": header.level,
+           "grid_vertices": 10 * 4 ** header.level + 2, "color": header.color,
+           "layers": header.layers, "stream_bytes": len(stream),
+           "map_method": MAP_METHODS[header.map_method]
+           if header.map_method < len(MAP_METHODS) else header.map_method,
+           "local_frames": header.tangent_weight is not None,
+           "tangent_weight": header.tangent_weight,
+           "frame_anchors": list(header.anchors) if header.tangent_weight is not None else None,
+           "density_weighted": bool(header.weight_field), "weight_field_level": None,
+           "weight_field_bytes": len(header.weight_field)}
+    if header.weight_field:
+        out["weight_field_level"] = unpack_field(header.weight_field, path=path)[1]
+    return out
+
+
+def _echo(out: dict, as_json: bool) -> None:
     if as_json:
         echo_json(out)
         return
