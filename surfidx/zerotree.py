@@ -445,13 +445,18 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
     return True, sigp, neg, known, lo, final
 
 
-def _reconstruct(sigp, neg, known, lo, step):
-    lo64 = lo.astype(np.int64)
-    val = known.astype(np.float64)
+def _dequantize(q, lo, negative, step):
+    """The reconstruction rule of the module docstring: magnitudes ``q`` known down to bit plane
+    ``lo`` (array or scalar) at the midpoint of their interval, 0 where ``q`` is 0 (a coefficient
+    is significant exactly when a bit of it is known to be 1), with their signs."""
+    lo64 = np.asarray(lo, dtype=np.int64)
     frac = np.where(lo64 > 0, np.ldexp(1.0, lo64 - 1) - 0.5, 0.0)
-    val = np.where(sigp >= 0, (val + frac) * step, 0.0)
-    val[neg.astype(bool)] *= -1.0
-    return np.ascontiguousarray(val.T)
+    val = np.where(q > 0, (q.astype(np.float64) + frac) * step, 0.0)
+    return np.where(negative, -val, val)
+
+
+def _reconstruct(neg, known, lo, step):
+    return np.ascontiguousarray(_dequantize(known, lo, neg.astype(bool), step).T)
 
 
 # ---------------------------------------------------------------- anchors
@@ -478,10 +483,7 @@ class DecodedPlanes:
 
 
 def _anchor(q: np.ndarray, negative: np.ndarray, plane: int, step: float) -> np.ndarray:
-    qa = (q >> plane) << plane
-    half = np.ldexp(1.0, plane - 1) - 0.5 if plane >= 1 else 0.0
-    val = np.where(qa > 0, (qa.astype(np.float64) + half) * step, 0.0)
-    return np.where(negative, -val, val)
+    return _dequantize((q >> plane) << plane, plane, negative, step)
 
 
 def quantize_to_plane(coeffs, plane: int, step: float) -> np.ndarray:
@@ -748,14 +750,13 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
         dec_init(dst, data)
     est = new_encoder()
     z8 = np.zeros((k, 1), dtype=np.int8)
-    _, sigp, neg, known, lo, done = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
-                                         final, parent, indptr, indices, depth, z8, z8, z8,
-                                         np.zeros((k, 1), dtype=np.int64),
-                                         np.zeros((k, 1), dtype=np.uint8))
-    values = _reconstruct(sigp, neg, known, lo, step)
+    _, _, neg, known, lo, done = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
+                                      final, parent, indptr, indices, depth, z8, z8, z8,
+                                      np.zeros((k, 1), dtype=np.int64),
+                                      np.zeros((k, 1), dtype=np.uint8))
+    values = _reconstruct(neg, known, lo, step)
     if not planes:
         return values
     return values, DecodedPlanes(magnitudes=np.ascontiguousarray(known.T),
                                  negative=np.ascontiguousarray(neg.T.astype(bool)),
-                                 done=int(min(done, top + 1)) if top >= 0 else int(final),
-                                 step=float(step))
+                                 done=int(done), step=float(step))
