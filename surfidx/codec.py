@@ -116,6 +116,8 @@ class Encoder:
         The tangent weight the container stores (float32-rounded), None without local frames.
     weight_field : bytes
         The stored density-weight field (empty when unweighted).
+    anchors : tuple of int
+        The stored anchor bit plane of each level's local frames (empty without frames).
     density_gain : float
         :func:`surfidx.density.weighting_gain` of the field, in dB (computed either way).
     setup_seconds : dict of str -> float
@@ -171,15 +173,15 @@ class Encoder:
         self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
                        eigenvalues=fit.eigenvalues)
         self.tangent_weight = tangent_weight
-        layers = self.klt.forward(self.grid)
-        plain = wavelets.forward(layers, self.level, lifted=True, normalized=True)
+        raw = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True)
+        scales = wavelets.level_norms(self.level)[icosphere(self.level).level_of]
+        plain = raw * scales[:, None]   # forward(..., normalized=True)
         flevel = density.field_level(self.n_surfels, self.level)
         field = density.weight_field(sphere_map.points, flevel)
         self.density_gain = density.weighting_gain(field, flevel)
         if density_weighting is None:
             density_weighting = self.density_gain >= density.MIN_GAIN_DB
         self.weight_field = density.pack_field(field, flevel) if density_weighting else b""
-        scales = wavelets.level_norms(self.level)[icosphere(self.level).level_of]
         if density_weighting:
             dscale = density.vertex_scales(field, flevel, self.level)
             plain *= dscale[:, None]
@@ -190,14 +192,14 @@ class Encoder:
         if not top > 0:
             raise InputError("the resampled model is constant; nothing to code")
         self.step = float(np.float32(top * 2.0 ** -_PLANES))
+        self.anchors = ()
+        self.coeffs = plain
         if frames:
-            self.anchors = wavelets.choose_anchors(plain, self.level, self.step)
-            self.coeffs = wavelets.forward_anchored(layers, self.level,
+            self.anchors = tuple(int(a) for a in
+                                 wavelets.choose_anchors(plain, self.level, self.step))
+            self.coeffs = wavelets.forward_anchored(raw, self.level,
                                                     tangent_weight=tangent_weight, scales=scales,
                                                     step=self.step, anchors=self.anchors)
-        else:
-            self.anchors = None
-            self.coeffs = plain
         self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
             else 0
         t["transform"] = time.perf_counter() - t0
@@ -207,7 +209,7 @@ class Encoder:
         """Bytes of the container header for this model."""
         return container.header_size(
             self.coeffs.shape[1], zerotree.HEADER_SIZE, frames=self.tangent_weight is not None,
-            anchors=0 if self.anchors is None else len(self.anchors),
+            anchors=len(self.anchors),
             field_bytes=len(self.weight_field) if self.weight_field else None)
 
     def encode(self, bits_per_surfel: float) -> bytes:
@@ -242,7 +244,7 @@ class Encoder:
             mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
             coder=zerotree.pack_header(zh), map_method=self.map_method,
             tangent_weight=self.tangent_weight, weight_field=self.weight_field,
-            anchors=None if self.anchors is None else tuple(int(a) for a in self.anchors))
+            anchors=self.anchors)
         return container.pack(header, stream)
 
 

@@ -495,20 +495,22 @@ def choose_anchors(coded: np.ndarray, level: int, step: float, *,
     return out
 
 
-def forward_anchored(values, level: int, *, tangent_weight: float, scales, step: float,
+def forward_anchored(coeffs, level: int, *, tangent_weight: float, scales, step: float,
                      anchors) -> np.ndarray:
-    """Lifted wavelet analysis with closed-loop local frames; returns coded coefficients.
+    """Closed-loop local frames on lifted wavelet coefficients; returns coded coefficients.
 
-    Like :func:`forward` with ``frames=True``, but the frames of the details born at level ``j + 1``
-    come from the level-``j`` approximation synthesised from the *coded* coefficients of levels
-    ``<= j`` quantised to bit plane ``anchors[j]`` (:func:`surfidx.zerotree.quantize_to_plane`).
-    A decoder that has decoded every plane down to ``anchors[j]`` computes bit-identical frames
-    (:func:`inverse_anchored`), so its frames and the encoder's differ only below that rate.
+    The coefficients of :func:`forward` (lifted, not normalised) with, as ``frames=True`` would
+    give, the geometry details in local frames, except that the frames of the details born at
+    level ``j + 1`` come from the level-``j`` approximation synthesised from the *coded*
+    coefficients of levels ``<= j`` quantised to bit plane ``anchors[j]``
+    (:func:`surfidx.zerotree.quantize_to_plane`). A decoder that has decoded every plane down to
+    ``anchors[j]`` computes bit-identical frames (:func:`inverse_anchored`), so its frames and the
+    encoder's differ only below that rate.
 
     Parameters
     ----------
-    values : (n, k) float64
-        Grid layers, geometry first (k >= 3).
+    coeffs : (n, k) float64
+        ``forward(values, level)`` of the grid layers, geometry first (k >= 3).
     level : int
     tangent_weight : float
         In (0, 1].
@@ -524,11 +526,10 @@ def forward_anchored(values, level: int, *, tangent_weight: float, scales, step:
     (n, k) float64
         Coded coefficients (raw coefficients times ``scales``).
     """
-    lev, arr = _prepare(values, level, "values")
+    lev, arr = _prepare(coeffs, level, "coeffs")
     tw = _check_frames(True, tangent_weight, arr)
     s = np.asarray(scales, np.float64)[:, None]
-    raw = arr.reshape(arr.shape[0], -1).copy()
-    _forward(raw, lev, True, None)
+    raw = arr.reshape(arr.shape[0], -1)
     coded = raw * s
     c = icosphere(lev).counts
     from .zerotree import quantize_to_plane

@@ -281,7 +281,7 @@ def test_anchored_frames_reconstruct_exactly_and_anchors_descend(k):
     level = 5
     x, scales, step, anchors = _anchored_setup(level, k)
     assert len(anchors) == level and np.all(np.diff(anchors) <= 0) and anchors.min() >= 0
-    coded = forward_anchored(x, level, tangent_weight=0.5, scales=scales, step=step,
+    coded = forward_anchored(forward(x, level), level, tangent_weight=0.5, scales=scales, step=step,
                              anchors=anchors)
     y = inverse_anchored(coded, level, tangent_weight=0.5, scales=scales, anchors=anchors,
                          anchor_values=lambda a, rows: quantize_to_plane(coded[:rows], a, step))
@@ -302,7 +302,7 @@ def test_anchored_frames_agree_with_the_encoder_wherever_the_anchor_was_decoded(
     level = 5
     ico = icosphere(level)
     x, scales, step, anchors = _anchored_setup(level)
-    coded = forward_anchored(x, level, tangent_weight=0.5, scales=scales, step=step,
+    coded = forward_anchored(forward(x, level), level, tangent_weight=0.5, scales=scales, step=step,
                              anchors=anchors)
     for budget in (400, 3000, 30000):
         stream, header = zencode(coded, ico.tree_parent, ico.children_indptr,
