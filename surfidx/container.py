@@ -32,8 +32,8 @@ FLAG_WEIGHTED = 8
 
 # magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
 _FIXED = struct.Struct("<4sBBBBIBBH")
-_TAIL = struct.Struct("<III")
-_MAX_ANCHOR = 61  # stream length, header crc (of everything before it), stream crc
+_TAIL = struct.Struct("<III")  # stream length, header crc (of everything before it), stream crc
+_MAX_ANCHOR = 61  # an anchor is a zerotree bit plane (surfidx.zerotree._MAX_PLANE)
 
 
 @dataclass

@@ -485,14 +485,11 @@ def choose_anchors(coded: np.ndarray, level: int, step: float, *,
     """
     c = icosphere(level).counts
     norm = np.sqrt(np.einsum("ij,ij->i", coded[:, :3], coded[:, :3]))
-    out = np.zeros(level, np.int64)
-    prev = 62
+    planes = np.zeros(level, np.int64)
     for j in range(level):
         top = float(np.percentile(norm[c[j]:c[j + 1]], 99)) / step
-        plane = int(np.floor(np.log2(top))) - offset if top >= 1 else 0
-        prev = min(prev, max(plane, 0))
-        out[j] = prev
-    return out
+        planes[j] = max(int(np.floor(np.log2(top))) - offset, 0) if top >= 1 else 0
+    return np.minimum.accumulate(planes)
 
 
 def forward_anchored(coeffs, level: int, *, tangent_weight: float, scales, step: float,
