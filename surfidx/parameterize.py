@@ -120,6 +120,7 @@ models, as meshes and as point clouds, every map that resampled without holes me
 2.1, every map that left 16-79 % of the surfels without a grid point (single-level fallbacks of
 point clouds whose proxies could not be untangled) at least 5.5."""
 _SECOND_SEARCH = False
+_PROXY_COARSER = 0.8  # a point cloud's last proxy: this times the automatic grid resolution
 _LAM = 0.5          # area weight of the balancing energy (against angle preservation)
 
 
@@ -754,18 +755,36 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
         info = dict(info, levels=1, base_vertices=len(surfels), fallback=1,
                     retries=len(_COARSE_LADDER))
     if repair:
-        x, rinfo = repair_folds(x, surfels.positions, surfels.normals, f, hull=hull_triangles)
-        info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
-                    repair_rounds=rinfo["rounds"])
-        if rinfo["folds"] and _SECOND_PASS:
-            # a second pass, every move tried afresh, with the surfels' Delaunay triangles that
-            # are not folded kept embedded too (their neighbourhoods propose other moves)
-            tri = hull_triangles(x)
-            bad = folded_mask(surfels.positions, surfels.normals, tri)
-            x, r2 = repair_folds(x, surfels.positions, surfels.normals,
-                                 np.concatenate([f, tri[~bad]]), hull=hull_triangles,
-                                 search=_SECOND_SEARCH)
-            info["folds_repaired"] += r2["folds_before"] - r2["folds"]
+        x, info = _repair(x, surfels, info, mesh=f)
+    return x, info
+
+
+def _repair(x, surfels: SurfelSet, info: dict, *, mesh=None):
+    """Fold repair (:func:`surfidx._foldrepair.repair_folds`) of the map ``x``, then, where folds
+    remain, a second pass: every move tried afresh (without the random search unless
+    ``_SECOND_SEARCH``), the surfels' Delaunay triangles that are not folded kept embedded too
+    (their neighbourhoods propose other moves). ``mesh`` (faces) is kept embedded in both passes;
+    without one (a point cloud) the first pass keeps the unfolded Delaunay triangles, and a
+    triangulation with no folded triangle, or only folded ones, is left as it is."""
+    p, normals = surfels.positions, surfels.normals
+
+    def unfolded(x):
+        tri = hull_triangles(x)
+        bad = folded_mask(p, normals, tri)
+        return bad, tri[~bad] if mesh is None else np.concatenate([mesh, tri[~bad]])
+
+    faces = mesh
+    if mesh is None:
+        bad, faces = unfolded(x)
+        if not bad.any() or bad.all():
+            return x, info
+    x, rinfo = repair_folds(x, p, normals, faces, hull=hull_triangles)
+    info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
+                repair_rounds=rinfo["rounds"])
+    if rinfo["folds"] and _SECOND_PASS:
+        x, r2 = repair_folds(x, p, normals, unfolded(x)[1], hull=hull_triangles,
+                             search=_SECOND_SEARCH)
+        info["folds_repaired"] += r2["folds_before"] - r2["folds"]
     return x, info
 
 
@@ -810,19 +829,7 @@ def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):
     if repair:
         # the surfels have no mesh: their own spherical Delaunay triangulation, less its folded
         # triangles, is the mesh the repair keeps embedded while it moves the folds' corners
-        tri = hull_triangles(pts)
-        bad = folded_mask(surfels.positions, surfels.normals, tri)
-        if bad.any() and not bad.all():
-            pts, rinfo = repair_folds(pts, surfels.positions, surfels.normals, tri[~bad],
-                                      hull=hull_triangles)
-            info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
-                        repair_rounds=rinfo["rounds"])
-            if rinfo["folds"] and _SECOND_PASS:   # afresh, on the repaired triangulation
-                tri = hull_triangles(pts)
-                bad = folded_mask(surfels.positions, surfels.normals, tri)
-                pts, r2 = repair_folds(pts, surfels.positions, surfels.normals, tri[~bad],
-                                       hull=hull_triangles, search=_SECOND_SEARCH)
-                info["folds_repaired"] += r2["folds_before"] - r2["folds"]
+        pts, info = _repair(pts, surfels, info)
     info = dict(info, proxy_vertices=len(v), proxy_faces=len(f))
     return pts, info
 
@@ -843,8 +850,6 @@ def _coarser_proxy_map(surfels: SurfelSet, current, **options):
                         **options)
     return current if info.get("fallback") else (v, f, x, dict(info, proxy_coarser=1))
 
-
-_PROXY_COARSER = 0.8
 
 
 # ---------------------------------------------------------------------- original method (MDS)
