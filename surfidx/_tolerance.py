@@ -41,6 +41,11 @@ class Tolerances:
     sphere_cover : float
         Largest relative deviation from 4π of the summed spherical areas of a mesh's mapped faces
         (all counter-clockwise) for them to count as covering the sphere once.
+    inverted_area : float
+        Largest share of the sphere that the faces a map turns over may cover (the fold
+        realisation of :mod:`surfidx._circlepattern` turns over small ones: scorpion 445 faces,
+        0.28 % of the sphere; two swapped vertices of a level-3 icosphere turn over 2.3 % of it) for resampling to interpolate in the mesh's faces rather than in the
+        Delaunay triangles of the mapped surfels.
     """
 
     unit_normal: float = 1e-3
@@ -53,6 +58,7 @@ class Tolerances:
     geodesic_corridor: float = 0.1
     degenerate_angle: float = 1e-4
     sphere_cover: float = 1e-6
+    inverted_area: float = 0.01
 
 
 TOL = Tolerances()

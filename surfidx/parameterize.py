@@ -84,6 +84,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ._errors import InputError, TopologyError
+from ._circlepattern import lower_folds
 from ._foldrepair import _orientation, folded_mask, repair_folds
 from ._tolerance import TOL
 from ._validate import as_array, check_positive_int
@@ -113,6 +114,9 @@ _FINAL_STEPS = 1500  # the finest level may take more steps: long limbs still ga
 _UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
 _SECOND_PASS = True
+_REALISE = True
+"""Where the repair leaves folds, the triangulation is chosen by edge flips and realised as the
+Delaunay triangulation of moved points (:mod:`surfidx._circlepattern`)."""
 _MAX_AREA_DISTORTION = 4.0
 """A single-level fallback map (no level of the hierarchies could be untangled) whose area
 distortion exceeds this is refused: on the 77 genus-0 retrieval
@@ -781,10 +785,16 @@ def _repair(x, surfels: SurfelSet, info: dict, *, mesh=None):
     x, rinfo = repair_folds(x, p, normals, faces, hull=hull_triangles)
     info = dict(info, folds_repaired=rinfo["folds_before"] - rinfo["folds"],
                 repair_rounds=rinfo["rounds"])
-    if rinfo["folds"] and _SECOND_PASS:
+    folds = rinfo["folds"]
+    if folds and _SECOND_PASS:
         x, r2 = repair_folds(x, p, normals, unfolded(x)[1], hull=hull_triangles,
                              search=_SECOND_SEARCH)
         info["folds_repaired"] += r2["folds_before"] - r2["folds"]
+        folds = r2["folds"]
+    if folds and _REALISE:
+        x, r3 = lower_folds(x, p, normals)
+        info = dict(info, folds_realised=r3["folds_before"] - r3["folds"],
+                    realise_rounds=r3["rounds"])
     return x, info
 
 

@@ -3,7 +3,8 @@
 The layers (x, y, z and, with colour, r, g, b) are interpolated at the grid vertices with
 barycentric coordinates in a spherical triangulation of the mapped surfels
 (:func:`map_triangles`): a mesh's own faces when the map embeds them (every face
-counter-clockwise, covering the sphere once), so grid points land on the input's triangles;
+counter-clockwise, covering the sphere once, but for a few that the fold realisation turned
+over), so grid points land on the input's triangles;
 otherwise (a point cloud, or a map that inverts a face) the spherical Delaunay triangulation of the
 mapped surfels (their convex hull). Point location is exact: every query walks from the triangle of
 its nearest site across the edge it lies beyond (a numba kernel over all queries), so every grid
@@ -363,16 +364,20 @@ def map_triangles(surfels: SurfelSet, sphere_points) -> np.ndarray:
     -------
     (m, 3) int64
         Counter-clockwise triangles seen from outside: the surfels' faces (without those that
-        repeat a corner) when every one of them is counter-clockwise on the sphere and their
-        spherical areas sum to 4π (the map embeds the mesh); otherwise the convex hull of
-        ``sphere_points`` (:func:`surfidx.parameterize.hull_triangles`).
+        repeat a corner) when their signed spherical areas sum to 4π and the clockwise ones cover
+        at most the share ``TOL.inverted_area`` of the sphere (the map embeds the mesh but for the
+        small faces that the fold realisation of :mod:`surfidx._circlepattern` turned over, where
+        point location falls back to nearby triangles); otherwise the convex hull of ``sphere_points``
+        (:func:`surfidx.parameterize.hull_triangles`). Scorpion at level 9, 434 of its 101,302
+        faces turned over: PSNR_D2 81.20 dB in its faces, 70.42 dB in the convex hull.
     """
     pts = _check_points(surfels, sphere_points)
     f = surfels.faces
     if f is not None and len(f):
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-        if len(f) and np.all(_orientation(pts, f) > 0) and abs(
-                _spherical_areas(pts, f).sum() / (4 * np.pi) - 1.0) <= TOL.sphere_cover:
+        area = _spherical_areas(pts, f) if len(f) else np.zeros(0)
+        if len(f) and -area[area < 0].sum() <= TOL.inverted_area * 4 * np.pi and abs(
+                area.sum() / (4 * np.pi) - 1.0) <= TOL.sphere_cover:
             return np.ascontiguousarray(f, dtype=np.int64)
     return hull_triangles(pts)
 
