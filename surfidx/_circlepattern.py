@@ -7,10 +7,13 @@ This module works the other way round, in two steps.
 
 1. **Flips** (:func:`flip_folds`): a combinatorial search on the current Delaunay triangulation.
    Each folded triangle (its 3D normal against its surfels' normals) has an edge flipped when the
-   two new triangles hold fewer folded ones than the two old (or, looking one flip ahead, when a
-   flip that loses nothing enables one that gains). Only flips of quadrilaterals convex on the
-   sphere are made: the map need then move little. The result is a triangulation of the sphere
-   with fewer folded triangles that is no longer Delaunay at the flipped edges.
+   two new triangles hold fewer folded ones than the two old, or a sequence of up to
+   :data:`_FLIP_DEPTH` flips is made, each on the folded triangle the previous one left, that
+   loses nothing on the way and gains at the end (the fold is moved to where it can be removed).
+   Only flips of quadrilaterals convex on the sphere are made, so the result is still a
+   triangulation of the mapped points, with fewer folded triangles, no longer Delaunay at the
+   flipped edges. (Flips of non-convex quadrilaterals would remove more, scorpion 56 -> 17, but
+   the angles they ask for admit no realisation.)
 2. **Realisation** (:func:`realise`): points on the sphere whose Delaunay triangulation is exactly
    that triangulation, close to the current map. By Rivin's theorem (1994; the variational
    principle of Bobenko & Springborn 2004), a triangulation of the sphere is realised as a
@@ -26,18 +29,19 @@ This module works the other way round, in two steps.
    The realisation is accepted only when Newton converged and the convex hull of the new points
    is that triangulation, triangle for triangle.
 
-On scorpion's repaired map (465 folded triangles of 101,302) two rounds leave 94; on the 77
-genus-0 retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces are
-no longer all embedded afterwards (scorpion: 434 of 101,302 inverted); resampling still
-interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss (scorpion at
-level 9: PSNR_D2 81.20 dB either way, 70.4 dB in the Delaunay triangles).
+On scorpion's repaired map (473 folded triangles of 101,302) two rounds leave 56 (flip sequences
+of depth 1, 2, 4, 6, 8 from a realised map: 94, 94, 64, 62, 62 left); on the 77 genus-0
+retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces are no
+longer all embedded afterwards (scorpion: 445 turned over, 0.28 % of the sphere); resampling
+still interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss
+(scorpion at level 9: PSNR_D2 81.20 dB either way, 70.4 dB in the Delaunay triangles).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import LinearOperator, cg, splu
 
 __all__ = ["flip_folds", "realise", "lower_folds"]
 
@@ -48,15 +52,26 @@ _PROJECTION_STEPS = 300
 _NEWTON_STEPS = 300
 _NEWTON_TOL = 1e-10    # largest triangle angle-sum error (radians) at convergence
 _MAX_STEP = 2.0        # largest change of a log circumradius in one Newton step
-_CHORD_RATE = 0.5      # a Jacobian is reused while each step shrinks the residual by this
+_CG_STEPS = 40         # CG steps on a Newton system, preconditioned by an earlier
+_CG_RTOL = 1e-6        # factorisation, before it is factorised afresh
 _FLIP_ROUNDS = 30
+_FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
+_VIOLATION_LADDER = (np.inf, 1.0, 0.3)
+"""Largest Delaunay violations of the flipped-in edges tried in turn when a realisation fails
+(Newton's method does not converge where the raised angles admit none)."""
 
 
 def _folded(p, normals, t):
     t = np.asarray(t, dtype=np.int64).reshape(-1, 3)
     n3 = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
     return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
+
+
+def _angle(x, a, b, c):
+    """The angle at ``a`` between the chords to ``b`` and ``c``."""
+    u, v = x[b] - x[a], x[c] - x[a]
+    return float(np.arccos(np.clip(u @ v / np.sqrt((u @ u) * (v @ v)), -1.0, 1.0)))
 
 
 def _ccw(x, t):
@@ -67,9 +82,10 @@ def _ccw(x, t):
 class _Flips:
     """A triangulation under edge flips: directed edge -> triangle, and each triangle's fold."""
 
-    def __init__(self, tri, p, normals, x, mirror):
+    def __init__(self, tri, p, normals, x, mirror, max_violation=np.inf):
         self.tri = [tuple(t) for t in np.asarray(tri).tolist()]
         self.p, self.normals, self.x, self.mirror = p, normals, x, mirror
+        self.max_violation = max_violation
         self.edge = {}
         for i in range(len(self.tri)):
             self._register(i)
@@ -99,6 +115,9 @@ class _Flips:
         new = ((a, d, c), (d, b, c))
         if not (_ccw(self.x, new[0]) and _ccw(self.x, new[1])):
             return None                     # a quadrilateral that is not convex on the sphere
+        if self.max_violation < np.pi and np.pi - _angle(self.x, a, d, c) - _angle(
+                self.x, b, c, d) < -self.max_violation:
+            return None                     # the new edge is far from Delaunay: a large move
         bad = (_folded(self.p, self.normals, new) ^ self.mirror).tolist()
         return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
 
@@ -125,27 +144,24 @@ class _Flips:
         cands = [c for k in range(3) if (c := self.candidate(i, k)) is not None and c[0] >= minimum]
         return max(cands, key=lambda c: c[0], default=None)
 
-    def mend(self, i) -> bool:
-        """One flip with a gain, or two (the first losing nothing) whose gains sum positive."""
-        cand = self.best(i, minimum=1)
-        if cand is not None:
-            self.apply(cand)
-            return True
-        for k in range(3):
-            first = self.candidate(i, k)
-            if first is None or first[0] < 0:
-                continue
-            record = self.apply(first)
-            for q in record[:2]:
-                second = self.best(q, minimum=1 - first[0])
-                if second is not None:
-                    self.apply(second)
-                    return True
+    def mend(self, i, depth: int = None, gained: int = 0) -> bool:
+        """A sequence of at most ``depth`` flips, each on a folded triangle the previous one left
+        and none losing a fold, whose gains sum positive (a fold moved by flips that keep the
+        count until it meets a place, or another fold, where it can be removed)."""
+        depth = _FLIP_DEPTH if depth is None else depth
+        cands = [c for k in range(3) if (c := self.candidate(i, k)) is not None and c[0] >= 0]
+        for cand in sorted(cands, key=lambda c: -c[0]):
+            record = self.apply(cand)
+            if gained + cand[0] > 0:
+                return True
+            if depth > 1 and any(self.bad[q] and self.mend(q, depth - 1, gained + cand[0])
+                                 for q in record[:2]):
+                return True
             self.undo(record)
         return False
 
 
-def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS):
+def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, max_violation: float = np.inf):
     """Edge flips of a spherical triangulation that lower its count of folded triangles.
 
     Parameters
@@ -159,16 +175,22 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS):
         Sphere points; only flips of quadrilaterals convex on the sphere are made.
     rounds : int
         Passes over the folded triangles, until one changes nothing.
+    max_violation : float
+        Flip only where the new edge's intersection angle ``π - α - β`` (chord angles) is at
+        least ``-max_violation``: the realisation then moves the points less.
 
     Returns
     -------
     tri : (m, 3) int64
-        The flipped triangulation (the same rows where nothing was flipped).
+        The flipped triangulation (rows in the canonical order: each starts at its smallest
+        corner, rows sorted).
     folds : int
         Its folded triangles.
     """
-    bad = _folded(p, normals, tri)
-    state = _Flips(tri, p, normals, x, mirror=bool(bad.sum() > len(bad) / 2))
+    tri = _canonical(tri)          # the search visits triangles by vertex index, not by input
+    bad = _folded(p, normals, tri)  # order, so a rotated map flips the same edges
+    state = _Flips(tri, p, normals, x, mirror=bool(bad.sum() > len(bad) / 2),
+                   max_violation=max_violation)
     for _ in range(rounds):
         todo = [i for i, b in enumerate(state.bad) if b]
         changed = sum(state.mend(i) for i in todo if state.bad[i])
@@ -235,24 +257,31 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
         return const + np.bincount(i, _half_angle(d, ts), minlength=m) \
             + np.bincount(j, _half_angle(-d, ts), minlength=m)
 
+    def jacobian(r):            # minus the residual's Jacobian: a weighted dual Laplacian
+        w = _half_angle_slope(r[j] - r[i], ts)
+        lap = sp.csr_matrix((np.concatenate([-w, -w]), (np.concatenate([i, j]),
+                                                        np.concatenate([j, i]))), shape=(m, m))
+        return (lap + sp.diags(np.bincount(i, w, minlength=m)
+                               + np.bincount(j, w, minlength=m))).tocsc()[1:, 1:]
+
     g = residual(rho)
     lu = None
     for _ in range(_NEWTON_STEPS):
         if np.abs(g).max() < _NEWTON_TOL:
             return rho, True
-        if lu is None:          # factorise the Jacobian afresh; kept while it converges fast
-            w = _half_angle_slope(rho[j] - rho[i], ts)
-            lap = sp.csr_matrix((np.concatenate([-w, -w]), (np.concatenate([i, j]),
-                                                            np.concatenate([j, i]))),
-                                shape=(m, m))
-            lap = lap + sp.diags(np.bincount(i, w, minlength=m) + np.bincount(j, w, minlength=m))
+        lap = jacobian(rho)
+        step = np.zeros(m)
+        solved = False
+        if lu is not None:      # the last factorisation preconditions CG on the current Jacobian
+            pre = LinearOperator(lap.shape, matvec=lu.solve, dtype=np.float64)
+            step[1:], status = cg(lap, g[1:], M=pre, rtol=_CG_RTOL, maxiter=_CG_STEPS)
+            solved = status == 0
+        if not solved:
             try:
-                lu = splu(lap.tocsc()[1:, 1:], permc_spec="COLAMD")
+                lu = splu(lap, permc_spec="COLAMD")
             except RuntimeError:
                 return rho, False
-            fresh = True
-        step = np.zeros(m)
-        step[1:] = lu.solve(g[1:])          # the residual's Jacobian is -lap
+            step[1:] = lu.solve(g[1:])
         step -= step.mean()
         h = min(1.0, _MAX_STEP / max(np.abs(step).max(), 1e-300))
         norm = np.linalg.norm(g)
@@ -262,15 +291,8 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
                 break
             h *= 0.5
         else:
-            if fresh:
-                return rho, False
-            lu = None                       # a stale Jacobian: factorise again
-            continue
+            return rho, False
         rho, g = rho + h * step, g2
-        if fresh:
-            fresh = False
-        elif np.linalg.norm(g) > _CHORD_RATE * norm:
-            lu = None
     return rho, bool(np.abs(g).max() < _NEWTON_TOL)
 
 
@@ -425,6 +447,15 @@ def realise(x, tri, *, new_edges=None):
     return out
 
 
+def _canonical(t):
+    """Triangles rotated to start at their smallest corner (orientation kept), rows sorted."""
+    t = np.asarray(t, dtype=np.int64)
+    k = np.argmin(t, axis=1)
+    rows = np.arange(len(t))[:, None]
+    t = t[rows, (k[:, None] + np.arange(3)) % 3]
+    return t[np.lexsort(t.T[::-1])]
+
+
 def _sorted_rows(t):
     s = np.sort(t, axis=1)
     return s[np.lexsort(s.T[::-1])]
@@ -450,10 +481,11 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
     for _ in range(rounds):
         if not folds:
             break
-        flipped, left = flip_folds(tri, p, normals, x)
-        if left >= folds:
-            break
-        y = realise(x, flipped)
+        for limit in _VIOLATION_LADDER:     # flips the angles admit no realisation of: milder
+            flipped, left = flip_folds(tri, p, normals, x, max_violation=limit)
+            y = realise(x, flipped) if left < folds else None
+            if y is not None:
+                break
         if y is None:
             break
         tri = hull_triangles(y)

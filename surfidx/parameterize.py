@@ -53,6 +53,13 @@ c. Balancing with the energy of 3.
    triangles of the surfels' spherical Delaunay triangulation, never inverting a mesh triangle.
    Where folds remain, a second pass tries every move afresh with the triangulation's unfolded
    triangles kept embedded too (their neighbourhoods propose other moves; ``_SECOND_PASS``).
+6. Fold realisation (:mod:`surfidx._circlepattern`, ``_REALISE``): where folds still remain, edges
+   of the Delaunay triangulation are flipped (convex quadrilaterals only) to lower them, and the
+   flipped triangulation is realised as the exact Delaunay triangulation of moved points by a
+   circle pattern with the map's circumcircle intersection angles (Rivin 1994), up to three
+   rounds, each kept only when it lowers the count. Measured after step 5 → after 6: scorpion
+   465 → 90 folded triangles of 101,302, horse 4 → 0, homer 1 → 0; a few mesh faces are turned
+   over (scorpion 445, 0.28 % of the sphere), which resampling tolerates. Point clouds too.
 
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
 ties are broken by index), so a rotated input gives the same sphere points up to a rotation.

@@ -1,0 +1,102 @@
+"""Fold removal by edge flips and Delaunay realisation (surfidx._circlepattern)."""
+
+import numpy as np
+import pytest
+
+from surfidx._circlepattern import _folded, flip_folds, lower_folds, realise
+from surfidx.parameterize import hull_triangles
+
+
+def _sorted(t):
+    s = np.sort(t, axis=1)
+    return s[np.lexsort(s.T[::-1])]
+
+
+@pytest.fixture(scope="module")
+def points():
+    rng = np.random.default_rng(1)
+    v = rng.standard_normal((400, 3))
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
+@pytest.fixture(scope="module")
+def ellipsoid(points):
+    """An ellipsoid's surfels (positions, outward normals) over the unit vectors ``points``."""
+    p = points * [1.0, 2.0, 3.0]
+    n = points / np.array([1.0, 4.0, 9.0])
+    return p, n / np.linalg.norm(n, axis=1)[:, None]
+
+
+def test_a_delaunay_map_is_its_own_realisation(points):
+    y = realise(points, hull_triangles(points))
+    assert y is not None
+    assert np.allclose(np.linalg.norm(y, axis=1), 1.0)
+    assert np.abs(y - points).max() < 1e-3           # only near-cocircular angles are raised
+    assert np.array_equal(_sorted(hull_triangles(y)), _sorted(hull_triangles(points)))
+
+
+def _flippable(x, tri):
+    """A triangulation with one convex quadrilateral's diagonal flipped: no longer Delaunay."""
+    de = {(a, b): i for i, t in enumerate(tri.tolist()) for a, b in zip(t, t[1:] + t[:1])}
+    for i, (a, b, c) in enumerate(tri.tolist()):
+        j = de[(b, a)]
+        d = next(v for v in tri[j] if v not in (a, b))
+        new = np.array([[a, d, c], [d, b, c]])
+        e1, e2 = x[new[:, 1]] - x[new[:, 0]], x[new[:, 2]] - x[new[:, 0]]
+        if np.all(np.einsum("ij,ij->i", np.cross(e1, e2), x[new].sum(axis=1)) > 0):
+            out = tri.copy()
+            out[[i, j]] = new
+            return out, (int(c), int(d))
+    raise AssertionError("no convex quadrilateral")
+
+
+def test_a_flipped_edge_is_realised_as_delaunay(points):
+    tri, edge = _flippable(points, hull_triangles(points))
+    assert not np.array_equal(_sorted(tri), _sorted(hull_triangles(points)))
+    y = realise(points, tri)
+    assert y is not None
+    # the convex hull of the moved points is exactly the flipped triangulation
+    assert np.array_equal(_sorted(hull_triangles(y)), _sorted(tri))
+    assert np.abs(y - points).max() < 0.3
+    # ... and it does not depend on which edges are named new when it is the only one
+    z = realise(points, tri, new_edges=np.array([edge]))
+    assert np.array_equal(_sorted(hull_triangles(z)), _sorted(tri))
+
+
+def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):
+    p, n = ellipsoid
+    rng = np.random.default_rng(2)
+    x = points + 0.02 * rng.standard_normal(points.shape)
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    tri = hull_triangles(x)
+    before = int(_folded(p, n, tri).sum())
+    flipped, left = flip_folds(tri, p, n, x)
+    assert before > 10 and left < before
+    assert left == int(_folded(p, n, flipped).sum())
+    assert len(flipped) == len(tri) and len({tuple(t) for t in _sorted(flipped).tolist()}) == len(tri)
+
+
+def test_lower_folds_realises_the_flips(points, ellipsoid):
+    p, n = ellipsoid
+    rng = np.random.default_rng(2)
+    x = points + 0.02 * rng.standard_normal(points.shape)
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    y, info = lower_folds(x, p, n)
+    assert info["folds_before"] > 10 and info["folds"] <= info["folds_before"] // 3
+    assert info["rounds"] >= 1
+    assert int(_folded(p, n, hull_triangles(y)).sum()) == info["folds"]
+    # a fold-free map is returned as it is
+    z, info = lower_folds(points, p, n)
+    assert info == {"folds_before": 0, "folds": 0, "rounds": 0} and z is points
+
+
+def test_realisation_is_rotation_equivariant(points, ellipsoid):
+    p, n = ellipsoid
+    rng = np.random.default_rng(2)
+    x = points + 0.02 * rng.standard_normal(points.shape)
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    y, _ = lower_folds(x, p, n)
+    yr, _ = lower_folds(x @ q.T, p @ q.T, n @ q.T)
+    assert np.abs(yr - y @ q.T).max() < 1e-6
