@@ -217,11 +217,24 @@ def test_horse_full_size(models):
 
 @pytest.mark.slow
 def test_horse_delaunay_fold_target(models):
-    """Issue #4's fold target on horse: at most 0.01 % folded Delaunay triangles (measured 5 of
-    96,966 with the repair, 73-110 without; the rest are near-collinear triples on the legs)."""
+    """Issue #4's fold target on horse: no folded Delaunay triangle (73-110 before the repair, 4-5
+    after it, near-collinear triples on the legs, 0 after the flips and their realisation)."""
     m = parameterize(read_surfels(models / "horse.ply"), stress=False)
-    assert m.fold_fraction <= 1e-4
-    assert m.info["folds_repaired"] >= 40
+    assert m.folded == 0
+    assert m.info["folds_repaired"] >= 40 and m.info["folds_realised"] >= 1
+
+
+def test_realisation_removes_the_fold_the_repair_leaves_on_homer(models):
+    """Homer's repair leaves one folded Delaunay triangle; flips and their Delaunay realisation
+    remove it, and resampling still interpolates in the mesh's own faces."""
+    from surfidx.resample import map_triangles
+
+    s = read_surfels(models / "homer.obj")
+    m = parameterize(s, stress=False)
+    assert m.folded == 0 and m.info["folds_realised"] >= 1
+    assert count_folds(s, m.points)[0] == 0          # counted afresh from the points
+    tri = map_triangles(s, m.points)
+    assert np.array_equal(tri, np.asarray(s.faces))
 
 
 def test_multilevel_map_has_levels_down_to_a_small_base():

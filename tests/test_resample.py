@@ -97,6 +97,24 @@ def test_a_face_the_map_inverts_falls_back_to_the_hull(sphere_surfels):
     assert {tuple(sorted(t)) for t in map_triangles(s, pts)} != faces
 
 
+def test_a_few_small_faces_turned_over_keep_the_faces(sphere_surfels):
+    """The fold realisation turns a few small faces over; resampling still interpolates in the
+    mesh's faces, and every grid point still gets a value on the surface."""
+    s = sphere_surfels
+    pts = s.positions.copy()
+    f = np.asarray(s.faces)
+    v = int(f[0, 0])
+    ring = np.unique(f[np.any(f == v, axis=1)])
+    w = int(ring[ring != v][0])
+    pts[v] = pts[v] + 1.3 * (pts[w] - pts[v])          # past its neighbour: faces turn over
+    pts[v] /= np.linalg.norm(pts[v])
+    turned = np.count_nonzero(_orientation(pts, f) <= 0)
+    assert turned >= 1
+    assert np.array_equal(map_triangles(s, pts), f)
+    out = resample(s, pts, 4, phong=0.0)
+    assert np.all(np.isfinite(out)) and np.abs(np.linalg.norm(out[:, :3], axis=1) - 1).max() < 0.05
+
+
 def test_phong_lifts_grid_points_onto_the_surfel_planes(sphere_surfels):
     """On the unit sphere with exact normals the Phong points lie closer to the sphere than the
     chord points below it, and phong=0 is the linear point."""
