@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import LinearOperator, cg, splu
+from scipy.sparse.linalg import splu
 
 __all__ = ["flip_folds", "realise", "lower_folds"]
 
@@ -52,8 +52,7 @@ _PROJECTION_STEPS = 300
 _NEWTON_STEPS = 300
 _NEWTON_TOL = 1e-10    # largest triangle angle-sum error (radians) at convergence
 _MAX_STEP = 2.0        # largest change of a log circumradius in one Newton step
-_CG_STEPS = 40         # CG steps on a Newton system, preconditioned by an earlier
-_CG_RTOL = 1e-6        # factorisation, before it is factorised afresh
+_CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
@@ -269,19 +268,14 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     for _ in range(_NEWTON_STEPS):
         if np.abs(g).max() < _NEWTON_TOL:
             return rho, True
-        lap = jacobian(rho)
-        step = np.zeros(m)
-        solved = False
-        if lu is not None:      # the last factorisation preconditions CG on the current Jacobian
-            pre = LinearOperator(lap.shape, matvec=lu.solve, dtype=np.float64)
-            step[1:], status = cg(lap, g[1:], M=pre, rtol=_CG_RTOL, maxiter=_CG_STEPS)
-            solved = status == 0
-        if not solved:
+        if lu is None:          # a fresh factorisation, reused while the steps converge fast
             try:
-                lu = splu(lap, permc_spec="COLAMD")
+                lu = splu(jacobian(rho), permc_spec="COLAMD")
             except RuntimeError:
                 return rho, False
-            step[1:] = lu.solve(g[1:])
+            fresh = True
+        step = np.zeros(m)
+        step[1:] = lu.solve(g[1:])          # the residual's Jacobian is minus this matrix
         step -= step.mean()
         h = min(1.0, _MAX_STEP / max(np.abs(step).max(), 1e-300))
         norm = np.linalg.norm(g)
@@ -291,8 +285,14 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
                 break
             h *= 0.5
         else:
-            return rho, False
+            if fresh:
+                return rho, False
+            lu = None
+            continue
         rho, g = rho + h * step, g2
+        if not fresh and np.linalg.norm(g) > _CHORD_RATE * norm:
+            lu = None
+        fresh = False
     return rho, bool(np.abs(g).max() < _NEWTON_TOL)
 
 
