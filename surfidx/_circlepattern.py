@@ -58,7 +58,15 @@ _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is remov
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
 _VIOLATION_LADDER = (np.inf, 1.0, 0.3)
 """Largest Delaunay violations of the flipped-in edges tried in turn when a realisation fails
-(Newton's method does not converge where the raised angles admit none)."""
+(Newton's method does not converge where the raised angles admit none) or squeezes a surfel."""
+_MIN_SPACING_RATIO = 0.5
+"""The realisations may bring a point's nearest neighbours on the sphere (the mean distance to
+:data:`_SPACING_NEIGHBOURS` of them) closer by this factor at most, measured from the map
+before the first round: a flip far from Delaunay moves its corners a lot, and the grid then
+samples the surfels there too sparsely. Two retrieval models (folds; infinite-rate PSNR_D2 in
+dB), before the realisation, with no bound, with this bound at 0.35 and at 0.5: d074 33, 75.1;
+1, 71.0; 1, 72.6; 25, 75.0 -- d037 188, 72.9; 15, 68.9; 15, 68.9; 73, 71.4."""
+_SPACING_NEIGHBOURS = 6
 
 
 def _folded(p, normals, t):
@@ -456,6 +464,14 @@ def _canonical(t):
     return t[np.lexsort(t.T[::-1])]
 
 
+def _spacing(x):
+    """Each point's mean chord distance to its :data:`_SPACING_NEIGHBOURS` nearest, ``(n,)``."""
+    from scipy.spatial import cKDTree
+
+    k = min(_SPACING_NEIGHBOURS + 1, len(x))
+    return cKDTree(x).query(x, k=k)[0][:, 1:].mean(axis=1)
+
+
 def _sorted_rows(t):
     s = np.sort(t, axis=1)
     return s[np.lexsort(s.T[::-1])]
@@ -478,14 +494,16 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
     mirror = bool(bad.sum() > len(bad) / 2)
     folds = int((bad ^ mirror).sum())
     info = {"folds_before": folds, "folds": folds, "rounds": 0}
+    spacing = _spacing(x)        # the rounds together may crowd a point this much at most
     for _ in range(rounds):
         if not folds:
             break
-        for limit in _VIOLATION_LADDER:     # flips the angles admit no realisation of: milder
-            flipped, left = flip_folds(tri, p, normals, x, max_violation=limit)
-            y = realise(x, flipped) if left < folds else None
-            if y is not None:
-                break
+        for limit in _VIOLATION_LADDER:     # flips the angles admit no realisation of, or whose
+            flipped, left = flip_folds(tri, p, normals, x, max_violation=limit)   # realisation
+            y = realise(x, flipped) if left < folds else None          # squeezes some surfel's
+            if y is not None and np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO:
+                break                                            # share of the sphere: milder
+            y = None
         if y is None:
             break
         tri = hull_triangles(y)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from surfidx._circlepattern import _folded, flip_folds, lower_folds, realise
+from surfidx._circlepattern import (_MIN_SPACING_RATIO, _folded, _spacing, flip_folds,
+                                    lower_folds, realise)
 from surfidx.parameterize import hull_triangles
 
 
@@ -85,6 +86,8 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     assert info["folds_before"] > 10 and info["folds"] <= info["folds_before"] // 3
     assert info["rounds"] >= 1
     assert int(_folded(p, n, hull_triangles(y)).sum()) == info["folds"]
+    # no point's neighbours crowd in by more than the bound (the grid must still sample it)
+    assert (_spacing(y) / _spacing(x)).min() >= _MIN_SPACING_RATIO
     # a fold-free map is returned as it is
     z, info = lower_folds(points, p, n)
     assert info == {"folds_before": 0, "folds": 0, "rounds": 0} and z is points
