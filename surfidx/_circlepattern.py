@@ -333,6 +333,47 @@ def _layout(t, angles, rho, n, anchor):
     return z
 
 
+def _stereographic(x, tri):
+    """Plane coordinates ``(n, 2)`` of ``x`` by the stereographic projection from the point whose
+    triangles cover most of the sphere (an intrinsic choice), mirrored so that ``tri`` keeps its
+    orientation; and the frame ``(rotation, pole, mirrored)`` that :func:`_from_plane` undoes."""
+    n = len(x)
+    star = np.bincount(tri.ravel(), np.repeat(np.abs(np.einsum(
+        "ij,ij->i", x[tri[:, 0]], np.cross(x[tri[:, 1]], x[tri[:, 2]]))), 3), minlength=n)
+    pole = int(np.argmax(star))
+    z = x[pole]                         # the rotation taking the pole to (0, 0, 1)
+    axis = np.cross(z, [0.0, 0.0, 1.0])
+    s, c = np.linalg.norm(axis), z[2]
+    if s < 1e-12:
+        rot = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]) / s
+        rot = np.eye(3) + s * k + (1 - c) * k @ k
+    y = x @ rot.T
+    keep = np.arange(n) != pole
+    u = np.zeros((n, 2))
+    u[keep] = y[keep, :2] / (1.0 - y[keep, 2])[:, None]
+    t = tri[~np.any(tri == pole, axis=1)]
+    e1, e2 = u[t[:, 1]] - u[t[:, 0]], u[t[:, 2]] - u[t[:, 0]]
+    mirror = bool(np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0)
+    if mirror:
+        u[:, 1] *= -1.0
+    return u, (rot, pole, mirror)
+
+
+def _from_plane(z, frame):
+    """Unit vectors ``(n, 3)`` of the plane points ``z`` (n,) complex: :func:`_stereographic`
+    undone."""
+    rot, pole, mirror = frame
+    if mirror:
+        z = np.conj(z)
+    r2 = np.abs(z) ** 2
+    out = np.column_stack([2 * z.real, 2 * z.imag, r2 - 1.0]) / (1.0 + r2)[:, None]
+    out[pole] = [0.0, 0.0, 1.0]
+    out = out @ rot
+    return out / np.linalg.norm(out, axis=1)[:, None]
+
+
 def realise(x, tri, *, new_edges=None):
     """Points on the sphere near ``x`` whose Delaunay triangulation is ``tri``.
 
@@ -356,28 +397,11 @@ def realise(x, tri, *, new_edges=None):
     x = np.asarray(x, dtype=np.float64)
     tri = np.asarray(tri, dtype=np.int64)
     n = len(x)
-    star = np.bincount(tri.ravel(), np.repeat(np.abs(np.einsum(
-        "ij,ij->i", x[tri[:, 0]], np.cross(x[tri[:, 1]], x[tri[:, 2]]))), 3), minlength=n)
-    pole = int(np.argmax(star))          # intrinsic: the largest star on the sphere
-    # rotate the pole to (0, 0, 1), then project stereographically from it
-    z = x[pole]
-    axis = np.cross(z, [0.0, 0.0, 1.0])
-    s, c = np.linalg.norm(axis), z[2]
-    if s < 1e-12:
-        rot = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    else:
-        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]]) / s
-        rot = np.eye(3) + s * k + (1 - c) * k @ k
-    y = x @ rot.T
+    u, frame = _stereographic(x, tri)
+    pole = frame[1]
     keep = np.arange(n) != pole
-    u = np.zeros((n, 2))
-    u[keep] = y[keep, :2] / (1.0 - y[keep, 2])[:, None]
     inner = ~np.any(tri == pole, axis=1)
     t = tri[inner]
-    e1, e2 = u[t[:, 1]] - u[t[:, 0]], u[t[:, 2]] - u[t[:, 0]]
-    mirror = np.sum(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0
-    if mirror:
-        u[:, 1] *= -1.0
     edges, opposite = _edges(tri, n)
     ne = len(edges)
     ang = _planar_angles(u, t)
@@ -437,14 +461,7 @@ def realise(x, tri, *, new_edges=None):
     lhs = np.array([[np.sum(w * np.abs(zp) ** 2), np.sum(w * np.conj(zp))],
                     [np.sum(w * zp), np.sum(w)]])
     coef = np.linalg.solve(lhs, [np.sum(w * np.conj(zp) * zu), np.sum(w * zu)])
-    zn = coef[0] * zc + coef[1]
-    if mirror:
-        zn = np.conj(zn)
-    r2 = np.abs(zn) ** 2
-    out = np.column_stack([2 * zn.real, 2 * zn.imag, r2 - 1.0]) / (1.0 + r2)[:, None]
-    out[pole] = [0.0, 0.0, 1.0]
-    out = out @ rot
-    out /= np.linalg.norm(out, axis=1)[:, None]
+    out = _from_plane(coef[0] * zc + coef[1], frame)
     if not np.isfinite(out).all():
         return None
     from .parameterize import hull_triangles
