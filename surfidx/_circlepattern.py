@@ -29,8 +29,9 @@ This module works the other way round, in two steps.
    The realisation is accepted only when Newton converged and the convex hull of the new points
    is that triangulation, triangle for triangle.
 
-On scorpion's repaired map (473 folded triangles of 101,302) two rounds leave 56 (flip sequences
-of depth 1, 2, 4, 6, 8 from a realised map: 94, 94, 64, 62, 62 left); on the 77 genus-0
+On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) two rounds
+leave 56-57 (flip sequences of depth 1, 2, 4, 6, 8 from a realised map: 94, 94, 64, 62, 62
+left); on the 77 genus-0
 retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces are no
 longer all embedded afterwards (scorpion: 445 turned over, 0.28 % of the sphere); resampling
 still interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss
