@@ -233,7 +233,10 @@ def _project_angles(theta, edges, n, floor):
     triangulation, which has odd cycles). None when they do not settle."""
     inc = sp.csr_matrix((np.ones(2 * len(edges)), (edges.ravel(), np.repeat(
         np.arange(len(edges)), 2))), shape=(n, len(edges)))
-    lu = splu((inc @ inc.T).tocsc())
+    try:
+        lu = splu((inc @ inc.T).tocsc())
+    except RuntimeError:        # a point in no triangle (a duplicate the hull left out)
+        return None
     th = theta
     for _ in range(_PROJECTION_STEPS):
         th = np.clip(th, floor, _CEILING)
@@ -330,7 +333,10 @@ def _layout(t, angles, rho, n, anchor):
     free[anchor] = False
     sub = mat[:, free]
     z = fixed.copy()
-    z[free] = splu((sub.conj().T @ sub).tocsc()).solve(sub.conj().T @ -(mat @ fixed))
+    try:
+        z[free] = splu((sub.conj().T @ sub).tocsc()).solve(sub.conj().T @ -(mat @ fixed))
+    except RuntimeError:
+        return None
     return z
 
 
@@ -392,12 +398,15 @@ def realise(x, tri, *, new_edges=None):
     Returns
     -------
     (n, 3) float64 or None
-        The realisation (its convex hull is ``tri``), or None when the angles admit none or
-        Newton's method does not converge.
+        The realisation (its convex hull is ``tri``), or None when ``tri`` is no triangulation
+        of all the points (a duplicate point that the convex hull leaves out), the angles admit
+        no realisation or Newton's method does not converge.
     """
     x = np.asarray(x, dtype=np.float64)
     tri = np.asarray(tri, dtype=np.int64)
     n = len(x)
+    if len(tri) != 2 * n - 4 or np.bincount(tri.ravel(), minlength=n).min() < 3:
+        return None             # not a triangulation of all the points (duplicates, too few)
     u, frame = _stereographic(x, tri)
     pole = frame[1]
     keep = np.arange(n) != pole
@@ -455,6 +464,8 @@ def realise(x, tri, *, new_edges=None):
     if not (angles > 0).all():
         return None
     zc = _layout(t, angles, rho, n, pole)
+    if zc is None:
+        return None
     # the similarity z -> a z + b closest to the current map, weighted like area on the sphere
     zu = u[keep, 0] + 1j * u[keep, 1]
     zp = zc[keep]

@@ -103,3 +103,16 @@ def test_realisation_is_rotation_equivariant(points, ellipsoid):
     y, _ = lower_folds(x, p, n)
     yr, _ = lower_folds(x @ q.T, p @ q.T, n @ q.T)
     assert np.abs(yr - y @ q.T).max() < 1e-6
+
+
+def test_points_the_hull_leaves_out_have_no_realisation(points, ellipsoid):
+    """A duplicated point is in no hull triangle: no realisation, and the map is kept."""
+    x = np.vstack([points, points[:1]])
+    assert realise(x, hull_triangles(x)) is None
+    p, n = ellipsoid
+    rng = np.random.default_rng(2)
+    y = x + 0.02 * rng.standard_normal(x.shape)
+    y[-1] = y[0]
+    y /= np.linalg.norm(y, axis=1)[:, None]
+    z, info = lower_folds(y, np.vstack([p, p[:1]]), np.vstack([n, n[:1]]))
+    assert info["rounds"] == 0 and info["folds"] == info["folds_before"] and z is y
