@@ -10,32 +10,38 @@ This module works the other way round, in two steps.
    two new triangles hold fewer folded ones than the two old, or a sequence of up to
    :data:`_FLIP_DEPTH` flips is made, each on the folded triangle the previous one left, that
    loses nothing on the way and gains at the end (the fold is moved to where it can be removed).
-   Only flips of quadrilaterals convex on the sphere are made, so the result is still a
-   triangulation of the mapped points, with fewer folded triangles, no longer Delaunay at the
-   flipped edges. (Flips of non-convex quadrilaterals would remove more, scorpion 56 -> 17, but
-   the angles they ask for admit no realisation.)
+   Any flip that does not duplicate an edge is allowed, also of a quadrilateral that is not
+   convex on the sphere: the result is a triangulation of the sphere with fewer folded
+   triangles, though no longer one of the points where they are.
 2. **Realisation** (:func:`realise`): points on the sphere whose Delaunay triangulation is exactly
    that triangulation, close to the current map. By Rivin's theorem (1994; the variational
    principle of Bobenko & Springborn 2004), a triangulation of the sphere is realised as a
    Delaunay triangulation, uniquely up to Möbius transformations, with any intersection angles
-   ``θ_e`` in ``(0, π)`` of the circumcircles meeting at its edges that sum to ``2π`` around every
-   vertex (and satisfy Rivin's cut conditions). ``θ_e = π - α - β`` (``α, β`` the angles opposite
-   the edge) is positive exactly where the edge is locally Delaunay. The angles are those of the
-   current map, raised to a floor (:data:`_FLOOR`; :data:`_NEW_ANGLE` at flipped edges, so that
-   they are Delaunay by a margin) and projected back onto the vertex sums. After a stereographic
-   projection from one vertex the circumradii follow from Newton's method on the angle sums of
-   the triangles (Kharevych, Springborn & Schröder 2006), the triangles are laid out by least
+   ``θ_e`` in ``(0, π)`` of the circumcircles meeting at its edges for which a *coherent angle
+   system* exists: positive corner angles, π in each triangle and 2π around each vertex, the two
+   opposite an edge summing to ``π - θ_e``. ``θ_e`` is positive exactly where the edge is
+   locally Delaunay. After a stereographic projection from one vertex, the corner angles of the
+   current map are projected onto such a system (:func:`_coherent_angles`), with each edge at
+   least :data:`_FLOOR` from cocircular and the flipped ones :data:`_NEW_ANGLE`. Newton's method
+   then solves for the triangles' log circumradii (Kharevych, Springborn & Schröder 2006),
+   searching each step for the minimum of the convex functional whose gradient it zeroes, so
+   that it converges whenever the system is coherent. The triangles are laid out by least
    squares, fitted to the current map by a similarity and projected back to the sphere.
    The realisation is accepted only when Newton converged and the convex hull of the new points
    is that triangulation, triangle for triangle.
 
-On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) two rounds
-leave 56-57 (flip sequences of depth 1, 2, 4, 6, 8 from a realised map: 94, 94, 64, 62, 62
-left); on the 77 genus-0
-retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces are no
-longer all embedded afterwards (scorpion: 445 turned over, 0.28 % of the sphere); resampling
-still interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss
-(scorpion at level 9: PSNR_D2 81.20 dB either way, 70.4 dB in the Delaunay triangles).
+   Projecting the intersection angles onto their vertex sums alone (the first version) left
+   Rivin's other conditions unchecked: a flipped quadrilateral that was not convex made three
+   edges of a triangle sum past 2π, and no realisation existed. Only convex flips could be
+   used, and scorpion stopped at 56 folds, where any flips would reach 17.
+
+On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) one round
+leaves 20 (convex flips only, two rounds: 56; flip sequences of depth 10: 19); on the 77
+genus-0 retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces
+are no longer all embedded afterwards (scorpion: some hundreds turned over, under 1 % of the
+sphere); resampling still interpolates in them (:func:`surfidx.resample.map_triangles`),
+measured without loss (scorpion at level 9: PSNR_D2 81.20 dB either way, 70.4 dB in the
+Delaunay triangles).
 """
 
 from __future__ import annotations
@@ -48,18 +54,23 @@ __all__ = ["flip_folds", "realise", "lower_folds"]
 
 _FLOOR = 1e-3          # intersection angle floor of the triangulation's edges (radians)
 _NEW_ANGLE = 0.05      # ... of the flipped-in edges: Delaunay by this margin after realisation
-_CEILING = np.pi - 1e-3
+_MIN_CORNER = 1e-4     # smallest corner angle of the coherent angle system (radians)
 _PROJECTION_STEPS = 300
 _NEWTON_STEPS = 300
 _NEWTON_TOL = 1e-10    # largest triangle angle-sum error (radians) at convergence
-_MAX_STEP = 2.0        # largest change of a log circumradius in one Newton step
+_LINE_STEPS = 40       # bisections of a Newton step's line search
+_POLE_TRIES = 20       # candidate poles of the stereographic projection (by their star's area)
 _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
-_VIOLATION_LADDER = (np.inf, 1.0, 0.3)
-"""Largest Delaunay violations of the flipped-in edges tried in turn when a realisation fails
-(Newton's method does not converge where the raised angles admit none) or squeezes a surfel."""
+_LADDER = ((False, np.inf), (True, np.inf), (True, 1.0), (True, 0.3))
+"""The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in edge)``,
+when a realisation fails or squeezes a surfel: any flips first, then milder ones. Flips of
+quadrilaterals that are not convex take scorpion from 473 folds to 20 in one round (convex ones
+only: 56 in two), but crowd some models' points past the bound below, where convex flips do not
+(retrieval mesh d008: 47 folds left by the repair; 37 when the convex flips are not tried
+next, 6 when they are)."""
 _MIN_SPACING_RATIO = 0.5
 """The realisations may bring a point's nearest neighbours on the sphere (the mean distance to
 :data:`_SPACING_NEIGHBOURS` of them) closer by this factor at most, measured from the map
@@ -90,9 +101,10 @@ def _ccw(x, t):
 class _Flips:
     """A triangulation under edge flips: directed edge -> triangle, and each triangle's fold."""
 
-    def __init__(self, tri, p, normals, x, mirror, max_violation=np.inf):
+    def __init__(self, tri, p, normals, x, mirror, convex=False, max_violation=np.inf):
         self.tri = [tuple(t) for t in np.asarray(tri).tolist()]
         self.p, self.normals, self.x, self.mirror = p, normals, x, mirror
+        self.convex = convex or max_violation < np.pi
         self.max_violation = max_violation
         self.edge = {}
         for i in range(len(self.tri)):
@@ -111,7 +123,10 @@ class _Flips:
 
     def candidate(self, i, k):
         """The flip of triangle ``i``'s edge from corner ``k`` to the next, as ``(gain, i, j,
-        new triangles, their folds)``; None when it is no flip of a convex quadrilateral."""
+        new triangles, their folds)``; None when the new edge exists already (or, with a finite
+        ``max_violation``, when the quadrilateral is not convex on the sphere or the new edge is
+        further from Delaunay than that, or with ``convex``). Any other flip is combinatorially valid, and
+        :func:`realise` moves the points to make it Delaunay."""
         t = self.tri[i]
         a, b, c = t[k], t[(k + 1) % 3], t[(k + 2) % 3]
         j = self.edge.get((b, a))
@@ -121,11 +136,11 @@ class _Flips:
         if c == d or (c, d) in self.edge or (d, c) in self.edge:
             return None
         new = ((a, d, c), (d, b, c))
-        if not (_ccw(self.x, new[0]) and _ccw(self.x, new[1])):
-            return None                     # a quadrilateral that is not convex on the sphere
-        if self.max_violation < np.pi and np.pi - _angle(self.x, a, d, c) - _angle(
-                self.x, b, c, d) < -self.max_violation:
-            return None                     # the new edge is far from Delaunay: a large move
+        if self.convex and not (
+                _ccw(self.x, new[0]) and _ccw(self.x, new[1])
+                and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
+                >= -self.max_violation):
+            return None
         bad = (_folded(self.p, self.normals, new) ^ self.mirror).tolist()
         return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
 
@@ -169,7 +184,8 @@ class _Flips:
         return False
 
 
-def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, max_violation: float = np.inf):
+def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool = False,
+               max_violation: float = np.inf):
     """Edge flips of a spherical triangulation that lower its count of folded triangles.
 
     Parameters
@@ -180,12 +196,16 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, max_violation:
         3D positions and surfel normals; a triangle is folded when its 3D normal points against
         the sum of its corners' normals (the minority orientation when most disagree: a mirror).
     x : (n, 3) float64
-        Sphere points; only flips of quadrilaterals convex on the sphere are made.
+        Sphere points (for ``convex`` and ``max_violation`` only).
     rounds : int
         Passes over the folded triangles, until one changes nothing.
+    convex : bool
+        Flip only quadrilaterals convex on the sphere (the flipped triangulation is then still
+        one of the points ``x``).
     max_violation : float
-        Flip only where the new edge's intersection angle ``π - α - β`` (chord angles) is at
-        least ``-max_violation``: the realisation then moves the points less.
+        When finite, flip only convex quadrilaterals whose new edge's intersection angle
+        ``π - α - β`` (chord angles) is at least ``-max_violation``: the realisation then moves
+        the points less.
 
     Returns
     -------
@@ -197,7 +217,7 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, max_violation:
     """
     tri = _canonical(tri)          # the search visits triangles by vertex index, not by input
     bad = _folded(p, normals, tri)  # order, so a rotated map flips the same edges
-    state = _Flips(tri, p, normals, x, mirror=bool(bad.sum() > len(bad) / 2),
+    state = _Flips(tri, p, normals, x, mirror=bool(bad.sum() > len(bad) / 2), convex=convex,
                    max_violation=max_violation)
     for _ in range(rounds):
         todo = [i for i, b in enumerate(state.bad) if b]
@@ -226,31 +246,81 @@ def _planar_angles(u, t):
     return out
 
 
-def _project_angles(theta, edges, n, floor):
-    """Angles within ``[floor, _CEILING]`` summing to 2π around every vertex, near ``theta``:
-    alternating projections (clip, then the least-norm correction of the vertex sums; the
-    vertex-edge incidence times its transpose is the signless Laplacian, nonsingular on a
-    triangulation, which has odd cycles). None when they do not settle."""
-    inc = sp.csr_matrix((np.ones(2 * len(edges)), (edges.ravel(), np.repeat(
-        np.arange(len(edges)), 2))), shape=(n, len(edges)))
+def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
+    """Corner angles near ``alpha`` that form a coherent angle system for the planar triangles
+    ``t`` (Bobenko & Springborn 2004): each at least :data:`_MIN_CORNER`, summing to π in every
+    triangle and to 2π around every inner vertex (to ``ring_sums`` at the ``ring`` vertices on
+    the boundary), and the two opposite an edge summing to at most ``cap`` of that edge (one,
+    at the boundary). Such a system exists exactly when the circle pattern with the
+    intersection angles ``π - cap`` does, so these are the angles Newton's method is given.
+
+    Alternating projections: onto each edge's constraints, which involve its two corners only
+    (a triangle the flips turned over has negative angles), then onto the linear sums (a
+    least-norm correction through one factorisation).
+
+    Parameters
+    ----------
+    alpha : (m, 3) float64
+        The current corner angles (any sign: a flip may turn triangles over).
+    t : (m, 3) int64
+    n : int
+    ring : (r,) int64
+    ring_sums : (r,) float64
+    opposite : (m, 3) int64
+        The edge opposite each corner, indices into ``cap``.
+    cap : (E,) float64
+
+    Returns
+    -------
+    (m, 3) float64 or None
+        None when the projections do not settle (no such system near ``alpha``).
+    """
+    m = len(t)
+    corner = np.arange(3 * m)
+    vertex = t.ravel()
+    row = np.full(n, -1)
+    inner = np.flatnonzero(np.bincount(vertex, minlength=n) > 0)
+    inner = inner[inner != ring[0]]         # the sums are dependent: one vertex row left out
+    row[inner] = m + np.arange(len(inner))
+    use = row[vertex] >= 0
+    lin = sp.csr_matrix((np.ones(3 * m + use.sum()), (np.concatenate(
+        [corner // 3, row[vertex][use]]), np.concatenate([corner, corner[use]]))),
+        shape=(m + len(inner), 3 * m))
+    sums = np.full(n, 2 * np.pi)
+    sums[ring] = ring_sums
+    rhs = np.concatenate([np.full(m, np.pi), sums[inner]])
     try:
-        lu = splu((inc @ inc.T).tocsc())
-    except RuntimeError:        # a point in no triangle (a duplicate the hull left out)
+        lu = splu((lin @ lin.T).tocsc())
+    except RuntimeError:
         return None
-    th = theta
+    e = opposite.ravel()
+    order = np.argsort(e, kind="stable")
+    first = np.flatnonzero(np.r_[True, e[order][1:] != e[order][:-1]])
+    pair = np.bincount(e, minlength=len(cap))[e[order][first]] == 2
+    p, q = order[first[pair]], order[first[pair] + 1]     # the two corners opposite an edge
+    single = order[first[~pair]]                          # the one opposite a boundary edge
+    cap_p, cap_s = cap[e[p]], cap[e[single]]
+    lo, hi_p, hi_s = _MIN_CORNER * 1.01, cap_p - 1e-6, cap_s - 1e-6     # inside, by a margin
+    a = alpha.ravel().copy()
     for _ in range(_PROJECTION_STEPS):
-        th = np.clip(th, floor, _CEILING)
-        r = 2 * np.pi - inc @ th
-        if np.abs(r).max() < 1e-12:
-            return th
-        th = th + inc.T @ lu.solve(r)
+        if a.min() >= _MIN_CORNER and (a[p] + a[q] <= cap_p).all() and (a[single] <= cap_s).all() \
+                and np.abs(lin @ a - rhs).max() < 1e-9:
+            return a.reshape(m, 3)
+        u, v = np.maximum(a[p], lo), np.maximum(a[q], lo)
+        excess = np.maximum(u + v - hi_p, 0.0) / 2   # the nearest point of the triangle
+        u, v = u - excess, v - excess                # u, v >= lo, u + v <= hi
+        a[p] = np.where(u < lo, lo, np.where(v < lo, hi_p - lo, u))
+        a[q] = np.where(v < lo, lo, np.where(u < lo, hi_p - lo, v))
+        a[single] = np.clip(a[single], lo, hi_s)
+        a -= lin.T @ lu.solve(lin @ a - rhs)
     return None
 
 
 def _half_angle(x, ts):
     """Angle opposite an edge in a triangle whose circumcircle has log radius ``ρ_j``, when the
     neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``."""
-    return np.arctan2(np.sin(ts), np.exp(-x) + np.cos(ts))
+    with np.errstate(over="ignore"):        # a far larger neighbour: e^-x = inf, the angle 0
+        return np.arctan2(np.sin(ts), np.exp(-x) + np.cos(ts))
 
 
 def _half_angle_slope(x, ts):
@@ -259,7 +329,11 @@ def _half_angle_slope(x, ts):
 
 def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     """Newton's method for the log circumradii ``rho`` (m,) of the triangles: each triangle's
-    angles sum to π. Returns (rho, converged)."""
+    angles sum to π. The residual is minus the gradient of a convex functional (Bobenko &
+    Springborn), so each step is searched along for that functional's minimum on the line (by
+    its derivative, the residual times the step): Newton's method then converges wherever the
+    functional has a minimum, which a coherent angle system guarantees. Returns (rho,
+    converged)."""
     i, j = inner_pairs[:, 0], inner_pairs[:, 1]
     const = np.bincount(boundary_face, boundary_ts, minlength=m) - np.pi
 
@@ -288,21 +362,25 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
             fresh = True
         step = np.zeros(m)
         step[1:] = lu.solve(g[1:])          # the residual's Jacobian is minus this matrix
-        step -= step.mean()
-        h = min(1.0, _MAX_STEP / max(np.abs(step).max(), 1e-300))
-        norm = np.linalg.norm(g)
-        while h > 1e-8:
-            g2 = residual(rho + h * step)
-            if np.linalg.norm(g2) < norm:
-                break
-            h *= 0.5
-        else:
+        slope = g @ step        # minus the derivative of the convex functional along the step
+        if not (np.isfinite(slope) and slope > 0):
             if fresh:
                 return rho, False
             lu = None
             continue
-        rho, g = rho + h * step, g2
-        if not fresh and np.linalg.norm(g) > _CHORD_RATE * norm:
+        h, g1 = 1.0, residual(rho + step)
+        if g1 @ step < 0:       # past the functional's minimum on the line: bisect for it
+            lo, hi = 0.0, 1.0
+            for _ in range(_LINE_STEPS):
+                h = 0.5 * (lo + hi)
+                g1 = residual(rho + h * step)
+                d = g1 @ step
+                if abs(d) <= 0.1 * slope:
+                    break
+                lo, hi = (h, hi) if d > 0 else (lo, h)
+        norm = np.linalg.norm(g)
+        rho, g = rho + h * step, g1
+        if not fresh and (h < 1.0 or np.linalg.norm(g) > _CHORD_RATE * norm):
             lu = None
         fresh = False
     return rho, bool(np.abs(g).max() < _NEWTON_TOL)
@@ -340,14 +418,20 @@ def _layout(t, angles, rho, n, anchor):
     return z
 
 
-def _stereographic(x, tri):
-    """Plane coordinates ``(n, 2)`` of ``x`` by the stereographic projection from the point whose
-    triangles cover most of the sphere (an intrinsic choice), mirrored so that ``tri`` keeps its
-    orientation; and the frame ``(rotation, pole, mirrored)`` that :func:`_from_plane` undoes."""
-    n = len(x)
+def _poles(x, tri):
+    """The points by how much of the sphere their triangles cover, largest first (an intrinsic
+    order: candidate poles of :func:`_stereographic`)."""
     star = np.bincount(tri.ravel(), np.repeat(np.abs(np.einsum(
-        "ij,ij->i", x[tri[:, 0]], np.cross(x[tri[:, 1]], x[tri[:, 2]]))), 3), minlength=n)
-    pole = int(np.argmax(star))
+        "ij,ij->i", x[tri[:, 0]], np.cross(x[tri[:, 1]], x[tri[:, 2]]))), 3), minlength=len(x))
+    return np.argsort(-star, kind="stable")
+
+
+def _stereographic(x, tri, pole):
+    """Plane coordinates ``(n, 2)`` of ``x`` by the stereographic projection from ``pole``,
+    mirrored so that ``tri`` keeps its orientation; and the frame ``(rotation, pole, mirrored)``
+    that :func:`_from_plane` undoes."""
+    n = len(x)
+    pole = int(pole)
     z = x[pole]                         # the rotation taking the pole to (0, 0, 1)
     axis = np.cross(z, [0.0, 0.0, 1.0])
     s, c = np.linalg.norm(axis), z[2]
@@ -389,8 +473,9 @@ def realise(x, tri, *, new_edges=None):
     x : (n, 3) float64
         Unit vectors.
     tri : (m, 3) int64
-        A triangulation of the sphere on them (counter-clockwise seen from outside where ``x``
-        embeds it; :func:`flip_folds` keeps every triangle convex).
+        A triangulation of the sphere on them, counter-clockwise seen from outside (where ``x``
+        does not embed it, e.g. after a flip of a quadrilateral that is not convex, the
+        turned-over triangles' angles are projected like the others).
     new_edges : (k, 2) int64, optional
         Edges to make Delaunay by the margin :data:`_NEW_ANGLE` (default: those of ``tri`` that
         are not Delaunay in ``x``).
@@ -407,30 +492,35 @@ def realise(x, tri, *, new_edges=None):
     n = len(x)
     if len(tri) != 2 * n - 4 or np.bincount(tri.ravel(), minlength=n).min() < 3:
         return None             # not a triangulation of all the points (duplicates, too few)
-    u, frame = _stereographic(x, tri)
-    pole = frame[1]
-    keep = np.arange(n) != pole
-    inner = ~np.any(tri == pole, axis=1)
-    t = tri[inner]
     edges, opposite = _edges(tri, n)
     ne = len(edges)
-    ang = _planar_angles(u, t)
-    opp_sum = np.bincount(opposite[inner].ravel(), ang.ravel(), minlength=ne)
-    theta = np.pi - opp_sum
-    spoke = np.any(edges == pole, axis=1)
-    ring = np.where(edges[spoke, 0] == pole, edges[spoke, 1], edges[spoke, 0])
-    vertex_sum = np.bincount(t.ravel(), ang.ravel(), minlength=n)
-    theta[spoke] = np.pi - vertex_sum[ring]      # the turning angle of the boundary there
+    for pole in _poles(x, tri)[:_POLE_TRIES]:
+        # the pole's edges keep their intersection angles, the turning angles of the boundary
+        # of the plane triangulation: a pole whose triangles the flips changed leaves some of
+        # them non-convex, and a few triangles there would not be Delaunay (d008)
+        u, frame = _stereographic(x, tri, pole)
+        inner = ~np.any(tri == pole, axis=1)
+        t = tri[inner]
+        ang = _planar_angles(u, t)
+        spoke = np.any(edges == pole, axis=1)
+        ring = np.where(edges[spoke, 0] == pole, edges[spoke, 1], edges[spoke, 0])
+        vertex_sum = np.bincount(t.ravel(), ang.ravel(), minlength=n)
+        if np.pi - vertex_sum[ring].max() >= _NEW_ANGLE:
+            break
+    else:
+        return None
+    keep = np.arange(n) != pole
+    theta = np.pi - np.bincount(opposite[inner].ravel(), ang.ravel(), minlength=ne)
     floor = np.full(ne, _FLOOR)
     if new_edges is None:
         floor[theta < 0] = _NEW_ANGLE
     elif len(new_edges):
         ne_ = np.sort(np.asarray(new_edges, dtype=np.int64), axis=1)
         floor[np.isin(edges[:, 0] * n + edges[:, 1], ne_[:, 0] * n + ne_[:, 1])] = _NEW_ANGLE
-    theta = _project_angles(theta, edges, n, floor)
-    if theta is None:
+    alpha = _coherent_angles(ang, t, n, ring, vertex_sum[ring], opposite[inner], np.pi - floor)
+    if alpha is None:
         return None
-    ts = np.pi - theta                          # α + β wanted at each edge
+    ts = np.bincount(opposite[inner].ravel(), alpha.ravel(), minlength=ne)  # α + β at each edge
     # the circles of the inner triangles; edge -> its inner triangles
     mi = len(t)
     opp_inner = opposite[inner]
@@ -527,11 +617,12 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
     for _ in range(rounds):
         if not folds:
             break
-        for limit in _VIOLATION_LADDER:     # flips the angles admit no realisation of, or whose
-            flipped, left = flip_folds(tri, p, normals, x, max_violation=limit)   # realisation
-            y = realise(x, flipped) if left < folds else None          # squeezes some surfel's
+        for convex, limit in _LADDER:     # flips with no realisation, or whose realisation
+            flipped, left = flip_folds(tri, p, normals, x, convex=convex,   # squeezes some
+                                       max_violation=limit)                 # surfel's share of
+            y = realise(x, flipped) if left < folds else None             # the sphere: milder
             if y is not None and np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO:
-                break                                            # share of the sphere: milder
+                break
             y = None
         if y is None:
             break

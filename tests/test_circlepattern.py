@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from surfidx._circlepattern import (_MIN_SPACING_RATIO, _folded, _spacing, flip_folds,
-                                    lower_folds, realise)
+from surfidx._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles, _edges,
+                                    _folded, _spacing, flip_folds, lower_folds, realise)
 from surfidx.parameterize import hull_triangles
 
 
@@ -36,19 +36,22 @@ def test_a_delaunay_map_is_its_own_realisation(points):
     assert np.array_equal(_sorted(hull_triangles(y)), _sorted(hull_triangles(points)))
 
 
-def _flippable(x, tri):
-    """A triangulation with one convex quadrilateral's diagonal flipped: no longer Delaunay."""
+def _flippable(x, tri, *, convex=True):
+    """A triangulation with one quadrilateral's diagonal flipped (a convex one, or one that is
+    not convex: the flip turns a triangle over): no longer Delaunay."""
     de = {(a, b): i for i, t in enumerate(tri.tolist()) for a, b in zip(t, t[1:] + t[:1])}
+    edges = {tuple(sorted(e)) for e in de}
     for i, (a, b, c) in enumerate(tri.tolist()):
         j = de[(b, a)]
         d = next(v for v in tri[j] if v not in (a, b))
         new = np.array([[a, d, c], [d, b, c]])
         e1, e2 = x[new[:, 1]] - x[new[:, 0]], x[new[:, 2]] - x[new[:, 0]]
-        if np.all(np.einsum("ij,ij->i", np.cross(e1, e2), x[new].sum(axis=1)) > 0):
+        ccw = np.einsum("ij,ij->i", np.cross(e1, e2), x[new].sum(axis=1)) > 0
+        if ccw.all() == convex and tuple(sorted((c, d))) not in edges:
             out = tri.copy()
             out[[i, j]] = new
             return out, (int(c), int(d))
-    raise AssertionError("no convex quadrilateral")
+    raise AssertionError("no such quadrilateral")
 
 
 def test_a_flipped_edge_is_realised_as_delaunay(points):
@@ -62,6 +65,45 @@ def test_a_flipped_edge_is_realised_as_delaunay(points):
     # ... and it does not depend on which edges are named new when it is the only one
     z = realise(points, tri, new_edges=np.array([edge]))
     assert np.array_equal(_sorted(hull_triangles(z)), _sorted(tri))
+
+
+def test_a_flip_that_turns_a_triangle_over_is_realised_as_delaunay(points):
+    """A quadrilateral that is not convex on the sphere: the flipped triangulation is no
+    triangulation of the points where they are, but the circle pattern moves them so that it is
+    their Delaunay triangulation (coherent angles, Newton's method with a line search)."""
+    tri, edge = _flippable(points, hull_triangles(points), convex=False)
+    y = realise(points, tri)
+    assert y is not None
+    assert np.array_equal(_sorted(hull_triangles(y)), _sorted(tri))
+    assert np.abs(y - points).max() < 0.5
+
+
+def test_coherent_angles_meet_every_constraint_or_none(points):
+    """The corner angles given to Newton's method: at least _MIN_CORNER, π in every triangle,
+    2π around inner vertices, the boundary sums kept, at most the cap at every edge; None when
+    the caps leave no room (they would force the triangles' angles below π)."""
+    tri = hull_triangles(points)
+    n = len(points)
+    pole = 0
+    inner = ~np.any(tri == pole, axis=1)
+    t = tri[inner]
+    edges, opposite = _edges(tri, n)
+    rng = np.random.default_rng(3)
+    alpha = rng.uniform(-0.5, 2.0, t.shape)     # far from any angle system, some turned over
+    ring = np.unique(tri[~inner])
+    ring = ring[ring != pole]
+    sums = np.full(len(ring), (len(ring) - 2) * np.pi / len(ring))   # a convex ring: 2π turning
+    cap = np.full(len(edges), np.pi - 0.05)
+    a = _coherent_angles(alpha, t, n, ring, sums, opposite[inner], cap)
+    assert a is not None and a.min() >= _MIN_CORNER
+    assert np.allclose(a.sum(axis=1), np.pi, atol=1e-9)
+    vsum = np.bincount(t.ravel(), a.ravel(), minlength=n)
+    inside = np.setdiff1d(np.arange(1, n), ring)
+    assert np.allclose(vsum[inside], 2 * np.pi, atol=1e-9)
+    assert np.allclose(vsum[ring], sums, atol=1e-9)
+    assert (np.bincount(opposite[inner].ravel(), a.ravel(), minlength=len(edges)) <= cap).all()
+    assert _coherent_angles(alpha, t, n, ring, sums, opposite[inner], np.full(len(edges), 1.0)) \
+        is None
 
 
 def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):
