@@ -54,16 +54,19 @@ c. Balancing with the energy of 3.
    Where folds remain, a second pass tries every move afresh with the triangulation's unfolded
    triangles kept embedded too (their neighbourhoods propose other moves; ``_SECOND_PASS``).
 6. Fold realisation (:mod:`surfidx._circlepattern`, ``_REALISE``): where folds still remain, edges
-   of the Delaunay triangulation are flipped (convex quadrilaterals only) to lower them, and the
-   flipped triangulation is realised as the exact Delaunay triangulation of moved points by a
-   circle pattern with the map's circumcircle intersection angles (Rivin 1994), up to three
-   rounds, each kept only when it lowers the count and crowds no surfel on the sphere. Measured
-   after step 5 → after 6: scorpion 431 → 57 folded triangles of 101,302, horse 4 → 0, homer
-   1 → 0; on the 77 genus-0 retrieval meshes, folds 1688 → 686 in all, fold-free models 40 → 50,
-   at most 0.01 % 46 → 60, over 1 % 2 → 0, at 1.4 times the map time. A few mesh faces are
-   turned over (scorpion 445, 0.28 % of the sphere), which resampling tolerates (infinite-rate
-   PSNR_D2 unchanged on the 11 benchmark models; on the retrieval meshes median 0.0 dB, worst
-   -2.2 dB). Point clouds too.
+   of the Delaunay triangulation are flipped to lower them (any flips first, then only convex
+   quadrilaterals, then ones closer to Delaunay), and the flipped triangulation is realised as
+   the exact Delaunay triangulation of moved points by a circle pattern: the map's corner angles
+   projected onto a coherent angle system (Bobenko & Springborn 2004; Rivin 1994), Newton's
+   method on the circumradii. Up to three rounds, each kept only when it lowers the count and
+   crowds no surfel on the sphere. Measured after step 5 → after 6: scorpion 431-473 → 20
+   folded triangles of 101,302 (convex flips only, the first version: 56), horse 4 → 0, homer
+   1 → 0; on the 77 genus-0 retrieval meshes, folds 1688 → 467 in all (first version 686),
+   fold-free models 40 → 54, at most 0.01 % 46 → 61, at most 0.1 % 61 → 71, over 1 % 2 → 0, at
+   1.9 times the map time. A few mesh faces are turned over (scorpion 603, 0.6 % of the
+   sphere), which resampling tolerates (infinite-rate PSNR_D2 on the 11 benchmark models
+   within 0.1 dB; on the retrieval meshes median change 0.0 dB, two models lose about 3 dB:
+   d056 73.3 → 70.0 with 108 → 12 folds, d020 72.0 → 69.2 with 1 → 0). Point clouds too.
 
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
 ties are broken by index), so a rotated input gives the same sphere points up to a rotation.

@@ -224,6 +224,17 @@ def test_horse_delaunay_fold_target(models):
     assert m.info["folds_repaired"] >= 40 and m.info["folds_realised"] >= 1
 
 
+@pytest.mark.slow
+def test_scorpion_folds_after_realisation(models):
+    """Scorpion's thin legs: the repair leaves 431-473 folded Delaunay triangles; flips (also of
+    quadrilaterals that are not convex) realised through a coherent angle system leave 20
+    (convex flips only: 56), counted afresh from the points."""
+    s = read_surfels(models / "scorpion.obj")
+    m = parameterize(s, stress=False)
+    assert m.info["folds_realised"] >= 350
+    assert count_folds(s, m.points)[0] == m.folded <= 35
+
+
 def test_realisation_removes_the_fold_the_repair_leaves_on_homer(models):
     """Homer's repair leaves one folded Delaunay triangle; flips and their Delaunay realisation
     remove it, and resampling still interpolates in the mesh's own faces."""
