@@ -60,6 +60,7 @@ _NEWTON_STEPS = 300
 _NEWTON_TOL = 1e-10    # largest triangle angle-sum error (radians) at convergence
 _LINE_STEPS = 40       # bisections of a Newton step's line search
 _POLE_TRIES = 20       # candidate poles of the stereographic projection (by their star's area)
+_MOEBIUS_STEPS = 5     # reweightings of the Möbius fit of a realisation to the current map
 _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
@@ -123,10 +124,11 @@ class _Flips:
 
     def candidate(self, i, k):
         """The flip of triangle ``i``'s edge from corner ``k`` to the next, as ``(gain, i, j,
-        new triangles, their folds)``; None when the new edge exists already (or, with a finite
-        ``max_violation``, when the quadrilateral is not convex on the sphere or the new edge is
-        further from Delaunay than that, or with ``convex``). Any other flip is combinatorially valid, and
-        :func:`realise` moves the points to make it Delaunay."""
+        new triangles, their folds)``; None when the new edge exists already, or when the
+        quadrilateral is not convex on the sphere (with ``convex`` or a finite
+        ``max_violation``), or when the new edge is further from Delaunay than that. Any other
+        flip is combinatorially valid, and :func:`realise` moves the points to make it
+        Delaunay."""
         t = self.tri[i]
         a, b, c = t[k], t[(k + 1) % 3], t[(k + 2) % 3]
         j = self.edge.get((b, a))
@@ -452,15 +454,22 @@ def _stereographic(x, tri, pole):
     return u, (rot, pole, mirror)
 
 
-def _from_plane(z, frame):
+def _from_plane(z, frame, far=np.inf):
     """Unit vectors ``(n, 3)`` of the plane points ``z`` (n,) complex: :func:`_stereographic`
-    undone."""
+    undone. The pole goes to ``far`` (where a Möbius map took infinity); None when some point
+    is not finite."""
     rot, pole, mirror = frame
+    z = np.array(z, dtype=complex)
+    z[pole] = 0.0
     if mirror:
-        z = np.conj(z)
+        z, far = np.conj(z), np.conj(far)
     r2 = np.abs(z) ** 2
     out = np.column_stack([2 * z.real, 2 * z.imag, r2 - 1.0]) / (1.0 + r2)[:, None]
-    out[pole] = [0.0, 0.0, 1.0]
+    f2 = abs(far) ** 2 if abs(far) < 1e8 else np.inf     # within 1e-8 of the pole: the pole
+    out[pole] = [2 * far.real / (1 + f2), 2 * far.imag / (1 + f2), (f2 - 1) / (f2 + 1)] \
+        if np.isfinite(f2) else [0.0, 0.0, 1.0]
+    if not np.isfinite(out).all():
+        return None
     out = out @ rot
     return out / np.linalg.norm(out, axis=1)[:, None]
 
@@ -518,12 +527,25 @@ def realise(x, tri, *, new_edges=None):
         ne_ = np.sort(np.asarray(new_edges, dtype=np.int64), axis=1)
         floor[np.isin(edges[:, 0] * n + edges[:, 1], ne_[:, 0] * n + ne_[:, 1])] = _NEW_ANGLE
     alpha = _coherent_angles(ang, t, n, ring, vertex_sum[ring], opposite[inner], np.pi - floor)
-    if alpha is None:
-        return None
-    ts = np.bincount(opposite[inner].ravel(), alpha.ravel(), minlength=ne)  # α + β at each edge
+    out = None if alpha is None else _pattern(
+        alpha, u, t, ang, opposite[inner], ne, n, pole, keep, frame)
+    return out if out is not None and _is_hull(out, tri) else None
+
+
+def _is_hull(out, tri):
+    from .parameterize import hull_triangles
+
+    hull = hull_triangles(out)
+    return len(hull) == len(tri) and np.array_equal(_sorted_rows(hull), _sorted_rows(tri))
+
+
+def _pattern(alpha, u, t, ang, opp_inner, ne, n, pole, keep, frame):
+    """The circle pattern of the coherent angles ``alpha`` of the plane triangles ``t``, laid
+    out, fitted to the current plane points ``u`` and back on the sphere; None when Newton's
+    method does not converge or the layout fails."""
+    ts = np.bincount(opp_inner.ravel(), alpha.ravel(), minlength=ne)  # α + β at each edge
     # the circles of the inner triangles; edge -> its inner triangles
     mi = len(t)
-    opp_inner = opposite[inner]
     flat_e, flat_f = opp_inner.ravel(), np.repeat(np.arange(mi), 3)
     order = np.argsort(flat_e, kind="stable")
     flat_e, flat_f = flat_e[order], flat_f[order]
@@ -556,22 +578,30 @@ def realise(x, tri, *, new_edges=None):
     zc = _layout(t, angles, rho, n, pole)
     if zc is None:
         return None
-    # the similarity z -> a z + b closest to the current map, weighted like area on the sphere
+    # the Möbius map closest to the current map, weighted like area on the sphere: it keeps
+    # the pattern's circles, so the realisation stays exact
     zu = u[keep, 0] + 1j * u[keep, 1]
-    zp = zc[keep]
-    w = 1.0 / (1.0 + np.abs(zu) ** 2) ** 2
-    lhs = np.array([[np.sum(w * np.abs(zp) ** 2), np.sum(w * np.conj(zp))],
-                    [np.sum(w * zp), np.sum(w)]])
-    coef = np.linalg.solve(lhs, [np.sum(w * np.conj(zp) * zu), np.sum(w * zu)])
-    out = _from_plane(coef[0] * zc + coef[1], frame)
-    if not np.isfinite(out).all():
-        return None
-    from .parameterize import hull_triangles
+    moved, far = _moebius_fit(zc[keep], zu, zc)
+    return _from_plane(moved, frame, far)
 
-    hull = hull_triangles(out)
-    if len(hull) != len(tri) or not np.array_equal(_sorted_rows(hull), _sorted_rows(tri)):
-        return None
-    return out
+
+def _moebius_fit(z, target, z_all):
+    """``m(z_all)`` and ``m(∞)`` for the Möbius map ``m(z) = (a z + b) / (c z + 1)`` that brings
+    ``z`` nearest ``target`` in the sphere's metric: least squares on ``a z + b - c z target =
+    target``, whose residuals are the wanted ones times ``c z + 1``, reweighted by that factor
+    (:data:`_MOEBIUS_STEPS` times). Against the similarity ``a z + b`` alone: on d020 the points
+    moved 0.14 rather than 0.20 spacings in mean and PSNR_D2 was 71.9 dB rather than 69.1."""
+    w = 1.0 / (1.0 + np.abs(target) ** 2)        # the square root of the area element
+    mat = np.column_stack([z, np.ones_like(z), -z * target])
+    den = np.ones(len(z))
+    for _ in range(_MOEBIUS_STEPS):
+        wt = w / den
+        a, b, c = np.linalg.lstsq(mat * wt[:, None], target * wt, rcond=None)[0]
+        den = np.maximum(np.abs(c * z + 1.0), 1e-12)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = (a * z_all + b) / (c * z_all + 1.0)
+        far = a / c if abs(c) > 0 else np.inf
+    return out, far
 
 
 def _canonical(t):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles, _edges,
-                                    _folded, _spacing, flip_folds, lower_folds, realise)
+                                    _folded, _moebius_fit, _spacing, flip_folds, lower_folds,
+                                    realise)
 from surfidx.parameterize import hull_triangles
 
 
@@ -104,6 +105,19 @@ def test_coherent_angles_meet_every_constraint_or_none(points):
     assert (np.bincount(opposite[inner].ravel(), a.ravel(), minlength=len(edges)) <= cap).all()
     assert _coherent_angles(alpha, t, n, ring, sums, opposite[inner], np.full(len(edges), 1.0)) \
         is None
+
+
+def test_moebius_fit_recovers_a_moebius_map():
+    """The realisation is fitted to the current map by a Möbius map, which keeps its circles:
+    one that is exactly a Möbius image is brought back exactly, infinity included."""
+    rng = np.random.default_rng(4)
+    z = rng.standard_normal(200) + 1j * rng.standard_normal(200)
+    a, b, c = 1.3 - 0.4j, 0.2 + 0.7j, 0.15 - 0.1j
+    target = (a * z + b) / (c * z + 1)
+    out, far = _moebius_fit(z, target, z)
+    assert np.abs(out - target).max() < 1e-9 and abs(far - a / c) < 1e-9
+    out, far = _moebius_fit(z, 2 * z + 1, z)            # a similarity: infinity stays
+    assert np.abs(out - (2 * z + 1)).max() < 1e-9 and abs(far) > 1e9
 
 
 def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):
