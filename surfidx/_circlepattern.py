@@ -26,7 +26,9 @@ This module works the other way round, in two steps.
    then solves for the triangles' log circumradii (Kharevych, Springborn & Schröder 2006),
    searching each step for the minimum of the convex functional whose gradient it zeroes, so
    that it converges whenever the system is coherent. The triangles are laid out by least
-   squares, fitted to the current map by a similarity and projected back to the sphere.
+   squares, fitted to the current map by a Möbius map (which keeps circles, so the realisation
+   stays exact; a few flipped triangles change the radii everywhere, and a similarity fit left
+   that change in) and projected back to the sphere.
    The realisation is accepted only when Newton converged and the convex hull of the new points
    is that triangulation, triangle for triangle.
 
