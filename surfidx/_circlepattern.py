@@ -73,7 +73,7 @@ when a realisation fails or squeezes a surfel: any flips first, then milder ones
 quadrilaterals that are not convex take scorpion from 473 folds to 20 in one round (convex ones
 only: 56 in two), but crowd some models' points past the bound below, where convex flips do not
 (retrieval mesh d008: 47 folds left by the repair; 37 when the convex flips are not tried
-next, 6 when they are)."""
+next, 2 when they are)."""
 _MIN_SPACING_RATIO = 0.5
 """The realisations may bring a point's nearest neighbours on the sphere (the mean distance to
 :data:`_SPACING_NEIGHBOURS` of them) closer by this factor at most, measured from the map

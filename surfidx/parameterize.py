@@ -61,12 +61,13 @@ c. Balancing with the energy of 3.
    method on the circumradii. Up to three rounds, each kept only when it lowers the count and
    crowds no surfel on the sphere. Measured after step 5 → after 6: scorpion 431-473 → 20-25
    folded triangles of 101,302 (convex flips only, the first version: 56), horse 4 → 0, homer
-   1 → 0; on the 77 genus-0 retrieval meshes, folds 1688 → 467 in all (first version 686),
+   1 → 0; on the 77 genus-0 retrieval meshes, folds 1688 → 438 in all (first version 686),
    fold-free models 40 → 54, at most 0.01 % 46 → 61, at most 0.1 % 61 → 71, over 1 % 2 → 0, at
-   about twice the map time. A few mesh faces are turned over (scorpion 603, 0.6 % of the
+   about twice the map time. The realisation is fitted to the map by a Möbius map, which keeps
+   the far field in place. A few mesh faces are turned over (scorpion about 600, 0.6 % of the
    sphere), which resampling tolerates (infinite-rate PSNR_D2 on the 11 benchmark models
-   within 0.1 dB; on the retrieval meshes median change 0.0 dB, two models lose about 3 dB:
-   d056 73.3 → 70.0 with 108 → 12 folds, d020 72.0 → 69.2 with 1 → 0). Point clouds too.
+   within 0.1 dB; on the retrieval meshes median change 0.0 dB, d056 73.3 → 70.3 with
+   108 → 12 folds, d080 76.2 → 74.8 with 112 → 46, no other loss over 1 dB). Point clouds too.
 
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
 ties are broken by index), so a rotated input gives the same sphere points up to a rotation.
