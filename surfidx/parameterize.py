@@ -59,7 +59,7 @@ c. Balancing with the energy of 3.
    the exact Delaunay triangulation of moved points by a circle pattern: the map's corner angles
    projected onto a coherent angle system (Bobenko & Springborn 2004; Rivin 1994), Newton's
    method on the circumradii. Up to three rounds, each kept only when it lowers the count and
-   crowds no surfel on the sphere. Measured after step 5 → after 6: scorpion 431-473 → 20-25
+   crowds no surfel on the sphere. Measured after step 5 → after 6: scorpion 431-473 → 17-25
    folded triangles of 101,302 (convex flips only, the first version: 56), horse 4 → 0, homer
    1 → 0; on the 77 genus-0 retrieval meshes, folds 1688 → 438 in all (first version 686),
    fold-free models 40 → 54, at most 0.01 % 46 → 61, at most 0.1 % 61 → 71, over 1 % 2 → 0, at
