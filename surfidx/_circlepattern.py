@@ -52,6 +52,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from ._foldrepair import _against_normals, _corner_orientation, _mirrored
+
 __all__ = ["flip_folds", "realise", "lower_folds"]
 
 _FLOOR = 1e-3          # intersection angle floor of the triangulation's edges (radians)
@@ -84,21 +86,10 @@ dB), before the realisation, with no bound, with this bound at 0.35 and at 0.5: 
 _SPACING_NEIGHBOURS = 6
 
 
-def _folded(p, normals, t):
-    t = np.asarray(t, dtype=np.int64).reshape(-1, 3)
-    n3 = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
-    return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
-
-
 def _angle(x, a, b, c):
     """The angle at ``a`` between the chords to ``b`` and ``c``."""
     u, v = x[b] - x[a], x[c] - x[a]
     return float(np.arccos(np.clip(u @ v / np.sqrt((u @ u) * (v @ v)), -1.0, 1.0)))
-
-
-def _ccw(x, t):
-    a, b, c = x[t[0]], x[t[1]], x[t[2]]
-    return float(np.dot(np.cross(b - a, c - a), a + b + c)) > 0
 
 
 class _Flips:
@@ -112,7 +103,7 @@ class _Flips:
         self.edge = {}
         for i in range(len(self.tri)):
             self._register(i)
-        self.bad = (_folded(p, normals, tri) ^ mirror).tolist()
+        self.bad = (_against_normals(p, normals, tri) ^ mirror).tolist()
 
     def _register(self, i):
         a, b, c = self.tri[i]
@@ -140,12 +131,13 @@ class _Flips:
         if c == d or (c, d) in self.edge or (d, c) in self.edge:
             return None
         new = ((a, d, c), (d, b, c))
+        corners = np.array(new)
         if self.convex and not (
-                _ccw(self.x, new[0]) and _ccw(self.x, new[1])
+                (_corner_orientation(self.x[corners]) > 0).all()
                 and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
                 >= -self.max_violation):
             return None
-        bad = (_folded(self.p, self.normals, new) ^ self.mirror).tolist()
+        bad = (_against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
         return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
 
     def apply(self, cand):
@@ -166,10 +158,6 @@ class _Flips:
         self.tri[i], self.tri[j], self.bad[i], self.bad[j] = ti, tj, bi, bj
         self._register(i)
         self._register(j)
-
-    def best(self, i, *, minimum):
-        cands = [c for k in range(3) if (c := self.candidate(i, k)) is not None and c[0] >= minimum]
-        return max(cands, key=lambda c: c[0], default=None)
 
     def mend(self, i, depth: int = None, gained: int = 0) -> bool:
         """A sequence of at most ``depth`` flips, each on a folded triangle the previous one left
@@ -220,8 +208,8 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
         Its folded triangles.
     """
     tri = _canonical(tri)          # the search visits triangles by vertex index, not by input
-    bad = _folded(p, normals, tri)  # order, so a rotated map flips the same edges
-    state = _Flips(tri, p, normals, x, mirror=bool(bad.sum() > len(bad) / 2), convex=convex,
+    state = _Flips(tri, p, normals, x,          # order, so a rotated map flips the same edges
+                   mirror=_mirrored(_against_normals(p, normals, tri)), convex=convex,
                    max_violation=max_violation)
     for _ in range(rounds):
         todo = [i for i, b in enumerate(state.bad) if b]
@@ -641,8 +629,8 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
     from .parameterize import hull_triangles
 
     tri = hull_triangles(x)
-    bad = _folded(p, normals, tri)
-    mirror = bool(bad.sum() > len(bad) / 2)
+    bad = _against_normals(p, normals, tri)
+    mirror = _mirrored(bad)
     folds = int((bad ^ mirror).sum())
     info = {"folds_before": folds, "folds": folds, "rounds": 0}
     spacing = _spacing(x)        # the rounds together may crowd a point this much at most
@@ -658,10 +646,7 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
             y = None
         if y is None:
             break
-        tri = hull_triangles(y)
-        got = int((_folded(p, normals, tri) ^ mirror).sum())
-        if got >= folds:
-            break
-        x, folds = y, got
+        # realise returned y only because its hull is ``flipped``: the count is the flips'
+        x, tri, folds = y, flipped, left
         info["folds"], info["rounds"] = folds, info["rounds"] + 1
     return x, info
