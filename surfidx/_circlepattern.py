@@ -38,12 +38,22 @@ This module works the other way round, in two steps.
    used, and scorpion stopped at 56 folds, where any flips would reach 17.
 
 On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) one round
-leaves 20 (convex flips only, two rounds: 56; flip sequences of depth 10: 19); on the 77
-genus-0 retrieval meshes see :func:`surfidx.parameterize.parameterize`. The mesh's own faces
-are no longer all embedded afterwards (scorpion: some hundreds turned over, under 1 % of the
-sphere); resampling still interpolates in them (:func:`surfidx.resample.map_triangles`),
-measured without loss (scorpion at level 9: PSNR_D2 81.20 dB either way, 70.4 dB in the
-Delaunay triangles).
+leaves 20 (convex flips only, two rounds: 56; flip sequences of depth 12: 19; depth 8 with one
+fold lent on the way: 18); on the 77 genus-0 retrieval meshes see
+:func:`surfidx.parameterize.parameterize`. The mesh's own faces are no longer all embedded
+afterwards (scorpion: some hundreds turned over, under 1 % of the sphere); resampling still
+interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss
+(scorpion at level 9: PSNR_D2 81.2 dB either way, 70.4 dB in the Delaunay triangles).
+
+What a realisation costs is a regional change of scale. The flips in an anisotropic limb make
+its triangulation nearer conformal, and a Delaunay realisation then changes the limb's
+conformal shape: on retrieval mesh d056 the surfels up to 18 rings from any turned-over face
+lost up to half their share of the sphere, and infinite-rate PSNR_D2 fell 73.3 -> 70.3 dB (the
+coder's 5.4, 2.0, 1.0 and 0.6 dB at 0.5, 0.89, 1.39 and 3.56 bits/surfel). It is not the angle
+system spreading its corrections: projecting with weights that grow with the distance from the
+flips kept every change beyond 12 rings under 1e-4 radians, and the loss was the same. So
+:func:`lower_folds` keeps a realisation only when the caller's ``accept`` takes it (the
+parameterization measures the resampling, :class:`surfidx.parameterize._ResamplingCheck`).
 """
 
 from __future__ import annotations
@@ -71,18 +81,21 @@ _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is remov
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
 _LADDER = ((False, np.inf), (True, np.inf), (True, 1.0), (True, 0.3))
 """The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in edge)``,
-when a realisation fails or squeezes a surfel: any flips first, then milder ones. Flips of
+when a realisation fails or is refused: any flips first, then milder ones. Flips of
 quadrilaterals that are not convex take scorpion from 473 folds to 20 in one round (convex ones
-only: 56 in two), but crowd some models' points past the bound below, where convex flips do not
-(retrieval mesh d008: 47 folds left by the repair; 37 when the convex flips are not tried
-next, 2 when they are)."""
+only: 56 in two), but cost some models more resampling quality than convex ones do (retrieval
+mesh d008: 47 folds left by the repair; 37 when the convex flips are not tried next, 2 when
+they are, 6 with the resampling check)."""
 _MIN_SPACING_RATIO = 0.5
-"""The realisations may bring a point's nearest neighbours on the sphere (the mean distance to
-:data:`_SPACING_NEIGHBOURS` of them) closer by this factor at most, measured from the map
-before the first round: a flip far from Delaunay moves its corners a lot, and the grid then
-samples the surfels there too sparsely. Two retrieval models (folds; infinite-rate PSNR_D2 in
-dB), before the realisation, with no bound, with this bound at 0.35 and at 0.5: d074 33, 75.1;
-1, 71.0; 1, 72.6; 25, 75.0 -- d037 188, 72.9; 15, 68.9; 15, 68.9; 73, 71.4."""
+"""Without a caller's ``accept``, :func:`lower_folds` lets the realisations bring a point's
+nearest neighbours on the sphere (the mean distance to :data:`_SPACING_NEIGHBOURS` of them)
+closer by this factor at most, measured from the map before the first round: a flip far from
+Delaunay moves its corners a lot, and the grid then samples the surfels there too sparsely.
+Two retrieval models (folds; infinite-rate PSNR_D2 in dB), before the realisation, with no
+bound, with this bound at 0.35 and at 0.5: d074 33, 75.1; 1, 71.0; 1, 72.6; 25, 75.0 -- d037
+188, 72.9; 15, 68.9; 15, 68.9; 73, 71.4. A proxy only: scorpion's first realisation crowds two
+points to 0.40 and 0.50 of their spacing and costs nothing, one of d074's crowds none below
+0.46 and costs 8.9 dB; the parameterization measures the resampling instead."""
 _SPACING_NEIGHBOURS = 6
 
 
@@ -616,15 +629,30 @@ def _sorted_rows(t):
     return s[np.lexsort(s.T[::-1])]
 
 
-def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
+def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None):
     """Rounds of :func:`flip_folds` on the Delaunay triangulation of ``x`` and :func:`realise`,
-    each kept only when it lowers the count of folded Delaunay triangles.
+    each kept only when it lowers the count of folded Delaunay triangles and ``accept`` takes it.
+
+    Parameters
+    ----------
+    x : (n, 3) float64
+        Unit vectors, the map.
+    p, normals : (n, 3) float64
+        3D positions and surfel normals.
+    rounds : int
+        Most flip-and-realise rounds.
+    accept : callable, optional
+        ``accept(y) -> bool`` for a realisation ``y`` (an ``(n, 3)`` map): whether it may
+        replace the map (:func:`surfidx.parameterize.parameterize` passes a bound on the loss
+        of resampling quality). Default: the geometric bound :data:`_MIN_SPACING_RATIO` on the
+        crowding of every point's neighbours, measured from ``x``.
 
     Returns
     -------
     x : (n, 3) float64
     info : dict
-        ``folds_before``, ``folds``, ``rounds`` (kept).
+        ``folds_before``, ``folds``, ``rounds`` (kept), ``refused`` (realisations that
+        ``accept`` refused).
     """
     from .parameterize import hull_triangles
 
@@ -632,17 +660,24 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS):
     bad = _against_normals(p, normals, tri)
     mirror = _mirrored(bad)
     folds = int((bad ^ mirror).sum())
-    info = {"folds_before": folds, "folds": folds, "rounds": 0}
-    spacing = _spacing(x)        # the rounds together may crowd a point this much at most
+    info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0}
+    if accept is None:
+        spacing = _spacing(x)    # the rounds together may crowd a point this much at most
+
+        def accept(y):
+            return bool(np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO)
+
     for _ in range(rounds):
         if not folds:
             break
         for convex, limit in _LADDER:     # flips with no realisation, or whose realisation
-            flipped, left = flip_folds(tri, p, normals, x, convex=convex,   # squeezes some
-                                       max_violation=limit)                 # surfel's share of
-            y = realise(x, flipped) if left < folds else None             # the sphere: milder
-            if y is not None and np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO:
-                break
+            flipped, left = flip_folds(tri, p, normals, x, convex=convex,   # is refused: milder
+                                       max_violation=limit)
+            y = realise(x, flipped) if left < folds else None
+            if y is not None:
+                if accept(y):
+                    break
+                info["refused"] += 1
             y = None
         if y is None:
             break

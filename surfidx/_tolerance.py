@@ -47,6 +47,10 @@ class Tolerances:
         faces, 0.6 % of the sphere; two swapped vertices of a level-3 icosphere turn over 2.3 %
         of it) for resampling to interpolate in the mesh's faces rather than in the Delaunay
         triangles of the mapped surfels.
+    realise_loss : float
+        dB of infinite-rate PSNR_D2 (resampled at the grid level of the map before) that a fold
+        realisation of :mod:`surfidx._circlepattern` may cost and be kept: it moves the points,
+        and where it turns mesh faces over, the grid samples the surfels there less well.
     """
 
     unit_normal: float = 1e-3
@@ -60,6 +64,7 @@ class Tolerances:
     degenerate_angle: float = 1e-4
     sphere_cover: float = 1e-6
     inverted_area: float = 0.01
+    realise_loss: float = 1.0
 
 
 TOL = Tolerances()

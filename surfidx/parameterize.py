@@ -59,17 +59,18 @@ c. Balancing with the energy of 3.
    the exact Delaunay triangulation of moved points by a circle pattern: the map's corner angles
    projected onto a coherent angle system (Bobenko & Springborn 2004; Rivin 1994), Newton's
    method on the circumradii. Up to three rounds, each kept only when it lowers the count and
-   crowds no surfel on the sphere. Measured after step 5 → after 6: scorpion 431-491 → 17-54
-   folded triangles of 101,302 by the run (the balancing before the repair stops on a time
-   budget; the flips of quadrilaterals that are not convex pass the crowding bound on some of
-   those maps; convex flips only, the first version: 56), horse 4 → 0, homer 1 → 0; on the 77
-   genus-0 retrieval meshes, folds 1688 → 438 in all (first version 686),
-   fold-free models 40 → 54, at most 0.01 % 46 → 61, at most 0.1 % 61 → 71, over 1 % 2 → 0, at
-   about twice the map time. The realisation is fitted to the map by a Möbius map, which keeps
-   the far field in place. A few mesh faces are turned over (scorpion about 600, 0.6 % of the
-   sphere), which resampling tolerates (infinite-rate PSNR_D2 on the 11 benchmark models
-   within 0.1 dB; on the retrieval meshes median change 0.0 dB, d056 73.3 → 70.3 with
-   108 → 12 folds, d080 76.2 → 74.8 with 112 → 46, no other loss over 1 dB). Point clouds too.
+   costs the resampling at most ``TOL.realise_loss`` (1 dB) of infinite-rate PSNR_D2 at the
+   map's grid level (:class:`_ResamplingCheck`; a realisation changes the scale of whole limbs,
+   see :mod:`surfidx._circlepattern`). Measured after step 5 → after 6: scorpion 442-473 → 20
+   folded triangles of 101,302 on every repaired map tried (with a bound on the crowding of
+   points instead, the first version: 17-54 by the run, as the flips of quadrilaterals that
+   are not convex passed it or not), horse 4 → 0, homer 1 → 0; on the 77 genus-0 retrieval
+   meshes, folds 1688 → 640 in all, fold-free models 40 → 55, at most 0.01 % 46 → 61, at most
+   0.1 % 61 → 72, over 1 % 2 → 0, none losing over 1 dB of PSNR_D2 by the check (the crowding
+   bound: folds 438, four models losing 1.5-3.0 dB, d041 below 70 dB). The realisation is fitted to
+   the map by a Möbius map, which keeps the far field in place. A few mesh faces are turned
+   over (scorpion about 600, 0.6 % of the sphere), which resampling tolerates (scorpion
+   81.2 dB either way). Point clouds too.
 
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
 ties are broken by index), so a rotated input gives the same sphere points up to a rotation.
@@ -809,10 +810,38 @@ def _repair(x, surfels: SurfelSet, info: dict, *, mesh=None):
         info["folds_repaired"] += r2["folds_before"] - r2["folds"]
         folds = r2["folds"]
     if folds and _REALISE:
-        x, r3 = lower_folds(x, p, normals)
+        x, r3 = lower_folds(x, p, normals, accept=_ResamplingCheck(surfels, x))
         info = dict(info, folds_realised=r3["folds_before"] - r3["folds"],
-                    realise_rounds=r3["rounds"])
+                    realise_rounds=r3["rounds"], realise_refused=r3["refused"])
     return x, info
+
+
+class _ResamplingCheck:
+    """Whether a fold realisation of the map ``x`` keeps the resampling's quality: its
+    infinite-rate PSNR_D2 (geometry resampled at the grid level chosen for ``x``, against the
+    surfels) is at most ``TOL.realise_loss`` dB below that of ``x``.
+
+    What a realisation costs shows only in the resampling: scorpion's first crowds two
+    points to 0.40 and 0.50 of their neighbours' distance and keeps 81.2 dB, while on retrieval
+    mesh d074 one that crowds none below 0.46 costs 8.9 dB (75.1 -> 66.3; the flips of
+    the next, milder rung cost 0.3) and one on d037 crowds none below 0.72 and costs 2.1."""
+
+    def __init__(self, surfels: SurfelSet, x):
+        from .icosphere import choose_level
+
+        self.surfels = surfels
+        self.level = choose_level(len(surfels), sparse_sampling=sparse_sampling(surfels, x))
+        self.floor = self.psnr(x) - TOL.realise_loss
+
+    def psnr(self, x) -> float:
+        from .metrics import evaluate
+        from .resample import grid_to_surfels, resample
+
+        grid = grid_to_surfels(resample(self.surfels, x, self.level, color=False))
+        return float(evaluate(self.surfels, grid)["psnr_d2"])
+
+    def __call__(self, y) -> bool:
+        return self.psnr(y) >= self.floor
 
 
 def _proxy_tutte_map(surfels: SurfelSet, *, repair: bool = True, **options):

@@ -147,7 +147,28 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     assert (_spacing(y) / _spacing(x)).min() >= _MIN_SPACING_RATIO
     # a fold-free map is returned as it is
     z, info = lower_folds(points, p, n)
-    assert info == {"folds_before": 0, "folds": 0, "rounds": 0} and z is points
+    assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0} and z is points
+
+
+def test_lower_folds_keeps_only_what_accept_takes(points, ellipsoid):
+    """``accept`` sees every realisation: refusing all keeps the map, and then every rung of
+    the ladder was realised and refused (a milder flip set is tried after each refusal)."""
+    p, n = ellipsoid
+    rng = np.random.default_rng(2)
+    x = points + 0.02 * rng.standard_normal(points.shape)
+    x /= np.linalg.norm(x, axis=1)[:, None]
+    seen = []
+
+    def refuse(y):
+        seen.append(y)
+        return False
+
+    z, info = lower_folds(x, p, n, accept=refuse)
+    assert z is x and info["rounds"] == 0 and info["folds"] == info["folds_before"] > 10
+    assert info["refused"] == len(seen) >= 2
+    assert all(int(_folded(p, n, hull_triangles(y)).sum()) < info["folds_before"] for y in seen)
+    y, taken = lower_folds(x, p, n, accept=lambda y: True)
+    assert taken["refused"] == 0 and taken["folds"] <= info["folds_before"] // 3
 
 
 def test_realisation_is_rotation_equivariant(points, ellipsoid):
