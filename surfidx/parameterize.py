@@ -129,6 +129,14 @@ _STRICT_STOP = dict(tol=1e-7, patience=20)   # 20 steps in a row lower the energ
 _LOOSE_STOP = dict(tol=1e-5, patience=5)     # ... on levels above _LOOSE_ABOVE vertices, where a
 _LOOSE_ABOVE = 20000                         # step costs 10-100 ms (Igea: 11.6 -> 10 s in all)
 _FINAL_STEPS = 1500  # the finest level may take more steps: long limbs still gain area after 300
+_FINAL_STEPS_LARGE = 600   # ... but above _LOOSE_ABOVE vertices, where a step costs 10-100 ms
+"""A finest level above :data:`_LOOSE_ABOVE` vertices stops after this many steps: about what
+the 15 s budget used to allow there, as a count, so that the map is the same on every machine.
+Scorpion's finest level is the only one of the benchmark models to use them all (the others
+converge in 12-267 steps); it used to stop on the budget after 589-631 steps by the machine's
+load, and its folds after the realisation ranged 17-54. 600 steps: 20 folds; 1500 steps (a
+faster machine) leave a more anisotropic map: 84 folds. On the retrieval meshes, 600 steps for
+the smaller levels too changed 14 models by up to 1.8 dB either way (they converge later)."""
 _UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
 _SECOND_PASS = True
@@ -766,7 +774,8 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
     f = _oriented_faces(surfels)
     for tries, coarse in enumerate(_COARSE_LADDER):
         try:
-            x, info = _multilevel_map(surfels, faces=f, steps=_FINAL_STEPS, coarse=coarse,
+            steps = _FINAL_STEPS if len(surfels) <= _LOOSE_ABOVE else _FINAL_STEPS_LARGE
+            x, info = _multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
                                       **options)
             info = dict(info, coarse=coarse, retries=tries)
             break
@@ -982,7 +991,7 @@ def _mds_map(surfels: SurfelSet, *, landmarks: int, seed: int, maxiter: int):
 # ---------------------------------------------------------------------- public entry point
 def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
                  landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
-                 time_budget: float = 20.0, balance_budget: float = 15.0,
+                 time_budget: float = 20.0, balance_budget: float = 60.0,
                  stress: bool = True) -> SphericalMap:
     """Map surfels to the unit sphere.
 
@@ -1008,6 +1017,10 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     balance_budget : float
         Seconds, at most, for each level's balancing, and twice that for its untangling (0:
         no balancing, and a level whose prolongation folds falls back to the single-level map).
+        A guard: the multilevel map's step counts end its balancing first (scorpion's finest
+        level, the longest: 600 steps in about 15 s on a 2-core machine), so that the map does
+        not depend on the machine's speed or load (the single-level fallback's may still
+        stop on it).
     stress : bool
         Compute the landmark stress figure (geodesics from ``landmarks`` sources).
 

@@ -288,6 +288,19 @@ def test_multilevel_map_has_levels_down_to_a_small_base():
     assert m.info["mesh_folds"] == 0 and "fallback" not in m.info
 
 
+def test_finest_level_stops_on_its_step_count_not_the_clock(monkeypatch):
+    """The finest level's balancing ends after ``_FINAL_STEPS`` steps however much time is
+    given, so the map is the same on a fast machine and a loaded one."""
+    import surfidx.parameterize as P
+
+    monkeypatch.setattr(P, "_FINAL_STEPS", 4)
+    s = _limbs(4)
+    m = parameterize(s, stress=False)
+    assert m.info["balance_steps"] == 4
+    m2 = parameterize(s, stress=False, balance_budget=1000.0)
+    assert np.array_equal(m.points, m2.points)
+
+
 def test_level_left_with_few_inverted_triangles_is_kept(monkeypatch):
     """Up to _INVERTED_KEPT of a level's triangles may stay inverted (the map keeps its levels);
     here every share is allowed and no time is given to untangle."""
