@@ -67,9 +67,9 @@ c. Balancing with the energy of 3.
    are not convex passed it or not), horse 4 → 0, homer 1 → 0; on the 77 genus-0 retrieval
    meshes, folds 1688 → 640 in all, fold-free models 40 → 55, at most 0.01 % 46 → 61, at most
    0.1 % 61 → 72, over 1 % 2 → 0, none losing over 1 dB of PSNR_D2 by the check (the crowding
-   bound: folds 438, four models losing 1.5-3.0 dB, d041 below 70 dB). The realisation is fitted to
-   the map by a Möbius map, which keeps the far field in place. A few mesh faces are turned
-   over (scorpion about 600, 0.6 % of the sphere), which resampling tolerates (scorpion
+   bound: folds 438, four models losing 1.5-3.0 dB, d041 below 70 dB). The realisation is
+   fitted to the map by a Möbius map, which keeps the far field in place. A few mesh faces are
+   turned over (scorpion about 600, 0.6 % of the sphere), which resampling tolerates (scorpion
    81.2 dB either way). Point clouds too.
 
 All steps use intrinsic quantities only (lengths, angles, areas, mesh connectivity; decimation
@@ -772,9 +772,9 @@ def _mesh_map(surfels: SurfelSet, *, repair: bool = True, **options):
     """The multilevel map, or the single-level one where a level could not be untangled; then
     the folded Delaunay triangles are repaired by local moves (:mod:`surfidx._foldrepair`)."""
     f = _oriented_faces(surfels)
+    steps = _FINAL_STEPS if len(surfels) <= _LOOSE_ABOVE else _FINAL_STEPS_LARGE
     for tries, coarse in enumerate(_COARSE_LADDER):
         try:
-            steps = _FINAL_STEPS if len(surfels) <= _LOOSE_ABOVE else _FINAL_STEPS_LARGE
             x, info = _multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
                                       **options)
             info = dict(info, coarse=coarse, retries=tries)

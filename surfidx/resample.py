@@ -368,8 +368,9 @@ def map_triangles(surfels: SurfelSet, sphere_points) -> np.ndarray:
         at most the share ``TOL.inverted_area`` of the sphere (the map embeds the mesh but for the
         small faces that the fold realisation of :mod:`surfidx._circlepattern` turned over, where
         point location falls back to nearby triangles); otherwise the convex hull of
-        ``sphere_points`` (:func:`surfidx.parameterize.hull_triangles`). Scorpion at level 9, about 600 of its
-        101,302 faces turned over: PSNR_D2 81.2 dB in its faces, 70.4 dB in the convex hull.
+        ``sphere_points`` (:func:`surfidx.parameterize.hull_triangles`). Scorpion at level 9,
+        about 600 of its 101,302 faces turned over: PSNR_D2 81.2 dB in its faces, 70.4 dB in the
+        convex hull.
     """
     pts = _check_points(surfels, sphere_points)
     f = surfels.faces
