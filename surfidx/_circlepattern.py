@@ -64,7 +64,7 @@ from scipy.sparse.linalg import splu
 
 from ._foldrepair import _against_normals, _corner_orientation, _mirrored
 
-__all__ = ["flip_folds", "realise", "lower_folds"]
+__all__ = ["flip_folds", "anneal_flips", "realise", "lower_folds"]
 
 _FLOOR = 1e-3          # intersection angle floor of the triangulation's edges (radians)
 _NEW_ANGLE = 0.05      # ... of the flipped-in edges: Delaunay by this margin after realisation
@@ -79,6 +79,18 @@ _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the 
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
 _ROUNDS = 3            # flip-and-realise rounds of lower_folds
+_ANNEAL_STEPS = 200_000
+"""Flips proposed by :func:`anneal_flips` in :func:`lower_folds` (scorpion: about 10 s)."""
+_ANNEAL_TEMPERATURE = 0.3
+"""A flip that adds ``k`` folded triangles is taken with probability ``exp(-k / T)``: at 0.3 one
+in 28 that add one. Scorpion from the 20 folds that :func:`flip_folds` leaves (seeds 0-4): 0-3 at
+0.3, 3-10 at 0.15 and 0.05."""
+_ANNEAL_TRIES = 2
+"""Realisations of annealed triangulations :func:`lower_folds` tries in a round before the flips
+of :func:`flip_folds` alone: the one with the fewest folds, then one halfway to the flips'
+count. More flips turn more mesh faces over in the realisation (scorpion: 15, 5 and 2 folds left
+after 106, 210 and 267 changed edges, 0.72, 0.92 and 0.98 % of the sphere turned over), and a
+realisation fails or is refused more often."""
 _LADDER = ((False, np.inf), (True, np.inf), (True, 1.0), (True, 0.3))
 """The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in edge)``,
 when a realisation fails or is refused: any flips first, then milder ones. Flips of
@@ -230,6 +242,72 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
         if not changed:
             break
     return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
+
+
+def anneal_flips(tri, p, normals, x, *, steps: int = _ANNEAL_STEPS,
+                 temperature: float = _ANNEAL_TEMPERATURE, seed: int = 0):
+    """Random edge flips around the folded triangles, kept by the Metropolis rule: the
+    triangulations with fewer folds than any before, met on the way.
+
+    :func:`flip_folds` keeps only flip sequences that never add a fold, and stops where every
+    folded triangle needs one that does (scorpion: 20 left). Here a flip of an edge of a folded
+    triangle (or of a triangle next to one) is taken when it removes folds, with probability
+    1/2 when it keeps the count, and ``exp(-k / temperature)`` when it adds ``k``.
+
+    Parameters
+    ----------
+    tri : (m, 3) int64
+        Counter-clockwise triangulation of the sphere points ``x``.
+    p, normals : (n, 3) float64
+        3D positions and surfel normals (folds as in :func:`flip_folds`).
+    x : (n, 3) float64
+        Sphere points.
+    steps : int
+        Flips proposed.
+    temperature : float
+        Positive; see above.
+    seed : int
+        Seed of the proposals: the same input gives the same triangulations.
+
+    Returns
+    -------
+    list of ((m, 3) int64, int)
+        Each new best triangulation (canonical rows, as :func:`flip_folds`) and its folds, in the
+        order found (falling fold counts); empty when none beats ``tri``.
+    """
+    if not temperature > 0:
+        raise ValueError(f"temperature must be positive, got {temperature!r}")
+    rng = np.random.default_rng(seed)
+    tri = _canonical(tri)
+    state = _Flips(tri, p, normals, x, mirror=_mirrored(_against_normals(p, normals, tri)))
+    folds = best = int(sum(state.bad))
+    found = []
+    bad = []
+    for step in range(int(steps)):
+        if step % 64 == 0 or not bad:
+            bad = [i for i, b in enumerate(state.bad) if b]
+            if not bad:
+                break
+        i = bad[rng.integers(len(bad))]
+        if rng.random() < 0.2:                          # the triangle across one of its edges
+            a, b, c = state.tri[i]
+            i = state.edge.get(((b, a), (c, b), (a, c))[rng.integers(3)])
+            if i is None:
+                continue
+        cand = state.candidate(i, int(rng.integers(3)))
+        if cand is None:
+            continue
+        gain = cand[0]
+        if gain > 0 or (gain == 0 and rng.random() < 0.5) or (
+                gain < 0 and rng.random() < np.exp(gain / temperature)):
+            state.apply(cand)
+            folds -= gain
+            bad = [q for q in bad if state.bad[q]] + [q for q in cand[1:3] if state.bad[q]
+                                                      and q not in bad]
+            if folds < best:
+                best = folds
+                found.append((np.array(state.tri, dtype=np.int64), folds))
+    return found
 
 
 # ----------------------------------------------------------------------------- realisation
@@ -629,9 +707,11 @@ def _sorted_rows(t):
     return s[np.lexsort(s.T[::-1])]
 
 
-def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None):
-    """Rounds of :func:`flip_folds` on the Delaunay triangulation of ``x`` and :func:`realise`,
-    each kept only when it lowers the count of folded Delaunay triangles and ``accept`` takes it.
+def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
+                anneal_steps: int = _ANNEAL_STEPS):
+    """Rounds of :func:`flip_folds` (or :func:`anneal_flips`) on the Delaunay triangulation of
+    ``x`` and :func:`realise`, each kept only when it lowers the count of folded Delaunay
+    triangles and ``accept`` takes it.
 
     Parameters
     ----------
@@ -646,13 +726,17 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None):
         replace the map (:func:`surfidx.parameterize.parameterize` passes a bound on the loss
         of resampling quality). Default: the geometric bound :data:`_MIN_SPACING_RATIO` on the
         crowding of every point's neighbours, measured from ``x``.
+    anneal_steps : int
+        Flips :func:`anneal_flips` proposes from the flips of the first rung of
+        :data:`_LADDER` before they are realised alone (0: none); at most
+        :data:`_ANNEAL_TRIES` of its triangulations are realised per round.
 
     Returns
     -------
     x : (n, 3) float64
     info : dict
         ``folds_before``, ``folds``, ``rounds`` (kept), ``refused`` (realisations that
-        ``accept`` refused).
+        ``accept`` refused), ``annealed`` (rounds that kept an annealed triangulation).
     """
     from .parameterize import hull_triangles
 
@@ -660,7 +744,7 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None):
     bad = _against_normals(p, normals, tri)
     mirror = _mirrored(bad)
     folds = int((bad ^ mirror).sum())
-    info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0}
+    info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0, "annealed": 0}
     if accept is None:
         spacing = _spacing(x)    # the rounds together may crowd a point this much at most
 
@@ -670,18 +754,40 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None):
     for _ in range(rounds):
         if not folds:
             break
+        y = None
         for convex, limit in _LADDER:     # flips with no realisation, or whose realisation
             flipped, left = flip_folds(tri, p, normals, x, convex=convex,   # is refused: milder
                                        max_violation=limit)
-            y = realise(x, flipped) if left < folds else None
+            tries = [(flipped, left, False)]
+            if anneal_steps and not convex and limit == np.inf:
+                tries = [(t, k, True) for t, k in _annealed(flipped, left, p, normals, x,
+                                                            anneal_steps)] + tries
+            for cand, cleft, annealed in tries:
+                y = realise(x, cand) if cleft < folds else None
+                if y is not None:
+                    if accept(y):
+                        break
+                    info["refused"] += 1
+                y = None
             if y is not None:
-                if accept(y):
-                    break
-                info["refused"] += 1
-            y = None
+                break
         if y is None:
             break
-        # realise returned y only because its hull is ``flipped``: the count is the flips'
-        x, tri, folds = y, flipped, left
+        # realise returned y only because its hull is ``cand``: the count is the flips'
+        x, tri, folds = y, cand, cleft
         info["folds"], info["rounds"] = folds, info["rounds"] + 1
+        info["annealed"] += int(annealed)
     return x, info
+
+
+def _annealed(flipped, left, p, normals, x, steps):
+    """At most :data:`_ANNEAL_TRIES` of :func:`anneal_flips`' triangulations from ``flipped``
+    (``left`` folds): the one with the fewest folds, then the first found with at most halfway
+    between that and ``left``."""
+    found = anneal_flips(flipped, p, normals, x, steps=steps)
+    if not found:
+        return []
+    best = found[-1]
+    half = next(f for f in found if f[1] <= (best[1] + left) // 2)
+    picks = [best] if half is best else [best, half]
+    return picks[:_ANNEAL_TRIES]

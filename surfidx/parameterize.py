@@ -821,7 +821,8 @@ def _repair(x, surfels: SurfelSet, info: dict, *, mesh=None):
     if folds and _REALISE:
         x, r3 = lower_folds(x, p, normals, accept=_ResamplingCheck(surfels, x))
         info = dict(info, folds_realised=r3["folds_before"] - r3["folds"],
-                    realise_rounds=r3["rounds"], realise_refused=r3["refused"])
+                    realise_rounds=r3["rounds"], realise_refused=r3["refused"],
+                    realise_annealed=r3["annealed"])
     return x, info
 
 

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles, _edges,
-                                    _moebius_fit, _spacing, flip_folds, lower_folds, realise)
+                                    _moebius_fit, _spacing, anneal_flips, flip_folds,
+                                    lower_folds, realise)
 from surfidx._foldrepair import _against_normals as _folded
 from surfidx.parameterize import hull_triangles
 
@@ -147,7 +148,61 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     assert (_spacing(y) / _spacing(x)).min() >= _MIN_SPACING_RATIO
     # a fold-free map is returned as it is
     z, info = lower_folds(points, p, n)
-    assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0} and z is points
+    assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0,
+                    "annealed": 0} and z is points
+
+
+def _noisy(points, amplitude=0.02, seed=2):
+    rng = np.random.default_rng(seed)
+    x = points + amplitude * rng.standard_normal(points.shape)
+    return x / np.linalg.norm(x, axis=1)[:, None]
+
+
+def _is_sphere_triangulation(tri, n):
+    """Every directed edge once and its reverse once: a closed oriented surface, and with
+    V - E + F = 2 a sphere."""
+    directed = {(a, b) for t in tri.tolist() for a, b in zip(t, t[1:] + t[:1])}
+    return (len(directed) == 3 * len(tri) and all((b, a) in directed for a, b in directed)
+            and n - len(directed) // 2 + len(tri) == 2)
+
+
+def test_annealing_goes_below_what_the_flips_reach(points, ellipsoid):
+    """Where every folded triangle needs a flip that adds a fold first, flip_folds stops (4 left
+    here); the annealing takes such flips now and then and finds triangulations with fewer,
+    each a triangulation of the sphere with the fold count it reports, the same for the same
+    seed."""
+    p, n = ellipsoid
+    x = _noisy(points)
+    flipped, left = flip_folds(hull_triangles(x), p, n, x)
+    assert left > 0 and flip_folds(flipped, p, n, x)[1] == left
+    found = anneal_flips(flipped, p, n, x, steps=20_000)
+    counts = [k for _, k in found]
+    assert counts and counts[-1] < left and all(a > b for a, b in zip(counts, counts[1:]))
+    for tri, k in found:
+        assert _is_sphere_triangulation(tri, len(x))
+        assert int(_folded(p, n, tri).sum()) == k
+    again = anneal_flips(flipped, p, n, x, steps=20_000)
+    assert all(np.array_equal(a, b) and j == k for (a, j), (b, k) in zip(found, again))
+    assert anneal_flips(hull_triangles(points), p, n, points) == []      # nothing to lower
+
+
+def test_annealing_needs_a_positive_temperature(points, ellipsoid):
+    p, n = ellipsoid
+    with pytest.raises(ValueError, match="temperature must be positive, got 0"):
+        anneal_flips(hull_triangles(points), p, n, points, temperature=0)
+
+
+def test_lower_folds_realises_an_annealed_triangulation(points, ellipsoid):
+    """The same map as above: the flips alone are realised with their 4 folds; with the
+    annealing, one of its triangulations is realised instead, and nothing is left."""
+    p, n = ellipsoid
+    x = _noisy(points)
+    y0, plain = lower_folds(x, p, n, anneal_steps=0)
+    assert plain["folds"] == flip_folds(hull_triangles(x), p, n, x)[1] > 0
+    assert plain["annealed"] == 0
+    y, info = lower_folds(x, p, n)
+    assert info["annealed"] >= 1 and info["folds"] < plain["folds"]
+    assert int(_folded(p, n, hull_triangles(y)).sum()) == info["folds"]
 
 
 def test_lower_folds_keeps_only_what_accept_takes(points, ellipsoid):
