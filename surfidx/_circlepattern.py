@@ -39,7 +39,12 @@ This module works the other way round, in two steps.
 
 On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) one round
 leaves 20 (convex flips only, two rounds: 56; flip sequences of depth 12: 19; depth 8 with one
-fold lent on the way: 18); on the 77 genus-0 retrieval meshes see
+fold lent on the way: 18). There every folded triangle needs a flip that adds a fold first, so
+:func:`anneal_flips` searches by the Metropolis rule (such flips taken now and then) and finds
+triangulations with 0-3; the first rung of :func:`lower_folds` realises the one with the fewest
+folds, then one halfway, before the flips alone (scorpion in three rounds: 442 -> 20 -> 10 ->
+4; moving single points after the realisation instead stalled at 9-13 after minutes). On the
+77 genus-0 retrieval meshes see
 :func:`surfidx.parameterize.parameterize`. The mesh's own faces are no longer all embedded
 afterwards (scorpion: some hundreds turned over, under 1 % of the sphere); resampling still
 interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss

@@ -61,13 +61,15 @@ c. Balancing with the energy of 3.
    method on the circumradii. Up to three rounds, each kept only when it lowers the count and
    costs the resampling at most ``TOL.realise_loss`` (1 dB) of infinite-rate PSNR_D2 at the
    map's grid level (:class:`_ResamplingCheck`; a realisation changes the scale of whole limbs,
-   see :mod:`surfidx._circlepattern`). Measured after step 5 → after 6: scorpion 442-473 → 20
-   folded triangles of 101,302 on every repaired map tried (with a bound on the crowding of
-   points instead, the first version: 17-54 by the run, as the flips of quadrilaterals that
-   are not convex passed it or not), horse 4 → 0, homer 1 → 0; on the 77 genus-0 retrieval
-   meshes, folds 1688 → 640 in all, fold-free models 40 → 55, at most 0.01 % 46 → 61, at most
-   0.1 % 61 → 72, over 1 % 2 → 0, none losing over 1 dB of PSNR_D2 by the check (the crowding
-   bound: folds 438, four models losing 1.5-3.0 dB, d041 below 70 dB). The realisation is
+   see :mod:`surfidx._circlepattern`). Where the flips stop with folds left, an annealed flip
+   search (:func:`surfidx._circlepattern.anneal_flips`) proposes triangulations with fewer,
+   realised first. Measured after step 5 → after 6: scorpion 442 → 4 folded triangles of
+   101,302 (flips alone: 20; map about 200 s, was 76), horse 4 → 0, homer 1 → 0; on the 77
+   genus-0 retrieval meshes, folds 1688 → 570 in all (flips alone: 640), fold-free models
+   40 → 64 (55), at most 0.01 % 46 → 66 (61), at most 0.1 % 61 → 73 (72), over 1 % 2 → 0,
+   none losing over 1 dB of PSNR_D2 by the check (the crowding bound instead of the check:
+   folds 438, four models losing 1.5-3.0 dB, d041 below 70 dB); their map time 560 → 876 s
+   in all, d006 119 s (realisations of annealed triangulations that fail). The realisation is
    fitted to the map by a Möbius map, which keeps the far field in place. A few mesh faces are
    turned over (scorpion about 600, 0.6 % of the sphere), which resampling tolerates (scorpion
    81.2 dB either way). Point clouds too.
