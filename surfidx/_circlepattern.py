@@ -90,12 +90,6 @@ _ANNEAL_TEMPERATURE = 0.3
 """A flip that adds ``k`` folded triangles is taken with probability ``exp(-k / T)``: at 0.3 one
 in 28 that add one. Scorpion from the 20 folds that :func:`flip_folds` leaves (seeds 0-4): 0-3 at
 0.3, 3-10 at 0.15 and 0.05."""
-_ANNEAL_TRIES = 2
-"""Realisations of annealed triangulations :func:`lower_folds` tries in a round before the flips
-of :func:`flip_folds` alone: the one with the fewest folds, then one halfway to the flips'
-count. More flips turn more mesh faces over in the realisation (scorpion: 15, 5 and 2 folds left
-after 106, 210 and 267 changed edges, 0.72, 0.92 and 0.98 % of the sphere turned over), and a
-realisation fails or is refused more often."""
 _LADDER = ((False, np.inf), (True, np.inf), (True, 1.0), (True, 0.3))
 """The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in edge)``,
 when a realisation fails or is refused: any flips first, then milder ones. Flips of
@@ -134,6 +128,15 @@ class _Flips:
         for i in range(len(self.tri)):
             self._register(i)
         self.bad = (_against_normals(p, normals, tri) ^ mirror).tolist()
+
+    @classmethod
+    def of(cls, tri, p, normals, x, **options):
+        """The state of ``tri`` in canonical order (the searches visit triangles by vertex
+        index, not by input order, so a rotated map flips the same edges), mirrored when most
+        of its triangles disagree with the normals."""
+        tri = _canonical(tri)
+        return cls(tri, p, normals, x, mirror=_mirrored(_against_normals(p, normals, tri)),
+                   **options)
 
     def _register(self, i):
         a, b, c = self.tri[i]
@@ -237,10 +240,7 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     folds : int
         Its folded triangles.
     """
-    tri = _canonical(tri)          # the search visits triangles by vertex index, not by input
-    state = _Flips(tri, p, normals, x,          # order, so a rotated map flips the same edges
-                   mirror=_mirrored(_against_normals(p, normals, tri)), convex=convex,
-                   max_violation=max_violation)
+    state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
     for _ in range(rounds):
         todo = [i for i, b in enumerate(state.bad) if b]
         changed = sum(state.mend(i) for i in todo if state.bad[i])
@@ -283,8 +283,7 @@ def anneal_flips(tri, p, normals, x, *, steps: int = _ANNEAL_STEPS,
     if not temperature > 0:
         raise ValueError(f"temperature must be positive, got {temperature!r}")
     rng = np.random.default_rng(seed)
-    tri = _canonical(tri)
-    state = _Flips(tri, p, normals, x, mirror=_mirrored(_against_normals(p, normals, tri)))
+    state = _Flips.of(tri, p, normals, x)
     folds = best = int(sum(state.bad))
     found = []
     bad = []
@@ -733,8 +732,8 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
         crowding of every point's neighbours, measured from ``x``.
     anneal_steps : int
         Flips :func:`anneal_flips` proposes from the flips of the first rung of
-        :data:`_LADDER` before they are realised alone (0: none); at most
-        :data:`_ANNEAL_TRIES` of its triangulations are realised per round.
+        :data:`_LADDER` before they are realised alone (0: none); two of its triangulations
+        at most are realised per round (:func:`_annealed`).
 
     Returns
     -------
@@ -786,13 +785,15 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
 
 
 def _annealed(flipped, left, p, normals, x, steps):
-    """At most :data:`_ANNEAL_TRIES` of :func:`anneal_flips`' triangulations from ``flipped``
-    (``left`` folds): the one with the fewest folds, then the first found with at most halfway
-    between that and ``left``."""
-    found = anneal_flips(flipped, p, normals, x, steps=steps)
+    """The triangulations of :func:`anneal_flips` from ``flipped`` (``left`` folds) that
+    :func:`lower_folds` tries to realise, in turn: the one with the fewest folds, then the first
+    found with at most halfway between that and ``left``. More flips turn more mesh faces over
+    in the realisation (scorpion: 15, 5 and 2 folds left after 106, 210 and 267 changed edges,
+    0.72, 0.92 and 0.98 % of the sphere turned over), and a realisation fails or is refused
+    more often. None when ``flipped`` has no fold left."""
+    found = anneal_flips(flipped, p, normals, x, steps=steps) if left else []
     if not found:
         return []
     best = found[-1]
     half = next(f for f in found if f[1] <= (best[1] + left) // 2)
-    picks = [best] if half is best else [best, half]
-    return picks[:_ANNEAL_TRIES]
+    return [best] if half is best else [best, half]

@@ -121,11 +121,15 @@ def test_moebius_fit_recovers_a_moebius_map():
     assert np.abs(out - (2 * z + 1)).max() < 1e-9 and abs(far) > 1e9
 
 
+def _noisy(points, amplitude=0.02, seed=2):
+    rng = np.random.default_rng(seed)
+    x = points + amplitude * rng.standard_normal(points.shape)
+    return x / np.linalg.norm(x, axis=1)[:, None]
+
+
 def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):
     p, n = ellipsoid
-    rng = np.random.default_rng(2)
-    x = points + 0.02 * rng.standard_normal(points.shape)
-    x /= np.linalg.norm(x, axis=1)[:, None]
+    x = _noisy(points)
     tri = hull_triangles(x)
     before = int(_folded(p, n, tri).sum())
     flipped, left = flip_folds(tri, p, n, x)
@@ -137,9 +141,7 @@ def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):
 
 def test_lower_folds_realises_the_flips(points, ellipsoid):
     p, n = ellipsoid
-    rng = np.random.default_rng(2)
-    x = points + 0.02 * rng.standard_normal(points.shape)
-    x /= np.linalg.norm(x, axis=1)[:, None]
+    x = _noisy(points)
     y, info = lower_folds(x, p, n)
     assert info["folds_before"] > 10 and info["folds"] <= info["folds_before"] // 3
     assert info["rounds"] >= 1
@@ -150,12 +152,6 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     z, info = lower_folds(points, p, n)
     assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0,
                     "annealed": 0} and z is points
-
-
-def _noisy(points, amplitude=0.02, seed=2):
-    rng = np.random.default_rng(seed)
-    x = points + amplitude * rng.standard_normal(points.shape)
-    return x / np.linalg.norm(x, axis=1)[:, None]
 
 
 def _is_sphere_triangulation(tri, n):
@@ -209,9 +205,7 @@ def test_lower_folds_keeps_only_what_accept_takes(points, ellipsoid):
     """``accept`` sees every realisation: refusing all keeps the map, and then every rung of
     the ladder was realised and refused (a milder flip set is tried after each refusal)."""
     p, n = ellipsoid
-    rng = np.random.default_rng(2)
-    x = points + 0.02 * rng.standard_normal(points.shape)
-    x /= np.linalg.norm(x, axis=1)[:, None]
+    x = _noisy(points)
     seen = []
 
     def refuse(y):
