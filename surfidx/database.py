@@ -5,9 +5,35 @@ The schema is ``data_schema/schema.sql`` (shipped as ``surfidx/data/schema.sql``
 with readable columns, foreign keys and indexes, so the file can be browsed as it is with
 ``sqlite-utils`` or Datasette. The schema version is ``PRAGMA user_version``; opening an older
 database runs the migration functions of :data:`_MIGRATIONS` in one transaction; a database of a
-newer surfidx, or an SQLite file of another application, raises :class:`DatabaseError`. The
-database runs in WAL mode, so readers (``surfidx query``) see a consistent state while an ingest
-writes, and every model is written in one transaction (never half a model).
+newer surfidx raises :class:`DatabaseError`. The database runs in WAL mode, so readers
+(``surfidx query``) see a consistent state while an ingest writes, and every model is written in
+one transaction (never half a model).
+
+Whose file it is
+----------------
+A surfidx database carries ``PRAGMA application_id`` = :data:`APPLICATION_ID` (``"SFDX"``).
+Opening a file reads only; nothing is written to it (not even the journal mode) before it is
+known to be a surfidx database or empty: a file with another application's id, or with tables
+and no id, is refused. Databases made before the id existed are recognised by their own schema
+(every table of :data:`_TABLES`, the ``models`` columns) and their ``meta`` row
+``schema_version`` equal to ``user_version``; they get the id with their next write. A database
+opened with ``readonly=True`` is opened by SQLite read-only (``mode=ro``): it is never written,
+a missing or empty (0-byte or schema-less) file is an error, not a new database.
+
+Errors
+------
+Every ``sqlite3`` error (a damaged file, a read-only file or mount, a full disk, a lock held past
+``timeout``, a constraint) is raised as :class:`DatabaseError` naming the file and the cause, in
+one line; the transaction it happened in is rolled back.
+
+Names from file names
+---------------------
+File names are text as the OS gives them (``os.fsdecode``: bytes that are not UTF-8 become lone
+surrogates). They are stored through :func:`escape_name`, which is lossless and always valid
+UTF-8: an undecodable byte is written ``\\xHH``, and a backslash that would otherwise start such
+an escape (one followed by ``\\``, ``x`` or ``u``) is doubled; every other character, backslashes
+included, is stored as it is. :func:`unescape_name` gives the OS text back
+(``os.fsencode(unescape_name(s))`` are the original bytes).
 
 Example
 -------
@@ -20,7 +46,10 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import functools
 import json
+import os
+import re
 import sqlite3
 from importlib import resources
 from pathlib import Path
@@ -30,10 +59,17 @@ import numpy as np
 from ._errors import DatabaseError, InputError
 from ._validate import as_array
 
-__all__ = ["Database", "SCHEMA_VERSION", "schema_sql", "utc_now"]
+__all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
+           "escape_name", "unescape_name"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx.
 SCHEMA_VERSION = 1
+
+#: ``PRAGMA application_id`` of a surfidx database: the bytes ``b"SFDX"``.
+APPLICATION_ID = int.from_bytes(b"SFDX", "big")
+
+#: Largest model or run id SQLite can hold (a signed 64-bit integer).
+_MAX_ID = 2 ** 63 - 1
 
 #: Tables every surfidx database holds (used to tell a surfidx database from a foreign one).
 _TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs", "ingest_errors")
@@ -63,6 +99,119 @@ def utc_now() -> str:
     """The current UTC time as ISO 8601 text with a ``Z`` suffix (the database's time format)."""
     now = _dt.datetime.now(_dt.timezone.utc).replace(tzinfo=None)
     return now.isoformat(timespec="milliseconds") + "Z"
+
+
+_ESCAPE = re.compile(r"\\(?=[\\xu\ud800-\udfff])|[\ud800-\udfff]")
+_SURROGATE = re.compile(r"[\ud800-\udfff]")
+_UNESCAPE = re.compile(r"\\(\\|x[89a-f][0-9a-f]|ud[89a-f][0-9a-f]{2})")
+
+
+def _escape_char(m) -> str:
+    c = m.group()
+    if c == "\\":
+        return "\\\\"
+    o = ord(c)
+    return f"\\x{o - 0xDC00:02x}" if 0xDC80 <= o <= 0xDCFF else f"\\u{o:04x}"
+
+
+def escape_name(name) -> str:
+    """A file name or path as stored in the database: lossless, always valid UTF-8.
+
+    Parameters
+    ----------
+    name : str or os.PathLike
+        Text as the OS gives it (``os.fsdecode``: undecodable bytes are lone surrogates).
+
+    Returns
+    -------
+    str
+        ``name`` with each undecodable byte written ``\\xHH`` (other lone surrogates
+        ``\\udXXX``) and each backslash followed by a backslash, ``x``, ``u`` or such a byte
+        doubled; unchanged for every UTF-8 name without those backslashes. Inverse:
+        :func:`unescape_name`.
+    """
+    text = os.fspath(name) if isinstance(name, os.PathLike) else str(name)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    return _ESCAPE.sub(_escape_char, text)
+
+
+def unescape_name(text: str) -> str:
+    """The OS text of a stored name (inverse of :func:`escape_name`).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+        With lone surrogates for undecodable bytes, as ``os.fsdecode`` gives them:
+        ``os.fsencode(unescape_name(escape_name(b)))`` is ``b`` for any bytes ``b``.
+    """
+    def one(m):
+        t = m.group(1)
+        if t == "\\":
+            return t
+        return chr(0xDC00 + int(t[1:], 16)) if t[0] == "x" else chr(int(t[1:], 16))
+
+    return _UNESCAPE.sub(one, str(text))
+
+
+def _storable(text) -> str:
+    """Message text made storable: lone surrogates (undecodable bytes of a file name inside a
+    message) become ``\\xHH``; backslashes are kept (messages need not be lossless)."""
+    return _SURROGATE.sub(lambda m: _escape_char(m), str(text))
+
+
+def _kind_of_error(exc: sqlite3.Error) -> str:
+    """The SQLite result code of ``exc`` by name (``"SQLITE_FULL"``...), or from its message
+    when it carries none."""
+    name = getattr(exc, "sqlite_errorname", None)
+    if name:
+        return name
+    text = str(exc).lower()
+    for needle, code in (("malformed", "SQLITE_CORRUPT"), ("not a database", "SQLITE_NOTADB"),
+                         ("readonly", "SQLITE_READONLY"), ("read-only", "SQLITE_READONLY"),
+                         ("disk is full", "SQLITE_FULL"), ("locked", "SQLITE_BUSY"),
+                         ("busy", "SQLITE_BUSY"), ("unable to open", "SQLITE_CANTOPEN"),
+                         ("disk i/o", "SQLITE_IOERR")):
+        if needle in text:
+            return code
+    return "SQLITE_CONSTRAINT" if isinstance(exc, sqlite3.IntegrityError) else "SQLITE_ERROR"
+
+
+def _sqlite_errors(method):
+    """Raise the ``sqlite3.Error`` s of a :class:`Database` method as :class:`DatabaseError`."""
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except sqlite3.Error as exc:
+            raise self._error(exc) from exc
+
+    return wrapper
+
+
+def _map_sqlite_errors(cls):
+    """Class decorator: every public method and property of ``cls`` raises the ``sqlite3``
+    errors it meets as :class:`DatabaseError` (``transaction`` does so itself)."""
+    for name, attr in list(vars(cls).items()):
+        if name.startswith("_") or name in ("transaction", "close", "conn"):
+            continue
+        if isinstance(attr, property):
+            setattr(cls, name, property(_sqlite_errors(attr.fget), doc=attr.__doc__))
+        elif callable(attr) and not isinstance(attr, (staticmethod, classmethod)):
+            setattr(cls, name, _sqlite_errors(attr))
+    return cls
+
+
+def _connect(path: Path, mode: str, timeout: float) -> sqlite3.Connection:
+    """Open ``path`` with SQLite's URI ``mode`` (``"ro"``, ``"rw"`` or ``"rwc"``); the one place
+    surfidx connects (tests replace it to fake a read-only mount or a full disk)."""
+    uri = Path(os.path.abspath(path)).as_uri() + f"?mode={mode}"
+    return sqlite3.connect(uri, uri=True, timeout=timeout, isolation_level=None,
+                           check_same_thread=False)
 
 
 def _statements(script: str):
@@ -112,6 +261,7 @@ def _to_json(value, name: str) -> str:
         raise InputError(f"{name} must be JSON-serialisable ({exc})") from exc
 
 
+@_map_sqlite_errors
 class Database:
     """A surfidx model database (an SQLite file), built on ``sqlite_utils.Database``.
 
@@ -122,39 +272,55 @@ class Database:
     create : bool
         Create the file (and the schema) when it does not exist. With ``False`` a missing file
         raises :class:`DatabaseError`.
+    readonly : bool
+        Open it read-only (SQLite ``mode=ro``): nothing is ever written, not even the schema of
+        an empty file; a missing or empty file raises :class:`DatabaseError`.
+    timeout : float
+        Seconds to wait for a lock another process holds before raising :class:`DatabaseError`.
 
     Attributes
     ----------
     path : pathlib.Path
+    readonly : bool
     db : sqlite_utils.Database
         The underlying connection wrapper, for ad-hoc queries (``db.db["models"].rows``).
 
     Raises
     ------
     DatabaseError
-        The file is missing (``create=False``), is not an SQLite database, belongs to another
-        application, or was written by a newer surfidx (higher schema version).
+        The file is missing (``create=False`` or ``readonly``), empty (``readonly``), is not an
+        SQLite database, is damaged, belongs to another application, or was written by a newer
+        surfidx (higher schema version).
 
     Notes
     -----
     Use it as a context manager (``with Database(path) as db:``) or call :meth:`close`. Writes
     are explicit transactions (:meth:`transaction`); the connection runs in autocommit mode
     otherwise. Matrices from :meth:`descriptor_matrix` are cached until this connection or any
-    other connection writes (``PRAGMA data_version``).
+    other connection writes (``PRAGMA data_version``). Every method raises the ``sqlite3``
+    errors it meets as :class:`DatabaseError` (see the module's notes).
     """
 
-    def __init__(self, path, *, create: bool = True):
+    def __init__(self, path, *, create: bool = True, readonly: bool = False,
+                 timeout: float = 30.0):
         import sqlite_utils
 
         self.path = Path(path)
+        self.readonly = bool(readonly)
+        self.timeout = float(timeout)
+        self._conn = None
+        self._needs_marker = False
         if self.path.is_dir():
             raise DatabaseError("is a directory, not a database file", path=self.path)
-        if not self.path.exists() and not create:
+        if not self.path.exists() and (not create or self.readonly):
             raise DatabaseError("no such database; create it with `surfidx ingest`",
                                 path=self.path)
+        if self.readonly and self._is_empty_file():
+            raise DatabaseError("is an empty file, not a surfidx database yet; create it with "
+                                "`surfidx ingest`", path=self.path)
+        mode = "ro" if self.readonly else "rwc" if create else "rw"
         try:
-            conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None,
-                                   check_same_thread=False)
+            conn = _connect(self.path, mode, self.timeout)
         except sqlite3.Error as exc:
             raise DatabaseError(f"cannot open ({exc})", path=self.path) from exc
         self._conn = conn
@@ -164,44 +330,132 @@ class Database:
             self._check_and_prepare()
             self.db = sqlite_utils.Database(conn)
         except BaseException:
+            self._conn = None
             conn.close()
             raise
 
+    def _is_empty_file(self) -> bool:
+        """0 bytes and no write-ahead log with content: no database in it yet."""
+        wal = self.path.with_name(self.path.name + "-wal")
+        return self.path.stat().st_size == 0 and not (wal.exists() and wal.stat().st_size > 0)
+
+    def _error(self, exc: sqlite3.Error) -> DatabaseError:
+        """The :class:`DatabaseError` (one line: file, what happened, what to do) of an
+        ``sqlite3`` error."""
+        code = _kind_of_error(exc)
+        if code.startswith("SQLITE_NOTADB"):
+            text = f"not an SQLite database ({exc})"
+        elif code.startswith("SQLITE_CORRUPT"):
+            text = (f"the database file is damaged ({exc}); restore it from a backup, or save "
+                    "what is left with `sqlite3 FILE .recover`")
+        elif code.startswith("SQLITE_READONLY"):
+            text = (f"cannot write: the database is read-only ({exc}); check the permissions of "
+                    "the file and its folder, and that the disk is not mounted read-only")
+        elif code.startswith("SQLITE_FULL"):
+            text = (f"the disk is full ({exc}); the transaction was rolled back, free some space "
+                    "and run the command again")
+        elif code.startswith(("SQLITE_BUSY", "SQLITE_LOCKED")):
+            text = (f"the database is locked by another process ({exc}) for longer than "
+                    f"{self.timeout:g} s; run the command again when that one has finished")
+        elif code.startswith("SQLITE_CANTOPEN"):
+            text = f"cannot open ({exc})"
+        elif code.startswith("SQLITE_IOERR"):
+            text = f"input/output error ({exc}); check the disk"
+        elif code.startswith("SQLITE_CONSTRAINT"):
+            text = f"a record does not fit the schema ({exc})"
+        else:
+            text = f"SQLite error ({exc})"
+        return DatabaseError(" ".join(text.split()), path=self.path)
+
     # ------------------------------------------------------------------ opening
-    def _check_and_prepare(self) -> None:
+    def _identify(self):
+        """``(kind, version)`` with kind ``"surfidx"``, ``"legacy"`` (a surfidx database without
+        the application id) or ``"empty"``; reads only. Raises for any other file."""
         conn = self._conn
         try:
+            app_id = conn.execute("PRAGMA application_id").fetchone()[0]
             version = conn.execute("PRAGMA user_version").fetchone()[0]
             tables = {r[0] for r in conn.execute(
                 "SELECT name FROM sqlite_master WHERE type = 'table'")}
-        except sqlite3.DatabaseError as exc:
-            raise DatabaseError(f"not an SQLite database ({exc})", path=self.path) from exc
+        except sqlite3.Error as exc:
+            raise self._error(exc) from exc
         tables = {t for t in tables if not t.startswith("sqlite_")}
-        if version > SCHEMA_VERSION:
-            raise DatabaseError(
-                f"schema version {version} was written by a newer surfidx (this one reads up to "
-                f"version {SCHEMA_VERSION}); upgrade surfidx", path=self.path)
-        if tables and (version == 0 or not {"meta", "models"} <= tables):
+        newer = DatabaseError(
+            f"schema version {version} was written by a newer surfidx (this one reads up to "
+            f"version {SCHEMA_VERSION}); upgrade surfidx", path=self.path)
+        if app_id == APPLICATION_ID:
+            if version > SCHEMA_VERSION:
+                raise newer
+            if version < 1 or not tables:
+                raise DatabaseError(f"carries surfidx's application id but no schema (user_version "
+                                    f"{version}, {len(tables)} tables); the file is damaged",
+                                    path=self.path)
+            return "surfidx", version
+        if app_id != 0:
+            raise DatabaseError(f"not a surfidx database (application_id 0x{app_id & 0xFFFFFFFF:08x}"
+                                " is another application's); choose another --db file",
+                                path=self.path)
+        if not tables:
+            if version > 0:
+                raise DatabaseError(f"not a surfidx database (user_version {version} but no "
+                                    "tables)", path=self.path)
+            return "empty", 0
+        if version == 0 or not self._is_legacy(tables, version):
             raise DatabaseError(
                 "not a surfidx database (it holds other tables: "
                 + ", ".join(sorted(tables)[:5]) + (", ..." if len(tables) > 5 else "")
                 + "); choose another --db file", path=self.path)
-        if version > 0 and not tables:
-            raise DatabaseError(f"not a surfidx database (user_version {version} but no tables)",
-                                path=self.path)
-        conn.execute("PRAGMA busy_timeout = 30000")
-        conn.execute("PRAGMA foreign_keys = ON")
+        if version > SCHEMA_VERSION:
+            raise newer
+        return "legacy", version
+
+    def _is_legacy(self, tables: set, version: int) -> bool:
+        """A surfidx database made before the application id: every surfidx table, the
+        ``models`` columns, and a ``meta`` row ``schema_version`` equal to ``user_version``."""
+        if not set(_TABLES) <= tables:
+            return False
+        conn = self._conn
         try:
+            columns = {r[1] for r in conn.execute("PRAGMA table_info(models)")}
+            row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        except sqlite3.OperationalError:            # meta without key/value: someone else's
+            return False
+        except sqlite3.Error as exc:
+            raise self._error(exc) from exc
+        return set(_MODEL_COLUMNS) <= columns and row is not None and str(row[0]) == str(version)
+
+    def _check_and_prepare(self) -> None:
+        conn = self._conn
+        kind, version = self._identify()
+        try:
+            conn.execute(f"PRAGMA busy_timeout = {int(self.timeout * 1000)}")
+            conn.execute("PRAGMA foreign_keys = ON")
+            if self.readonly:
+                conn.execute("PRAGMA query_only = ON")
+                if kind == "empty":
+                    raise DatabaseError("holds no surfidx schema yet (an empty SQLite file); "
+                                        "create it with `surfidx ingest`", path=self.path)
+                if version < SCHEMA_VERSION:
+                    raise DatabaseError(
+                        f"schema version {version} is older than this surfidx's "
+                        f"({SCHEMA_VERSION}) and a read-only open cannot upgrade it; open it "
+                        "once for writing (e.g. `surfidx redescribe`)", path=self.path)
+                return
+            # Known to be ours (or empty) from here on: writing is allowed.
             conn.execute("PRAGMA journal_mode = WAL")
-        except sqlite3.OperationalError as exc:  # pragma: no cover - read-only media
-            raise DatabaseError(f"cannot switch to WAL mode ({exc})", path=self.path) from exc
+        except sqlite3.Error as exc:
+            raise self._error(exc) from exc
+        self._needs_marker = kind == "legacy"
         if version < SCHEMA_VERSION:
             self._migrate()
 
     def _migrate(self) -> None:
         """Create the schema (empty file) or run the migrations, in one transaction."""
         conn = self._conn
-        conn.execute("BEGIN IMMEDIATE")
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+        except sqlite3.Error as exc:
+            raise self._error(exc) from exc
         try:
             # Re-read inside the write lock: another process may have done it meanwhile.
             version = conn.execute("PRAGMA user_version").fetchone()[0]
@@ -218,14 +472,27 @@ class Database:
                     _MIGRATIONS[k - 1](conn)
             conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)",
                          (str(SCHEMA_VERSION),))
+            conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
             conn.execute(f"PRAGMA user_version = {int(SCHEMA_VERSION)}")
             conn.execute("COMMIT")
+            self._needs_marker = False
         except BaseException as exc:
-            conn.execute("ROLLBACK")
+            self._rollback()
             if isinstance(exc, sqlite3.Error):
                 raise DatabaseError(f"upgrading the schema to version {SCHEMA_VERSION} failed "
-                                    f"({exc}); the file is unchanged", path=self.path) from exc
+                                    f"({self._error(exc).reason}); the file is unchanged",
+                                    path=self.path) from exc
             raise
+
+    def _rollback(self) -> None:
+        """ROLLBACK if a transaction is open (SQLite may have rolled back already, e.g. after
+        a full disk); an error of the rollback itself is not the one to report."""
+        conn = self._conn
+        if conn is not None and conn.in_transaction:
+            try:
+                conn.execute("ROLLBACK")
+            except sqlite3.Error:  # pragma: no cover - the connection is unusable anyway
+                pass
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self):
@@ -260,30 +527,60 @@ class Database:
         """One write transaction (``BEGIN IMMEDIATE`` ... ``COMMIT``); nested calls are savepoints.
 
         Everything written in the block is committed together or, on any exception (including
-        ``KeyboardInterrupt``), rolled back. Invalidates the descriptor-matrix cache.
+        ``KeyboardInterrupt``), rolled back. Invalidates the descriptor-matrix cache. The first
+        write to a surfidx database made before :data:`APPLICATION_ID` sets it.
+
+        Raises
+        ------
+        DatabaseError
+            The database was opened read-only, or SQLite cannot begin or commit (read-only
+            file, full disk, lock held past ``timeout``...): nothing of the block is kept.
         """
         conn = self.conn
+        if self.readonly:
+            raise DatabaseError("opened read-only; open it without readonly=True to write",
+                                path=self.path)
         self._cache.clear()
         if conn.in_transaction:
-            conn.execute("SAVEPOINT surfidx_nested")
+            try:
+                conn.execute("SAVEPOINT surfidx_nested")
+            except sqlite3.Error as exc:
+                raise self._error(exc) from exc
             try:
                 yield self
             except BaseException:
-                conn.execute("ROLLBACK TO SAVEPOINT surfidx_nested")
-                conn.execute("RELEASE SAVEPOINT surfidx_nested")
+                if conn.in_transaction:
+                    try:
+                        conn.execute("ROLLBACK TO SAVEPOINT surfidx_nested")
+                        conn.execute("RELEASE SAVEPOINT surfidx_nested")
+                    except sqlite3.Error:  # pragma: no cover - the outer rollback follows
+                        pass
                 raise
             else:
-                conn.execute("RELEASE SAVEPOINT surfidx_nested")
+                try:
+                    conn.execute("RELEASE SAVEPOINT surfidx_nested")
+                except sqlite3.Error as exc:  # pragma: no cover
+                    raise self._error(exc) from exc
             return
-        conn.execute("BEGIN IMMEDIATE")
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+            if self._needs_marker:
+                conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+        except sqlite3.Error as exc:
+            self._rollback()
+            raise self._error(exc) from exc
         try:
             yield self
         except BaseException:
-            if conn.in_transaction:
-                conn.execute("ROLLBACK")
+            self._rollback()
             raise
         else:
-            conn.execute("COMMIT")
+            try:
+                conn.execute("COMMIT")
+            except sqlite3.Error as exc:
+                self._rollback()
+                raise self._error(exc) from exc
+            self._needs_marker = False
         finally:
             self._cache.clear()
 
@@ -311,7 +608,8 @@ class Database:
         -----
         The descriptor conventions (``model.params["descriptors"]``, a dict, e.g. lmax and
         normalisation) are copied to every descriptor row's ``convention`` column so that
-        :meth:`descriptor_matrix` can refuse to mix incompatible vectors.
+        :meth:`descriptor_matrix` can refuse to mix incompatible vectors. ``name`` and
+        ``source`` (OS text from file names) are stored through :func:`escape_name`.
         """
         row, asset, descs, png = self._rows_of(model)
         with self.transaction():
@@ -338,7 +636,7 @@ class Database:
 
     @staticmethod
     def _rows_of(model):
-        name = str(model.name)
+        name = escape_name(model.name)
         if not name:
             raise InputError("model name must not be empty")
         h = str(model.content_hash)
@@ -353,7 +651,7 @@ class Database:
                 raise InputError(f"model {name!r}: {what} must be bytes, "
                                  f"got {type(getattr(model, what)).__name__}")
         params = dict(model.params or {})
-        row = {"name": name, "source": str(model.source), "content_hash": h, "n_surfels": n,
+        row = {"name": name, "source": escape_name(model.source), "content_hash": h, "n_surfels": n,
                "has_color": int(bool(model.has_color)),
                **{f"bbox_{c}_{a}": float(bbox[i, j])
                   for i, c in enumerate(("min", "max")) for j, a in enumerate("xyz")},
@@ -438,10 +736,15 @@ class Database:
     def _check_id(self, model_id) -> int:
         if isinstance(model_id, bool) or not isinstance(model_id, (int, np.integer)):
             raise InputError(f"model id must be an integer, got {model_id!r}")
+        if not -_MAX_ID - 1 <= int(model_id) <= _MAX_ID:
+            raise DatabaseError(f"no model with id {int(model_id)} (ids are 64-bit integers)",
+                                path=self.path)
         return int(model_id)
 
     def resolve(self, id_or_name) -> int:
         """The id of a model given by id (int) or by name (str).
+
+        A name is matched as stored (:func:`escape_name` of the OS text) or as printed.
 
         Raises
         ------
@@ -449,10 +752,11 @@ class Database:
             No such model, or the name is shared by several models.
         """
         if isinstance(id_or_name, str):
-            rows = self.conn.execute("SELECT id FROM models WHERE name = ? ORDER BY id",
-                                     (id_or_name,)).fetchall()
+            stored = escape_name(id_or_name)      # the name as given, or as printed (escaped)
+            rows = self.conn.execute("SELECT id FROM models WHERE name IN (?, ?) ORDER BY id",
+                                     (stored, _storable(id_or_name))).fetchall()
             if not rows:
-                raise DatabaseError(f"no model named {id_or_name!r}", path=self.path)
+                raise DatabaseError(f"no model named {_storable(id_or_name)!r}", path=self.path)
             if len(rows) > 1:
                 ids = ", ".join(str(r[0]) for r in rows)
                 raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"
@@ -692,16 +996,20 @@ class Database:
             cur = self.conn.execute(
                 "INSERT INTO ingest_runs (started_at, paths, workers, bits_per_surfel, status) "
                 "VALUES (?, ?, ?, ?, 'running')",
-                (utc_now(), json.dumps([str(p) for p in paths]), int(workers),
+                (utc_now(), json.dumps([escape_name(p) for p in paths]), int(workers),
                  None if bits_per_surfel is None else float(bits_per_surfel)))
         return int(cur.lastrowid)
 
     def record_error(self, run_id: int, path, message: str) -> None:
-        """Record a file a run could not store (joins an open transaction if there is one)."""
+        """Record a file a run could not store (joins an open transaction if there is one).
+
+        ``path`` is stored through :func:`escape_name`, ``message`` with undecodable bytes as
+        ``\\xHH``.
+        """
         with self.transaction():
             self.conn.execute("INSERT INTO ingest_errors (run_id, path, error, at) "
-                              "VALUES (?, ?, ?, ?)", (int(run_id), str(path), str(message),
-                                                      utc_now()))
+                              "VALUES (?, ?, ?, ?)", (int(run_id), escape_name(path),
+                                                      _storable(message), utc_now()))
 
     def update_run(self, run_id: int, *, stored: int, skipped: int, failed: int) -> None:
         """Update a running run's counts (so a killed run still shows how far it came)."""
@@ -766,6 +1074,8 @@ class Database:
         """
         sql = "SELECT run_id, path, error, at FROM ingest_errors"
         args = ()
+        if run_id is not None and not -_MAX_ID - 1 <= int(run_id) <= _MAX_ID:
+            return []                               # no run has such an id
         if run_id is not None:
             sql += " WHERE run_id = ?"
             args = (int(run_id),)

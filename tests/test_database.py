@@ -201,7 +201,8 @@ def test_add_is_atomic(db):
         return row, asset, descs + [descs[0]], png        # duplicate (model_id, kind)
 
     db._rows_of = broken
-    with pytest.raises(sqlite3.IntegrityError):
+    with pytest.raises(DatabaseError, match=r"test\.db: a record does not fit the schema "
+                                            r"\(UNIQUE constraint failed: descriptors"):
         db.add(m)
     db._rows_of = orig
     for table in ("models", "assets", "descriptors", "thumbnails"):
