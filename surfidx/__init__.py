@@ -5,8 +5,12 @@ parameterization -> icosahedral resampling -> KLT + lifted butterfly wavelets ->
 arithmetic coding -> container; descriptors from the same spherical representation; SQLite store.
 """
 
-from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError, SurfidxError,
-                      TopologyError)
+from ._jitcache import use_user_cache
+
+use_user_cache()   # before any kernel is compiled: numba's cache stays out of the package
+
+from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError,  # noqa: E402
+                      SurfidxError, TopologyError)
 from ._tolerance import TOL, Tolerances
 from .geodesics import (GeodesicPath, GeodesicSolver, farthest_point_landmarks,
                         geodesic_distances, geodesic_path)

@@ -19,8 +19,6 @@ triangles keeps every iterate fold-free. L-BFGS over the unnormalised positions 
 
 from __future__ import annotations
 
-import time
-
 import numba
 import numpy as np
 
@@ -213,7 +211,7 @@ class _Energy:
         return e, (g if grad else None)
 
 
-def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory: int = 8,
+def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
             tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
             lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
     """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
@@ -228,8 +226,9 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
         The surface's 3D positions.
     f : (m, 3) int64
         Faces, counter-clockwise seen from outside.
-    iterations, time_budget : int, float
-        Stop after this many L-BFGS steps or seconds.
+    iterations : int
+        Stop after this many L-BFGS steps (a count, never the clock: the result is the same on
+        every machine at any load).
     memory : int
         L-BFGS history length.
     tol, patience : float, int
@@ -265,13 +264,12 @@ def balance(x, p, f, *, iterations: int = 500, time_budget: float = 10.0, memory
         solve, apply = energy.preconditioner(shift=shift)
     else:
         solve = apply = _identity
-    deadline = time.perf_counter() + time_budget
-    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol, patience)
+    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience)
     x = y / np.linalg.norm(y, axis=1)[:, None]
     return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
 
 
-def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float = 10.0,
+def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
              lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
              eps_max: float = 0.1):
     """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
@@ -295,8 +293,6 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     precondition : bool
         As in :func:`balance` (without it, a prolonged Igea-size map untangles several times
         slower).
-    time_budget : float
-        Seconds.
 
     Returns
     -------
@@ -311,8 +307,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30, time_budget: float =
     mindet = energy.min_det(y)
     if mindet > 0:
         return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
-    deadline = time.perf_counter() + time_budget
-    options = dict(rounds=rounds, inner=inner, deadline=deadline, memory=memory,
+    options = dict(rounds=rounds, inner=inner, memory=memory,
                    precondition=precondition, shift=shift, eps_max=eps_max)
     # first only the vertices near the inverted triangles (a prolongation folds a few percent of
     # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
@@ -381,7 +376,7 @@ class _Patch:
         return self.base.preconditioner(shift=shift, keep=np.flatnonzero(self.free))
 
 
-def _untangle_rounds(energy, y, *, rounds, inner, deadline, memory, precondition, shift,
+def _untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
                      eps_max):
     """The eps rounds of :func:`untangle` on ``energy``; returns the positions and the rounds
     taken (negative when it stopped with triangles still inverted)."""
@@ -393,11 +388,11 @@ def _untangle_rounds(energy, y, *, rounds, inner, deadline, memory, precondition
     eps = min(float(np.sqrt(1e-12 + 0.04 * min(mindet, 0.0) ** 2)), eps_max)
     k = 0
     for k in range(1, rounds + 1):
-        if mindet > _DET_GOAL or time.perf_counter() > deadline:
+        if mindet > _DET_GOAL:
             break
         energy.eps = eps
         e_prev, _ = energy(y, grad=False)
-        y, e, _ = _lbfgs(energy, y, solve, apply, inner, deadline, memory, 0.0,
+        y, e, _ = _lbfgs(energy, y, solve, apply, inner, memory, 0.0,
                          stop=lambda z: energy.min_det(z) > _DET_GOAL)
         mindet = energy.min_det(y)
         sigma = max(1.0 - e / e_prev, 0.1)
@@ -411,7 +406,7 @@ def _identity(r):
     return r
 
 
-def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol, patience=20, stop=None):
+def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=None):
     """L-BFGS on the sphere, initial inverse Hessian ``γ P⁻¹`` (``solve`` applies ``P⁻¹``,
     ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a fold-rejecting
     backtracking line search."""
@@ -421,8 +416,6 @@ def _lbfgs(energy, y, solve, apply, iterations, deadline, memory, tol, patience=
     last = 1.0
     stalls = 0
     for _ in range(max(iterations, 0)):
-        if time.perf_counter() > deadline:
-            break
         # two-loop recursion
         d = -g.ravel()
         alphas = []

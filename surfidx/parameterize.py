@@ -139,7 +139,11 @@ converge in 12-267 steps); it used to stop on the budget after 589-631 steps by 
 load, and its folds after the realisation ranged 17-54. 600 steps: 20 folds; 1500 steps (a
 faster machine) leave a more anisotropic map: 84 folds. On the retrieval meshes, 600 steps for
 the smaller levels too changed 14 models by up to 1.8 dB either way (they converge later)."""
-_UNTANGLE_TIME = 2.0  # untangling may take this many times balance_budget
+_UNTANGLE_ROUNDS = 60  # eps rounds of untangling at each level, at most (30 steps each)
+_SINGLE_LEVEL_WORK = 6e7
+"""The single-level map's balancing takes at most ``_SINGLE_LEVEL_WORK / n`` steps (and at
+most 3000): its cost per step grows with the vertex count, so a bound on steps times vertices
+bounds its time on any input; see :func:`_single_level_steps`."""
 _INVERTED_KEPT = 1e-3  # a level may keep this share of its triangles inverted (else: fall back)
 _SECOND_PASS = True
 _REALISE = True
@@ -612,10 +616,12 @@ def _centre(x, weights, f, *, iterations: int = 60, tol: float = 1e-10):
     return x
 
 
-def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget: float,
-               balance_steps: int = 3000, balance_budget: float = 15.0, faces=None):
-    """Single-level map: Tutte embedding, reweighting, then distortion balancing (``faces``: those
-    of :func:`_oriented_faces`, when already computed)."""
+def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, balance: bool = True,
+               balance_steps: int | None = None, faces=None):
+    """Single-level map: Tutte embedding, at most ``iterations`` reweighting steps, then (with
+    ``balance``) untangling and distortion balancing, at most ``balance_steps`` steps (default
+    :func:`_single_level_steps`); ``faces``: those of :func:`_oriented_faces`, when already
+    computed."""
     f = _oriented_faces(surfels) if faces is None else faces
     p = surfels.positions
     n = len(p)
@@ -629,7 +635,6 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     adj = adj + adj.T + sp.identity(n, format="csr")
     vertex = None
     system = None
-    t0 = time.perf_counter()
 
     def spread(x):
         """Area-weighted RMS of the log ratio of 3D to sphere area share over the faces."""
@@ -665,8 +670,6 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     accepted = switches = 0
     max_switches = 0
     for _ in range(iterations):
-        if time.perf_counter() - t0 > time_budget:
-            break
         asph = np.bincount(f.ravel(), np.repeat(np.abs(_spherical_areas(x, f)), 3), minlength=n)
         step = np.clip(np.log(va / va.sum() / np.maximum(asph / asph.sum(), 1e-300)), -10, 10)
         for _ in range(smooth):  # a smooth reweighting keeps the map close to conformal
@@ -694,20 +697,24 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
     x = x / np.linalg.norm(x, axis=1)[:, None]
     # distortion balancing: limbs squeezed by the harmonic start regain their share of
     # the sphere; every iterate stays a fold-free embedding of the mesh (see surfidx._balance)
-    from ._balance import balance, untangle
+    from ._balance import balance as balance_map, untangle
 
+    if not balance:
+        neg = int(np.count_nonzero(_orientation(x, f) <= 0))
+        return x, {"mesh_folds": neg, "mesh_area_distortion": sd, "iterations": accepted,
+                   "punctured_vertex": vertex, "balance_steps": 0}
     if neg:
         # a limb squeezed below the floating-point floor left triangles inverted (balancing
         # needs a fold-free start): untangle first, as the multilevel map does at each level
-        x, _ = untangle(x, p, f, time_budget=_UNTANGLE_TIME * balance_budget)
+        x, _ = untangle(x, p, f)
         sd = spread(x)
     x_start, sd_start = x, sd
-    x, binfo = balance(x, p, f, iterations=balance_steps, time_budget=max(balance_budget, 0.0),
-                       lam=_LAM, max_cot=np.inf)
+    steps = _single_level_steps(n) if balance_steps is None else balance_steps
+    x, binfo = balance_map(x, p, f, iterations=steps, lam=_LAM, max_cot=np.inf)
     x = _centre(x, va, f)   # area-weighted centre of mass at the origin again (a tiny Möbius step)
     sd = spread(x)
     if sd > sd_start:
-        # from a deeply squeezed start (energy ~1e15) the budget may end with the few tiniest
+        # from a deeply squeezed start (energy ~1e15) the steps may end with the few tiniest
         # triangles grown at the expense of the bulk: keep the start, whose area spread is lower
         x, sd = x_start, sd_start
         binfo = dict(binfo, steps=0, energy=binfo["energy_start"])
@@ -717,9 +724,9 @@ def _tutte_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget
                "balance_energy": float(binfo["energy"])}
 
 
-def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_budget: float,
-                    balance_budget: float, coarse: int = _COARSE, ratio: int = _RATIO,
-                    faces=None, steps: int = _LEVEL_STEPS):
+def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, balance: bool = True,
+                    coarse: int = _COARSE, ratio: int = _RATIO, faces=None,
+                    steps: int = _LEVEL_STEPS):
     """Coarse-to-fine map (Praun & Hoppe 2003 in spirit): decimate by ``ratio``, map the coarser
     mesh (recursively, down to ``coarse`` vertices, which :func:`_tutte_map` maps), carry the map
     to every vertex, untangle what folded on the way and balance at this level's resolution.
@@ -727,18 +734,17 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     A Tutte start squeezes a limb by ``exp(-2π length / girth)`` at any resolution, and balancing
     from there must undo factors of 1e20 in area; a mesh of a few dozen vertices has no limbs to
     squeeze, and each finer level starts from a map that is right at large scales."""
-    from ._balance import balance, untangle
+    from ._balance import balance as balance_map, untangle
     from ._decimate import decimate
 
-    options = dict(iterations=iterations, gamma=gamma, time_budget=time_budget,
-                   balance_budget=balance_budget, coarse=coarse, ratio=ratio)
+    options = dict(iterations=iterations, gamma=gamma, balance=balance, coarse=coarse,
+                   ratio=ratio)
     n = len(surfels)
     f = _oriented_faces(surfels) if faces is None else faces   # decimation keeps the topology
     p = surfels.positions
     h = decimate(p, f, max(coarse, n // ratio)) if n > coarse else None
     if h is None or len(h.vertices) >= n:
-        x, info = _tutte_map(surfels, iterations=iterations, gamma=gamma,
-                             time_budget=time_budget, balance_budget=balance_budget)
+        x, info = _tutte_map(surfels, iterations=iterations, gamma=gamma, balance=balance)
         return x, dict(info, levels=1, base_vertices=n)
     kept = h.vertices
     index = np.full(n, -1, dtype=np.int64)
@@ -748,22 +754,27 @@ def _multilevel_map(surfels: SurfelSet, *, iterations: int, gamma: float, time_b
     x = np.zeros((n, 3))
     x[kept] = xc
     x = h.prolong(x, p, unit=True)
-    # bounded by rounds; the time limit is only a guard (a budget that binds makes the result
-    # depend on the machine's load: under load the finest level of a limbed model failed)
-    x, uinfo = untangle(x, p, f, time_budget=_UNTANGLE_TIME * balance_budget)
+    # bounded by rounds of steps, never by the clock, so that the map is the same on every
+    # machine at any load
+    x, uinfo = untangle(x, p, f, rounds=_UNTANGLE_ROUNDS if balance else 0)
     # a few triangles left inverted (slivers of a randomly split mesh can pin the untangling)
     # cost a few folds; the single-level map instead squeezes every limb
     if uinfo["inverted"] > _INVERTED_KEPT * len(f):
         raise _Untangled(n)
-    x, binfo = balance(x, p, f, iterations=steps, time_budget=balance_budget,
-                       lam=_LAM, max_cot=np.inf,
-                       **(_LOOSE_STOP if n > _LOOSE_ABOVE else _STRICT_STOP))
+    x, binfo = balance_map(x, p, f, iterations=steps if balance else 0, lam=_LAM,
+                           max_cot=np.inf, **(_LOOSE_STOP if n > _LOOSE_ABOVE else _STRICT_STOP))
     x = _centre(x, _vertex_areas(f, _areas3(p, f), n), f)
     neg = int(np.count_nonzero(_orientation(x, f) <= 0))
     return x, {"mesh_folds": neg, "levels": info["levels"] + 1,
                "base_vertices": info["base_vertices"],
                "untangle_rounds": uinfo["rounds"] + info.get("untangle_rounds", 0),
                "balance_steps": binfo["steps"], "balance_energy": float(binfo["energy"])}
+
+
+def _single_level_steps(n: int) -> int:
+    """Balancing steps of a single-level map of ``n`` vertices: 3000 up to 20,000 vertices,
+    then ``_SINGLE_LEVEL_WORK / n`` (at least 300)."""
+    return int(min(3000, max(300, _SINGLE_LEVEL_WORK // max(n, 1))))
 
 
 class _Untangled(Exception):
@@ -994,8 +1005,7 @@ def _mds_map(surfels: SurfelSet, *, landmarks: int, seed: int, maxiter: int):
 # ---------------------------------------------------------------------- public entry point
 def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
                  landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
-                 time_budget: float = 20.0, balance_budget: float = 60.0,
-                 stress: bool = True) -> SphericalMap:
+                 balance: bool = True, stress: bool = True) -> SphericalMap:
     """Map surfels to the unit sphere.
 
     Parameters
@@ -1015,15 +1025,11 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         Most area-balancing iterations (``"tutte"``) or CG iterations / 10 (``"mds"``).
     gamma : float
         Exponent of the balancing reweighting, in (0, 2].
-    time_budget : float
-        Seconds after which the reweighting stops and keeps its best iterate.
-    balance_budget : float
-        Seconds, at most, for each level's balancing, and twice that for its untangling (0:
-        no balancing, and a level whose prolongation folds falls back to the single-level map).
-        A guard: the multilevel map's step counts end its balancing first (scorpion's finest
-        level, the longest: 600 steps in about 15 s on a 2-core machine), so that the map does
-        not depend on the machine's speed or load (the single-level fallback's may still
-        stop on it).
+    balance : bool
+        Untangle and balance the distortion at each level (False: the Tutte start, a level
+        whose prolongation folds falls back to the single-level map; for tests and
+        comparisons). Every stage stops on counts of steps or rounds, never on the clock, so
+        the map is the same on every machine and at any load.
     stress : bool
         Compute the landmark stress figure (geodesics from ``landmarks`` sources).
 
@@ -1053,12 +1059,10 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     if method == "tutte":
         if surfels.faces is None or not len(surfels.faces):
             pts, info = _proxy_tutte_map(surfels, iterations=iterations, gamma=float(gamma),
-                                         time_budget=float(time_budget),
-                                         balance_budget=float(balance_budget))
+                                         balance=bool(balance))
         else:
             pts, info = _mesh_map(surfels, iterations=iterations, gamma=float(gamma),
-                                  time_budget=float(time_budget),
-                                  balance_budget=float(balance_budget))
+                                  balance=bool(balance))
     else:
         if surfels.faces is not None and len(surfels.faces):
             _oriented_faces(surfels)  # topology check before mapping

@@ -14,8 +14,7 @@ from conftest import tube_mesh
 def tube_map():
     """A tube 75 girths long, mapped without the repair: its rows fold (measured 14 triangles)."""
     s = TriangleMesh(*tube_mesh(k=8, m=60, h=0.8), name="tube").to_surfels()
-    x, _ = _mesh_map(s, repair=False, iterations=40, gamma=0.15, time_budget=20.0,
-                     balance_budget=15.0)
+    x, _ = _mesh_map(s, repair=False, iterations=40, gamma=0.15)
     return s, _oriented_faces(s), x
 
 
@@ -56,7 +55,7 @@ def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map, monkeypatch)
     import surfidx.parameterize as P
 
     s, f, _ = tube_map
-    options = dict(iterations=40, gamma=0.15, time_budget=20.0, balance_budget=15.0)
+    options = dict(iterations=40, gamma=0.15)
     monkeypatch.setattr(P, "_SECOND_PASS", False)
     x1, i1 = P._mesh_map(s, **options)
     monkeypatch.setattr(P, "_SECOND_PASS", True)

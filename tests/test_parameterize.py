@@ -82,7 +82,7 @@ def test_limbs_no_mesh_folds():
 
 def test_area_balancing_grows_limbs():
     s = _limbs()
-    plain = parameterize(s, stress=False, iterations=0, balance_budget=0.0)
+    plain = parameterize(s, stress=False, iterations=0, balance=False)
     m = parameterize(s, stress=False)
     assert m.info["balance_steps"] >= 1 and m.info["mesh_folds"] == 0
     assert m.area_distortion < 0.5 * plain.area_distortion
@@ -94,10 +94,10 @@ def test_squeezed_tutte_start_is_untangled_before_balancing():
     from surfidx.parameterize import _tutte_map
 
     s = TriangleMesh(*tube_mesh(m=100), name="tube").to_surfels()
-    options = dict(iterations=0, gamma=1.0, time_budget=10.0)
-    _, start = _tutte_map(s, balance_budget=0.0, **options)   # no time to untangle or balance
+    options = dict(iterations=0, gamma=1.0)
+    _, start = _tutte_map(s, balance=False, **options)   # neither untangled nor balanced
     assert start["mesh_folds"] > 0
-    _, info = _tutte_map(s, balance_budget=1.0, **options)
+    _, info = _tutte_map(s, balance_steps=100, **options)
     assert info["mesh_folds"] == 0 and info["balance_steps"] > 0
     assert info["mesh_area_distortion"] < 0.2 * start["mesh_area_distortion"]
 
@@ -193,7 +193,7 @@ def test_real_models_no_mesh_folds(models, name):
     assert m.info["mesh_folds"] == 0      # the mesh embedding on the sphere is bijective
     assert m.fold_fraction < 0.01         # Delaunay diagonal swaps where the map is anisotropic
     # the balanced multilevel map leaves less area distortion than the harmonic start
-    plain = parameterize(s, stress=False, iterations=0, balance_budget=0.0)
+    plain = parameterize(s, stress=False, iterations=0, balance=False)
     assert m.area_distortion < plain.area_distortion
 
 
@@ -286,35 +286,45 @@ def test_multilevel_map_has_levels_down_to_a_small_base():
     assert m.info["mesh_folds"] == 0 and "fallback" not in m.info
 
 
-def test_finest_level_stops_on_its_step_count_not_the_clock(monkeypatch):
-    """The finest level's balancing ends after ``_FINAL_STEPS`` steps however much time is
-    given, so the map is the same on a fast machine and a loaded one."""
+def test_finest_level_stops_on_its_step_count(monkeypatch):
+    """The finest level's balancing ends after ``_FINAL_STEPS`` steps, a count: the same map
+    on every run."""
     import surfidx.parameterize as P
 
     monkeypatch.setattr(P, "_FINAL_STEPS", 4)
     s = _limbs(4)
     m = parameterize(s, stress=False)
     assert m.info["balance_steps"] == 4
-    m2 = parameterize(s, stress=False, balance_budget=1000.0)
+    m2 = parameterize(s, stress=False)
     assert np.array_equal(m.points, m2.points)
+
+
+def test_single_level_steps_bound_steps_times_vertices():
+    """The single-level balancing's step count falls with the vertex count, so its cost is
+    bounded at any size."""
+    import surfidx.parameterize as P
+
+    assert P._single_level_steps(64) == 3000
+    assert P._single_level_steps(50_000) * 50_000 <= P._SINGLE_LEVEL_WORK
+    assert P._single_level_steps(10 ** 7) == 300
 
 
 def test_level_left_with_few_inverted_triangles_is_kept(monkeypatch):
     """Up to _INVERTED_KEPT of a level's triangles may stay inverted (the map keeps its levels);
-    here every share is allowed and no time is given to untangle."""
+    here every share is allowed and nothing is untangled."""
     import surfidx.parameterize as P
 
     monkeypatch.setattr(P, "_INVERTED_KEPT", 1.0)
-    m = parameterize(_limbs(4), stress=False, balance_budget=0.0)
+    m = parameterize(_limbs(4), stress=False, balance=False)
     assert "fallback" not in m.info and m.info["levels"] >= 3
     assert m.info["mesh_folds"] > 0 and m.info["balance_steps"] == 0
 
 
 def test_level_that_cannot_be_untangled_falls_back_to_single_level():
-    """With no time to untangle, a level that folded on prolongation falls back to the
+    """Without untangling, a level that folded on prolongation falls back to the
     single-level Tutte map, which is fold-free by construction."""
     s = _limbs(4)
-    m = parameterize(s, stress=False, balance_budget=0.0)
+    m = parameterize(s, stress=False, balance=False)
     assert m.info.get("fallback") == 1 and m.info["levels"] == 1
     assert m.info["mesh_folds"] == 0 and m.info["retries"] == 3
 
@@ -430,7 +440,7 @@ def test_squeezed_fallback_map_is_refused(monkeypatch):
     assert "fallback" not in parameterize(_limbs(), stress=False).info
     with pytest.raises(TopologyError, match=r"squeezes parts of the surface to nothing "
                                             r"\(area distortion .*no level of the mesh"):
-        parameterize(_limbs(4), stress=False, balance_budget=0.0)
+        parameterize(_limbs(4), stress=False, balance=False)
 
 
 def test_point_cloud_of_genus_one_refused():

