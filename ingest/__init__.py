@@ -11,9 +11,10 @@ See :mod:`ingest._run` for the data flow, the executor abstraction and the textu
 """
 
 from ._dask import DaskExecutor
-from ._run import (IngestSummary, Outcome, ProcessPool, Task, discover, error_message,
-                   find_texture, make_tasks, process_task, resolve_processor, run, serial)
+from ._run import (IngestSummary, NotRegularFile, Outcome, ProcessPool, Task, discover,
+                   error_message, exit_with_parent, find_texture, hash_files, make_tasks,
+                   process_task, resolve_processor, run, serial)
 
 __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
            "process_task", "resolve_processor", "serial", "ProcessPool", "DaskExecutor",
-           "error_message"]
+           "error_message", "hash_files", "NotRegularFile", "exit_with_parent"]

@@ -7,7 +7,9 @@ Data flow of :func:`run`:
    UVs name no texture with a PNG beside it.
 2. Every file's content hash (file bytes, then texture bytes) is computed first; files already
    stored (or seen earlier in the same run) are skipped, so re-running an interrupted ingest
-   resumes where it stopped.
+   resumes where it stopped. Only regular files are read (a FIFO, a device, a socket or a link
+   to one is skipped unread and recorded with the reason), and never beyond the size the file
+   had when it was opened.
 3. The remaining :class:`Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
    yields ``fn(task)`` for every task, in completion order (and may yield ``None`` as a
    heartbeat while it waits). :class:`ProcessPool` runs them in
@@ -19,14 +21,26 @@ Data flow of :func:`run`:
    ``flush_seconds``), each model inside its own savepoint: a model is stored whole or not at all,
    and a SIGINT or SIGKILL at any moment leaves a consistent database (WAL mode).
 5. A failing file is recorded in ``ingest_errors`` with its message and the run goes on; the run
-   ends with an :class:`IngestSummary`.
+   ends with an :class:`IngestSummary`. A database that cannot be written (read-only, full
+   disk, damaged, locked) stops the run with one :class:`surfidx.DatabaseError`; what was
+   committed stays whole.
+
+File names are text as the OS gives them (``os.fsdecode``); a name whose bytes are not UTF-8 is
+processed like any other and stored and reported through :func:`surfidx.database.escape_name`
+(undecodable bytes as ``\\xHH``). Worker processes end when the process that started them dies
+(even by SIGKILL, as the OOM killer sends it): see :class:`ProcessPool`.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import functools
+import hashlib
 import os
+import signal
+import stat
+import sys
+import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -36,7 +50,8 @@ from surfidx._errors import InputError, SurfidxError
 from surfidx._validate import check_positive_int
 
 __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
-           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message"]
+           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message",
+           "hash_files", "NotRegularFile", "exit_with_parent"]
 
 
 # ---------------------------------------------------------------------- discovery
@@ -46,8 +61,10 @@ def discover(paths) -> list:
     Parameters
     ----------
     paths : sequence of str or os.PathLike
-        Files (taken as given, whatever their suffix) and folders (searched recursively for every
-        suffix in ``surfidx.io.SUPPORTED_SUFFIXES``, case-insensitively; hidden entries skipped).
+        Files (taken as given, whatever their suffix or type) and folders (searched recursively
+        for every suffix in ``surfidx.io.SUPPORTED_SUFFIXES``, case-insensitively; hidden entries
+        skipped). Entries that are not regular files are listed too: :func:`make_tasks` skips
+        them with the reason.
 
     Returns
     -------
@@ -74,28 +91,109 @@ def discover(paths) -> list:
                 for f in files:
                     if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
                         found.add(Path(os.path.abspath(Path(root, f))))
-        elif p.is_file():
+        elif p.exists():                            # a file, or a FIFO/device (skipped later)
             found.add(Path(os.path.abspath(p)))
         else:
             raise InputError("no such file or folder", path=p)
     return sorted(found)
 
 
+# ---------------------------------------------------------------------- bounded reading
+class NotRegularFile(OSError):
+    """A path that is not a regular file (FIFO, device, socket, directory, or a link to one)."""
+
+
+def _file_type(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISDIR, "a directory")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _not_regular(path, mode: int) -> NotRegularFile:
+    kind = _file_type(mode)
+    link = os.path.islink(path)
+    return NotRegularFile(f"not a regular file: {'a symbolic link to ' if link else ''}{kind}")
+
+
+def _open_regular(path):
+    """``(binary file, size)`` of a regular file, opened without blocking (opening a FIFO for
+    reading would wait for a writer); anything else raises :class:`NotRegularFile`."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise _not_regular(path, st.st_mode)
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb"), st.st_size
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _read_regular(path) -> bytes:
+    """The bytes of a regular file, at most its size when opened."""
+    fh, size = _open_regular(path)
+    with fh:
+        return fh.read(size)
+
+
+def _lines_of_regular(path):
+    """The lines of a regular file, read no further than its size when opened."""
+    fh, size = _open_regular(path)
+    with fh:
+        while size > 0:
+            line = fh.readline(min(size, 1 << 20))
+            if not line:
+                return
+            size -= len(line)
+            yield line
+
+
+def hash_files(path, *, texture=None) -> str:
+    """SHA-256 hex of a model file's bytes and then its texture's (as
+    ``surfidx.pipeline.content_hash``), reading regular files only and each no further than
+    its size when opened.
+
+    Raises
+    ------
+    NotRegularFile
+        ``path`` or ``texture`` is a FIFO, device, socket or directory (or a link to one).
+    OSError
+        A file cannot be opened or read.
+    """
+    h = hashlib.sha256()
+    for p in (path, texture):
+        if p is None:
+            continue
+        fh, size = _open_regular(p)
+        with fh:
+            while size > 0:
+                chunk = fh.read(min(size, 1 << 20))
+                if not chunk:
+                    break
+                h.update(chunk)
+                size -= len(chunk)
+    return h.hexdigest()
+
+
 def _obj_needs_texture(path: Path) -> bool:
     """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``."""
     has_vt, mtllibs = False, []
-    with open(path, "rb") as fh:
-        for line in fh:
-            if line.startswith(b"vt "):
-                has_vt = True
-            elif line.startswith(b"mtllib "):
-                mtllibs.append(line[7:].decode("utf-8", "replace").strip())
+    for line in _lines_of_regular(path):
+        if line.startswith(b"vt "):
+            has_vt = True
+        elif line.startswith(b"mtllib "):
+            mtllibs.append(os.fsdecode(line[7:].strip()))
     if not has_vt:
         return False
     for lib in mtllibs:
         mtl = path.parent / lib
         try:
-            text = mtl.read_text(errors="replace")
+            text = _read_regular(mtl).decode("utf-8", "replace")
         except OSError:
             continue
         if any(ln.strip().split()[:1] == ["map_Kd"] for ln in text.splitlines()):
@@ -117,6 +215,13 @@ def find_texture(path):
     Returns
     -------
     pathlib.Path or None
+
+    Raises
+    ------
+    NotRegularFile
+        ``path`` is an OBJ that is not a regular file.
+    OSError
+        ``path`` cannot be read.
     """
     path = Path(path)
     if path.suffix.lower() != ".obj" or not _obj_needs_texture(path):
@@ -203,11 +308,63 @@ def process_task(task: Task, *, processor, bits_per_surfel: float) -> Outcome:
 
 
 # ---------------------------------------------------------------------- executors
-def _ignore_sigint():
-    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers)."""
-    import signal
+#: Seconds between a worker's checks that its parent is alive (the portable fallback).
+_PARENT_POLL = 0.5
 
+_PR_SET_PDEATHSIG = 1
+
+
+def _watch_parent(parent: int, poll: float) -> None:
+    while True:
+        time.sleep(poll)
+        if os.getppid() != parent:                 # reparented: the parent has died
+            os._exit(1)
+
+
+def exit_with_parent(*, poll: float = _PARENT_POLL) -> None:
+    """Make this (worker) process end when its parent process dies, however it dies.
+
+    On Linux the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``, via
+    ctypes); everywhere, a daemon thread checks ``os.getppid()`` every ``poll`` seconds and
+    exits the process once it has been reparented (the fallback, and the guard against a parent
+    that died before the call). Called in every :class:`ProcessPool` worker; the workers of a
+    Dask LocalCluster end with their parent through dask's own watch of it.
+
+    Parameters
+    ----------
+    poll : float
+        Seconds between the thread's checks.
+    """
+    parent = os.getppid()
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no prctl: the thread remains
+            pass
+    threading.Thread(target=_watch_parent, args=(parent, float(poll)), daemon=True,
+                     name="surfidx-parent-watch").start()
+
+
+def _worker_init(parent_pid: int) -> None:
+    """Worker initializer: Ctrl-C is the parent's to handle (it stops the workers), and the
+    worker ends when its parent dies (:func:`exit_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if os.getppid() != parent_pid and not _alive(parent_pid):
+        os._exit(1)                                 # the parent died while this one started
+    exit_with_parent()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # pragma: no cover - exists, not ours
+        return True
+    return True
 
 
 def serial(fn, tasks):
@@ -228,7 +385,8 @@ class ProcessPool:
     main pool is restarted and the run continues.
 
     Workers ignore SIGINT; on ``KeyboardInterrupt`` in the parent (or when the caller stops
-    iterating) running workers are terminated.
+    iterating) running workers are terminated. Workers also end when the parent process dies
+    (SIGKILL, the OOM killer): :func:`exit_with_parent`.
 
     Parameters
     ----------
@@ -247,7 +405,7 @@ class ProcessPool:
 
     def _new_pool(self, n):
         return cf.ProcessPoolExecutor(max_workers=n, mp_context=self.mp_context,
-                                      initializer=_ignore_sigint)
+                                      initializer=_worker_init, initargs=(os.getpid(),))
 
     def shutdown(self, *, kill: bool = False):
         """Stop the workers, cancelling queued tasks (``kill``: terminate running ones too)."""
@@ -339,6 +497,9 @@ class IngestSummary:
         Ids of the models stored by this run.
     errors : list of (str, str)
         ``(path, message)`` of every failed file.
+    skips : list of (str, str)
+        ``(path, reason)`` of every file skipped unread because it is not a regular file
+        (counted in ``skipped``, recorded in ``ingest_errors`` as ``"skipped: <reason>"``).
     seconds : float
     status : str
         ``"finished"`` or ``"interrupted"``.
@@ -350,6 +511,7 @@ class IngestSummary:
     failed: int = 0
     ids: list = field(default_factory=list)
     errors: list = field(default_factory=list)
+    skips: list = field(default_factory=list)
     seconds: float = 0.0
     status: str = "finished"
 
@@ -369,31 +531,47 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
     on_error : callable, optional
         ``on_error(path, message)`` for files that cannot be read.
     on_skip : callable, optional
-        ``on_skip(path)`` for files already stored or repeated in ``files``.
+        ``on_skip(path, reason)`` for files skipped: ``reason`` is None for files already stored
+        or repeated in ``files``, the message (``"not a regular file: a named pipe (FIFO)"``)
+        for files that are not regular files and are not read.
 
     Returns
     -------
     list of Task
     """
-    from surfidx.pipeline import content_hash
-
     seen = set(known_hashes)
     tasks = []
     for f in files:
         try:
+            st = os.stat(f)
+            if not stat.S_ISREG(st.st_mode):
+                raise _not_regular(f, st.st_mode)
             tex = find_texture(f)
-            h = content_hash(f, texture=tex)
+            h = hash_files(f, texture=tex)
+        except NotRegularFile as exc:
+            if on_skip is not None:
+                on_skip(f, str(exc))
+            continue
         except OSError as exc:
             if on_error is not None:
                 on_error(f, f"cannot read ({exc.strerror or exc})")
             continue
         if h in seen:
             if on_skip is not None:
-                on_skip(f)
+                on_skip(f, None)
             continue
         seen.add(h)
         tasks.append(Task(str(f), None if tex is None else str(tex), h))
     return tasks
+
+
+def _storage_failure(exc: BaseException) -> bool:
+    """A database error that is no fault of the model (read-only, full disk, damaged file,
+    lock): the run cannot go on, whereas a model the schema refuses is one failed file."""
+    import sqlite3
+
+    cause = exc.__cause__
+    return isinstance(cause, sqlite3.Error) and not isinstance(cause, sqlite3.IntegrityError)
 
 
 def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
@@ -448,7 +626,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         ``scheduler`` without dask.distributed installed, or a scheduler that cannot be reached
         (before anything is written).
     DatabaseError
-        The database cannot be opened or written.
+        The database cannot be opened or written (not a surfidx database, read-only, full disk,
+        damaged, locked past the timeout): the run stops; every model committed is whole.
 
     Notes
     -----
@@ -456,7 +635,7 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.database import Database
+    from surfidx.database import Database, escape_name, storable_text
 
     workers = check_positive_int(workers, "workers")
     batch = check_positive_int(batch, "batch")
@@ -489,13 +668,16 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                                                 bits_per_surfel=bits_per_surfel))
     pending_errors = []
 
-    def fail(path, message):
+    def fail(path, message):               # summary: as stored; record_error escapes itself
         summary.failed += 1
-        summary.errors.append((str(path), message))
+        summary.errors.append((escape_name(path), storable_text(message)))
         pending_errors.append((str(path), message))
 
-    def skip(_path):
+    def skip(path, reason=None):
         summary.skipped += 1
+        if reason is not None:
+            summary.skips.append((escape_name(path), reason))
+            pending_errors.append((str(path), f"skipped: {reason}"))
 
     buffer = []
     last_flush = time.monotonic()
@@ -511,6 +693,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                     summary.ids.append(db.add(outcome.model))
                     summary.stored += 1
                 except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
+                    if _storage_failure(exc):
+                        raise                           # the database, not the model
                     fail(outcome.task.path, error_message(exc))
             for path, message in pending_errors:
                 db.record_error(summary.run_id, path, message)

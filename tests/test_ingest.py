@@ -437,3 +437,182 @@ def test_processed_surfel_file_records_no_mesh_conversion(tmp_path):
     write_ply(SurfelSet(v, v, np.full(len(v), 0.1)), path)
     model = process_model(path, bits_per_surfel=4.0, level=4, thumbnail_size=32)
     assert model.params["max_edge_ratio"] is None and model.params["samples"] is None
+
+
+# ---------------------------------------------------------------------- whatever a file is (#30)
+def _bytes_name(folder: Path, name: bytes, data: bytes) -> str:
+    """Write ``data`` to the file ``name`` (raw bytes, maybe not UTF-8) in ``folder``; its OS
+    text path (``os.fsdecode``)."""
+    path = os.path.join(os.fsencode(folder), name)
+    with open(path, "wb") as fh:
+        fh.write(data)
+    return os.fsdecode(path)
+
+
+def _run_guarded(fn, seconds=120):
+    """``fn()`` in a daemon thread; fails the test instead of hanging it."""
+    import threading
+
+    out = {}
+
+    def target():
+        try:
+            out["value"] = fn()
+        except BaseException as exc:  # noqa: BLE001 - re-raised below
+            out["error"] = exc
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(seconds)
+    assert not t.is_alive(), "ingest hung"
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
+
+
+def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
+    from surfidx.database import escape_name, storable_text, unescape_name
+
+    root = tmp_path / "data"
+    root.mkdir()
+    good = _bytes_name(root, b"caf\xe9.ply", b"model cafe")
+    bad = _bytes_name(root, b"bad\xff\\x.ply", b"FAIL")
+    db = tmp_path / "n.db"
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    assert (s.stored, s.failed, s.status) == (1, 1, "finished")
+    # the path as stored (lossless), the message with the byte escaped (backslashes kept)
+    assert s.errors == [(escape_name(bad), f"{storable_text(bad)}: deliberately unusable model")]
+    assert s.errors[0][0].endswith("bad\\xff\\\\x.ply")            # the byte and the backslash
+    with Database(db) as d:
+        m, = d.list_models()
+        assert m["name"] == "caf\\xe9" and m["source"] == escape_name(good)
+        assert os.fsencode(unescape_name(m["source"])) == os.fsencode(good)   # lossless
+        assert d.get_model("caf\\xe9")["id"] == d.get_model(os.fsdecode(b"caf\xe9"))["id"]
+        err, = d.errors()
+        assert err["path"] == escape_name(bad)
+        assert d.last_run()["status"] == "finished"
+    again = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    assert (again.stored, again.skipped, again.failed, again.status) == (0, 1, 1, "finished")
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_fifo_and_links_to_devices_are_skipped_with_the_reason(tmp_path, workers):
+    root = tmp_path / "data"
+    root.mkdir()
+    (root / "ok.ply").write_text("model ok")
+    os.mkfifo(root / "pipe.ply")
+    (root / "zero.ply").symlink_to("/dev/zero")
+    (root / "loop.off").symlink_to(root / "loop.off")               # cannot be read: a failure
+    db = tmp_path / "f.db"
+    s = _run_guarded(lambda: ingest.run([root, root / "pipe.ply"], db=db, workers=workers,
+                                        processor=fake_processor, progress=False))
+    assert (s.stored, s.skipped, s.failed, s.status) == (1, 2, 1, "finished")
+    assert sorted(s.skips) == [
+        (str(root / "pipe.ply"), "not a regular file: a named pipe (FIFO)"),
+        (str(root / "zero.ply"), "not a regular file: a symbolic link to a character device")]
+    assert s.errors == [(str(root / "loop.off"), "cannot read (Too many levels of symbolic "
+                                                 "links)")]
+    with Database(db) as d:
+        recorded = {e["path"]: e["error"] for e in d.errors()}
+    assert recorded == {
+        str(root / "pipe.ply"): "skipped: not a regular file: a named pipe (FIFO)",
+        str(root / "zero.ply"): "skipped: not a regular file: a symbolic link to a character "
+                                "device",
+        str(root / "loop.off"): "cannot read (Too many levels of symbolic links)"}
+
+
+def test_reading_is_bounded_and_never_blocks(tmp_path):
+    f = tmp_path / "a.obj"
+    f.write_bytes(b"v 0 0 0\nvt 0 0\nmtllib m.mtl\nmtllib z.mtl\n")
+    os.mkfifo(tmp_path / "m.mtl")                  # an MTL that is a FIFO is not read
+    (tmp_path / "z.mtl").symlink_to("/dev/zero")   # nor one that never ends
+    (tmp_path / "a.png").write_bytes(tiny_png())
+    tex = _run_guarded(lambda: ingest.find_texture(f), 60)
+    assert tex == tmp_path / "a.png"
+    assert ingest.hash_files(f, texture=tex) == content_hash(f, texture=tex)
+    with pytest.raises(ingest.NotRegularFile, match="not a regular file: a character device"):
+        ingest.hash_files("/dev/zero")
+    with pytest.raises(ingest.NotRegularFile, match=r"a named pipe \(FIFO\)"):
+        _run_guarded(lambda: ingest.hash_files(tmp_path / "m.mtl"), 60)
+    (tmp_path / "z.obj").symlink_to("/dev/zero")
+    with pytest.raises(ingest.NotRegularFile, match="symbolic link to a character device"):
+        _run_guarded(lambda: ingest.find_texture(tmp_path / "z.obj"), 60)
+
+
+def _dead(pid: int) -> bool:
+    """The process is gone (or a zombie waiting for its new parent to reap it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def _wait_dead(pids, seconds=60.0) -> list:
+    """The pids still alive after waiting up to ``seconds`` for them to end."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not all(_dead(p) for p in pids):
+        time.sleep(0.1)
+    return [p for p in pids if not _dead(p)]
+
+
+def pid_processor(path, **kw):
+    """``fake_processor`` that first writes its process id to ``<path>.pid``."""
+    Path(str(path) + ".pid").write_text(str(os.getpid()))
+    return fake_processor(path, **kw)
+
+
+_ORPHAN_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+import ingest, test_ingest
+ingest.run([{root!r}], db={db!r}, processor=test_ingest.pid_processor, progress=False,
+           workers=2, **{extra})
+"""
+
+
+def _kill_parent_and_watch_workers(tmp_path, n_pids, extra="{}"):
+    """Run an ingest in a subprocess (one HANG model, one quick one), SIGKILL it once its workers
+    have started the models; returns the worker pids still alive after that."""
+    root = tmp_path / "data"
+    root.mkdir()
+    (root / "a.ply").write_text("model a")               # done at once: that worker idles
+    (root / "b.ply").write_text("model b HANG")          # busy for 60 s
+    script = _ORPHAN_SCRIPT.format(tests=str(TESTS), root=str(root), db=str(tmp_path / "o.db"),
+                                   extra=extra)
+    proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(root.glob("*.pid"))) < n_pids and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+            time.sleep(0.1)
+        pids = sorted({int(p.read_text()) for p in root.glob("*.pid")})
+        assert proc.pid not in pids and len(pids) >= 1
+        os.kill(proc.pid, signal.SIGKILL)                 # only the parent, as the OOM killer
+    finally:
+        proc.wait()
+    alive = _wait_dead(pids)
+    for pid in alive:                                     # never leave orphans behind
+        os.kill(pid, signal.SIGKILL)
+    return alive
+
+
+def test_pool_workers_exit_when_the_parent_is_killed(tmp_path):
+    assert _kill_parent_and_watch_workers(tmp_path, 2) == []
+
+
+def test_exit_with_parent_fallback_thread(tmp_path):
+    """Without prctl (not Linux), the watchdog thread alone ends an orphaned worker."""
+    child = ("import sys, time; sys.platform = 'elsewhere'; import ingest; "
+             "ingest.exit_with_parent(poll=0.05); print('ready', flush=True); time.sleep(120)")
+    parent = ("import subprocess, sys, time; "
+              f"c = subprocess.Popen([sys.executable, '-c', {child!r}], stdout=subprocess.PIPE); "
+              "c.stdout.readline(); print(c.pid, flush=True); time.sleep(120)")
+    proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE)
+    try:
+        pid = int(proc.stdout.readline())
+        assert not _dead(pid)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    assert _wait_dead([pid]) == []

@@ -17,7 +17,7 @@ import click
 
 from .._errors import DatabaseError, InputError, SurfidxError
 from . import cli
-from ._common import command_errors, echo_json
+from ._common import command_errors, echo_json, plain
 
 __all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
            "parse_model_ref"]
@@ -64,10 +64,12 @@ def parse_model_ref(text: str):
     return text
 
 
-def _open(db_path, *, create=False):
+def _open(db_path, *, readonly=True):
+    """The database of a command: read-only (``ls``, ``show``, ``query``, ``get``, ``errors``:
+    never written, a missing or empty file is an error), or for writing an existing one."""
     from ..database import Database
 
-    return Database(db_path, create=create)
+    return Database(db_path, create=False, readonly=readonly)
 
 
 def _fmt(v, spec=".2f"):
@@ -79,8 +81,9 @@ def _fmt(v, spec=".2f"):
 
 
 def _table(rows, columns):
-    """Print rows (dicts) as a fixed-width table with the given (key, header) columns."""
-    cells = [[_fmt(r.get(k)) for k, _ in columns] for r in rows]
+    """Print rows (dicts) as a fixed-width table with the given (key, header) columns (cells
+    through :func:`plain`: a name holding a newline or an escape sequence stays in its cell)."""
+    cells = [[plain(_fmt(r.get(k))) for k, _ in columns] for r in rows]
     widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
     click.echo("  ".join(h.ljust(w) for (_, h), w in zip(columns, widths)).rstrip())
     for c in cells:
@@ -110,7 +113,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
-    ingest resumes it. A file that fails is recorded (see `surfidx errors`) and the run goes on.
+    ingest resumes it. A file that fails is recorded (see `surfidx errors`) and the run goes on;
+    so is a file that is not a regular file (a FIFO, a device, a link to one), skipped unread.
     An OBJ with UVs but no texture named gets <stem>_texture.png, <stem>.png or the folder's only
     PNG. With --scheduler the models are processed on a Dask cluster's workers (which need the
     package and read access to the paths); this process alone writes the database.
@@ -123,12 +127,15 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     if as_json:
         echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
                    "failed": summary.failed, "ids": summary.ids, "seconds": summary.seconds,
-                   "errors": [{"path": p, "error": e} for p, e in summary.errors]})
+                   "errors": [{"path": p, "error": e} for p, e in summary.errors],
+                   "skips": [{"path": p, "reason": r} for p, r in summary.skips]})
         return
+    for path, message in summary.skips:
+        click.echo(plain(f"skipped: {path}: {message}"), err=True)
     for path, message in summary.errors:
-        click.echo(f"failed: {message if message.startswith(path) else f'{path}: {message}'}",
-                   err=True)
-    click.echo(f"{db_path}: {summary}")
+        line = message if message.startswith(path) else f"{path}: {message}"
+        click.echo(plain(f"failed: {line}"), err=True)
+    click.echo(plain(f"{db_path}: {summary}"))
 
 
 # ---------------------------------------------------------------------- query
@@ -188,7 +195,7 @@ def query(example, db_path, k, shape_weight, sheet, as_json):
     _table(rows, [("rank", "rank"), ("id", "id"), ("name", "name"), ("distance_s", "distance"),
                   ("source", "source")])
     if sheet:
-        click.echo(f"{sheet}: query and {len(rows)} results", err=True)
+        click.echo(plain(f"{sheet}: query and {len(rows)} results"), err=True)
 
 
 def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
@@ -248,7 +255,7 @@ def get(model, db_path, output, bits_per_surfel, level):
     surfels = _decoder()(stream, bits_per_surfel=bits_per_surfel, **options)
     write_ply(surfels, output)
     rate = "full rate" if bits_per_surfel is None else f"{bits_per_surfel:g} bits/surfel"
-    click.echo(f"{output}: {len(surfels)} surfels of model {mid} ({name}) at {rate}")
+    click.echo(plain(f"{output}: {len(surfels)} surfels of model {mid} ({name}) at {rate}"))
 
 
 # ---------------------------------------------------------------------- ls, show, errors
@@ -293,18 +300,18 @@ def show(model, db_path, as_json):
         val = rec[key]
         if isinstance(val, list):
             val = " ".join(f"{x:.6g}" for x in val)
-        click.echo(f"{key:16s} {val}")
-    click.echo(f"{'params':16s} {echo_params(rec['params'])}")
+        click.echo(f"{key:16s} {plain(val)}")
+    click.echo(f"{'params':16s} {plain(echo_params(rec['params']))}")
     asset = rec["asset"] or {}
     for key in ("format_version", "bits_per_surfel", "bytes", "psnr_d1", "psnr_d2", "psnr_y"):
         click.echo(f"{key:16s} {_fmt(asset.get(key), '.4g')}")
     kinds = ", ".join(f"{k} ({d})" for k, d in rec["descriptors"].items()) or "-"
-    click.echo(f"{'descriptors':16s} {kinds}")
+    click.echo(f"{'descriptors':16s} {plain(kinds)}")
     if run is not None:
         click.echo(f"{'last run':16s} {run['id']} {run['status']}: stored {run['stored']}, "
                    f"skipped {run['skipped']}, failed {run['failed']}")
         for e in run_errors:
-            click.echo(f"  failed {e['path']}: {e['error']}")
+            click.echo(plain(f"  failed {e['path']}: {e['error']}"))
 
 
 def echo_params(params) -> str:
@@ -348,7 +355,7 @@ def redescribe_command(db_path, everything, as_json):
     """Recompute stored descriptors from the stored assets (after an upgrade changed them)."""
     from ..pipeline import redescribe
 
-    with _open(db_path) as db:
+    with _open(db_path, readonly=False) as db:
         out = redescribe(db, everything=everything)
     if as_json:
         echo_json(out)
@@ -356,6 +363,6 @@ def redescribe_command(db_path, everything, as_json):
         click.echo(f"redescribed {out['redescribed']}, up to date {out['current']}, "
                    f"failed {len(out['failed'])}")
         for mid, msg in out["failed"].items():
-            click.echo(f"  failed id {mid}: {msg}")
+            click.echo(plain(f"  failed id {mid}: {msg}"))
     if out["failed"]:
         raise click.ClickException(f"{len(out['failed'])} model(s) could not be redescribed")
