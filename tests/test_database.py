@@ -553,3 +553,295 @@ def test_package_exports_lazily():
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
     with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
         surfidx.nothing_here
+
+
+# ---------------------------------------------------------------------- whose file, errors (#30)
+def _digest(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _foreign(path, *, user_version=0, application_id=0, tables=("meta", "models")):
+    conn = sqlite3.connect(path)
+    for t in tables:
+        conn.execute(f"CREATE TABLE {t} (key TEXT, value TEXT)")
+    conn.execute(f"PRAGMA user_version = {user_version}")
+    conn.execute(f"PRAGMA application_id = {application_id}")
+    conn.commit()
+    conn.close()
+
+
+def test_new_database_carries_the_application_id(db):
+    assert db.conn.execute("PRAGMA application_id").fetchone()[0] == dbmod.APPLICATION_ID
+    assert dbmod.APPLICATION_ID.to_bytes(4, "big") == b"SFDX"
+
+
+def test_foreign_file_with_surfidx_table_names_is_refused_untouched(tmp_path):
+    path = tmp_path / "other.db"
+    _foreign(path, user_version=1)                      # user_version 1, tables meta and models
+    before = _digest(path)
+    for kwargs in ({}, {"readonly": True}, {"create": False}):
+        with pytest.raises(DatabaseError, match=r"other\.db: not a surfidx database \(it holds "
+                                                r"other tables: meta, models\)"):
+            Database(path, **kwargs)
+    assert _digest(path) == before                       # not even the journal mode changed
+    conn = sqlite3.connect(path)
+    assert conn.execute("PRAGMA journal_mode").fetchone()[0] == "delete"
+    conn.close()
+
+
+def test_other_application_id_and_marker_without_schema(tmp_path):
+    path = tmp_path / "app.db"
+    _foreign(path, application_id=0x12345678, tables=("things",))
+    before = _digest(path)
+    with pytest.raises(DatabaseError, match=r"application_id 0x12345678 is another "
+                                            r"application's"):
+        Database(path)
+    assert _digest(path) == before
+    path = tmp_path / "marked.db"
+    _foreign(path, application_id=dbmod.APPLICATION_ID, tables=())
+    with pytest.raises(DatabaseError, match=r"carries surfidx's application id but no schema"):
+        Database(path)
+
+
+def test_database_made_before_the_marker_opens_and_is_marked_on_write(tmp_path):
+    path = tmp_path / "old.db"
+    with Database(path) as d:
+        d.add(make_model(1))
+    conn = sqlite3.connect(path)                         # as the previous surfidx left it
+    conn.execute("PRAGMA application_id = 0")
+    conn.commit()
+    conn.close()
+    before = _digest(path)
+    with Database(path, readonly=True) as d:             # recognised: meta rows and schema
+        assert d.count() == 1
+    with Database(path) as d:                            # opening for writing writes nothing
+        assert d.count() == 1
+        assert d.conn.execute("PRAGMA application_id").fetchone()[0] == 0
+    assert _digest(path) == before
+    with Database(path) as d:
+        with pytest.raises(KeyboardInterrupt):
+            with d.transaction():
+                raise KeyboardInterrupt
+        assert d.conn.execute("PRAGMA application_id").fetchone()[0] == 0   # rolled back
+        d.add(make_model(2))
+        assert d.conn.execute("PRAGMA application_id").fetchone()[0] == dbmod.APPLICATION_ID
+    _v1_database(tmp_path / "hand.db")                   # the schema file and its meta row
+    with Database(tmp_path / "hand.db") as d:
+        assert d.count() == 1
+
+
+def test_readonly_open_never_writes(tmp_path):
+    path = tmp_path / "r.db"
+    with Database(path) as d:
+        d.add(make_model(1))
+    before = _digest(path)
+    with Database(path, readonly=True) as d:
+        assert d.readonly and d.count() == 1 and d.get_model(1)["name"] == "model1"
+        with pytest.raises(DatabaseError, match=r"r\.db: opened read-only; open it without "
+                                                "readonly=True to write"):
+            d.add(make_model(2))
+    assert _digest(path) == before
+    with pytest.raises(DatabaseError, match=r"missing\.db: no such database"):
+        Database(tmp_path / "missing.db", readonly=True)
+    assert not (tmp_path / "missing.db").exists()
+    (tmp_path / "zero.db").write_bytes(b"")
+    with pytest.raises(DatabaseError, match=r"zero\.db: is an empty file, not a surfidx database "
+                                            "yet; create it with `surfidx ingest`"):
+        Database(tmp_path / "zero.db", readonly=True)
+    assert (tmp_path / "zero.db").read_bytes() == b""
+    conn = sqlite3.connect(tmp_path / "blank.db")      # an SQLite file without tables
+    conn.execute("PRAGMA page_size = 1024")
+    conn.execute("VACUUM")
+    conn.close()
+    before = _digest(tmp_path / "blank.db")
+    with pytest.raises(DatabaseError, match=r"holds no surfidx schema yet"):
+        Database(tmp_path / "blank.db", readonly=True)
+    assert _digest(tmp_path / "blank.db") == before
+
+
+def test_readonly_open_of_an_older_schema(tmp_path, monkeypatch):
+    path = tmp_path / "v1.db"
+    _v1_database(path)
+    monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
+    monkeypatch.setattr(dbmod, "_MIGRATIONS", [lambda conn: None])
+    with pytest.raises(DatabaseError, match=r"schema version 1 is older than this surfidx's "
+                                            r"\(2\) and a read-only open cannot upgrade it"):
+        Database(path, readonly=True)
+
+
+def _damage(path):
+    """Overwrite every page but the first (the header and the table list) with garbage."""
+    size = path.stat().st_size
+    rng = np.random.default_rng(7)
+    with open(path, "r+b") as fh:
+        fh.seek(4096)
+        fh.write(rng.integers(0, 256, size - 4096, dtype=np.uint8).tobytes())
+
+
+def test_damaged_file_is_one_database_error(tmp_path):
+    path = tmp_path / "bad.db"
+    with Database(path) as d:
+        for i in range(8):
+            d.add(make_model(i))
+    _damage(path)
+    with pytest.raises(DatabaseError, match=r"bad\.db: the database file is damaged \(database "
+                                            r"disk image is malformed\); restore it"):
+        with Database(path, readonly=True) as d:
+            d.list_models()
+            d.get_model(1)
+
+
+class _FakeConn:
+    """A connection that raises ``error`` on every statement once ``armed`` (after opening)."""
+
+    armed = False
+
+    def __init__(self, real, error):
+        self.real, self.error = real, error
+
+    def __getattr__(self, name):
+        return getattr(self.real, name)
+
+    def execute(self, sql, *args):
+        if _FakeConn.armed and not sql.startswith(("ROLLBACK", "RELEASE")):
+            raise self.error
+        return self.real.execute(sql, *args)
+
+    executemany = execute
+
+
+@pytest.mark.parametrize("error, message", [
+    (sqlite3.OperationalError("database is locked"), r"locked by another process \(database "
+                                                     r"is locked\) for longer than 30 s"),
+    (sqlite3.OperationalError("attempt to write a readonly database"),
+     r"cannot write: the database is read-only"),
+    (sqlite3.OperationalError("database or disk is full"), r"the disk is full"),
+    (sqlite3.DatabaseError("database disk image is malformed"), r"the database file is damaged"),
+    (sqlite3.OperationalError("disk I/O error"), r"input/output error \(disk I/O error\)"),
+    (sqlite3.OperationalError("something else"), r"SQLite error \(something else\)"),
+])
+def test_every_sqlite_error_is_a_database_error(tmp_path, monkeypatch, error, message):
+    path = tmp_path / "f.db"
+    Database(path).close()
+    real_connect = dbmod._connect
+    monkeypatch.setattr(dbmod, "_connect", lambda *a: _FakeConn(real_connect(*a), error))
+    monkeypatch.setattr(_FakeConn, "armed", False)
+    with Database(path) as d:
+        _FakeConn.armed = True
+        for call in (d.count, d.list_models, lambda: d.get_model(1), d.runs,
+                     lambda: d.start_run(["x"]), lambda: d.add(make_model(1))):
+            with pytest.raises(DatabaseError, match=r"f\.db: .*" + message) as info:
+                call()
+            assert "\n" not in str(info.value) and info.value.__cause__ is error
+
+
+def test_read_only_file_real_error(tmp_path, monkeypatch):
+    """SQLite's own SQLITE_READONLY (the file opened mode=ro underneath, as on a read-only
+    mount): one DatabaseError, the file unchanged."""
+    path = tmp_path / "ro.db"
+    Database(path).close()
+    before = _digest(path)
+    real_connect = dbmod._connect
+    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    with Database(path) as d:
+        with pytest.raises(DatabaseError, match=r"ro\.db: cannot write: the database is read-only "
+                                                r"\(attempt to write a readonly database\)"):
+            d.start_run(["x"])
+    assert _digest(path) == before
+
+
+def test_full_disk_real_error_rolls_back(tmp_path, monkeypatch):
+    """SQLite's own SQLITE_FULL (max_page_count reached): the model is not stored, earlier
+    ones stay whole, the file passes the integrity check."""
+    path = tmp_path / "full.db"
+    real_connect = dbmod._connect
+
+    def small(p, mode, t):
+        conn = real_connect(p, mode, t)
+        conn.execute("PRAGMA max_page_count = 40")
+        return conn
+
+    monkeypatch.setattr(dbmod, "_connect", small)
+    stored = 0
+    with Database(path) as d:
+        with pytest.raises(DatabaseError, match=r"full\.db: the disk is full \(database or disk "
+                                                r"is full\); the transaction was rolled back"):
+            for i in range(50):
+                m = make_model(i)
+                m.stream = bytes(np.random.default_rng(i).integers(0, 256, 20000, np.uint8))
+                d.add(m)
+                stored += 1
+        assert d.count() == stored > 0
+        assert not d.conn.in_transaction
+    monkeypatch.undo()
+    with Database(path) as d:
+        assert d.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert d.count() == d.db["assets"].count == d.db["thumbnails"].count == stored
+
+
+def test_lock_held_past_the_timeout(tmp_path):
+    path = tmp_path / "l.db"
+    Database(path).close()
+    other = sqlite3.connect(path, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")                    # another process holds the write lock
+    try:
+        with Database(path, timeout=0.05) as d:
+            with pytest.raises(DatabaseError, match=r"l\.db: the database is locked by another "
+                                                    r"process \(database is locked\) for longer "
+                                                    r"than 0\.05 s"):
+                d.start_run(["x"])
+            assert d.count() == 0                         # reading goes on (WAL)
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+
+
+def test_ids_beyond_64_bits_are_no_model(db):
+    db.add(make_model(1))
+    for big in (2 ** 63, -(2 ** 63) - 1, 10 ** 30):
+        with pytest.raises(DatabaseError, match=rf"no model with id {big} \(ids are 64-bit"):
+            db.get_model(big)
+    assert db.errors(2 ** 63) == []
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=40))
+def test_escape_name_is_lossless_and_storable(raw):
+    import os
+
+    name = os.fsdecode(raw.replace(b"\x00", b"").replace(b"/", b""))
+    stored = dbmod.escape_name(name)
+    stored.encode("utf-8")                               # always storable
+    assert dbmod.unescape_name(stored) == name
+    if "\\" not in name and name.encode("utf-8", "surrogateescape").decode("utf-8",
+                                                                           "replace") == name:
+        assert stored == name                             # valid UTF-8 names are unchanged
+
+
+def test_escape_name_examples():
+    import os
+
+    assert dbmod.escape_name(os.fsdecode(b"caf\xe9.ply")) == "caf\\xe9.ply"
+    assert dbmod.escape_name("café.ply") == "café.ply"
+    assert dbmod.escape_name("C:\\scans\\bunny.ply") == "C:\\scans\\bunny.ply"
+    assert dbmod.escape_name("a\\xe9") == "a\\\\xe9"        # a literal backslash-x: doubled
+    assert dbmod.escape_name("\ud800") == "\\ud800"
+    assert dbmod.storable_text(os.fsdecode(b"bad \xff \\x")) == "bad \\xff \\x"
+
+
+def test_non_utf8_names_are_stored(db):
+    import os
+
+    name = os.fsdecode(b"caf\xe9")
+    m = make_model(1, name=name, source=os.fsdecode(b"/d/caf\xe9.ply"))
+    mid = db.add(m)
+    rec = db.get_model(mid)
+    assert (rec["name"], rec["source"]) == ("caf\\xe9", "/d/caf\\xe9.ply")
+    assert db.resolve(name) == db.resolve("caf\\xe9") == mid
+    run = db.start_run([os.fsdecode(b"/d/\xff")])
+    db.record_error(run, os.fsdecode(b"/d/\xff.ply"), os.fsdecode(b"/d/\xff.ply: bad"))
+    assert db.errors() == [{"run_id": run, "path": "/d/\\xff.ply", "error": "/d/\\xff.ply: bad",
+                            "at": db.errors()[0]["at"]}]
+    assert db.runs()[-1]["paths"] == ["/d/\\xff"]
+    with pytest.raises(DatabaseError, match=r"no model named 'x\\\\xff'"):
+        db.resolve(os.fsdecode(b"x\xff"))

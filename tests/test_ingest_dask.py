@@ -262,3 +262,11 @@ def test_executor_with_a_client_is_reused(cluster, tmp_path):
         assert s1.stored == s2.stored == 3
         assert client.status == "running" and len(ex.stats) == 6
         assert all(received >= submitted for _, submitted, received in ex.stats)
+
+
+def test_local_cluster_workers_exit_when_the_parent_is_killed(tmp_path):
+    """SIGKILL of the ingest process (the OOM killer) ends the LocalCluster's worker processes:
+    dask's own watch of the parent (``distributed.process``), as exit_with_parent in a pool."""
+    from test_ingest import _kill_parent_and_watch_workers
+
+    assert _kill_parent_and_watch_workers(tmp_path, 2, extra="{'scheduler': 'local'}") == []
