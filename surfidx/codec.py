@@ -37,13 +37,15 @@ import numpy as np
 
 from . import container, density, wavelets, zerotree
 from ._errors import BitstreamError, InputError
+from ._validate import check_positive_int
 from .icosphere import choose_level, icosphere
 from .klt import KLT
 from .resample import resample
 from .surfels import SurfelSet
 
 __all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
-           "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes"]
+           "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
+           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 COLOR_WEIGHT = 0.02
@@ -68,6 +70,23 @@ TANGENT_WEIGHT = 0.5
 
 MAP_METHODS = ("tutte", "mds")
 _PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
+
+MAX_SURFELS = 10 * 4 ** 9 + 2
+"""Default of :func:`decode`'s ``max_surfels``: the level-9 grid (2,621,442 surfels), the finest
+the encoder uses. A stream that would decode to more is refused before decoding; decode it at a
+coarser ``level``, or raise the limit."""
+
+MAX_EXTENT = 1e6
+"""Decoded values lie within this many weighted units of the KLT mean (for geometry:
+bounding-box diagonals of the model's centre; for colour: ``color_weight`` · value / 255, at most
+:data:`MAX_COLOR_WEIGHT`); anything else, or a non-finite value, is a damaged stream."""
+
+MAX_COLOR_WEIGHT = 1e3
+"""Largest ``color_weight`` the encoder takes (so colours stay within :data:`MAX_EXTENT`)."""
+
+MAX_COEFFICIENT = 1e12
+"""Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
+encoder's are below 1e8 (level norms up to 371 at level 9, density weights up to 64)."""
 
 
 def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
@@ -137,8 +156,9 @@ class Encoder:
             color = surfels.has_color
         if color and not surfels.has_color:
             raise InputError("color=True but the surfels have no colour")
-        if not (color_weight > 0 and math.isfinite(color_weight)):
-            raise InputError(f"color_weight must be a positive number, got {color_weight!r}")
+        if not (0 < color_weight <= MAX_COLOR_WEIGHT):
+            raise InputError(f"color_weight must be a positive number up to "
+                             f"{MAX_COLOR_WEIGHT:g}, got {color_weight!r}")
         if tangent_weight is not None:
             tw = float(np.float32(tangent_weight)) if isinstance(
                 tangent_weight, (int, float, np.floating)) else math.nan
@@ -164,11 +184,21 @@ class Encoder:
         k = self.grid.shape[1]
         diag = surfels.diagonal
         weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
+        stored = np.float32(weights)
+        if not np.all((stored >= 1.0 / container.MAX_WEIGHT)
+                      & (stored <= container.MAX_WEIGHT)):
+            raise InputError(f"the model's bounding-box diagonal {diag:.3g} and colour weight "
+                             f"{color_weight:.3g} must give unit weights in "
+                             f"[{1 / container.MAX_WEIGHT:g}, {container.MAX_WEIGHT:g}]; "
+                             "rescale the model")
         area = icosphere(self.level).vertex_areas()
         frames = tangent_weight is not None
         # local frames need the geometry layers to be a rotation of x, y, z alone
         fit = KLT.fit(self.grid, weights=weights, sample_weights=area,
                       groups=(3, k - 3) if frames and k > 3 else None)
+        if not np.all(np.abs(fit.mean) <= container.MAX_MEAN):
+            raise InputError(f"the model's centre lies more than {container.MAX_MEAN:g} "
+                             "bounding-box diagonals from the origin; move it closer")
         # the values the container stores (float16 basis): encoder and decoder use the same
         self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
                        eigenvalues=fit.eigenvalues)
@@ -231,14 +261,19 @@ class Encoder:
             When the rate cannot even hold the header and a minimal stream.
         """
         budget = max_file_bytes(bits_per_surfel, self.n_surfels) - self.header_bytes()
-        if budget < 4:
-            lowest = 8.0 * (self.header_bytes() + 4) / self.n_surfels
+        smallest = max(self.header_bytes() + 4, container.min_file_bytes(self.level))
+        if budget < smallest - self.header_bytes():
+            lowest = 8.0 * smallest / self.n_surfels
             raise InputError(f"{bits_per_surfel} bits/surfel cannot hold the header; the lowest "
                              f"rate for this model is {lowest:.3g} bits/surfel")
         ico = icosphere(self.level)
         stream, zh = zerotree.encode(self.coeffs, ico.tree_parent, ico.children_indptr,
                                      ico.children_indices, step=self.step, final_plane=0,
                                      max_bytes=budget)
+        # a stream that finished every plane early may be shorter than the grid's smallest
+        # container: pad it with zero bytes, which the decoder reads past the end anyway
+        stream += bytes(max(0, container.min_file_bytes(self.level) - self.header_bytes()
+                            - len(stream)))
         header = container.Header(
             n_surfels=self.n_surfels, level=self.level, color=self.color, lifted=True,
             mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
@@ -258,7 +293,8 @@ def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = No
                    density_weighting=density_weighting).encode(bits_per_surfel)
 
 
-def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None):
+def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,
+                max_surfels: int = MAX_SURFELS, path=None):
     """Decode a container to its grid layers.
 
     Parameters
@@ -267,22 +303,46 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None)
         A ``.sfz`` container.
     bits_per_surfel : float, optional
         Decode only the prefix that fits this rate (over the header's input surfel count).
+    max_surfels : int
+        Refuse, before decoding, a stream whose grid has more vertices than this.
     path : str, optional
         File name for messages.
 
     Returns
     -------
     values : (10·4^L + 2, 3 or 6) float64
+        Finite, within :data:`MAX_EXTENT` weighted units of the KLT mean.
     header : surfidx.container.Header
 
     Raises
     ------
     BitstreamError
-        Damaged, truncated or foreign data.
+        Damaged, truncated or foreign data, implausible header values, or decoded values that
+        are not finite or out of range.
     InputError
-        A rate below what the header needs.
+        A rate below what the header needs, or a grid larger than ``max_surfels``.
     """
     header, stream = container.unpack(data, path=path)
+    _check_surfels(header.level, header.level, max_surfels, path)
+    return _decode_values(data, header, stream, bits_per_surfel, path), header
+
+
+def _check_surfels(level: int, stream_level: int, max_surfels, path) -> None:
+    """Refuse (cheaply, before decoding) an output grid of more than ``max_surfels`` vertices."""
+    from .icosphere import vertex_count
+
+    limit = check_positive_int(max_surfels, "max_surfels")
+    if vertex_count(level) <= limit:
+        return
+    fits = [lv for lv in range(stream_level + 1) if vertex_count(lv) <= limit]
+    hint = (f"decode at a coarser level (level={fits[-1]}: {vertex_count(fits[-1]):,} surfels) "
+            "or raise max_surfels") if fits else "raise max_surfels"
+    raise InputError(f"the stream decodes to {vertex_count(level):,} surfels at grid level "
+                     f"{level}, more than max_surfels = {limit:,}; {hint}", path=path)
+
+
+def _decode_values(data, header, stream, bits_per_surfel, path) -> np.ndarray:
+    """The grid values of an unpacked container (see :func:`decode_grid`)."""
     if bits_per_surfel is not None:
         keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
         if keep < 4:
@@ -293,6 +353,11 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None)
         zh = zerotree.unpack_header(header.coder)
     except BitstreamError as exc:
         raise BitstreamError(exc.reason, path=path) from None
+    if not zh["step"] * 2.0 ** (zh["top_plane"] + 1) <= MAX_COEFFICIENT:
+        raise BitstreamError(f"corrupt header (coder step {zh['step']:.3g} at top plane "
+                             f"{zh['top_plane']}: coefficients up to "
+                             f"{zh['step'] * 2.0 ** (zh['top_plane'] + 1):.3g}, beyond "
+                             f"{MAX_COEFFICIENT:g})", path=path)
     try:
         ico = icosphere(header.level)
     except InputError:
@@ -320,22 +385,29 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None, path=None)
         klt = KLT.from_arrays(header.mean, header.basis, header.weights)
     except InputError as exc:
         raise BitstreamError(f"corrupt KLT header ({exc.reason})", path=path) from None
-    if frames:
-        c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
-                                      scales=scales, anchors=header.anchors,
-                                      anchor_values=lambda a, rows: zerotree.anchor_values(
-                                          planes, a, rows=rows, layers=3))
-    else:
-        c = wavelets.inverse(w / scales[:, None], header.level, lifted=header.lifted)
-    values = klt.inverse(c)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if frames:
+            c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
+                                          scales=scales, anchors=header.anchors,
+                                          anchor_values=lambda a, rows: zerotree.anchor_values(
+                                              planes, a, rows=rows, layers=3))
+        else:
+            c = wavelets.inverse(w / scales[:, None], header.level, lifted=header.lifted)
+        values = klt.inverse(c)
+        spread = np.abs(values * np.asarray(header.weights, np.float64)
+                        - np.asarray(header.mean, np.float64))
     if not np.all(np.isfinite(values)):
         raise BitstreamError("decoding produced non-finite values: the file is damaged",
                              path=path)
-    return values, header
+    if not np.all(spread <= MAX_EXTENT):
+        raise BitstreamError(f"decoding produced values {float(spread.max()):.3g} weighted units "
+                             f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
+                             path=path)
+    return values
 
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
-           level: int | None = None, path=None):
+           level: int | None = None, max_surfels: int = MAX_SURFELS, path=None):
     """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
 
     Parameters
@@ -350,6 +422,9 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
         ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.icosphere.choose_level`).
+    max_surfels : int
+        Refuse, before decoding, to return more surfels than this (default :data:`MAX_SURFELS`);
+        a coarser ``level`` returns fewer.
     path : str, optional
 
     Returns
@@ -359,17 +434,23 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     Raises
     ------
     InputError
-        A level outside 0 … the stream's level.
+        A level outside 0 … the stream's level, or more than ``max_surfels`` surfels.
+    BitstreamError
+        See :func:`decode_grid`.
     """
     from .icosphere import vertex_count
     from .resample import grid_to_mesh, grid_to_surfels
 
-    values, header = decode_grid(data, bits_per_surfel=bits_per_surfel, path=path)
+    header, stream = container.unpack(data, path=path)
     if level is not None:
-        if not (isinstance(level, (int, np.integer)) and 0 <= level <= header.level):
+        if not (isinstance(level, (int, np.integer)) and not isinstance(level, bool)
+                and 0 <= level <= header.level):
             raise InputError(f"level must be an integer from 0 to the stream's grid level "
                              f"{header.level}, got {level!r}")
-        values = values[:vertex_count(int(level))]
+    out_level = header.level if level is None else int(level)
+    _check_surfels(out_level, header.level, max_surfels, path)
+    values = _decode_values(data, header, stream, bits_per_surfel, path)
+    values = values[:vertex_count(out_level)]
     name = Path(path).stem if path else None
     return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
 
@@ -379,6 +460,12 @@ def read_sfz(path) -> bytes:
     from ._errors import FileFormatError
 
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise FileFormatError("no such file", path=p)
-    return p.read_bytes()
+    if not p.is_file():
+        raise FileFormatError("is not a regular file", path=p)
+    try:
+        with open(p, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise FileFormatError(f"cannot read ({exc.strerror or exc})", path=p) from None

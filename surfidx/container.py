@@ -16,7 +16,7 @@ import numpy as np
 from ._errors import BitstreamError, InputError
 
 __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
-           "storable"]
+           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN"]
 
 MAGIC = b"\x89SFZ"
 FORMAT_VERSION = 3
@@ -34,6 +34,26 @@ FLAG_WEIGHTED = 8
 _FIXED = struct.Struct("<4sBBBBIBBH")
 _TAIL = struct.Struct("<III")  # stream length, header crc (of everything before it), stream crc
 _MAX_ANCHOR = 61  # an anchor is a zerotree bit plane (surfidx.zerotree._MAX_PLANE)
+
+GRID_PER_BYTE = 2048
+"""Grid vertices a container's bytes may claim: a level-L stream (10·4^L + 2 vertices) must be a
+file of at least :func:`min_file_bytes` bytes (level 9: 1,281; level 8: 321; level 7: 81), so
+that decoding costs time and memory in proportion to the file. A tiny file claiming a fine grid
+is a corrupt header; the encoder's lowest rate honours the bound."""
+
+MAX_WEIGHT = 1e20
+"""The unit weights (1 / bounding-box diagonal, colour weight / 255) lie in
+[1 / MAX_WEIGHT, MAX_WEIGHT]."""
+
+MAX_MEAN = 1e12
+"""Largest magnitude of a KLT mean, in weighted units (for geometry: bounding-box diagonals of
+the model's centre from the origin; float64 holds no shape beyond that)."""
+
+
+def min_file_bytes(level: int) -> int:
+    """Smallest container, in bytes, that may hold a level-``level`` stream (see
+    :data:`GRID_PER_BYTE`)."""
+    return -(-(10 * 4 ** int(level) + 2) // GRID_PER_BYTE)
 
 
 @dataclass
@@ -175,6 +195,9 @@ def pack(header: Header, stream: bytes) -> bytes:
         raise InputError(f"grid level must be 0..12, got {header.level}")
     if not (0 < header.n_surfels < 2 ** 32):
         raise InputError(f"n_surfels must be 1..2^32-1, got {header.n_surfels}")
+    problem = _implausible(mean, weights, k)
+    if problem:
+        raise InputError(f"the KLT values cannot be stored: {problem}")
     flags = (FLAG_COLOR if header.color else 0) | (FLAG_LIFTED if header.lifted else 0)
     if len(header.coder) > 0xFFFF:
         raise InputError("coder header longer than 65535 bytes")
@@ -198,7 +221,24 @@ def pack(header: Header, stream: bytes) -> bytes:
                        header.map_method, 0, len(header.coder))
     body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder) + extra
     body += struct.pack("<I", len(stream))
+    if len(body) + 8 + len(stream) < min_file_bytes(header.level):
+        raise InputError(f"a level-{header.level} container needs at least "
+                         f"{min_file_bytes(header.level)} bytes, this one would have "
+                         f"{len(body) + 8 + len(stream)}; give the stream more bytes")
     return body + struct.pack("<II", zlib.crc32(body), zlib.crc32(stream)) + bytes(stream)
+
+
+def _implausible(mean: np.ndarray, w: np.ndarray, k: int) -> str:
+    """What is absurd about stored KLT values (see :data:`MAX_WEIGHT`, :data:`MAX_MEAN`), or ''.
+
+    ``w`` holds the stored weights (one per group).
+    """
+    if not np.all((w >= 1.0 / MAX_WEIGHT) & (w <= MAX_WEIGHT)):
+        return (f"unit weights {np.asarray(w, np.float64).tolist()} outside "
+                f"[{1 / MAX_WEIGHT:g}, {MAX_WEIGHT:g}]")
+    if not np.all(np.abs(mean) <= MAX_MEAN):
+        return f"KLT mean {np.asarray(mean, np.float64).tolist()} beyond ±{MAX_MEAN:g}"
+    return ""
 
 
 def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
@@ -253,6 +293,10 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
+    if len(data) < min_file_bytes(level):
+        raise BitstreamError(f"corrupt header (grid level {level} in a file of {len(data)} "
+                             f"bytes; that grid needs at least {min_file_bytes(level)})",
+                             path=path)
     s_len, hcrc, scrc = _TAIL.unpack_from(data, tail_off)
     if zlib.crc32(data[:tail_off + 4]) != hcrc:
         raise BitstreamError("header checksum mismatch: the file is damaged", path=path)
@@ -278,6 +322,13 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     w = np.frombuffer(data, "<f4", nw, off + 4 * k + 2 * k * k).astype(np.float32)
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(basis)) and np.all(np.isfinite(w))):
         raise BitstreamError("corrupt header (non-finite KLT values)", path=path)
+    if n == 0:
+        raise BitstreamError("corrupt header (0 input surfels)", path=path)
+    problem = _implausible(mean, w, k)
+    if not problem and not np.all(np.abs(basis) <= 1):
+        problem = "KLT basis entries beyond ±1 (the basis is orthonormal)"
+    if problem:
+        raise BitstreamError(f"corrupt header ({problem})", path=path)
     weights = np.repeat(w, 3)
     tangent_weight, anchors = None, ()
     if flags & FLAG_FRAMES:
@@ -317,9 +368,10 @@ def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
     """
     header, stream = unpack(data, path=path)
     hsize = len(data) - len(stream)
-    if max_bytes < hsize:
-        raise InputError(f"a budget of {max_bytes} bytes does not hold the {hsize}-byte header; "
-                         "ask for a higher rate")
+    if max_bytes < max(hsize, min_file_bytes(header.level)):
+        raise InputError(f"a budget of {max_bytes} bytes does not hold the {hsize}-byte header "
+                         f"(or the {min_file_bytes(header.level)} bytes a level-{header.level} "
+                         "container needs); ask for a higher rate")
     if max_bytes >= len(data):
         return bytes(data)
     return pack(header, stream[: max_bytes - hsize])

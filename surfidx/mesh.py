@@ -25,6 +25,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ._errors import InputError
+from ._tolerance import TOL
 from ._validate import as_array
 from .surfels import SurfelSet
 
@@ -224,12 +225,29 @@ class TriangleMesh:
         ------
         InputError
             When the mesh has no faces or zero total area, or ``max_edge_ratio`` is not positive.
+
+        Warns
+        -----
+        UserWarning
+            Saying how many degenerate faces (:meth:`nondegenerate_faces`: a repeated corner, zero
+            area, collinear corners) were dropped before anything else.
         """
         if not len(self.faces):
             raise InputError("the mesh has no faces; read it as a point cloud instead")
         areas = self.face_areas()
         if not areas.sum() > 0:
-            raise InputError("the mesh has zero surface area")
+            raise InputError("the mesh has zero surface area (every face is degenerate: "
+                             "repeated, coincident or collinear corners); it holds no surface")
+        if not np.isfinite(areas.sum()):
+            raise InputError("the mesh's coordinates are too large for its areas to be finite; "
+                             "rescale the model")
+        keep = self.nondegenerate_faces(areas)
+        if not keep.all():
+            mesh = self._with_faces(keep)
+            warnings.warn(f"{int((~keep).sum())} degenerate faces (a repeated corner, zero area "
+                          "or collinear corners) of "
+                          f"{len(keep)} were dropped", UserWarning, stacklevel=2)
+            return mesh.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio)
         if samples is None and max_edge_ratio is not None:
             if not (np.isfinite(max_edge_ratio) and max_edge_ratio > 0):
                 raise InputError(f"max_edge_ratio must be a positive number or None, got "
@@ -254,6 +272,26 @@ class TriangleMesh:
         colors = None if colors is None else colors[used]
         return SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
                          name=self.name)
+
+    def nondegenerate_faces(self, areas: np.ndarray | None = None) -> np.ndarray:
+        """(m,) bool: faces with three distinct corners and an area of at least
+        ``TOL.degenerate_area`` times the mean face area (not collinear or coincident corners).
+
+        Parameters
+        ----------
+        areas : (m,) float64, optional
+            The face areas, when already computed.
+        """
+        f = self.faces
+        areas = self.face_areas() if areas is None else areas
+        distinct = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+        return distinct & (areas >= TOL.degenerate_area * areas.mean())
+
+    def _with_faces(self, keep: np.ndarray) -> TriangleMesh:
+        """The mesh with only the faces ``keep`` selects (vertices unchanged)."""
+        uv_faces = None if self.uv_faces is None else self.uv_faces[keep]
+        return TriangleMesh(self.vertices, self.faces[keep], vertex_colors=self.vertex_colors,
+                            uv=self.uv, uv_faces=uv_faces, texture=self.texture, name=self.name)
 
     def median_edge_length(self) -> float:
         """Median length of the faces' edges (an edge shared by two faces counts twice)."""
@@ -283,8 +321,9 @@ class TriangleMesh:
         Raises
         ------
         InputError
-            When ``max_edge`` is not positive, or when the refinement would multiply the vertex
-            count by more than 5 (a few triangles vastly larger than the rest).
+            When ``max_edge`` is not positive, a face repeats a corner, or the refinement would
+            multiply the vertex count by more than 5 (a few triangles vastly larger than the
+            rest).
         """
         if not (np.isfinite(max_edge) and max_edge > 0):
             raise InputError(f"max_edge must be a positive length, got {max_edge!r}")
@@ -294,7 +333,16 @@ class TriangleMesh:
         if uv is None or uv_faces is None:
             uv = uv_faces = None
         limit = _MAX_BISECTION_GROWTH * len(verts) + 1000
+        # every round adds at least one vertex (faces with a repeated corner, whose longest edge
+        # is held twice by one face, could stall it: they are refused), so ``limit`` rounds bound
+        # the loop
+        if np.any((faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2])
+                  | (faces[:, 0] == faces[:, 2])):
+            raise InputError("bisection needs faces with three distinct corners; drop the "
+                             "degenerate faces first (to_surfels does)")
         while (split := _bisection_round(verts, faces, max_edge)) is not None:
+            if not len(split[0]):  # no edge can be split (cannot happen with distinct corners)
+                break
             if len(verts) > limit:
                 raise InputError(
                     f"bisecting edges longer than {max_edge:.3g} would add over "
@@ -538,9 +586,11 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     fx, fy = (u - x0)[:, None], (v - y0)[:, None]
     x0c, x1c = np.clip(x0, 0, w - 1), np.clip(x0 + 1, 0, w - 1)
     y0c, y1c = np.clip(y0, 0, h - 1), np.clip(y0 + 1, 0, h - 1)
-    t = texture[..., :3].astype(np.float64)
-    top = t[y0c, x0c] * (1 - fx) + t[y0c, x1c] * fx
-    bot = t[y1c, x0c] * (1 - fx) + t[y1c, x1c] * fx
+    def t(y, x):  # gather the texels first: never a float64 copy of the whole image
+        return texture[y, x, :3].astype(np.float64)
+
+    top = t(y0c, x0c) * (1 - fx) + t(y0c, x1c) * fx
+    bot = t(y1c, x0c) * (1 - fx) + t(y1c, x1c) * fx
     return top * (1 - fy) + bot * fy
 
 

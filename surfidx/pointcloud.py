@@ -15,6 +15,10 @@ from .surfels import SurfelSet
 
 __all__ = ["estimate_normals", "orient_normals", "points_to_surfels"]
 
+#: Relative rounding of stored coordinates (16 float32 epsilons): a spread below this times the
+#: largest coordinate is rounding noise, not a surface.
+_ROUNDING = 16 * float(np.finfo(np.float32).eps)
+
 
 def estimate_normals(points, *, k: int = 16) -> np.ndarray:
     """Unoriented normals by principal component analysis of the ``k`` nearest neighbours.
@@ -117,11 +121,13 @@ def points_to_surfels(points, *, normals=None, colors=None, name=None) -> Surfel
     Raises
     ------
     InputError
-        Fewer than 4 points, or NaN/infinite coordinates.
+        Fewer than 4 points, NaN/infinite coordinates, or points that hold no surface (all
+        coincident or collinear).
     """
     points = as_array(points, "points", shape=(None, 3))
     if len(points) < 4:
         raise InputError(f"a point cloud needs at least 4 points to estimate normals, got {len(points)}")
+    _check_spread(points)
     if normals is None:
         normals = orient_normals(points, estimate_normals(points))
     else:
@@ -132,3 +138,20 @@ def points_to_surfels(points, *, normals=None, colors=None, name=None) -> Surfel
         else:
             normals = normals / ln[:, None]
     return SurfelSet(points, normals, spacing_radii(points), colors, name=name)
+
+
+def _check_spread(points: np.ndarray) -> None:
+    """Refuse points with no surface: all coincident, or all on one line.
+
+    "On one line" means within rounding: the RMS distance from the points' principal line is at
+    most :data:`_ROUNDING` times their largest coordinate magnitude (point files store float32).
+    """
+    n = len(points)
+    centred = points - points.mean(axis=0)
+    noise = _ROUNDING * float(np.abs(points).max())
+    sv = np.linalg.svd(centred, compute_uv=False) / np.sqrt(n)  # RMS extents
+    if not sv[0] > noise:
+        raise InputError(f"all {n} points coincide; they hold no surface")
+    if not sv[1] > noise:
+        raise InputError(f"the {n} points are collinear; they hold no surface (a point cloud "
+                         "needs points spread over a surface)")

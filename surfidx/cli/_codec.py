@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from . import cli
-from ._common import command_errors, echo_json, input_options, read_input
+from ._common import command_errors, echo_json, input_options
+from ._convert import outside_textures_option, read_model
 
 
 @cli.command()
@@ -27,10 +28,11 @@ from ._common import command_errors, echo_json, input_options, read_input
               help="Weight coefficients by the input's surfel density on the sphere (default: "
                    "when the estimated gain is at least 1 dB).")
 @input_options
+@outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, as_json):
+           density_weighting, texture, samples, allow_outside_textures, as_json):
     """Encode a model into an embedded .sfz bitstream."""
     from ..codec import TANGENT_WEIGHT, Encoder
     from ..io import write_atomic
@@ -38,7 +40,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
     tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
-    s = read_input(input, texture, samples)
+    s = read_model(input, texture, samples, allow_outside_textures)
     enc = Encoder(s, level=level, color=False if no_color else None, method=method,
                   tangent_weight=tw, density_weighting=density_weighting)
     data = enc.encode(bits)
@@ -63,14 +65,18 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
 @click.option("--mesh", is_flag=True, help="Write a triangle mesh with the grid's connectivity.")
 @click.option("--level", type=int, default=None,
               help="Grid level of the output (default: the stream's; lower: fewer surfels).")
+@click.option("--max-surfels", type=click.IntRange(min=1), default=None,
+              help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
+                   "grid); --level gives fewer.")
 @command_errors
-def decode(input, output, bits, mesh, level):
+def decode(input, output, bits, mesh, level, max_surfels):
     """Decode a .sfz file (optionally at a lower rate) to PLY."""
-    from ..codec import decode as _decode, read_sfz
+    from ..codec import MAX_SURFELS, decode as _decode, read_sfz
     from ..io import write_ply
 
     data = read_sfz(input)
-    model = _decode(data, bits_per_surfel=bits, mesh=mesh, level=level, path=input)
+    model = _decode(data, bits_per_surfel=bits, mesh=mesh, level=level, path=input,
+                    max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
     if mesh:
         _write_mesh(model, output)
         click.echo(f"{output}: mesh with {len(model.vertices)} vertices, {len(model.faces)} faces")

@@ -7,7 +7,25 @@ from pathlib import Path
 import click
 
 from . import cli
-from ._common import command_errors, echo_json, input_options, read_input
+from ._common import command_errors, echo_json, input_options
+
+__all__ = ["convert", "info", "outside_textures_option", "read_model"]
+
+
+def outside_textures_option(func):
+    """The ``--allow-outside-textures`` flag of the commands that read a model."""
+    return click.option(
+        "--allow-outside-textures", is_flag=True,
+        help="Use a texture that the OBJ's MTL names outside the model's folder (absolute path "
+             "or '..'); by default it is skipped with a warning.")(func)
+
+
+def read_model(path, texture=None, samples=None, allow_outside_textures=False):
+    """Read a model file as surfels (:func:`surfidx.read_surfels`)."""
+    from ..io import read_surfels
+
+    return read_surfels(path, texture=texture, samples=samples,
+                        allow_outside_textures=allow_outside_textures)
 
 
 @cli.command()
@@ -15,13 +33,14 @@ from ._common import command_errors, echo_json, input_options, read_input
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Surfel PLY to write (binary little-endian).")
 @input_options
+@outside_textures_option
 @click.option("--ascii", "text", is_flag=True, help="Write ASCII PLY instead of binary.")
 @command_errors
-def convert(input, output, texture, samples, text):
+def convert(input, output, texture, samples, allow_outside_textures, text):
     """Convert a mesh, point cloud or surfel file to a surfel PLY."""
     from ..io import write_ply
 
-    s = read_input(input, texture, samples)
+    s = read_model(input, texture, samples, allow_outside_textures)
     write_ply(s, output, text=text)
     click.echo(f"{output}: {len(s)} surfels{' with colour' if s.has_color else ''}")
 
@@ -29,9 +48,10 @@ def convert(input, output, texture, samples, text):
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @input_options
+@outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def info(input, texture, samples, as_json):
+def info(input, texture, samples, allow_outside_textures, as_json):
     """Surfel count, bounding box, colour and (for meshes) closedness and genus; for a .sfz
     stream, its container header."""
     from ..io import read_mesh
@@ -39,13 +59,14 @@ def info(input, texture, samples, as_json):
     if Path(input).suffix.lower() == ".sfz":
         _echo(_stream_info(input), as_json)
         return
-    s = read_input(input, texture, samples)
+    s = read_model(input, texture, samples, allow_outside_textures)
     lo, hi = s.bounds
     out = {"file": str(input), "surfels": len(s), "color": s.has_color,
            "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "diagonal": s.diagonal,
            "mean_radius": float(s.radii.mean())}
     if Path(input).suffix.lower() in (".obj", ".off") or s.faces is not None:
-        topo = read_mesh(input).topology() if s.faces is None else _topology_of(s)
+        topo = read_mesh(input, allow_outside_textures=allow_outside_textures).topology() \
+            if s.faces is None else _topology_of(s)
         out.update({"mesh": True, "faces": topo.faces, "closed": topo.closed,
                     "components": topo.components, "boundary_edges": topo.boundary_edges,
                     "nonmanifold_vertices": topo.nonmanifold_vertices, "euler": topo.euler,
@@ -65,7 +86,8 @@ def _stream_info(path) -> dict:
     header, stream = unpack(data, path=path)
     out = {"file": str(path), "format_version": header.version, "bytes": len(data),
            "input_surfels": header.n_surfels,
-           "bits_per_surfel": 8.0 * len(data) / header.n_surfels, "grid_level": header.level,
+           "bits_per_surfel": 8.0 * len(data) / header.n_surfels if header.n_surfels else None,
+           "grid_level": header.level,
            "grid_vertices": 10 * 4 ** header.level + 2, "color": header.color,
            "layers": header.layers, "stream_bytes": len(stream),
            "map_method": MAP_METHODS[header.map_method]
