@@ -684,22 +684,30 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
 
     def flush():
         nonlocal last_flush
-        with db.transaction():
-            for outcome in buffer:
-                if db.has_hash(outcome.task.content_hash):     # stored meanwhile by another run
-                    summary.skipped += 1
-                    continue
-                try:
-                    summary.ids.append(db.add(outcome.model))
-                    summary.stored += 1
-                except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
-                    if _storage_failure(exc):
-                        raise                           # the database, not the model
-                    fail(outcome.task.path, error_message(exc))
-            for path, message in pending_errors:
-                db.record_error(summary.run_id, path, message)
-            db.update_run(summary.run_id, stored=summary.stored, skipped=summary.skipped,
-                          failed=summary.failed)
+        # What the summary says must be what was committed: restored if the transaction fails.
+        before = (summary.stored, summary.skipped, summary.failed, len(summary.ids),
+                  len(summary.errors), len(pending_errors))
+        try:
+            with db.transaction():
+                for outcome in buffer:
+                    if db.has_hash(outcome.task.content_hash):  # stored meanwhile by another run
+                        summary.skipped += 1
+                        continue
+                    try:
+                        summary.ids.append(db.add(outcome.model))
+                        summary.stored += 1
+                    except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
+                        if _storage_failure(exc):
+                            raise                       # the database, not the model
+                        fail(outcome.task.path, error_message(exc))
+                for path, message in pending_errors:
+                    db.record_error(summary.run_id, path, message)
+                db.update_run(summary.run_id, stored=summary.stored, skipped=summary.skipped,
+                              failed=summary.failed)
+        except BaseException:
+            summary.stored, summary.skipped, summary.failed = before[:3]
+            del summary.ids[before[3]:], summary.errors[before[4]:], pending_errors[before[5]:]
+            raise
         buffer.clear()
         pending_errors.clear()
         last_flush = time.monotonic()

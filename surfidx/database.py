@@ -60,7 +60,7 @@ from ._errors import DatabaseError, InputError
 from ._validate import as_array
 
 __all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
-           "escape_name", "unescape_name"]
+           "escape_name", "unescape_name", "storable_text"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx.
 SCHEMA_VERSION = 1
@@ -158,9 +158,20 @@ def unescape_name(text: str) -> str:
     return _UNESCAPE.sub(one, str(text))
 
 
-def _storable(text) -> str:
-    """Message text made storable: lone surrogates (undecodable bytes of a file name inside a
-    message) become ``\\xHH``; backslashes are kept (messages need not be lossless)."""
+def storable_text(text) -> str:
+    """Message text as stored: lone surrogates (undecodable bytes of a file name inside a
+    message) become ``\\xHH`` as in :func:`escape_name`; backslashes are kept (a message need
+    not be lossless).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+        Valid UTF-8 text.
+    """
     return _SURROGATE.sub(lambda m: _escape_char(m), str(text))
 
 
@@ -270,8 +281,8 @@ class Database:
     path : str or os.PathLike
         The database file.
     create : bool
-        Create the file (and the schema) when it does not exist. With ``False`` a missing file
-        raises :class:`DatabaseError`.
+        Create the file when it does not exist, and the schema in a new or empty file. With
+        ``False`` a missing or empty file raises :class:`DatabaseError` (nothing is created).
     readonly : bool
         Open it read-only (SQLite ``mode=ro``): nothing is ever written, not even the schema of
         an empty file; a missing or empty file raises :class:`DatabaseError`.
@@ -288,7 +299,7 @@ class Database:
     Raises
     ------
     DatabaseError
-        The file is missing (``create=False`` or ``readonly``), empty (``readonly``), is not an
+        The file is missing or empty (``create=False`` or ``readonly``), is not an
         SQLite database, is damaged, belongs to another application, or was written by a newer
         surfidx (higher schema version).
 
@@ -315,7 +326,8 @@ class Database:
         if not self.path.exists() and (not create or self.readonly):
             raise DatabaseError("no such database; create it with `surfidx ingest`",
                                 path=self.path)
-        if self.readonly and self._is_empty_file():
+        self._create = bool(create) and not self.readonly
+        if not self._create and self._is_empty_file():
             raise DatabaseError("is an empty file, not a surfidx database yet; create it with "
                                 "`surfidx ingest`", path=self.path)
         mode = "ro" if self.readonly else "rwc" if create else "rw"
@@ -430,11 +442,11 @@ class Database:
         try:
             conn.execute(f"PRAGMA busy_timeout = {int(self.timeout * 1000)}")
             conn.execute("PRAGMA foreign_keys = ON")
+            if kind == "empty" and not self._create:
+                raise DatabaseError("holds no surfidx schema yet (an empty SQLite file); "
+                                    "create it with `surfidx ingest`", path=self.path)
             if self.readonly:
                 conn.execute("PRAGMA query_only = ON")
-                if kind == "empty":
-                    raise DatabaseError("holds no surfidx schema yet (an empty SQLite file); "
-                                        "create it with `surfidx ingest`", path=self.path)
                 if version < SCHEMA_VERSION:
                     raise DatabaseError(
                         f"schema version {version} is older than this surfidx's "
@@ -754,9 +766,9 @@ class Database:
         if isinstance(id_or_name, str):
             stored = escape_name(id_or_name)      # the name as given, or as printed (escaped)
             rows = self.conn.execute("SELECT id FROM models WHERE name IN (?, ?) ORDER BY id",
-                                     (stored, _storable(id_or_name))).fetchall()
+                                     (stored, storable_text(id_or_name))).fetchall()
             if not rows:
-                raise DatabaseError(f"no model named {_storable(id_or_name)!r}", path=self.path)
+                raise DatabaseError(f"no model named {storable_text(id_or_name)!r}", path=self.path)
             if len(rows) > 1:
                 ids = ", ".join(str(r[0]) for r in rows)
                 raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"
@@ -1009,7 +1021,7 @@ class Database:
         with self.transaction():
             self.conn.execute("INSERT INTO ingest_errors (run_id, path, error, at) "
                               "VALUES (?, ?, ?, ?)", (int(run_id), escape_name(path),
-                                                      _storable(message), utc_now()))
+                                                      storable_text(message), utc_now()))
 
     def update_run(self, run_id: int, *, stored: int, skipped: int, failed: int) -> None:
         """Update a running run's counts (so a killed run still shows how far it came)."""

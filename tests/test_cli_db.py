@@ -243,3 +243,201 @@ def test_ingest_scheduler_without_distributed(tmp_path, monkeypatch):
     assert "Error: ingestion on a Dask cluster needs dask.distributed" in r.output
     assert "pip install 'surfidx[distributed]'" in r.output
     assert not (tmp_path / "x.db").exists()
+
+
+# ---------------------------------------------------------------------- one line, no writes (#30)
+def _one_error_line(r, message):
+    assert r.exit_code == 1, r.output
+    assert r.output.startswith("Error: ") and message in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1, r.output
+
+
+def _digest(path):
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+READ_COMMANDS = [["ls"], ["ls", "--errors"], ["errors"], ["show", "1"], ["query", "id:1"],
+                 ["get", "1", "-o", "out.ply"]]
+
+
+@pytest.mark.parametrize("big", ["9223372036854775808", "id:99999999999999999999999"])
+def test_ids_of_64_bits_and_more(filled, tmp_path, big):
+    _, db = filled
+    n = big.removeprefix("id:")
+    for args in (["show", big], ["get", big, "-o", tmp_path / "x.ply"], ["query", f"id:{n}"]):
+        _one_error_line(invoke(args + ["--db", db]), f"no model with id {n}")
+    _one_error_line(invoke(["errors", "--run", n, "--db", db]), f"no ingest run with id {n}")
+
+
+def test_damaged_database_is_one_line(filled, tmp_path):
+    from test_database import _damage
+
+    _, db = filled
+    _damage(db)
+    for args in (["show", "1"], ["query", "id:1"], ["get", "1", "-o", tmp_path / "x.ply"],
+                 ["ls"], ["redescribe"]):
+        _one_error_line(invoke(args + ["--db", db]), "the database file is damaged")
+
+
+def test_foreign_file_with_meta_and_models_is_one_line_and_untouched(tmp_path):
+    from test_database import _foreign
+
+    path = tmp_path / "app.db"
+    _foreign(path, user_version=1)
+    before = _digest(path)
+    root = make_tree(tmp_path / "data", 1)
+    for args in READ_COMMANDS + [["ingest", root, "--no-progress"], ["redescribe"]]:
+        _one_error_line(invoke(args + ["--db", path]), f"{path}: not a surfidx database")
+    assert _digest(path) == before
+
+
+@pytest.mark.parametrize("content", [None, b""])
+def test_read_commands_on_missing_or_empty_file_write_nothing(tmp_path, content, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "e.db"
+    if content is not None:
+        path.write_bytes(content)
+    message = "no such database" if content is None else "is an empty file"
+    for args in READ_COMMANDS + [["redescribe"]]:
+        _one_error_line(invoke(args + ["--db", path]), f"{path}: {message}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ([] if content is None else ["e.db"])
+    if content is not None:
+        assert path.read_bytes() == b""
+
+
+def test_read_commands_never_write(filled, tmp_path):
+    root, db = filled
+    con = sqlite3.connect(db)                     # as the previous surfidx left it: no marker
+    con.execute("PRAGMA application_id = 0")
+    con.commit()
+    con.close()
+    before = _digest(db)
+    for args in READ_COMMANDS:
+        args = [tmp_path / a if a == "out.ply" else a for a in args]
+        r = invoke(args + ["--db", db])
+        assert r.exit_code == 0, (args, r.output)
+    assert _digest(db) == before
+    (root / "new.ply").write_text("model new")                   # a write marks it
+    assert invoke(["ingest", root / "new.ply", "--db", db, "--no-progress"]).exit_code == 0
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA application_id").fetchone()[0] == int.from_bytes(b"SFDX", "big")
+    con.close()
+
+
+def test_read_only_database_ingest_is_one_line(filled, tmp_path, monkeypatch):
+    import surfidx.database as dbmod
+
+    root, db = filled
+    (root / "new.ply").write_text("model new")
+    before = _digest(db)
+    real_connect = dbmod._connect
+    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    r = invoke(["ingest", root, "--db", db, "--no-progress"])
+    _one_error_line(r, "cannot write: the database is read-only (attempt to write a readonly "
+                       "database)")
+    assert _digest(db) == before
+
+
+def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, monkeypatch):
+    import surfidx.database as dbmod
+
+    root = tmp_path / "data"
+    root.mkdir()
+    for i in range(12):
+        (root / f"m{i:02d}.ply").write_text(f"model {i}")
+    real_connect = dbmod._connect
+
+    def small(p, mode, t):
+        conn = real_connect(p, mode, t)
+        conn.execute("PRAGMA max_page_count = 30")
+        return conn
+
+    def big_processor(path, **kw):
+        m = fake_processor(path, **kw)
+        m.stream = bytes(np.random.default_rng(len(str(path))).integers(0, 256, 9000, np.uint8))
+        return m
+
+    db = tmp_path / "full.db"
+    monkeypatch.setattr(dbmod, "_connect", small)
+    import ingest
+
+    with pytest.raises(dbmod.DatabaseError, match="the disk is full"):
+        ingest.run([root], db=db, processor=big_processor, progress=False, batch=1)
+    r = invoke(["ingest", root, "--db", db, "--no-progress"], obj={"processor": big_processor})
+    _one_error_line(r, f"{db}: the disk is full (database or disk is full)")
+    monkeypatch.undo()
+    with Database(db) as d:
+        assert d.conn.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        n = d.count()
+        assert 0 < n < 12 and d.db["assets"].count == d.db["thumbnails"].count == n
+        runs = d.runs()                                   # the counts are what was committed
+        assert [r["status"] for r in runs] == ["failed", "failed"]
+        assert sum(r["stored"] for r in runs) == n
+
+
+def _weird_tree(root):
+    from test_ingest import _bytes_name
+
+    root.mkdir()
+    _bytes_name(root, b"red\x1b[31mX.ply", b"model red")
+    _bytes_name(root, b"two\nlines.ply", b"model two lines")
+    _bytes_name(root, b"caf\xe9.ply", b"model cafe")
+    _bytes_name(root, b"evil\x1b[2J.obj", b"FAIL")
+    return root
+
+
+def test_names_are_escaped_in_text_and_exact_in_json(tmp_path):
+    root = _weird_tree(tmp_path / "data")
+    db = tmp_path / "w.db"
+    r = invoke(["ingest", root, "--db", db, "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "\x1b" not in r.output and "failed: " in r.stderr and "evil\\x1b[2J.obj" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    r = invoke(["ls", "--db", db])
+    assert r.exit_code == 0 and "\x1b" not in r.stdout
+    lines = r.stdout.splitlines()
+    assert len(lines) == 4                                    # header + 3 models, one line each
+    assert {ln.split()[1] for ln in lines[1:]} == {"red\\x1b[31mX", "two\\nlines", "caf\\xe9"}
+    models = json.loads(invoke(["ls", "--db", db, "--json"]).stdout)["models"]
+    assert {m["name"] for m in models} == {"red\x1b[31mX", "two\nlines", "caf\\xe9"}
+    for args in (["errors"], ["show", "caf\\xe9"], ["show", "1"], ["query", "id:1"]):
+        r = invoke(args + ["--db", db])
+        assert r.exit_code == 0 and "\x1b" not in r.stdout, (args, r.output)
+    r = invoke(["errors", "--db", db])
+    assert len(r.stdout.splitlines()) == 2 and "evil\\x1b[2J.obj" in r.stdout
+    errs = json.loads(invoke(["errors", "--db", db, "--json"]).stdout)["errors"]
+    assert errs[0]["path"] == str(root / "evil\x1b[2J.obj")
+    r = invoke(["show", "caf\\xe9", "--db", db])              # as printed, undecodable byte
+    assert r.exit_code == 0 and "name             caf\\xe9\n" in r.stdout
+    r = invoke(["show", "nobody\x1b[0m", "--db", db])
+    _one_error_line(r, "no model named 'nobody\\x1b[0m'")
+
+
+def test_skipped_files_are_reported(tmp_path):
+    import os
+
+    root = make_tree(tmp_path / "data", 1)
+    os.mkfifo(root / "pipe.ply")
+    r = invoke(["ingest", root, "--db", tmp_path / "s.db", "--no-progress", "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    assert out["skips"] == [{"path": str(root / "pipe.ply"),
+                             "reason": "not a regular file: a named pipe (FIFO)"}]
+    r = invoke(["ingest", root, "--db", tmp_path / "s.db", "--no-progress"])
+    assert f"skipped: {root / 'pipe.ply'}: not a regular file" in r.stderr
+
+
+def test_unmapped_sqlite_error_is_one_line():
+    import click
+
+    from surfidx.cli._common import command_errors
+
+    @click.command()
+    @command_errors
+    def boom():
+        raise sqlite3.OperationalError("no such table: x\nsecond line")
+
+    r = CliRunner().invoke(boom, [])
+    _one_error_line(r, "SQLite error (no such table: x\\nsecond line)")
