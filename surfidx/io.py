@@ -275,8 +275,10 @@ def read_texture(path, *, _source: str = "") -> np.ndarray:
     except SurfidxError:
         raise
     except Image.DecompressionBombError as exc:
+        size = re.search(r"\((\d+) pixels\)", str(exc))
+        declared = f" (it declares {int(size.group(1)):,})" if size else ""
         raise FileFormatError(f"texture image exceeds the limit of {MAX_TEXTURE_PIXELS:,} "
-                              f"pixels ({exc}){where}; scale it down", path=path) from None
+                              f"pixels{declared}{where}; scale it down", path=path) from None
     except Exception as exc:  # Pillow raises many kinds on damaged images
         msg = str(exc).strip() or type(exc).__name__
         raise FileFormatError(f"cannot read the texture image ({msg}){where}", path=path) \
@@ -384,7 +386,7 @@ def _read_ply(path: Path):
     try:
         with open(path, "rb") as fh:
             _check_ply_counts(fh, path)
-            ply = PlyData.read(fh)
+        ply = PlyData.read(str(path))
     except SurfidxError:
         raise
     except OSError as exc:
@@ -562,6 +564,8 @@ def _parse_obj_vertices(lines, path):
                 raise FileFormatError("vertex colours contain NaN", path=path)
             return pos, np.clip(np.round(col), 0, 255).astype(np.uint8)
         arr = np.array([r[:3] for r in rows], dtype=np.float64)
+    except SurfidxError:
+        raise
     except ValueError as exc:
         raise FileFormatError(f"malformed vertex line ({exc})", path=path) from exc
     if arr.ndim != 2 or arr.shape[1] != 3:
@@ -716,6 +720,8 @@ def _read_off(path: Path) -> TriangleMesh:
         else:
             faces = _triangulate_polygons([np.array(r[1:1 + int(r[0])], np.int64) for r in frows],
                                           path)
+    except SurfidxError:
+        raise
     except (ValueError, IndexError, OverflowError) as exc:
         raise FileFormatError(f"malformed OFF data ({exc})", path=path) from exc
     positions = arr[:, :3]

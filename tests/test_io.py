@@ -303,3 +303,270 @@ def test_surfel_ply_with_faces_keeps_its_radii(tmp_path, sphere_surfels):
     np.testing.assert_allclose(back.radii, s.radii, rtol=1e-6)
     np.testing.assert_array_equal(back.faces, s.faces)
     assert len(read_surfels(out, samples=500)) == 500  # the faces still allow sampling
+
+
+# ---------------------------------------------------------------------- hostile input (issue 28)
+def _icosphere_obj(extra=""):
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    return ("".join(f"v {a} {b} {c}\n" for a, b, c in v)
+            + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f) + extra)
+
+
+def test_faces_with_a_repeated_corner_are_dropped_before_bisection(tmp_path):
+    """Issue 28: these two faces made the bisection loop forever."""
+    p = _write(tmp_path, "degen.obj", _icosphere_obj("f 1 1 2\nf 5 5 9\n"))
+    with pytest.warns(UserWarning, match="2 degenerate faces .* of 1282 were dropped"):
+        s = read_surfels(p)
+    assert len(s) == 642 and len(s.faces) == 1280
+    topo = TriangleMesh(s.positions, s.faces).topology()
+    assert topo.closed and topo.genus == 0
+
+
+def test_zero_area_and_collinear_faces_are_dropped():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.5, 0, 0], [1, 0, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2], [0, 1, 4], [1, 5, 2]])
+    mesh = TriangleMesh(v, f)
+    np.testing.assert_array_equal(mesh.nondegenerate_faces(), [1, 1, 1, 1, 0, 0])
+    with pytest.warns(UserWarning, match="2 vertices referenced by no face"), \
+            pytest.warns(UserWarning, match="2 degenerate faces"):
+        s = mesh.to_surfels(max_edge_ratio=None)
+    assert len(s.faces) == 4
+
+
+def test_bisection_refuses_repeated_corners():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    with pytest.raises(InputError, match="three distinct corners"):
+        TriangleMesh(v, [[0, 1, 2], [0, 0, 1]]).bisected(0.1)
+
+
+def test_mesh_with_only_degenerate_faces_is_refused(tmp_path):
+    p = _write(tmp_path, "line.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n")
+    with pytest.raises(InputError, match="line.obj: the mesh has zero surface area"):
+        read_surfels(p)
+
+
+def test_collinear_and_coincident_points_are_refused(tmp_path):
+    head = "ply\nformat ascii 1.0\nelement vertex 50\nproperty float x\nproperty float y\n" \
+           "property float z\nend_header\n"
+    p = _write(tmp_path, "line.ply", head + "".join(f"{0.1 * i} {0.2 * i} {0.3 * i}\n"
+                                                     for i in range(50)))
+    with pytest.raises(InputError, match="line.ply: the 50 points are collinear"):
+        read_surfels(p)
+    p = _write(tmp_path, "dot.ply", head + "1.5 2 3\n" * 50)
+    with pytest.raises(InputError, match="dot.ply: all 50 points coincide"):
+        read_surfels(p)
+
+
+def test_coordinates_beyond_the_limit_are_refused(tmp_path):
+    p = _write(tmp_path, "huge.obj", "v 0 0 1e31\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n")
+    with pytest.raises(InputError, match=r"huge.obj: 1 vertices have coordinates beyond ±1e\+30"):
+        read_surfels(p)
+
+
+def test_obj_face_index_overflow(tmp_path):
+    p = _write(tmp_path, "big.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n")
+    with pytest.raises(FileFormatError, match="big.obj: malformed face line"):
+        read_mesh(p)
+
+
+def test_ply_counts_beyond_the_file_are_refused(tmp_path):
+    p = _write(tmp_path, "lie.ply", "ply\nformat binary_little_endian 1.0\nelement vertex "
+               "1000000000000\nproperty float x\nproperty float y\nproperty float z\n"
+               "end_header\n" + "\0" * 24)
+    with pytest.raises(FileFormatError, match="lie.ply: not a readable PLY file .*announces "
+                                              "1,000,000,000,000 'vertex' elements"):
+        read_surfels(p)
+
+
+def _tex_obj(tmp_path, mtl_line, name="m.obj"):
+    """A textured level-3 icosphere OBJ whose MTL holds ``mtl_line``."""
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    text = (f"mtllib {name}.mtl\n" + "".join(f"v {a} {b} {c}\n" for a, b, c in v)
+            + "".join(f"vt {0.5 + 0.4 * a} {0.5 + 0.4 * b}\n" for a, b, c in v)
+            + "".join(f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}\n" for a, b, c in f))
+    (tmp_path / f"{name}.mtl").write_text("newmtl m\n" + mtl_line + "\n")
+    return _write(tmp_path, name, text)
+
+
+def _png(path, size=(4, 4), colour=(200, 30, 30)):
+    from PIL import Image
+
+    Image.new("RGB", size, colour).save(path)
+    return path
+
+
+def _bomb_png(path, side=50000):
+    """A valid 1-pixel PNG whose header declares ``side`` × ``side`` pixels."""
+    import io as _io
+    import struct
+    import zlib
+
+    from PIL import Image
+
+    buf = _io.BytesIO()
+    Image.new("RGB", (1, 1)).save(buf, "PNG")
+    d = bytearray(buf.getvalue())
+    d[16:24] = struct.pack(">II", side, side)
+    d[29:33] = struct.pack(">I", zlib.crc32(bytes(d[12:29])))
+    path.write_bytes(bytes(d))
+    return path
+
+
+def test_texture_bomb_is_a_clean_error(tmp_path):
+    _bomb_png(tmp_path / "bomb.png")
+    p = _tex_obj(tmp_path, "map_Kd bomb.png")
+    with pytest.raises(FileFormatError, match=r"bomb.png: texture image exceeds the limit of "
+                       r"134,217,728 pixels \(it declares 2,500,000,000\) \(map_Kd in .*m.obj.mtl,"
+                       r" used by .*m.obj\)"):
+        read_surfels(p)
+
+
+def test_texture_over_the_limit_and_damaged(tmp_path, monkeypatch):
+    import surfidx.io as sio
+
+    _png(tmp_path / "t.png", (8, 4))
+    p = _tex_obj(tmp_path, "map_Kd t.png")
+    assert read_surfels(p).has_color
+    monkeypatch.setattr(sio, "MAX_TEXTURE_PIXELS", 31)
+    with pytest.raises(FileFormatError, match="t.png: texture image of 8 × 4 pixels exceeds the "
+                                              "limit of 31 pixels"):
+        read_surfels(p)
+    monkeypatch.undo()
+    (tmp_path / "t.png").write_bytes((tmp_path / "t.png").read_bytes()[:40])
+    with pytest.raises(FileFormatError, match=r"t.png: cannot read the texture image .*\(map_Kd"):
+        read_surfels(p)
+    (tmp_path / "t.png").unlink()
+    with pytest.raises(FileFormatError, match=r"t.png: texture image not found \(map_Kd"):
+        read_surfels(p)
+
+
+def test_textures_outside_the_model_folder_need_the_option(tmp_path):
+    inner = tmp_path / "model"
+    inner.mkdir()
+    _png(tmp_path / "secret.png")
+    for ref in ("../secret.png", str(tmp_path / "secret.png")):
+        p = _tex_obj(inner, f"map_Kd {ref}")
+        with pytest.warns(UserWarning, match=r"texture .*secret.png \(map_Kd in m.obj.mtl\) lies "
+                                             "outside the model's folder; skipped"):
+            s = read_surfels(p)
+        assert not s.has_color
+        s = read_surfels(p, allow_outside_textures=True)
+        assert s.has_color and np.all(s.colors == (200, 30, 30))
+    # a symlink inside the folder to an image outside is outside too
+    (inner / "link.png").symlink_to(tmp_path / "secret.png")
+    p = _tex_obj(inner, "map_Kd link.png")
+    with pytest.warns(UserWarning, match="outside the model's folder"):
+        assert not read_surfels(p).has_color
+    _png(inner / "inside.png")
+    assert read_surfels(_tex_obj(inner, "map_Kd ./inside.png")).has_color
+
+
+@pytest.mark.parametrize("name, content", [
+    ("m.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n"),
+    ("m.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    ("m.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+              "property float z\nend_header\n0 0 0\n"),
+])
+def test_unreadable_file_is_a_clean_error(tmp_path, monkeypatch, name, content):
+    """We run as root, where permissions do not stop reading: fake the refusal at open."""
+    import builtins
+
+    import surfidx.io as sio
+
+    p = _write(tmp_path, name, content)
+    real_open = builtins.open
+
+    def refusing_open(file, *args, **kwargs):
+        if str(file) == str(p):
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(sio, "open", refusing_open, raising=False)
+    with pytest.raises(FileFormatError, match=f"{name}: cannot read \\(Permission denied\\)"):
+        read_surfels(p)
+
+
+def test_fifo_is_not_opened(tmp_path):
+    import os
+
+    os.mkfifo(tmp_path / "pipe.obj")
+    with pytest.raises(FileFormatError, match="pipe.obj: is not a regular file"):
+        read_surfels(tmp_path / "pipe.obj")
+
+
+def _off_sphere(head, vertex=lambda p: " ".join(map(str, p)), sep="\n"):
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    return (head.format(nv=len(v), nf=len(f)) + sep + "".join(vertex(p) + "\n" for p in v)
+            + "".join(f"3 {a} {b} {c}\n" for a, b, c in f))
+
+
+@pytest.mark.parametrize("text, color", [
+    (_off_sphere("OFF {nv} {nf} 0"), False),                          # counts on the first line
+    (_off_sphere("# made by a tool\nOFF\n# counts\n{nv} {nf} 0  # comment"), False),
+    (_off_sphere("COFF {nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 255 128 0"), True),
+    (_off_sphere("COFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 1 0.5 0 1"), True),
+    (_off_sphere("NOFF\n{nv} {nf} 0", lambda p: (" ".join(map(str, p)) + " ") * 2), False),
+    (_off_sphere("STOFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 0.1 0.2"), False),
+    (_off_sphere("4OFF\n{nv} {nf} 0", lambda p: " ".join(map(str, 2 * p)) + " 2"), False),
+])
+def test_off_variants(tmp_path, text, color):
+    mesh = read_mesh(_write(tmp_path, "s.off", text))
+    assert mesh.vertices.shape == (642, 3) and mesh.faces.shape == (1280, 3)
+    np.testing.assert_allclose(np.linalg.norm(mesh.vertices, axis=1), 1.0, atol=1e-9)
+    assert (mesh.vertex_colors is not None) == color
+    if color:
+        np.testing.assert_array_equal(mesh.vertex_colors[0], (255, 128, 0))
+    assert mesh.topology().genus == 0
+
+
+@pytest.mark.parametrize("content, match", [
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n1000000 0 1 2\n",
+     "OFF face 0 declares 1,000,000 corners but its line holds 3 numbers"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n", "OFF face 0 has 2 corners"),
+    ("OFF\n-3 1 0\n0 0 0\n", "OFF header has negative counts"),
+    ("OFF BINARY\n", "binary OFF is not supported"),
+    ("nOFF\n3\n3 1 0\n", r"nOFF \(vertices of another dimension"),
+    ("XOFF\n3 1 0\n", "not an OFF file"),
+    ("COFF\n3 1 0\n0 0 0\n1 0 0 1 1 1\n0 1 0 1 1 1\n3 0 1 2\n", "OFF vertex line 1 has 3 numbers"),
+    ("# only a comment\n", r"the file is empty \(only comments\)"),
+    ("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 99999999999999999999\n", "malformed OFF data"),
+])
+def test_off_errors(tmp_path, content, match):
+    with pytest.raises(FileFormatError, match="bad.off: .*" + match):
+        read_mesh(_write(tmp_path, "bad.off", content))
+
+
+def test_write_atomic_never_follows_a_symlink_at_a_temporary_name(tmp_path, sphere_surfels):
+    import os
+    import stat
+
+    from surfidx.io import write_atomic
+
+    victim = _write(tmp_path, "victim.txt", "precious")
+    out = tmp_path / "out.ply"
+    (tmp_path / "out.ply.part").symlink_to(victim)  # the old, predictable temporary name
+    write_ply(sphere_surfels, out)
+    assert victim.read_text() == "precious" and len(read_surfels(out)) == 642
+    mask = os.umask(0o027)
+    try:
+        write_atomic(tmp_path / "perm.bin", lambda tmp: tmp.write_bytes(b"x"))
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE((tmp_path / "perm.bin").stat().st_mode) == 0o640
+    before = set(tmp_path.iterdir())
+
+    def failing(tmp):
+        tmp.write_bytes(b"half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(FileFormatError, match="x.bin: cannot write the model .No space left"):
+        write_atomic(tmp_path / "x.bin", failing, what="the model")
+    assert set(tmp_path.iterdir()) == before  # the temporary file is gone
+    with pytest.raises(FileFormatError, match="no-such-dir/y.bin: cannot write"):
+        write_atomic(tmp_path / "no-such-dir" / "y.bin", lambda tmp: None)
