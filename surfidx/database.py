@@ -399,14 +399,14 @@ class Database:
             if version > SCHEMA_VERSION:
                 raise newer
             if version < 1 or not tables:
-                raise DatabaseError(f"carries surfidx's application id but no schema (user_version "
-                                    f"{version}, {len(tables)} tables); the file is damaged",
-                                    path=self.path)
+                raise DatabaseError(f"carries surfidx's application id but no schema "
+                                    f"(user_version {version}, {len(tables)} tables); the file "
+                                    "is damaged", path=self.path)
             return "surfidx", version
         if app_id != 0:
-            raise DatabaseError(f"not a surfidx database (application_id 0x{app_id & 0xFFFFFFFF:08x}"
-                                " is another application's); choose another --db file",
-                                path=self.path)
+            raise DatabaseError(f"not a surfidx database (application_id "
+                                f"0x{app_id & 0xFFFFFFFF:08x} is another application's); "
+                                "choose another --db file", path=self.path)
         if not tables:
             if version > 0:
                 raise DatabaseError(f"not a surfidx database (user_version {version} but no "
@@ -663,8 +663,8 @@ class Database:
                 raise InputError(f"model {name!r}: {what} must be bytes, "
                                  f"got {type(getattr(model, what)).__name__}")
         params = dict(model.params or {})
-        row = {"name": name, "source": escape_name(model.source), "content_hash": h, "n_surfels": n,
-               "has_color": int(bool(model.has_color)),
+        row = {"name": name, "source": escape_name(model.source), "content_hash": h,
+               "n_surfels": n, "has_color": int(bool(model.has_color)),
                **{f"bbox_{c}_{a}": float(bbox[i, j])
                   for i, c in enumerate(("min", "max")) for j, a in enumerate("xyz")},
                "ingested_at": utc_now(), "params": _to_json(params, f"model {name!r} params")}
@@ -768,7 +768,8 @@ class Database:
             rows = self.conn.execute("SELECT id FROM models WHERE name IN (?, ?) ORDER BY id",
                                      (stored, storable_text(id_or_name))).fetchall()
             if not rows:
-                raise DatabaseError(f"no model named {storable_text(id_or_name)!r}", path=self.path)
+                raise DatabaseError(f"no model named {storable_text(id_or_name)!r}",
+                                    path=self.path)
             if len(rows) > 1:
                 ids = ", ".join(str(r[0]) for r in rows)
                 raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"

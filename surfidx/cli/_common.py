@@ -6,7 +6,6 @@ import functools
 import json
 import re
 import sqlite3
-import unicodedata
 import warnings
 
 import click
