@@ -214,3 +214,55 @@ def test_frame_anchors_round_trip_and_are_validated():
     data[tail_off - 1] = 99
     with pytest.raises(BitstreamError, match=r"corrupt header \(frame anchors \[99\]\)"):
         unpack(_reseal(data, tail_off))
+
+
+# ---------------------------------------------------------------------- implausible headers
+def _forge(data: bytes, offset: int, fmt: str, *values) -> bytes:
+    import struct
+    import zlib
+
+    d = bytearray(data)
+    struct.pack_into(fmt, d, offset, *values)
+    h, stream = unpack(data)
+    tail = len(data) - len(stream) - 12
+    struct.pack_into("<I", d, tail + 4, zlib.crc32(bytes(d[:tail + 4])))
+    return bytes(d)
+
+
+@pytest.mark.parametrize("offset, fmt, value, match", [
+    (8, "<I", 0, r"corrupt header \(0 input surfels\)"),
+    (16, "<f", 3.4e38, r"corrupt header \(KLT mean .* beyond ±1e\+12\)"),
+    (16 + 24 + 72, "<f", 1e-45, r"corrupt header \(unit weights .* outside \[1e-20, 1e\+20\]\)"),
+    (16 + 24 + 72 + 4, "<f", 3e30, r"corrupt header \(unit weights"),
+    (16 + 24, "<e", 2.0, r"corrupt header \(KLT basis entries beyond ±1"),
+])
+def test_implausible_header_values_are_refused(offset, fmt, value, match):
+    data = _forge(pack(_header(), bytes(300)), offset, fmt, value)
+    with pytest.raises(BitstreamError, match="f.sfz: " + match):
+        unpack(data, path="f.sfz")
+
+
+def test_grid_level_needs_a_file_that_can_justify_it():
+    from surfidx.container import min_file_bytes
+
+    assert [min_file_bytes(lv) for lv in (5, 7, 8, 9)] == [6, 81, 321, 1281]
+    h = _header()
+    h.level = 9
+    with pytest.raises(InputError, match="a level-9 container needs at least 1281 bytes"):
+        pack(h, bytes(20))
+    data = pack(h, bytes(1200))
+    assert unpack(data)[0].level == 9
+    with pytest.raises(InputError, match="or the 1281 bytes a level-9 container needs"):
+        truncate(data, 1000)
+    # a small level-5 file that claims level 9
+    forged = _forge(pack(_header(), bytes(20)), 6, "<B", 9)
+    with pytest.raises(BitstreamError, match=r"corrupt header \(grid level 9 in a file of 157 "
+                                             r"bytes; that grid needs at least 1281\)"):
+        unpack(forged)
+
+
+def test_pack_refuses_values_it_would_not_read():
+    h = _header()
+    h.mean = np.full(6, 1e13)
+    with pytest.raises(InputError, match="the KLT values cannot be stored: KLT mean"):
+        pack(h, b"")
