@@ -1,15 +1,20 @@
 -- surfidx model database: the one source of truth of the schema (current schema version 1).
 --
 -- surfidx.database creates a new database by executing this file in one transaction and then
--- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION. Older databases are brought
--- here by the migration functions in surfidx/database.py (_MIGRATIONS), which must produce the
--- same tables as this file. The copy in surfidx/data/schema.sql is what an installed surfidx
--- reads, and tests/test_database.py checks that both files are identical.
+-- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION and PRAGMA application_id to
+-- surfidx.database.APPLICATION_ID (the bytes SFDX, the mark of a surfidx file: it is checked
+-- before anything is written to a file, and set on the next write in files made before it
+-- existed). Older databases are brought here by the migration functions in surfidx/database.py
+-- (_MIGRATIONS), which must produce the same tables as this file. The copy in
+-- surfidx/data/schema.sql is what an installed surfidx reads, and tests/test_database.py checks
+-- that both files are identical.
 --
 -- Plain tables with readable column names, foreign keys and indexes, so that the file can be
 -- browsed as it is with sqlite-utils or Datasette. Times are ISO 8601 UTC text, JSON is text,
--- descriptor vectors are float32 little-endian BLOBs. Statements must not contain semicolons
--- inside comments or strings (the file is split on statement boundaries).
+-- descriptor vectors are float32 little-endian BLOBs. Names and paths from file names are stored
+-- through surfidx.database.escape_name (a byte that is not UTF-8 as a backslash, x and two hex
+-- digits, lossless). Statements must not contain semicolons inside comments or strings (the file
+-- is split on statement boundaries).
 
 -- Key/value facts about the database itself: schema_version, created_by, created_at.
 CREATE TABLE meta (
@@ -82,7 +87,8 @@ CREATE TABLE ingest_runs (
                     CHECK (status IN ('running', 'finished', 'interrupted', 'failed'))
 );
 
--- Files a run could not store, with the error message.
+-- Files a run could not store, with the error message (files that are not regular files, such
+-- as FIFOs or links to devices, are recorded too, with a message starting "skipped: ").
 CREATE TABLE ingest_errors (
     id     INTEGER PRIMARY KEY,
     run_id INTEGER NOT NULL REFERENCES ingest_runs (id) ON DELETE CASCADE,

@@ -323,6 +323,9 @@ class Database:
         self._needs_marker = False
         if self.path.is_dir():
             raise DatabaseError("is a directory, not a database file", path=self.path)
+        if self.path.exists() and not self.path.is_file():     # SQLite would block on a FIFO
+            raise DatabaseError("is not a regular file (a FIFO, device or socket), not a "
+                                "database file", path=self.path)
         if not self.path.exists() and (not create or self.readonly):
             raise DatabaseError("no such database; create it with `surfidx ingest`",
                                 path=self.path)

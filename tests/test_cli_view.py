@@ -193,3 +193,13 @@ def test_path_file_errors(tmp_path, pair):
     PlyData([PlyElement.describe(np.zeros(1, dtype=[("k", "i4")]), "face")]).write(
         str(faces_only))
     assert_one_line_error(run("render", a, "-o", png, "--path", faces_only), "no 'vertex'")
+
+
+def test_render_names_the_output_on_one_line(tmp_path, pair):
+    """A file name with control characters is printed escaped (#30)."""
+    a, _ = pair
+    out = tmp_path / "evil\x1b[2J\nname.png"
+    r = run("render", a, "-o", out, "--size", "20x20", "--supersample", 1)
+    assert r.exit_code == 0, r.output
+    assert out.exists() and "\x1b" not in r.output and r.output.count("\n") == 1
+    assert "evil\\x1b[2J\\nname.png: 20x20" in r.output

@@ -349,6 +349,14 @@ def test_missing_file_without_create(tmp_path):
 def test_directory_and_garbage_files(tmp_path):
     with pytest.raises(DatabaseError, match="is a directory"):
         Database(tmp_path)
+    import os
+
+    os.mkfifo(tmp_path / "pipe.db")
+    for kwargs in ({}, {"readonly": True}):
+        with pytest.raises(DatabaseError, match=r"pipe\.db: is not a regular file \(a FIFO"):
+            Database(tmp_path / "pipe.db", **kwargs)
+    with pytest.raises(DatabaseError, match=r"null: is not a regular file"):
+        Database("/dev/null")
     with pytest.raises(DatabaseError, match=r"no/such/dir/x\.db: cannot open"):
         Database(tmp_path / "no" / "such" / "dir" / "x.db")
     junk = tmp_path / "junk.db"

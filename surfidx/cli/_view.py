@@ -9,7 +9,7 @@ import click
 
 from .._errors import InputError
 from . import cli
-from ._common import command_errors, echo_json, input_options, read_input
+from ._common import command_errors, echo_json, input_options, plain, read_input
 
 _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2", "peak",
                "n_reference", "n_test")
@@ -93,4 +93,4 @@ def render_(input, output, view, azimuth, elevation, up, size, path_file, supers
     img = render(s, width=width, height=height, view=view, up=up, path_points=path,
                  supersample=supersample)
     save_png(img, output)
-    click.echo(f"{output}: {width}x{height}, {len(s)} surfels")
+    click.echo(plain(f"{output}: {width}x{height}, {len(s)} surfels"))
