@@ -14,6 +14,10 @@ LocalCluster this module starts, so every death reaches the client); the client 
 under a new key up to ``retries`` times, then yields it as a failed :class:`ingest.Outcome` and the
 run goes on.
 
+Parent death: the LocalCluster's worker processes end when this process dies, even by SIGKILL
+(dask's nanny processes watch their parent); ``tests/test_ingest_dask.py`` checks it, as
+:func:`ingest.exit_with_parent` does it for :class:`ingest.ProcessPool`.
+
 ``distributed`` is an optional dependency (``pip install 'surfidx[distributed]'``), imported when
 an executor is opened.
 """
