@@ -45,7 +45,7 @@ from .surfels import SurfelSet
 
 __all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
-           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT"]
+           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 COLOR_WEIGHT = 0.02
@@ -146,7 +146,7 @@ class Encoder:
                  method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None,
                  tangent_weight: float | None = TANGENT_WEIGHT,
                  density_weighting: bool | None = None):
-        from .parameterize import parameterize
+        from .sphere import parameterize
 
         if not isinstance(surfels, SurfelSet):
             raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
@@ -323,8 +323,9 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,
         A rate below what the header needs, or a grid larger than ``max_surfels``.
     """
     header, stream = container.unpack(data, path=path)
+    checked = check_header(header, path=path)
     _check_surfels(header.level, header.level, max_surfels, path)
-    return _decode_values(data, header, stream, bits_per_surfel, path), header
+    return _decode_values(data, header, stream, bits_per_surfel, path, checked), header
 
 
 def _check_surfels(level: int, stream_level: int, max_surfels, path) -> None:
@@ -341,14 +342,32 @@ def _check_surfels(level: int, stream_level: int, max_surfels, path) -> None:
                      f"{level}, more than max_surfels = {limit:,}; {hint}", path=path)
 
 
-def _decode_values(data, header, stream, bits_per_surfel, path) -> np.ndarray:
-    """The grid values of an unpacked container (see :func:`decode_grid`)."""
-    if bits_per_surfel is not None:
-        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
-        if keep < 4:
-            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
-                             "file (header plus 4 bytes)")
-        stream = stream[:keep]
+def check_header(header, *, path=None):
+    """The cheap checks of a container header that :func:`surfidx.container.unpack` leaves to
+    the codec, before anything is allocated: the coder header and its largest coefficient
+    (:data:`MAX_COEFFICIENT`), the grid level, the density-weight field, the local frames'
+    anchors and KLT basis.
+
+    Parameters
+    ----------
+    header : surfidx.container.Header
+    path : str, optional
+
+    Returns
+    -------
+    coder : dict
+        The zerotree header.
+    klt : KLT
+    field : (values, level) or None
+        The density-weight field.
+
+    Raises
+    ------
+    BitstreamError
+        Naming ``path``, for any implausible value.
+    """
+    from .icosphere import MAX_LEVEL
+
     try:
         zh = zerotree.unpack_header(header.coder)
     except BitstreamError as exc:
@@ -358,23 +377,17 @@ def _decode_values(data, header, stream, bits_per_surfel, path) -> np.ndarray:
                              f"{zh['top_plane']}: coefficients up to "
                              f"{zh['step'] * 2.0 ** (zh['top_plane'] + 1):.3g}, beyond "
                              f"{MAX_COEFFICIENT:g})", path=path)
-    try:
-        ico = icosphere(header.level)
-    except InputError:
-        raise BitstreamError(f"grid level {header.level} is out of range", path=path) from None
-    k = header.layers
-    w, planes = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
-                                ico.children_indices, header=zh, planes=True)
-    scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
+    if not 0 <= header.level <= MAX_LEVEL:
+        raise BitstreamError(f"grid level {header.level} is out of range", path=path)
+    field = None
     if header.weight_field:
-        field, flevel = density.unpack_field(header.weight_field, path=path)
-        if flevel > header.level:
-            raise BitstreamError(f"corrupt header (density-weight field level {flevel} above "
+        field = density.unpack_field(header.weight_field, path=path)
+        if field[1] > header.level:
+            raise BitstreamError(f"corrupt header (density-weight field level {field[1]} above "
                                  f"the grid level {header.level})", path=path)
-        scales = scales * density.vertex_scales(field, flevel, header.level)
     frames = header.tangent_weight is not None
-    if frames and k > 3 and (np.any(np.asarray(header.basis)[:3, 3:] != 0)
-                             or np.any(np.asarray(header.basis)[3:, :3] != 0)):
+    if frames and header.layers > 3 and (np.any(np.asarray(header.basis)[:3, 3:] != 0)
+                                         or np.any(np.asarray(header.basis)[3:, :3] != 0)):
         raise BitstreamError("corrupt header (local frames with a KLT basis that mixes geometry "
                              "and colour)", path=path)
     if frames and (len(header.anchors) != header.level or not header.lifted
@@ -385,6 +398,27 @@ def _decode_values(data, header, stream, bits_per_surfel, path) -> np.ndarray:
         klt = KLT.from_arrays(header.mean, header.basis, header.weights)
     except InputError as exc:
         raise BitstreamError(f"corrupt KLT header ({exc.reason})", path=path) from None
+    return zh, klt, field
+
+
+def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.ndarray:
+    """The grid values of an unpacked container whose header ``check_header`` passed (see
+    :func:`decode_grid`)."""
+    if bits_per_surfel is not None:
+        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
+        if keep < 4:
+            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
+                             "file (header plus 4 bytes)")
+        stream = stream[:keep]
+    zh, klt, field = checked
+    frames = header.tangent_weight is not None
+    k = header.layers
+    ico = icosphere(header.level)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
+                                ico.children_indices, header=zh, planes=True)
+    scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
+    if field is not None:
+        scales = scales * density.vertex_scales(*field, header.level)
     with np.errstate(over="ignore", invalid="ignore"):
         if frames:
             c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
@@ -442,6 +476,7 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     from .resample import grid_to_mesh, grid_to_surfels
 
     header, stream = container.unpack(data, path=path)
+    checked = check_header(header, path=path)
     if level is not None:
         if not (isinstance(level, (int, np.integer)) and not isinstance(level, bool)
                 and 0 <= level <= header.level):
@@ -449,7 +484,7 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
                              f"{header.level}, got {level!r}")
     out_level = header.level if level is None else int(level)
     _check_surfels(out_level, header.level, max_surfels, path)
-    values = _decode_values(data, header, stream, bits_per_surfel, path)
+    values = _decode_values(data, header, stream, bits_per_surfel, path, checked)
     values = values[:vertex_count(out_level)]
     name = Path(path).stem if path else None
     return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)

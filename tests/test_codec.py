@@ -262,3 +262,110 @@ def test_cli_info_of_a_stream(tmp_path, blob):
     r = CliRunner().invoke(cli, ["info", str(bad)])
     assert r.exit_code == 1 and "bad.sfz: truncated header" in r.output
     assert "Traceback" not in r.output
+
+
+# ---------------------------------------------------------------------- hostile streams (issue 28)
+def _forge(data: bytes, offset: int, fmt: str, *values) -> bytes:
+    """``data`` with header bytes rewritten and the header checksum recomputed."""
+    import struct
+    import zlib
+
+    from surfidx.container import unpack
+
+    d = bytearray(data)
+    struct.pack_into(fmt, d, offset, *values)
+    tail = len(data) - len(unpack(data)[1]) - 12
+    struct.pack_into("<I", d, tail + 4, zlib.crc32(bytes(d[:tail + 4])))
+    return bytes(d)
+
+
+_STEP = 16 + 24 + 72 + 8 + 4  # the coder header's step, with colour
+
+
+def test_absurd_coder_step_is_refused_before_decoding(enc):
+    data = _forge(enc.encode(4.0), _STEP, "<f", 3.4e38)
+    with pytest.raises(BitstreamError, match=r"m.sfz: corrupt header \(coder step 3.4e\+38 at top "
+                                             r"plane 29: coefficients up to .* beyond 1e\+12\)"):
+        decode(data, path="m.sfz")
+
+
+def test_decoded_values_out_of_range_are_refused(enc):
+    """A step just allowed by the header check decodes to values far beyond the model."""
+    data = _forge(enc.encode(4.0), _STEP, "<f", 1e11 * 2.0 ** -30)
+    with pytest.raises(BitstreamError, match=r"m.sfz: decoding produced values .* weighted units "
+                                             r"from the mean, beyond 1e\+06: the file is damaged"):
+        decode_grid(data, path="m.sfz")
+
+
+def test_valid_streams_decode_within_the_documented_range(enc, blob):
+    from surfidx.codec import MAX_EXTENT
+    from surfidx.container import unpack
+
+    for rate in (2.0, 8.0):
+        values, header = decode_grid(enc.encode(rate))
+        spread = np.abs(values * header.weights - header.mean)
+        assert np.all(np.isfinite(values)) and spread.max() < 1e-3 * MAX_EXTENT
+        assert unpack(enc.encode(rate))[0].n_surfels == len(blob)
+
+
+def test_max_surfels(enc):
+    data = enc.encode(4.0)  # level 5: 10,242 grid vertices
+    with pytest.raises(InputError, match=r"m.sfz: the stream decodes to 10,242 surfels at grid "
+                                         r"level 5, more than max_surfels = 5,000; decode at a "
+                                         r"coarser level \(level=4: 2,562 surfels\)"):
+        decode(data, max_surfels=5000, path="m.sfz")
+    assert len(decode(data, level=4, max_surfels=5000)) == 2562
+    with pytest.raises(InputError, match=r"more than max_surfels = 5; raise max_surfels"):
+        decode_grid(data, max_surfels=5)
+    with pytest.raises(InputError, match="max_surfels must be at least 1"):
+        decode(data, max_surfels=0)
+
+
+def test_encoder_refuses_weights_the_decoder_would_refuse(blob):
+    with pytest.raises(InputError, match="color_weight must be a positive number up to 1000"):
+        Encoder(blob, color_weight=1e4)
+    tiny = type(blob)(blob.positions * 1e-25, blob.normals, blob.radii * 1e-25, blob.colors,
+                      faces=blob.faces)
+    sphere_map = Encoder(blob, level=3).sphere_map
+    with pytest.raises(InputError, match=r"bounding-box diagonal .* must give unit weights in "
+                                         r"\[1e-20, 1e\+20\]; rescale the model"):
+        Encoder(tiny, level=3, sphere_map=sphere_map)
+    far = type(blob)(blob.positions + 1e13, blob.normals, blob.radii, blob.colors,
+                     faces=blob.faces)
+    with pytest.raises(InputError, match="centre lies more than 1e\\+12 bounding-box diagonals"):
+        Encoder(far, level=3, sphere_map=sphere_map)
+
+
+def test_cli_hostile_streams(tmp_path, enc):
+    import struct
+    import zlib
+
+    data = enc.encode(4.0)
+    cases = {
+        "zero.sfz": _forge(data, 8, "<I", 0),
+        "mean.sfz": _forge(data, 16, "<f", 3.4e38),
+        "weight.sfz": _forge(data, 16 + 24 + 72, "<f", 1e-45),
+        "step.sfz": _forge(data, _STEP, "<f", 3.4e38),
+        "level9.sfz": _forge(data, 6, "<B", 9),
+    }
+    d = bytearray(data)
+    d[4] = 9  # an unknown version: refused before the checksum
+    cases["version.sfz"] = bytes(d)
+    assert zlib.crc32(b"") == 0 and struct.calcsize("<f") == 4
+    for name, payload in cases.items():
+        (tmp_path / name).write_bytes(payload)
+        for command in (["info", str(tmp_path / name)],
+                        ["decode", str(tmp_path / name), "-o", str(tmp_path / "o.ply")]):
+            r = CliRunner().invoke(cli, command)
+            assert r.exit_code == 1, (name, r.output)
+            assert r.output.startswith(f"Error: {tmp_path / name}: ") and \
+                r.output.count("\n") == 1, r.output
+            assert not (tmp_path / "o.ply").exists()
+    sfz = tmp_path / "ok.sfz"
+    sfz.write_bytes(data)
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "o.ply"),
+                                 "--max-surfels", "5000"])
+    assert r.exit_code == 1 and "more than max_surfels = 5,000" in r.output
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "o.ply"),
+                                 "--max-surfels", "5000", "--level", "4"])
+    assert r.exit_code == 0 and "2562 surfels" in r.output

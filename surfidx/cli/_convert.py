@@ -78,12 +78,12 @@ def info(input, texture, samples, allow_outside_textures, as_json):
 
 def _stream_info(path) -> dict:
     """The container header of a .sfz file, as the fields a user asks about."""
-    from ..codec import MAP_METHODS, read_sfz
+    from ..codec import MAP_METHODS, check_header, read_sfz
     from ..container import unpack
-    from ..density import unpack_field
 
     data = read_sfz(path)
     header, stream = unpack(data, path=path)
+    field = check_header(header, path=path)[2]
     out = {"file": str(path), "format_version": header.version, "bytes": len(data),
            "input_surfels": header.n_surfels,
            "bits_per_surfel": 8.0 * len(data) / header.n_surfels if header.n_surfels else None,
@@ -97,8 +97,8 @@ def _stream_info(path) -> dict:
            "frame_anchors": list(header.anchors) if header.tangent_weight is not None else None,
            "density_weighted": bool(header.weight_field), "weight_field_level": None,
            "weight_field_bytes": len(header.weight_field)}
-    if header.weight_field:
-        out["weight_field_level"] = unpack_field(header.weight_field, path=path)[1]
+    if field is not None:
+        out["weight_field_level"] = field[1]
     return out
 
 
