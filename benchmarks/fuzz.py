@@ -18,7 +18,7 @@ by the kernel as a memory kill, and any exception other than a :class:`surfidx.S
 an output with non-finite values) as a crash, listed after the table.
 
 Run: ``python benchmarks/fuzz.py [--streams 10000] [--files 1000] [--workers 2] [--timeout 30]
-[--memory-mb 3072] [--seed 0]``. ``tests/test_fuzz.py`` runs the same generators in-process on a
+[--memory-mb 4096] [--seed 0]``. ``tests/test_fuzz.py`` runs the same generators in-process on a
 few hundred cases.
 """
 
@@ -489,7 +489,7 @@ def main(argv=None):
     ap.add_argument("--files", type=int, default=1_000)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--timeout", type=float, default=30.0, help="seconds per case")
-    ap.add_argument("--memory-mb", type=int, default=3072,
+    ap.add_argument("--memory-mb", type=int, default=4096,
                     help="address-space limit of each worker (0: none)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
