@@ -15,8 +15,8 @@ under a new key up to ``retries`` times, then yields it as a failed :class:`inge
 run goes on.
 
 Parent death: the LocalCluster's worker processes end when this process dies, even by SIGKILL
-(dask's worker processes watch the process that started them); ``tests/test_ingest_dask.py`` checks it, as
-:func:`ingest.exit_with_parent` does it for :class:`ingest.ProcessPool`.
+(dask's worker processes watch the process that started them); ``tests/test_ingest_dask.py``
+checks it, as :func:`ingest.exit_with_parent` does it for :class:`ingest.ProcessPool`.
 
 ``distributed`` is an optional dependency (``pip install 'surfidx[distributed]'``), imported when
 an executor is opened.
