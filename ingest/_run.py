@@ -565,15 +565,6 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
     return tasks
 
 
-def _storage_failure(exc: BaseException) -> bool:
-    """A database error that is no fault of the model (read-only, full disk, damaged file,
-    lock): the run cannot go on, whereas a model the schema refuses is one failed file."""
-    import sqlite3
-
-    cause = exc.__cause__
-    return isinstance(cause, sqlite3.Error) and not isinstance(cause, sqlite3.IntegrityError)
-
-
 def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
         progress: bool = True, executor=None, batch: int = 8,
         flush_seconds: float = 2.0, scheduler=None, retries: int = 2) -> IngestSummary:
@@ -635,7 +626,7 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.database import Database, escape_name, storable_text
+    from surfidx.database import Database, escape_name, is_storage_failure, storable_text
 
     workers = check_positive_int(workers, "workers")
     batch = check_positive_int(batch, "batch")
@@ -697,7 +688,7 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                         summary.ids.append(db.add(outcome.model))
                         summary.stored += 1
                     except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
-                        if _storage_failure(exc):
+                        if is_storage_failure(exc):
                             raise                       # the database, not the model
                         fail(outcome.task.path, error_message(exc))
                 for path, message in pending_errors:

@@ -60,7 +60,7 @@ from ._errors import DatabaseError, InputError
 from ._validate import as_array
 
 __all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
-           "escape_name", "unescape_name", "storable_text"]
+           "escape_name", "unescape_name", "storable_text", "is_storage_failure"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx.
 SCHEMA_VERSION = 1
@@ -112,6 +112,14 @@ def _escape_char(m) -> str:
         return "\\\\"
     o = ord(c)
     return f"\\x{o - 0xDC00:02x}" if 0xDC80 <= o <= 0xDCFF else f"\\u{o:04x}"
+
+
+def is_storage_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is a database error that is no fault of the model being written
+    (read-only, full disk, damaged file, lock): a bulk operation cannot go on, whereas a model
+    the schema refuses (an integrity error) is one failed model."""
+    cause = exc.__cause__
+    return isinstance(cause, sqlite3.Error) and not isinstance(cause, sqlite3.IntegrityError)
 
 
 def escape_name(name) -> str:

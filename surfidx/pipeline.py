@@ -229,6 +229,7 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
     import json
 
     from ._errors import SurfidxError
+    from .database import is_storage_failure
     from .descriptors import DEFAULT_LMAX, descriptor_params
 
     want = descriptor_params(lmax=DEFAULT_LMAX if lmax is None else lmax)
@@ -250,6 +251,8 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
             db.set_descriptors(model_id, desc.vectors, desc.params)
             done += 1
         except SurfidxError as exc:
+            if is_storage_failure(exc):
+                raise                   # the database, not the model: one error, not one a model
             failed[model_id] = str(exc)
         if progress is not None:
             progress(model_id)

@@ -117,3 +117,21 @@ def test_cli_redescribe(encoded, tmp_path):
     r = CliRunner().invoke(cli, ["redescribe", "--db", str(path), "--all", "--json"])
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout) == {"redescribed": 1, "current": 0, "failed": {}}
+
+
+def test_redescribe_stops_on_a_database_that_cannot_be_written(encoded, tmp_path, monkeypatch):
+    """A full disk (or a read-only or damaged file) is one DatabaseError for the whole run, not
+    one recorded failure per model."""
+    import sqlite3
+
+    db = Database(tmp_path / "full.db")
+    for k, (_, stream, n) in enumerate(encoded):
+        db.add(_model(k, stream, n))
+
+    def full(*args, **kwargs):
+        raise DatabaseError("the disk is full", path=db.path) from sqlite3.OperationalError(
+            "database or disk is full")
+
+    monkeypatch.setattr(db, "set_descriptors", full)
+    with pytest.raises(DatabaseError, match="the disk is full"):
+        redescribe(db)
