@@ -34,7 +34,7 @@ import numpy as np
 from surfidx.io import read_mesh
 from surfidx.mesh import TriangleMesh
 from surfidx.metrics import evaluate
-from surfidx.parameterize import parameterize
+from surfidx.sphere import parameterize
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "models"

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 import surfidx
 from surfidx.icosphere import choose_level
 from surfidx.metrics import evaluate
-from surfidx.parameterize import parameterize
+from surfidx.sphere import parameterize
 from surfidx.resample import grid_to_surfels, resample
 
 MODELS = ["igea.ply", "bunny_hr.obj", "horse.ply", "armadillo.obj", "nefertiti.obj", "koala.obj",
@@ -67,7 +67,7 @@ def run(name: str, method: str, *, root: Path = DATA, points: bool = False) -> d
             "stress": m.landmark_stress, "area_dist": m.area_distortion,
             "sparse": m.sparse_sampling, "level": level,
             "psnr_d1": ev["psnr_d1"], "psnr_d2": ev["psnr_d2"], "holes%": 100 * gaps,
-            "t_map": m.seconds, "t_resample": t_res, "fallback": int(m.info.get("fallback", 0)),
+            "t_map": m.seconds, "t_resample": t_res, "fallback": int(m.fallback),
             "targets": "met" if (m.fold_fraction <= 1e-4 and gaps <= 0.005
                                  and ev["psnr_d2"] >= 70) else "missed"}
 

@@ -17,7 +17,7 @@ import numpy as np
 import surfidx
 from surfidx import SurfelSet, TriangleMesh
 from surfidx._errors import SurfidxError
-from surfidx.proxy import closest_points, proxy_mesh
+from surfidx.sphere.proxy import closest_points, proxy_mesh
 
 MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 NAMES = ["armadillo.obj", "bunny_hr.obj", "cow.obj", "falconstatue.obj", "homer.obj",

@@ -2,7 +2,7 @@
 
 Data: ``../shared/data/retrieval`` (``labels.csv``: path,class; ``meta.csv``: genus, watertight,
 ...). Every model goes through the ingest code path up to the descriptors — read
-(:func:`surfidx.read_surfels`) → spherical map (:func:`surfidx.parameterize.parameterize`, the
+(:func:`surfidx.read_surfels`) → spherical map (:func:`surfidx.sphere.parameterize`, the
 pipeline's default method, no stress figure) → resampling on the icosahedral grid at
 :func:`surfidx.icosphere.choose_level` (what :class:`surfidx.codec.Encoder` does before coding;
 the coding itself is skipped) → :func:`surfidx.descriptors.describe_grid` →
@@ -58,9 +58,10 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "retrieval"
 CACHE = Path("/tmp/surfidx_retrieval_cache")
 SPLIT_FRACTION = 0.3
-_CODE_MODULES = ("parameterize.py", "_balance.py", "_foldrepair.py", "_decimate.py", "proxy.py",
-                 "resample.py", "io.py", "mesh.py", "icosphere.py", "surfels.py", "graph.py",
-                 "_tolerance.py")
+_CODE_MODULES = ("sphere", "spherical.py", "resample.py", "io.py", "mesh.py", "icosphere.py",
+                 "surfels.py", "graph.py", "_tolerance.py")
+"""Files and folders of ``surfidx/`` whose code determines the cache (a folder: all of its
+``.py`` files, in sorted order, with their paths)."""
 TARGET = {"nn": 0.75, "map": 0.60}
 REFERENCE = {"D2 (issue)": {"nn": 0.62, "map": 0.53}, "Kazhdan SH (issue)": {"nn": 0.68,
                                                                                "map": 0.53}}
@@ -74,8 +75,9 @@ def code_version(method: str) -> str:
     h.update(surfidx.__version__.encode())
     for name in _CODE_MODULES:
         p = ROOT / "surfidx" / name
-        if p.exists():
-            h.update(p.read_bytes())
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p] if p.exists() else []:
+            h.update(str(f.relative_to(ROOT)).encode())
+            h.update(f.read_bytes())
     h.update((Path(__file__).resolve().parent / "_shape_baselines.py").read_bytes())
     h.update(json.dumps({"method": method, "d2": sb.D2_PARAMS, "split": SPLIT_FRACTION},
                         sort_keys=True).encode())
@@ -117,7 +119,7 @@ def compute(job: dict) -> dict:
         return rec
     import surfidx
     from surfidx.icosphere import choose_level
-    from surfidx.parameterize import parameterize
+    from surfidx.sphere import parameterize
     from surfidx.resample import resample
 
     path = Path(job["path"])

@@ -27,13 +27,8 @@ exactly this), continuous across every edge (a corner off the edge has ``b = 0``
 planes. ``α = PHONG_ALPHA = 0.9``, ``s = PHONG_SHARPNESS = 4`` (``phong=0`` keeps the linear
 point). Colours stay linear.
 
-Infinite-rate PSNR_D2 against the input at the default grid level. Hull and linear → own faces
-and Phong (α 0.75, s 1), maps of that time: Igea 83.7 → 87.7 dB, bunny_hr 71.4 → 79.5, horse
-71.6 → 77.3, nefertiti 73.8 → 77.5, koala 77.9 → 79.8, scorpion 65.8 → 68.6, armadillo 63.6 →
-65.6, spot 58.9 → 62.3. Phong (α 0.75, s 1) → sharpened (α 0.9, s 4), today's maps: Igea 87.7 →
-90.2, bunny_hr 79.5 → 83.3, horse 77.6 → 77.6, armadillo 71.0 → 75.0, nefertiti 79.1 → 79.8,
-koala 86.5 → 86.9, scorpion 78.3 → 78.4, falconstatue 70.6 → 70.8, homer 72.4 → 73.2, spot
-69.4 → 72.0, ycb_banana 78.0 → 77.9.
+The sharpened lift and interpolation in the mesh's own faces both raise the infinite-rate
+PSNR_D2 of the resampling against the input; ``benchmarks/parameterization.py`` measures it.
 """
 
 from __future__ import annotations
@@ -48,7 +43,7 @@ from ._validate import as_array
 from .icosphere import icosphere, vertex_count
 from .mesh import TriangleMesh
 from ._tolerance import TOL
-from .parameterize import _check_points, _spherical_areas, hull_triangles
+from .spherical import hull_triangles, map_points, triangle_areas
 from .surfels import SurfelSet
 
 __all__ = ["PHONG_ALPHA", "PHONG_SHARPNESS", "locate", "locate_grid", "map_triangles", "resample",
@@ -366,17 +361,16 @@ def map_triangles(surfels: SurfelSet, sphere_points) -> np.ndarray:
         Counter-clockwise triangles seen from outside: the surfels' faces (without those that
         repeat a corner) when their signed spherical areas sum to 4π and the clockwise ones cover
         at most the share ``TOL.inverted_area`` of the sphere (the map embeds the mesh but for the
-        small faces that the fold realisation of :mod:`surfidx._circlepattern` turned over, where
-        point location falls back to nearby triangles); otherwise the convex hull of
-        ``sphere_points`` (:func:`surfidx.parameterize.hull_triangles`). Scorpion at level 9,
-        about 600 of its 101,302 faces turned over: PSNR_D2 81.2 dB in its faces, 70.4 dB in the
-        convex hull.
+        small faces that the fold realisation of :mod:`surfidx.sphere._circlepattern` turned
+        over, where point location falls back to nearby triangles); otherwise the convex hull of
+        ``sphere_points`` (:func:`surfidx.spherical.hull_triangles`). The own faces resample
+        better: grid points land on the input's triangles.
     """
-    pts = _check_points(surfels, sphere_points)
+    pts = map_points(surfels, sphere_points)
     f = surfels.faces
     if f is not None and len(f):
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-        area = _spherical_areas(pts, f)
+        area = triangle_areas(pts, f)
         if len(f) and -area[area < 0].sum() <= TOL.inverted_area * 4 * np.pi and abs(
                 area.sum() / (4 * np.pi) - 1.0) <= TOL.sphere_cover:
             return np.ascontiguousarray(f, dtype=np.int64)
@@ -391,7 +385,7 @@ def resample(surfels: SurfelSet, sphere_points, level: int, *, color: bool | Non
     ----------
     surfels : SurfelSet
     sphere_points : (n, 3) float64
-        The surfels' positions on the unit sphere (:func:`surfidx.parameterize.parameterize`).
+        The surfels' positions on the unit sphere (:func:`surfidx.sphere.parameterize`).
     level : int
         Grid level, 0 … :data:`surfidx.icosphere.MAX_LEVEL`.
     color : bool, optional
@@ -412,7 +406,7 @@ def resample(surfels: SurfelSet, sphere_points, level: int, *, color: bool | Non
         Bad sphere points, colour asked of colourless surfels, ``phong`` outside [0, 1],
         ``sharpness`` below 1.
     """
-    pts = _check_points(surfels, sphere_points)
+    pts = map_points(surfels, sphere_points)
     color = surfels.has_color if color is None else bool(color)
     if color and not surfels.has_color:
         raise InputError("color=True, but the surfels have no colours")

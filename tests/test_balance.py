@@ -3,17 +3,18 @@
 import numpy as np
 import pytest
 
-from surfidx._balance import _Energy, balance, untangle
-from surfidx.parameterize import _orientation, _tutte_map, parameterize  # noqa: F401
+from surfidx.sphere import MapOptions
+from surfidx.sphere._balance import _Energy, balance, untangle
+from surfidx.sphere._surface import oriented_faces
+from surfidx.sphere._tutte import tutte_map
+from surfidx.spherical import orientation as _orientation
 from test_parameterize import _limbs
 
 
 def _start():
     s = _limbs()
-    from surfidx.parameterize import _oriented_faces
-
-    f = _oriented_faces(s)
-    x, _ = _tutte_map(s, iterations=0, gamma=0.15, balance=False)
+    f = oriented_faces(s)
+    x, _ = tutte_map(s, options=MapOptions(), iterations=0, gamma=0.15, balance=False)
     return s.positions, f, x
 
 

@@ -1,13 +1,13 @@
-"""Fold removal by edge flips and Delaunay realisation (surfidx._circlepattern)."""
+"""Fold removal by edge flips and Delaunay realisation (surfidx.sphere._circlepattern)."""
 
 import numpy as np
 import pytest
 
-from surfidx._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles, _edges,
-                                    _moebius_fit, _spacing, anneal_flips, flip_folds,
-                                    lower_folds, realise)
-from surfidx._foldrepair import _against_normals as _folded
-from surfidx.parameterize import hull_triangles
+from surfidx.sphere._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles,
+                                           _edges, _moebius_fit, _spacing, anneal_flips,
+                                           flip_folds, lower_folds, realise)
+from surfidx.sphere import MapOptions
+from surfidx.spherical import against_normals as _folded, hull_triangles
 
 
 def _sorted(t):
@@ -193,7 +193,7 @@ def test_lower_folds_realises_an_annealed_triangulation(points, ellipsoid):
     annealing, one of its triangulations is realised instead, and nothing is left."""
     p, n = ellipsoid
     x = _noisy(points)
-    y0, plain = lower_folds(x, p, n, anneal_steps=0)
+    y0, plain = lower_folds(x, p, n, options=MapOptions(anneal_steps=0))
     assert plain["folds"] == flip_folds(hull_triangles(x), p, n, x)[1] > 0
     assert plain["annealed"] == 0
     y, info = lower_folds(x, p, n)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from surfidx import TriangleMesh, read_surfels
-from surfidx._decimate import decimate
-from surfidx.parameterize import _oriented_faces
+from surfidx.sphere._decimate import decimate
+from surfidx.sphere._surface import oriented_faces as _oriented_faces
 
 from conftest import icosphere_mesh
 
@@ -66,7 +66,7 @@ def test_prolong_is_exact_for_affine_values_on_a_flat_star():
     star = np.concatenate([[removed[i]], ring[ptr[i]:ptr[i + 1]]])
     vals = np.full((len(v), 1), np.nan)
     vals[:, 0] = 2.0 * flat[:, 0] - flat[:, 1] + 0.5
-    from surfidx._decimate import Hierarchy
+    from surfidx.sphere._decimate import Hierarchy
 
     one = Hierarchy(h.faces, np.setdiff1d(np.arange(len(v)), [removed[i]]),
                     [(removed[i:i + 1], np.array([0, ptr[i + 1] - ptr[i]]), star[1:])])

@@ -69,7 +69,7 @@ def _same(a, b):
 def test_the_map_runs_its_stages(inputs):
     """The inputs exercise the stages that stopped on the clock before: untangling and balancing
     on several levels, a proxy mesh and the fold repair."""
-    from surfidx.parameterize import parameterize
+    from surfidx.sphere import parameterize
 
     _, (limbs, cloud) = inputs
     m = parameterize(surfidx.read_surfels(limbs), stress=False)

@@ -4,17 +4,20 @@ import numpy as np
 import pytest
 
 from surfidx import TriangleMesh
-from surfidx._foldrepair import folded_mask, repair_folds
-from surfidx.parameterize import _mesh_map, _orientation, _oriented_faces, hull_triangles
+from surfidx.sphere import MapOptions
+from surfidx.sphere._foldrepair import repair_folds
+from surfidx.sphere._multilevel import mesh_map
+from surfidx.sphere._surface import oriented_faces as _oriented_faces
+from surfidx.spherical import folded_mask, hull_triangles, orientation as _orientation
 
 from conftest import tube_mesh
 
 
 @pytest.fixture(scope="module")
 def tube_map():
-    """A tube 75 girths long, mapped without the repair: its rows fold (measured 14 triangles)."""
+    """A tube 75 girths long, mapped without the repair: its rows fold."""
     s = TriangleMesh(*tube_mesh(k=8, m=60, h=0.8), name="tube").to_surfels()
-    x, _ = _mesh_map(s, repair=False, iterations=40, gamma=0.15)
+    x, _, _ = mesh_map(s, options=MapOptions(), iterations=40, gamma=0.15, balance=True)
     return s, _oriented_faces(s), x
 
 
@@ -26,7 +29,7 @@ def test_repair_lowers_folds_and_keeps_the_mesh_fold_free(tube_map):
     s, f, x = tube_map
     before = _folds(s, x)
     assert before > 0 and np.all(_orientation(x, f) > 0)
-    y, info = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles)
+    y, info = repair_folds(x, s.positions, s.normals, f)
     assert info["folds_before"] == before
     assert info["folds"] == _folds(s, y) < before
     assert np.all(_orientation(y, f) > 0)                  # no mesh triangle inverted
@@ -43,32 +46,31 @@ def test_repair_on_a_triangulation_with_isolated_vertices(tube_map):
     bad = folded_mask(s.positions, s.normals, tri)
     lonely = np.unique(tri[bad])
     mesh = tri[~bad & ~np.isin(tri, lonely).any(axis=1)]
-    y, info = repair_folds(x, s.positions, s.normals, mesh, hull=hull_triangles)
+    y, info = repair_folds(x, s.positions, s.normals, mesh)
     assert np.all(np.isfinite(y))
     assert info["folds"] == _folds(s, y) <= info["folds_before"] == int(bad.sum())
 
 
-def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map, monkeypatch):
-    """The mesh map's second repair pass (the unfolded Delaunay triangles kept embedded too)
-    ends with at most the first pass's folds and every mesh triangle still counter-clockwise;
-    without its search, the first pass's result is where it starts."""
-    import surfidx.parameterize as P
+def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map):
+    """The second repair pass (the unfolded Delaunay triangles kept embedded too) ends with at
+    most the first pass's folds and every mesh triangle still counter-clockwise; without its
+    search, the first pass's result is where it starts."""
+    from surfidx.sphere._repair import repair
 
-    s, f, _ = tube_map
-    options = dict(iterations=40, gamma=0.15)
-    monkeypatch.setattr(P, "_SECOND_PASS", False)
-    x1, i1 = P._mesh_map(s, **options)
-    monkeypatch.setattr(P, "_SECOND_PASS", True)
-    x2, i2 = P._mesh_map(s, **options)
+    s, f, x = tube_map
+    x1, (r1,) = repair(x, s, options=MapOptions(second_pass=False, realise=False), mesh=f)
+    x2, (r2,) = repair(x, s, options=MapOptions(realise=False), mesh=f)
+    assert r1 == ("repair", dict(r1[1], second_pass=0))
     assert _folds(s, x2) <= _folds(s, x1)
-    assert i2["folds_repaired"] >= i1["folds_repaired"]
+    assert r2[1]["folds_repaired"] >= r1[1]["folds_repaired"]
+    assert r2[1]["folds_repaired"] - r2[1]["second_pass"] == r1[1]["folds_repaired"]
     assert np.all(_orientation(x2, f) > 0)
 
 
 def test_repair_without_search_stops_after_the_rounds(tube_map):
     s, f, x = tube_map
-    _, searched = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles)
-    _, info = repair_folds(x, s.positions, s.normals, f, hull=hull_triangles, search=False)
+    _, searched = repair_folds(x, s.positions, s.normals, f)
+    _, info = repair_folds(x, s.positions, s.normals, f, search=False)
     assert "searched" in searched and "searched" not in info
     assert info["folds"] >= searched["folds"]
 
@@ -76,7 +78,7 @@ def test_repair_without_search_stops_after_the_rounds(tube_map):
 def test_repair_leaves_a_fold_free_map_alone(sphere_surfels):
     s = sphere_surfels
     f = _oriented_faces(s)
-    y, info = repair_folds(s.positions, s.positions, s.normals, f, hull=hull_triangles)
+    y, info = repair_folds(s.positions, s.positions, s.normals, f)
     assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "moved": 0}
     np.testing.assert_array_equal(y, s.positions)
 
@@ -92,14 +94,14 @@ def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
 def test_local_delaunay_update_equals_the_global_hull(seed):
     """Moving a few vertices, the locally updated triangulation is the convex hull of the moved
     map, and its folded mask that of the hull (random points: no cocircular ties)."""
-    from surfidx._foldrepair import _Hull
+    from surfidx.sphere._foldrepair import _Hull
 
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(2000, 3))
     x /= np.linalg.norm(x, axis=1)[:, None]
     p = x * rng.uniform(0.5, 1.5, size=(2000, 1))          # a bumpy star-shaped surface
     normals = x + 0.5 * rng.normal(size=x.shape)             # some folds
-    state = _Hull(x, p, normals, hull_triangles)
+    state = _Hull(x, p, normals)
     k = [10, 1, 3][seed % 3]         # many moved vertices (KD-tree tests) or a few (direct tests)
     for _ in range(2):               # from the start, then from the accepted result (new caches)
         moved = np.zeros(len(x), bool)
@@ -119,14 +121,15 @@ def test_local_delaunay_update_equals_the_global_hull(seed):
 def test_random_search_removes_folds_deterministically(tube_map):
     """The final random search (run when the move rounds leave few folds) keeps only moves that
     lower the fold count and invert no mesh triangle, and is seeded."""
-    from surfidx._foldrepair import _Hull, _Mesh, _search
+    from surfidx.sphere._foldrepair import _Hull, _Mesh, _search
 
     s, f, x = tube_map
     results = []
     for _ in range(2):
-        state = _Hull(x, s.positions, s.normals, hull_triangles)
+        state = _Hull(x, s.positions, s.normals)
         before = int(state.bad.sum())
-        y, removed = _search(x, state, _Mesh(f, len(x)))
+        y, removed = _search(x, state, _Mesh(f, len(x)), trials=MapOptions().search_trials,
+                             work=MapOptions().search_work)
         assert removed >= 1 and _folds(s, y) == before - removed == int(state.bad.sum())
         assert np.all(_orientation(y, f) > 0)
         results.append(y)
@@ -134,7 +137,7 @@ def test_random_search_removes_folds_deterministically(tube_map):
 
 
 def test_parameterize_reports_the_repair(tube_map):
-    from surfidx.parameterize import parameterize
+    from surfidx.sphere import parameterize
 
     s, _, x = tube_map
     m = parameterize(s, stress=False)
@@ -145,7 +148,7 @@ def test_parameterize_reports_the_repair(tube_map):
 def test_blocked_move_is_halved_then_undone(sphere_surfels):
     """A move past a neighbour inverts mesh triangles: it is halved until none is inverted, or
     undone when halving is not allowed."""
-    from surfidx._foldrepair import _Mesh
+    from surfidx.sphere._foldrepair import _Mesh
 
     s = sphere_surfels
     f = _oriented_faces(s)

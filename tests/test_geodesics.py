@@ -181,7 +181,7 @@ def test_refined_path_on_surface_and_shorter(sphere4):
 
 def _mesh_distance(points, s):
     """Distance of each point to the nearest triangle of ``s.faces`` (barycentric clamp)."""
-    from surfidx.proxy import _closest_on_triangle
+    from surfidx.sphere.proxy import _closest_on_triangle
 
     tri = s.positions[s.faces]
     out = []

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_surfels
-from surfidx.parameterize import (METHODS, SphericalMap, area_distortion, count_folds,
-                                  hull_triangles, parameterize, sparse_sampling)
+from surfidx.sphere import (METHODS, MapOptions, SphericalMap, area_distortion, count_folds,
+                            hull_triangles, parameterize, sparse_sampling)
 
 from conftest import EXAMPLES, icosphere_mesh, tube_mesh
 
@@ -91,13 +91,13 @@ def test_area_balancing_grows_limbs():
 def test_squeezed_tutte_start_is_untangled_before_balancing():
     """A tube 80 girths long: the Tutte start squeezes its far end below the floating-point floor
     (inverted triangles), which balancing alone cannot start from; it is untangled first."""
-    from surfidx.parameterize import _tutte_map
+    from surfidx.sphere._tutte import tutte_map
 
     s = TriangleMesh(*tube_mesh(m=100), name="tube").to_surfels()
-    options = dict(iterations=0, gamma=1.0)
-    _, start = _tutte_map(s, balance=False, **options)   # neither untangled nor balanced
+    route = dict(iterations=0, gamma=1.0)
+    _, start = tutte_map(s, balance=False, options=MapOptions(), **route)   # as it starts
     assert start["mesh_folds"] > 0
-    _, info = _tutte_map(s, balance_steps=100, **options)
+    _, info = tutte_map(s, options=MapOptions(single_level_max_steps=100), **route)
     assert info["mesh_folds"] == 0 and info["balance_steps"] > 0
     assert info["mesh_area_distortion"] < 0.2 * start["mesh_area_distortion"]
 
@@ -106,10 +106,10 @@ def test_mobius_normalised(sphere_surfels):
     # area-weighted centre of mass of the vertices at the origin (canonical up to a rotation)
     s = sphere_surfels.transformed(translation=[0.3, 0.0, 0.0])
     m = parameterize(s, stress=False, iterations=0)
-    from surfidx.parameterize import _areas3, _oriented_faces
+    from surfidx.sphere._surface import areas3, oriented_faces
 
-    f = _oriented_faces(s)
-    va = np.bincount(f.ravel(), np.repeat(_areas3(s.positions, f), 3), minlength=len(s))
+    f = oriented_faces(s)
+    va = np.bincount(f.ravel(), np.repeat(areas3(s.positions, f), 3), minlength=len(s))
     assert np.linalg.norm(va @ m.points / va.sum()) < 1e-6
 
 
@@ -206,7 +206,7 @@ def test_horse_full_size(models):
 
     s = read_surfels(models / "horse.ply")
     m = parameterize(s, stress=False)
-    assert m.info["mesh_folds"] == 0 and m.info["levels"] >= 4
+    assert m.stage("multilevel").figures["mesh_folds"] == 0 and m.info["levels"] >= 4
     assert m.fold_fraction < 2e-3          # measured 0.08-0.09 %
     assert m.area_distortion < 1.2         # measured 0.90 (single-level Tutte: 6.6)
     g = grid_to_surfels(resample(s, m.points, choose_level(len(s))))
@@ -225,39 +225,38 @@ def test_horse_delaunay_fold_target(models):
 
 
 @pytest.mark.slow
-def test_scorpion_folds_after_realisation(models, monkeypatch):
+def test_scorpion_folds_after_realisation(models):
     """Issue #4's fold target on scorpion's thin legs: at most 0.01 % folded Delaunay
-    triangles (its mesh has near-degenerate spots: 41 faces against their own normals). The
-    repair leaves about 440; flips alone stop at 20, the annealed flips and their realisation
-    reach 4 (measured). The count is the one counted afresh from the points, the resampling
+    triangles (its mesh has near-degenerate spots: faces against their own normals). The repair
+    leaves some hundreds; flips alone stop well above the target, the annealed flips and their
+    realisation reach it. The count is the one counted afresh from the points, the resampling
     loses at most ``TOL.realise_loss`` dB, and convex flips alone never do better on the same
     map."""
-    import surfidx._circlepattern as C
-    import surfidx.parameterize as P
+    from surfidx.sphere._circlepattern import lower_folds
+    from surfidx.sphere._repair import ResamplingCheck
 
     s = read_surfels(models / "scorpion.obj")
-    monkeypatch.setattr(P, "_REALISE", False)
-    x = parameterize(s, stress=False).points
-    check = P._ResamplingCheck(s, x)
-    y, info = C.lower_folds(x, s.positions, s.normals, accept=check)
+    x = parameterize(s, stress=False, options=MapOptions(realise=False)).points
+    check = ResamplingCheck(s, x)
+    y, info = lower_folds(x, s.positions, s.normals, accept=check)
     assert info["folds_before"] >= 300 and info["annealed"] >= 1
     folds, triangles = count_folds(s, y)
     assert folds == info["folds"] <= 1e-4 * triangles
     assert check.psnr(y) >= check.floor
-    monkeypatch.setattr(C, "_LADDER", tuple(r for r in C._LADDER if r[0]))   # convex only
-    _, convex = C.lower_folds(x, s.positions, s.normals, accept=check)
-    assert info["folds"] <= convex["folds"]
+    convex = MapOptions(flip_ladder=tuple(r for r in MapOptions().flip_ladder if r[0]))
+    _, convex_info = lower_folds(x, s.positions, s.normals, accept=check, options=convex)
+    assert info["folds"] <= convex_info["folds"]
 
 
 def test_resampling_check_refuses_a_map_that_resamples_worse(models):
     """The check of a fold realisation: the map it was made for passes (its own PSNR is the
     floor plus the allowed loss), a map with some surfels moved across the sphere does not."""
-    import surfidx.parameterize as P
     from surfidx._tolerance import TOL
+    from surfidx.sphere._repair import ResamplingCheck
 
     s = read_surfels(models / "spot" / "spot_triangulated.obj")
     x = parameterize(s, stress=False).points
-    check = P._ResamplingCheck(s, x)
+    check = ResamplingCheck(s, x)
     assert check(x) and check.psnr(x) == pytest.approx(check.floor + TOL.realise_loss)
     y = x.copy()
     rng = np.random.default_rng(0)
@@ -273,7 +272,7 @@ def test_realisation_removes_the_fold_the_repair_leaves_on_homer(models):
 
     s = read_surfels(models / "homer.obj")
     m = parameterize(s, stress=False)
-    assert m.folded == 0 and m.info["folds_realised"] >= 1
+    assert m.folded == 0 and m.stage("realise").figures["folds_realised"] >= 1
     assert count_folds(s, m.points)[0] == 0          # counted afresh from the points
     tri = map_triangles(s, m.points)
     assert np.array_equal(tri, np.asarray(s.faces))
@@ -282,41 +281,40 @@ def test_realisation_removes_the_fold_the_repair_leaves_on_homer(models):
 def test_multilevel_map_has_levels_down_to_a_small_base():
     s = _limbs(4)
     m = parameterize(s, stress=False)
-    assert m.info["levels"] >= 3 and m.info["base_vertices"] <= 64
-    assert m.info["mesh_folds"] == 0 and "fallback" not in m.info
+    assert [st.name for st in m.stages][0] == "multilevel" and not m.fallback
+    levels = m.stage("multilevel").figures
+    assert levels["levels"] >= 3 and levels["base_vertices"] <= 64
+    assert levels["mesh_folds"] == 0 and levels["coarse"] == MapOptions().coarse_ladder[0]
 
 
-def test_finest_level_stops_on_its_step_count(monkeypatch):
-    """The finest level's balancing ends after ``_FINAL_STEPS`` steps, a count: the same map
-    on every run."""
-    import surfidx.parameterize as P
-
-    monkeypatch.setattr(P, "_FINAL_STEPS", 4)
+def test_finest_level_stops_on_its_step_count():
+    """The finest level's balancing ends after ``final_steps`` steps, a count: the same map on
+    every run."""
     s = _limbs(4)
-    m = parameterize(s, stress=False)
+    options = MapOptions(final_steps=4)
+    m = parameterize(s, stress=False, options=options)
     assert m.info["balance_steps"] == 4
-    m2 = parameterize(s, stress=False)
+    m2 = parameterize(s, stress=False, options=options)
     assert np.array_equal(m.points, m2.points)
 
 
 def test_single_level_steps_bound_steps_times_vertices():
     """The single-level balancing's step count falls with the vertex count, so its cost is
     bounded at any size."""
-    import surfidx.parameterize as P
+    from surfidx.sphere._tutte import single_level_steps
 
-    assert P._single_level_steps(64) == 3000
-    assert P._single_level_steps(50_000) * 50_000 <= P._SINGLE_LEVEL_WORK
-    assert P._single_level_steps(10 ** 7) == 300
+    o = MapOptions()
+    assert single_level_steps(64, o) == o.single_level_max_steps == 3000
+    assert single_level_steps(50_000, o) * 50_000 <= o.single_level_work
+    assert single_level_steps(10 ** 7, o) == o.single_level_min_steps == 300
 
 
-def test_level_left_with_few_inverted_triangles_is_kept(monkeypatch):
-    """Up to _INVERTED_KEPT of a level's triangles may stay inverted (the map keeps its levels);
-    here every share is allowed and nothing is untangled."""
-    import surfidx.parameterize as P
-
-    monkeypatch.setattr(P, "_INVERTED_KEPT", 1.0)
-    m = parameterize(_limbs(4), stress=False, balance=False)
-    assert "fallback" not in m.info and m.info["levels"] >= 3
+def test_level_left_with_few_inverted_triangles_is_kept():
+    """Up to ``inverted_kept`` of a level's triangles may stay inverted (the map keeps its
+    levels); here every share is allowed and nothing is untangled."""
+    m = parameterize(_limbs(4), stress=False, balance=False,
+                     options=MapOptions(inverted_kept=1.0))
+    assert not m.fallback and m.info["levels"] >= 3
     assert m.info["mesh_folds"] > 0 and m.info["balance_steps"] == 0
 
 
@@ -325,30 +323,34 @@ def test_level_that_cannot_be_untangled_falls_back_to_single_level():
     single-level Tutte map, which is fold-free by construction."""
     s = _limbs(4)
     m = parameterize(s, stress=False, balance=False)
-    assert m.info.get("fallback") == 1 and m.info["levels"] == 1
-    assert m.info["mesh_folds"] == 0 and m.info["retries"] == 3
+    assert m.fallback and m.stage("multilevel") is None
+    single = m.stage("single_level").figures
+    assert single["levels"] == 1 and single["mesh_folds"] == 0
+    assert single["retries"] == len(MapOptions().coarse_ladder)
+    assert m.figures()["fallback"] is True and m.figures()["stages"][0] == "single_level"
 
 
 def test_level_that_fails_is_retried_with_another_hierarchy(monkeypatch):
     """A hierarchy whose level cannot be untangled is built again to the next coarsest size of
-    _COARSE_LADDER before the single-level map is tried."""
-    import surfidx.parameterize as P
+    ``coarse_ladder`` before the single-level map is tried (the failure is injected)."""
+    import surfidx.sphere._multilevel as M
 
+    ladder = MapOptions().coarse_ladder
     tried = []
-    real = P._multilevel_map
+    real = M.multilevel_map
 
-    def failing_first(surfels, *, coarse, **options):
+    def failing_first(surfels, *, coarse, **kwargs):
         if not tried or tried[-1] != coarse:
             tried.append(coarse)
-        if coarse == P._COARSE_LADDER[0]:
-            raise P._Untangled(len(surfels))
-        return real(surfels, coarse=coarse, **options)
+        if coarse == ladder[0]:
+            raise M.Untangled(len(surfels))
+        return real(surfels, coarse=coarse, **kwargs)
 
-    monkeypatch.setattr(P, "_multilevel_map", failing_first)
+    monkeypatch.setattr(M, "multilevel_map", failing_first)
     m = parameterize(_limbs(4), stress=False)
-    assert tried[:2] == list(P._COARSE_LADDER[:2])
-    assert "fallback" not in m.info and m.info["retries"] == 1
-    assert m.info["coarse"] == P._COARSE_LADDER[1] and m.info["mesh_folds"] == 0
+    assert tried[:2] == list(ladder[:2])
+    assert not m.fallback and m.info["retries"] == 1
+    assert m.info["coarse"] == ladder[1] and m.info["mesh_folds"] == 0
 
 
 def test_glasses_whose_coarse_map_collapses_are_mapped_without_holes(shared_data):
@@ -356,7 +358,7 @@ def test_glasses_whose_coarse_map_collapses_are_mapped_without_holes(shared_data
     map; the single-level fallback left 40 % coverage holes and 1.9 % folds."""
     s = read_surfels(shared_data / "retrieval" / "meshes" / "d024.off")
     m = parameterize(s, stress=False)
-    assert "fallback" not in m.info and m.info["retries"] >= 1
+    assert not m.fallback and m.info["retries"] >= 1
     assert m.fold_fraction < 1e-3 and m.sparse_sampling > 0.01
 
 
@@ -366,6 +368,7 @@ def test_point_cloud_mapped_through_proxy_mesh():
     s = _limbs()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False)
+    assert m.stages[0].name == "proxy" and m.stages[0].figures["proxy"] == "reconstructed"
     assert m.info["proxy_vertices"] > 0
     np.testing.assert_allclose(np.linalg.norm(m.points, axis=1), 1.0, atol=1e-12)
     assert m.fold_fraction <= 0.01
@@ -379,68 +382,64 @@ def test_point_cloud_folds_are_repaired_on_its_own_delaunay_triangulation():
     s = read_surfels(EXAMPLES / "spot" / "spot_triangulated.obj")
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False)
-    assert m.info["folds_repaired"] > 0 and m.folded == 0
+    assert m.stage("repair").figures["folds_repaired"] > 0 and m.folded == 0
     assert count_folds(cloud, m.points)[0] == 0
+
+
+def _failing_proxy_maps(monkeypatch, failing):
+    """Make the first ``failing`` proxy maps report a fallback (an injected failure); returns
+    the list that collects the mapped proxies' sizes."""
+    import surfidx.sphere._cloud as C
+
+    sizes = []
+    real = C.mesh_map
+
+    def fails(surfels, **kwargs):
+        sizes.append(len(surfels))
+        x, info, fallback = real(surfels, **kwargs)
+        return x, info, fallback or len(sizes) <= failing
+
+    monkeypatch.setattr(C, "mesh_map", fails)
+    return sizes
 
 
 def test_proxy_whose_map_falls_back_is_simplified_and_mapped_again(monkeypatch):
     """When the proxy's map falls back to the single-level route (marching-cubes slivers can
     stop every hierarchy), a proxy with half its vertices collapsed is mapped instead."""
-    import surfidx.parameterize as P
-
-    sizes = []
-    real = P._mesh_map
-
-    def first_falls_back(surfels, **options):
-        sizes.append(len(surfels))
-        x, info = real(surfels, **options)
-        return x, (dict(info, fallback=1) if len(sizes) == 1 else info)
-
-    monkeypatch.setattr(P, "_mesh_map", first_falls_back)
+    sizes = _failing_proxy_maps(monkeypatch, 1)
     s = _limbs()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False)
     assert len(sizes) == 2 and sizes[1] <= sizes[0] // 2 + 1
-    assert m.info["proxy_simplified"] == 1 and m.info["proxy_vertices"] == sizes[1]
-    assert "fallback" not in m.info and m.fold_fraction <= 0.01
+    proxy = m.stage("proxy").figures
+    assert proxy["proxy"] == "simplified" and proxy["proxy_vertices"] == sizes[1]
+    assert not m.fallback and m.fold_fraction <= 0.01
 
 
-def test_proxy_whose_simplified_map_falls_back_too_is_rebuilt_coarser(monkeypatch):
+@pytest.mark.parametrize("failing, coarser", [(2, True), (3, False)])
+def test_proxy_whose_simplified_map_falls_back_too_is_rebuilt_coarser(monkeypatch, failing,
+                                                                      coarser):
     """When the simplified proxy's map falls back as well, a proxy on a coarser grid is mapped;
     when that one falls back too, the first proxy's map is kept (and judged as a fallback)."""
-    import surfidx.parameterize as P
-
+    sizes = _failing_proxy_maps(monkeypatch, failing)
     s = _limbs()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
-    for failing, coarser in ((2, True), (3, False)):
-        sizes = []
-        real = P._mesh_map
-
-        def fails(surfels, **options):
-            sizes.append(len(surfels))
-            x, info = real(surfels, **options)
-            return x, (dict(info, fallback=1) if len(sizes) <= failing else info)
-
-        monkeypatch.setattr(P, "_mesh_map", fails)
-        monkeypatch.setattr(P, "_MAX_AREA_DISTORTION", np.inf)
-        m = parameterize(cloud, stress=False)
-        assert len(sizes) == 3
-        assert m.info.get("proxy_coarser") == (1 if coarser else None)
-        assert ("fallback" in m.info) is not coarser
-        assert (m.info["proxy_vertices"] == sizes[2]) is coarser
-        monkeypatch.undo()
+    m = parameterize(cloud, stress=False, options=MapOptions(max_area_distortion=1e9))
+    assert len(sizes) == 3
+    proxy = m.stage("proxy").figures
+    assert proxy["proxy"] == ("coarser" if coarser else "reconstructed")
+    assert m.fallback is not coarser
+    assert (proxy["proxy_vertices"] == sizes[2]) is coarser
 
 
-def test_squeezed_fallback_map_is_refused(monkeypatch):
-    """A single-level fallback whose area distortion exceeds _MAX_AREA_DISTORTION is refused with
-    a TopologyError; a multilevel map is never refused for it."""
-    import surfidx.parameterize as P
-
-    monkeypatch.setattr(P, "_MAX_AREA_DISTORTION", 0.01)
-    assert "fallback" not in parameterize(_limbs(), stress=False).info
+def test_squeezed_fallback_map_is_refused():
+    """A single-level fallback whose area distortion exceeds ``max_area_distortion`` is refused
+    with a TopologyError; a multilevel map is never refused for it."""
+    options = MapOptions(max_area_distortion=0.01)
+    assert not parameterize(_limbs(), stress=False, options=options).fallback
     with pytest.raises(TopologyError, match=r"squeezes parts of the surface to nothing "
                                             r"\(area distortion .*no level of the mesh"):
-        parameterize(_limbs(4), stress=False, balance=False)
+        parameterize(_limbs(4), stress=False, balance=False, options=options)
 
 
 def test_point_cloud_of_genus_one_refused():
@@ -455,3 +454,54 @@ def test_point_cloud_of_genus_one_refused():
     torus = SurfelSet(p, n, np.full(len(p), 0.08))
     with pytest.raises(TopologyError, match="genus"):
         parameterize(torus, stress=False)
+
+
+def test_map_options_are_checked(sphere_surfels):
+    """Bad options fail when the options are made, naming the field; a map takes only a
+    MapOptions."""
+    import dataclasses
+
+    with pytest.raises(InputError, match="MapOptions.second_pass must be True or False"):
+        MapOptions(second_pass=1)
+    with pytest.raises(InputError, match=r"MapOptions.level_steps must be an integer >= 0"):
+        MapOptions(level_steps=-1)
+    with pytest.raises(InputError, match=r"MapOptions.final_steps must be an integer >= 0"):
+        MapOptions(final_steps=2.5)
+    with pytest.raises(InputError, match=r"MapOptions.inverted_kept must be a finite number >= 0"):
+        MapOptions(inverted_kept=float("nan"))
+    with pytest.raises(InputError, match="MapOptions.level_ratio must be at least 2"):
+        MapOptions(level_ratio=1)
+    with pytest.raises(InputError, match="MapOptions.coarse_ladder must be a non-empty tuple"):
+        MapOptions(coarse_ladder=())
+    with pytest.raises(InputError, match="MapOptions.flip_ladder must be a tuple"):
+        MapOptions(flip_ladder=((1, 0.3),))
+    with pytest.raises(InputError, match="options must be a MapOptions, got dict"):
+        parameterize(sphere_surfels, options={"realise": False})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        MapOptions().realise = False        # frozen: a map's options cannot change under it
+
+
+def test_map_result_records_its_stages(sphere_surfels):
+    """The result is frozen; its stages are records with read-only figures, merged in
+    ``info`` and in ``figures()`` (the CLI's JSON)."""
+    m = parameterize(_limbs(), stress=False)
+    assert [s.name for s in m.stages][:2] == ["multilevel", "repair"]
+    assert m.stage("mds") is None and not m.fallback
+    with pytest.raises(TypeError):
+        m.info["levels"] = 0
+    with pytest.raises(TypeError):
+        m.stages[0].figures["levels"] = 0
+    fig = m.figures()
+    assert fig["levels"] == m.info["levels"] and fig["stages"] == [s.name for s in m.stages]
+    mds = parameterize(sphere_surfels, method="mds", landmarks=8, iterations=2, stress=False)
+    assert [s.name for s in mds.stages] == ["mds"] and mds.info["landmarks"] == 8
+
+
+def test_repair_switches_are_options():
+    """``second_pass=False`` and ``realise=False`` leave those stages out, and the first
+    repair's result is where the second pass starts: it never adds folds."""
+    s = _limbs(4)
+    plain = parameterize(s, stress=False, options=MapOptions(second_pass=False, realise=False))
+    full = parameterize(s, stress=False, options=MapOptions(realise=False))
+    assert plain.stage("realise") is None and plain.stage("repair").figures["second_pass"] == 0
+    assert full.folded <= plain.folded

@@ -7,7 +7,7 @@ import pytest
 
 from surfidx import SurfelSet, TriangleMesh
 from surfidx._errors import InputError, TopologyError
-from surfidx.proxy import MIN_POINTS, closest_points, proxy_mesh, transfer
+from surfidx.sphere.proxy import MIN_POINTS, closest_points, proxy_mesh, transfer
 
 
 def _ellipsoid(n, axes=(1.0, 1.0, 1.0), seed=0):
@@ -122,7 +122,7 @@ def test_inward_normals():
 
 def test_broken_proxy_is_not_closed():
     # the check run on every proxy: a mesh with a hole, and one with a non-manifold edge
-    from surfidx.proxy import _check_topology
+    from surfidx.sphere.proxy import _check_topology
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2]])
@@ -134,7 +134,7 @@ def test_broken_proxy_is_not_closed():
 
 
 def test_inconsistent_winding_is_reported():
-    from surfidx.proxy import _check_topology
+    from surfidx.sphere.proxy import _check_topology
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -173,7 +173,7 @@ def test_closest_points_match_brute_force():
     pts = rng.normal(size=(300, 3)) * 1.5  # inside, outside and far away
     face, bary, dist = closest_points(pts, v, f, candidates=2)
     # brute force over every triangle
-    from surfidx.proxy import _project
+    from surfidx.sphere.proxy import _project
 
     allc = np.tile(np.arange(len(f)), (len(pts), 1))
     _, _, d2 = _project(pts, allc, v, f)

@@ -7,7 +7,8 @@ import pytest
 
 from surfidx import InputError, SurfelSet, read_surfels
 from surfidx.icosphere import icosphere
-from surfidx.parameterize import _orientation, parameterize
+from surfidx.sphere import parameterize
+from surfidx.spherical import orientation as _orientation
 from surfidx.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, map_triangles,
                               resample)
 

@@ -7,7 +7,7 @@ import click
 from . import cli
 from ._common import command_errors, echo_json, input_options, read_input
 
-_METHODS = ("tutte", "mds")
+_METHODS = ("tutte", "mds")   # surfidx.sphere.METHODS, without importing the map at startup
 
 
 @cli.command()
@@ -23,7 +23,7 @@ _METHODS = ("tutte", "mds")
 def parameterize(input, output, method, seed, texture, samples, as_json):
     """Map a closed genus-0 model onto the unit sphere."""
     from ..io import write_ply
-    from ..parameterize import parameterize as run
+    from ..sphere import parameterize as run
 
     s = read_input(input, texture, samples)
     m = run(s, method=method, seed=seed)
@@ -54,7 +54,7 @@ def resample(input, output, level, method, as_mesh, texture, samples, as_json):
     """Map a model to the sphere and write its uncompressed icosahedral-grid reconstruction."""
     from ..icosphere import choose_level
     from ..io import write_ply
-    from ..parameterize import parameterize as run
+    from ..sphere import parameterize as run
     from ..resample import grid_to_mesh, grid_to_surfels, resample as resample_grid
 
     s = read_input(input, texture, samples)

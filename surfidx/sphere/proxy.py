@@ -24,12 +24,13 @@ from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ._errors import InputError, TopologyError
-from ._validate import as_array, check_positive_int
-from .mesh import TriangleMesh
-from .surfels import SurfelSet
+from .._errors import InputError, TopologyError
+from .._validate import as_array, check_positive_int
+from ..mesh import TriangleMesh
+from ..surfels import SurfelSet
 
-__all__ = ["proxy_mesh", "transfer", "closest_points", "MAX_RESOLUTION", "MIN_POINTS"]
+__all__ = ["proxy_mesh", "transfer", "closest_points", "auto_resolution", "MAX_RESOLUTION",
+           "MIN_POINTS"]
 
 MIN_POINTS = 32
 """Fewest surfels :func:`proxy_mesh` accepts."""
@@ -220,6 +221,25 @@ def _extract(p, nrm, radii, h, spacing):
 
 
 # ---------------------------------------------------------------------- public: proxy mesh
+def auto_resolution(points, *, scale: float = 1.0) -> int:
+    """Grid cells along the longest bounding-box axis for a cell ``1 / scale`` times the
+    automatic one (the median distance to the 3rd nearest point), clipped to 24 .. 200.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    scale : float
+        Positive; below 1 a coarser grid.
+
+    Returns
+    -------
+    int
+    """
+    p = as_array(points, "points", shape=(None, 3), min_len=4)
+    cells = scale * float((p.max(axis=0) - p.min(axis=0)).max()) / _spacing(p)
+    return int(np.clip(np.ceil(cells), _AUTO_MIN, _AUTO_MAX))
+
+
 def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
                project: bool = True):
     """A closed, manifold, outward-wound triangle mesh approximating an oriented point cloud.

@@ -19,26 +19,17 @@ vertices and two rings around them) and a cluster's moves are kept only when the
 fewer folded triangles than it had. So the mesh stays fold-free and the count of folded Delaunay
 triangles never grows.
 
-Measured from the default map (before → after): horse 82 → 7 folded triangles of 96,966;
-armadillo 7 → 0; falconstatue 5 → 0; homer 10 → 3; scorpion 2133 → 427; on limbed models of the
-retrieval collection an octopus 1225 → 270, a human 477 → 135. Halving a blocked move instead of
-undoing it at once took horse from 12 to 7 and the octopus from 467 to 270. What remains lies
-across sharp creases and thin sheets (the three surfel normals disagree) and in the densest limb
-rows.
+What remains lies across sharp creases and thin sheets (the three surfel normals disagree) and in
+the densest limb rows.
 
-When the rounds leave at most ``_SEARCH_FOLDS`` folded triangles, a seeded random search
-follows (:func:`_search`): single moves of a corner or of a corner's mesh neighbour, in random
-directions by up to a mesh-edge length, the first that lowers the count kept. It reaches folds
-across creases that no move of the triangle's own corners mends: homer 3 → 1, horse 7 → 5,
-falconstatue 1 → 0; on the 77 genus-0 retrieval models, fold-free 37 → 40 and ≤ 0.01 % 42 → 47,
-at the same total map time.
-Its evaluations are one budget, ``_SEARCH_WORK / n`` in all, shared by the folds, so the search
-takes a few seconds at any size; with it, up to 30 folds are searched (horse, whose surfels
-include the bisected long edges, 11 → 5; homer 2 → 1 in 5 s).
+When the rounds leave at most ``search_folds`` folded triangles, a seeded random search follows
+(:func:`_search`): single moves of a corner or of a corner's mesh neighbour, in random directions
+by up to a mesh-edge length, the first that lowers the count kept. It reaches folds across
+creases that no move of the triangle's own corners mends. Its evaluations are one budget,
+``search_work / n`` in all, shared by the folds, so the search costs about the same at any size.
 
 Each round re-triangulates only the cavity of the moved vertices (:class:`_Hull`); one global
-convex hull is computed at the start and one at the end (horse: 2.7 s for the repair, against
-17 s with a global hull per evaluation).
+convex hull is computed at the start and one at the end.
 """
 
 from __future__ import annotations
@@ -47,9 +38,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from ._errors import InputError
+from .._errors import InputError
+from ..spherical import against_normals, corner_orientation, folded_mask, hull_triangles, mirrored
+from ..spherical import orientation
+from .options import DEFAULT_OPTIONS, MapOptions
 
-__all__ = ["repair_folds", "folded_mask"]
+__all__ = ["repair_folds"]
 
 #: Moves tried in turn on each folded triangle: (corner, margin). Corner 0 is the one with the
 #: largest 3D angle, 1 and 2 the next ones around the triangle. A margin ≥ 0 moves the corner to
@@ -59,49 +53,10 @@ _MOVES = ((0, 0.2), (0, 1.0), (1, 0.2), (2, 0.2), (0, 0.05), (1, 1.0), (2, 1.0),
           (0, -1.0), (1, -1.0), (2, -1.0), (0, -0.5), (1, -0.5), (2, -0.5))
 _CLUSTER_RINGS = 2   # rings of vertices around the moved ones that a cluster's folds are counted on
 _FEW_MOVED = 8       # _Hull.moved tests circumcircles directly against this many moved vertices
-_SEARCH_FOLDS = 30    # when the move rounds leave at most this many folds, a random search follows
-_SEARCH_TRIALS = 5000  # ... drawing at most this many single-vertex moves per folded triangle
-_SEARCH_WORK = 2e7     # ... and evaluating at most this / n of them in all (each costs O(n))
-
-
-def folded_mask(positions, normals, triangles) -> np.ndarray:
-    """Hull triangles whose 3D normal points against the sum of their surfel normals.
-
-    A global mirror is not a fold: when more than half disagree, the complement is returned.
-
-    Parameters
-    ----------
-    positions, normals : (n, 3) float64
-    triangles : (m, 3) int64
-        Counter-clockwise seen from outside the sphere.
-
-    Returns
-    -------
-    (m,) bool
-    """
-    bad = _against_normals(positions, normals, triangles)
-    return bad ^ _mirrored(bad)
-
-
-def _against_normals(p, normals, t):
-    n3 = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
-    return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
-
-
-def _mirrored(bad) -> bool:
-    """Whether most triangles disagree with the normals: a global mirror, not folds."""
-    return bool(np.count_nonzero(bad) > len(bad) - np.count_nonzero(bad))
-
-
-def _orientation(x, f):
-    """Orientation of each mesh triangle on the sphere: ``(b - a) × (c - a) · (a + b + c)``."""
-    return _corner_orientation(x[f])
-
-
-def _corner_orientation(c):
-    """:func:`_orientation` of triangles given by their corners, ``(m, 3, 3)``."""
-    a, b, c = c[:, 0], c[:, 1], c[:, 2]
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c)
+_HALVINGS = 3        # a move that inverts a mesh triangle is halved this often, then undone
+_ON_CIRCLE = 1e-10   # a circumcircle holds a point nearer its centre than (1 - this) its radius
+_SEARCH_MIN = 10     # the random search evaluates at least this many moves per fold
+_SEARCH_STEP = (0.05, 1.0)   # ... each by this range of shares of a mesh-edge length
 
 
 def _unit(v):
@@ -135,13 +90,13 @@ class _Mesh:
             mask = mask | (self.adj @ mask.astype(np.int8) > 0)
         return mask
 
-    def undo_inverting(self, x, y, moved, *, halvings: int = 3):
+    def undo_inverting(self, x, y, moved, *, halvings: int = _HALVINGS):
         """Shorten (in ``y``) each move of a vertex of a mesh triangle that ``y`` inverts: halve
         it up to ``halvings`` times, then put the vertex back; returns the vertices still moved."""
         step = np.zeros(len(x), np.int64)
         while moved.any():
             faces = np.unique(self.vf[np.flatnonzero(moved)].indices)
-            inv = faces[_orientation(y, self.f[faces]) <= 0]
+            inv = faces[orientation(y, self.f[faces]) <= 0]
             back = np.unique(self.f[inv].ravel())
             back = back[moved[back]]
             if not len(back):
@@ -166,18 +121,18 @@ class _Hull:
     by the global hull.
     """
 
-    def __init__(self, x, p, normals, hull):
-        self.p, self.normals, self.hull = p, normals, hull
+    def __init__(self, x, p, normals):
+        self.p, self.normals = p, normals
         self.n = len(x)
-        tri = hull(x)
-        bad = _against_normals(p, normals, tri)
-        self.mirror = _mirrored(bad)
+        tri = hull_triangles(x)
+        bad = against_normals(p, normals, tri)
+        self.mirror = mirrored(bad)
         self.tri, self.bad = tri, bad ^ self.mirror
         self._of = None          # (x, tri) the cached figures below belong to
         self._caps = self._tree = self._keys = None
 
     def _folded(self, t):
-        return _against_normals(self.p, self.normals, t) ^ self.mirror
+        return against_normals(self.p, self.normals, t) ^ self.mirror
 
     def moved(self, x, y, moved):
         """(triangles, folded mask) of ``y``, which differs from ``x`` (this triangulation's map)
@@ -200,10 +155,10 @@ class _Hull:
             return cKDTree(y[mv]).query(c, k=1)[0]
 
         near = to_moved(centre)
-        gone = moved[tri].any(axis=1) | (near < radius * (1.0 - 1e-10))
+        gone = moved[tri].any(axis=1) | (near < radius * (1.0 - _ON_CIRCLE))
         cavity = np.union1d(np.unique(tri[gone]), mv)
         try:
-            local = cavity[self.hull(y[cavity])]
+            local = cavity[hull_triangles(y[cavity])]
         except InputError:          # too few or coplanar cavity points
             return self._global(y)
         centre, radius = _circumcaps(y, local)
@@ -215,7 +170,7 @@ class _Hull:
             nearest = np.minimum(dist, to_moved(centre))
         else:
             nearest, _ = cKDTree(y).query(centre, k=1)
-        local = local[nearest >= radius * (1.0 - 1e-10)]
+        local = local[nearest >= radius * (1.0 - _ON_CIRCLE)]
         keep = tri[~gone]
         if n ** 3 < 2 ** 62:
             w = np.array([n * n, n, 1])
@@ -232,7 +187,7 @@ class _Hull:
         return self._global(y)
 
     def _global(self, y):
-        t = self.hull(y)
+        t = hull_triangles(y)
         return t, self._folded(t)
 
 
@@ -272,7 +227,7 @@ def _moves(x, v, a, c, margin, mesh):
     return v[ok], out[ok]
 
 
-def repair_folds(x, p, normals, f, *, hull, rounds: int = 40, search: bool = True):
+def repair_folds(x, p, normals, f, *, options: MapOptions = DEFAULT_OPTIONS, search: bool = True):
     """Lower the count of folded Delaunay triangles of a spherical mesh embedding by local moves.
 
     Parameters
@@ -283,15 +238,14 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40, search: bool = Tru
         3D positions and surfel normals.
     f : (m, 3) int64
         Faces, counter-clockwise seen from outside, agreeing with the normals.
-    rounds : int
-        Most rounds. Each round tries a move on every folded triangle at once, the next of
-        :data:`_MOVES` that this triangle has not had; the repair ends when every folded triangle
-        has had them all.
-    hull : callable
-        ``hull(x) -> (k, 3) int64`` counter-clockwise convex hull of unit vectors.
+    options : MapOptions
+        ``repair_rounds``: most rounds. Each round tries a move on every folded triangle at
+        once, the next of :data:`_MOVES` that this triangle has not had; the repair ends when
+        every folded triangle has had them all. ``search_folds``, ``search_trials``,
+        ``search_work``: the random search (:func:`_search`).
     search : bool
-        Follow the rounds with the random search (:func:`_search`) when they leave at most
-        ``_SEARCH_FOLDS`` folds.
+        Follow the rounds with the random search when they leave at most
+        ``options.search_folds`` folds.
 
     Returns
     -------
@@ -304,12 +258,12 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40, search: bool = Tru
     """
     mesh = _Mesh(f, len(x))
     x0 = x = np.array(x, dtype=np.float64)
-    state = _Hull(x, p, normals, hull)
+    state = _Hull(x, p, normals)
     info = {"folds_before": int(state.bad.sum()), "rounds": 0, "moved": 0, "folds": 0}
     if not info["folds_before"]:
         return x, info
     tried = {}                 # folded triangle (sorted corners) -> moves tried on it so far
-    for _ in range(rounds):
+    for _ in range(options.repair_rounds):
         t = state.tri[state.bad]
         keys = [tuple(k) for k in np.sort(t, axis=1).tolist()]
         kinds = np.array([tried.get(k, 0) for k in keys], dtype=np.int64)
@@ -336,35 +290,36 @@ def repair_folds(x, p, normals, f, *, hull, rounds: int = 40, search: bool = Tru
         x, state.tri, state.bad = y, tri2, bad2
         info["rounds"] += 1
         info["moved"] += int(kept.sum())
-    if search and 0 < int(state.bad.sum()) <= _SEARCH_FOLDS:
-        x, found = _search(x, state, mesh)
+    if search and 0 < int(state.bad.sum()) <= options.search_folds:
+        x, found = _search(x, state, mesh, trials=options.search_trials,
+                           work=options.search_work)
         info["searched"] = found
-    folds = int(folded_mask(p, normals, hull(x)).sum())   # the global hull, once
+    folds = int(folded_mask(p, normals, hull_triangles(x)).sum())   # the global hull, once
     if folds > info["folds_before"]:    # cannot happen unless the local updates went wrong
         x, folds = x0, info["folds_before"]
     info["folds"] = folds
     return x, info
 
 
-def _search(x, state, mesh):
+def _search(x, state, mesh, *, trials: int, work: float):
     """Random single-vertex moves around the few folds the move rounds left: for each folded
-    triangle, up to :data:`_SEARCH_TRIALS` moves of a corner or of a corner's mesh neighbour, in a
-    random direction by a random share (1/20 to 1) of its mean mesh-edge length on the sphere;
-    those that invert no mesh triangle are evaluated, and the first that lowers the fold count is
-    kept. The evaluations, ``_SEARCH_WORK / n`` in all (so about the same time at any size), are
-    shared evenly by the folds still to try, at least 10 each. Seeded: the same map gives the
-    same result. Returns the map and the number of folds removed."""
+    triangle, up to ``trials`` moves of a corner or of a corner's mesh neighbour, in a random
+    direction by a random share (:data:`_SEARCH_STEP`) of its mean mesh-edge length on the
+    sphere; those that invert no mesh triangle are evaluated, and the first that lowers the fold
+    count is kept. The evaluations, ``work / n`` in all (so about the same cost at any size), are
+    shared evenly by the folds still to try, at least :data:`_SEARCH_MIN` each. Seeded: the same
+    map gives the same result. Returns the map and the number of folds removed."""
     rng = np.random.default_rng(0)
     removed = 0
-    budget = int(_SEARCH_WORK / len(x))
+    budget = int(work / len(x))
     folded = state.tri[state.bad]
     for i, t in enumerate(folded):
         if not state._folded(t[None])[0]:
             continue                                    # already gone with an earlier move
         cand = np.unique(np.concatenate([t, mesh.adj[t].indices]))
-        left = max(10, budget // (len(folded) - i))
+        left = max(_SEARCH_MIN, budget // (len(folded) - i))
         budget -= left
-        for _ in range(_SEARCH_TRIALS):
+        for _ in range(trials):
             if not left:
                 break
             v = int(rng.choice(cand))
@@ -374,11 +329,11 @@ def _search(x, state, mesh):
             h = float(np.mean(np.linalg.norm(x[nb] - x[v], axis=1)))
             d = rng.standard_normal(3)
             d -= (d @ x[v]) * x[v]
-            new = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(0.05, 1.0))[None])[0]
+            new = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(*_SEARCH_STEP))[None])[0]
             faces = mesh.f[_row(mesh.vf, v)]
             corners = x[faces]
             corners[faces == v] = new
-            if np.any(_corner_orientation(corners) <= 0):
+            if np.any(corner_orientation(corners) <= 0):
                 continue                     # inverts a mesh triangle: rejected before any copy
             y = x.copy()
             y[v] = new

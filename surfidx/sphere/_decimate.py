@@ -1,6 +1,6 @@
 """Topology-preserving mesh decimation by rounds of independent half-edge collapses.
 
-The coarse-to-fine spherical map (:mod:`surfidx.parameterize`) maps a coarse version of the mesh
+The coarse-to-fine spherical map (:mod:`surfidx.sphere`) maps a coarse version of the mesh
 first, where area balancing converges in a fraction of a second, and then carries that map down to
 every vertex. The coarse mesh must triangulate the same sphere, so every collapse keeps the mesh a
 closed 2-manifold of genus 0:

@@ -1,7 +1,7 @@
 """Folded Delaunay triangles removed by choosing the triangulation first and realising it.
 
 A map's fold count is decided by the spherical Delaunay triangulation of the mapped surfels (their
-convex hull), and single-vertex moves (:mod:`surfidx._foldrepair`) stall where the map is
+convex hull), and single-vertex moves (:mod:`surfidx.sphere._foldrepair`) stall where the map is
 anisotropic: moving a vertex to mend one triangle changes which triangles are Delaunay around it.
 This module works the other way round, in two steps.
 
@@ -32,33 +32,23 @@ This module works the other way round, in two steps.
    The realisation is accepted only when Newton converged and the convex hull of the new points
    is that triangulation, triangle for triangle.
 
-   Projecting the intersection angles onto their vertex sums alone (the first version) left
-   Rivin's other conditions unchecked: a flipped quadrilateral that was not convex made three
-   edges of a triangle sum past 2π, and no realisation existed. Only convex flips could be
-   used, and scorpion stopped at 56 folds, where any flips would reach 17.
+   Rivin's conditions are checked through the whole angle system, not the vertex sums
+   alone: a flipped quadrilateral that is not convex can make three edges of a triangle sum
+   past 2π, where no realisation exists.
 
-On scorpion's repaired map (431-473 folded triangles of 101,302, by machine load) one round
-leaves 20 (convex flips only, two rounds: 56; flip sequences of depth 12: 19; depth 8 with one
-fold lent on the way: 18). There every folded triangle needs a flip that adds a fold first, so
-:func:`anneal_flips` searches by the Metropolis rule (such flips taken now and then) and finds
-triangulations with 0-3; the first rung of :func:`lower_folds` realises the one with the fewest
-folds, then one halfway, before the flips alone (scorpion in three rounds: 442 -> 20 -> 10 ->
-4; moving single points after the realisation instead stalled at 9-13 after minutes). On the
-77 genus-0 retrieval meshes see
-:func:`surfidx.parameterize.parameterize`. The mesh's own faces are no longer all embedded
-afterwards (scorpion: some hundreds turned over, under 1 % of the sphere); resampling still
-interpolates in them (:func:`surfidx.resample.map_triangles`), measured without loss
-(scorpion at level 9: PSNR_D2 81.2 dB either way, 70.4 dB in the Delaunay triangles).
+Where every folded triangle needs a flip that adds a fold first, :func:`flip_folds` stops;
+:func:`anneal_flips` searches by the Metropolis rule (such flips taken now and then), and the
+first rung of :func:`lower_folds` realises its triangulation with the fewest folds, then one
+halfway, before the flips alone. The mesh's own faces are no longer all embedded afterwards (a
+few turned over, a small share of the sphere); resampling still interpolates in them
+(:func:`surfidx.resample.map_triangles`).
 
 What a realisation costs is a regional change of scale. The flips in an anisotropic limb make
-its triangulation nearer conformal, and a Delaunay realisation then changes the limb's
-conformal shape: on retrieval mesh d056 the surfels up to 18 rings from any turned-over face
-lost up to half their share of the sphere, and infinite-rate PSNR_D2 fell 73.3 -> 70.3 dB (the
-coder's 5.4, 2.0, 1.0 and 0.6 dB at 0.5, 0.89, 1.39 and 3.56 bits/surfel). It is not the angle
-system spreading its corrections: projecting with weights that grow with the distance from the
-flips kept every change beyond 12 rings under 1e-4 radians, and the loss was the same. So
-:func:`lower_folds` keeps a realisation only when the caller's ``accept`` takes it (the
-parameterization measures the resampling, :class:`surfidx.parameterize._ResamplingCheck`).
+its triangulation nearer conformal, and a Delaunay realisation then changes the limb's conformal
+shape: the surfels around the turned-over faces can lose much of their share of the sphere, and
+the resampling with it. So :func:`lower_folds` keeps a realisation only when the caller's
+``accept`` takes it (the map measures the resampling,
+:class:`surfidx.sphere._repair.ResamplingCheck`).
 """
 
 from __future__ import annotations
@@ -67,7 +57,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from ._foldrepair import _against_normals, _corner_orientation, _mirrored
+from ..spherical import against_normals, corner_orientation, hull_triangles, mirrored
+from .options import DEFAULT_OPTIONS, MapOptions
 
 __all__ = ["flip_folds", "anneal_flips", "realise", "lower_folds"]
 
@@ -83,30 +74,12 @@ _MOEBIUS_STEPS = 5     # reweightings of the Möbius fit of a realisation to the
 _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
-_ROUNDS = 3            # flip-and-realise rounds of lower_folds
-_ANNEAL_STEPS = 200_000
-"""Flips proposed by :func:`anneal_flips` in :func:`lower_folds` (scorpion: about 10 s)."""
-_ANNEAL_TEMPERATURE = 0.3
-"""A flip that adds ``k`` folded triangles is taken with probability ``exp(-k / T)``: at 0.3 one
-in 28 that add one. Scorpion from the 20 folds that :func:`flip_folds` leaves (seeds 0-4): 0-3 at
-0.3, 3-10 at 0.15 and 0.05."""
-_LADDER = ((False, np.inf), (True, np.inf), (True, 1.0), (True, 0.3))
-"""The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in edge)``,
-when a realisation fails or is refused: any flips first, then milder ones. Flips of
-quadrilaterals that are not convex take scorpion from 473 folds to 20 in one round (convex ones
-only: 56 in two), but cost some models more resampling quality than convex ones do (retrieval
-mesh d008: 47 folds left by the repair; 37 when the convex flips are not tried next, 2 when
-they are, 6 with the resampling check)."""
 _MIN_SPACING_RATIO = 0.5
 """Without a caller's ``accept``, :func:`lower_folds` lets the realisations bring a point's
 nearest neighbours on the sphere (the mean distance to :data:`_SPACING_NEIGHBOURS` of them)
 closer by this factor at most, measured from the map before the first round: a flip far from
 Delaunay moves its corners a lot, and the grid then samples the surfels there too sparsely.
-Two retrieval models (folds; infinite-rate PSNR_D2 in dB), before the realisation, with no
-bound, with this bound at 0.35 and at 0.5: d074 33, 75.1; 1, 71.0; 1, 72.6; 25, 75.0 -- d037
-188, 72.9; 15, 68.9; 15, 68.9; 73, 71.4. A proxy only: scorpion's first realisation crowds two
-points to 0.40 and 0.50 of their spacing and costs nothing, one of d074's crowds none below
-0.46 and costs 8.9 dB; the parameterization measures the resampling instead."""
+A proxy only, and a poor one: the map measures the resampling instead."""
 _SPACING_NEIGHBOURS = 6
 
 
@@ -127,7 +100,7 @@ class _Flips:
         self.edge = {}
         for i in range(len(self.tri)):
             self._register(i)
-        self.bad = (_against_normals(p, normals, tri) ^ mirror).tolist()
+        self.bad = (against_normals(p, normals, tri) ^ mirror).tolist()
 
     @classmethod
     def of(cls, tri, p, normals, x, **options):
@@ -135,7 +108,7 @@ class _Flips:
         index, not by input order, so a rotated map flips the same edges), mirrored when most
         of its triangles disagree with the normals."""
         tri = _canonical(tri)
-        return cls(tri, p, normals, x, mirror=_mirrored(_against_normals(p, normals, tri)),
+        return cls(tri, p, normals, x, mirror=mirrored(against_normals(p, normals, tri)),
                    **options)
 
     def _register(self, i):
@@ -166,11 +139,11 @@ class _Flips:
         new = ((a, d, c), (d, b, c))
         corners = np.array(new)
         if self.convex and not (
-                (_corner_orientation(self.x[corners]) > 0).all()
+                (corner_orientation(self.x[corners]) > 0).all()
                 and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
                 >= -self.max_violation):
             return None
-        bad = (_against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
+        bad = (against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
         return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
 
     def apply(self, cand):
@@ -249,13 +222,13 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
 
 
-def anneal_flips(tri, p, normals, x, *, steps: int = _ANNEAL_STEPS,
-                 temperature: float = _ANNEAL_TEMPERATURE, seed: int = 0):
+def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_steps,
+                 temperature: float = DEFAULT_OPTIONS.anneal_temperature, seed: int = 0):
     """Random edge flips around the folded triangles, kept by the Metropolis rule: the
     triangulations with fewer folds than any before, met on the way.
 
     :func:`flip_folds` keeps only flip sequences that never add a fold, and stops where every
-    folded triangle needs one that does (scorpion: 20 left). Here a flip of an edge of a folded
+    folded triangle needs one that does. Here a flip of an edge of a folded
     triangle (or of a triangle next to one) is taken when it removes folds, with probability
     1/2 when it keeps the count, and ``exp(-k / temperature)`` when it adds ``k``.
 
@@ -591,7 +564,7 @@ def realise(x, tri, *, new_edges=None):
     for pole in _poles(x, tri)[:_POLE_TRIES]:
         # the pole's edges keep their intersection angles, the turning angles of the boundary
         # of the plane triangulation: a pole whose triangles the flips changed leaves some of
-        # them non-convex, and a few triangles there would not be Delaunay (d008)
+        # them non-convex, and a few triangles there would not be Delaunay
         u, frame = _stereographic(x, tri, pole)
         inner = ~np.any(tri == pole, axis=1)
         t = tri[inner]
@@ -618,8 +591,6 @@ def realise(x, tri, *, new_edges=None):
 
 
 def _is_hull(out, tri):
-    from .parameterize import hull_triangles
-
     hull = hull_triangles(out)
     return len(hull) == len(tri) and np.array_equal(_sorted_rows(hull), _sorted_rows(tri))
 
@@ -674,8 +645,8 @@ def _moebius_fit(z, target, z_all):
     """``m(z_all)`` and ``m(∞)`` for the Möbius map ``m(z) = (a z + b) / (c z + 1)`` that brings
     ``z`` nearest ``target`` in the sphere's metric: least squares on ``a z + b - c z target =
     target``, whose residuals are the wanted ones times ``c z + 1``, reweighted by that factor
-    (:data:`_MOEBIUS_STEPS` times). Against the similarity ``a z + b`` alone: on d020 the points
-    moved 0.14 rather than 0.20 spacings in mean and PSNR_D2 was 71.9 dB rather than 69.1."""
+    (:data:`_MOEBIUS_STEPS` times). A Möbius map rather than a similarity ``a z + b``: it keeps
+    the far field in place, so the points move less and the resampling loses less."""
     w = 1.0 / (1.0 + np.abs(target) ** 2)        # the square root of the area element
     mat = np.column_stack([z, np.ones_like(z), -z * target])
     den = np.ones(len(z))
@@ -711,8 +682,7 @@ def _sorted_rows(t):
     return s[np.lexsort(s.T[::-1])]
 
 
-def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
-                anneal_steps: int = _ANNEAL_STEPS):
+def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPTIONS):
     """Rounds of :func:`flip_folds` (or :func:`anneal_flips`) on the Delaunay triangulation of
     ``x`` and :func:`realise`, each kept only when it lowers the count of folded Delaunay
     triangles and ``accept`` takes it.
@@ -723,17 +693,17 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
         Unit vectors, the map.
     p, normals : (n, 3) float64
         3D positions and surfel normals.
-    rounds : int
-        Most flip-and-realise rounds.
     accept : callable, optional
         ``accept(y) -> bool`` for a realisation ``y`` (an ``(n, 3)`` map): whether it may
-        replace the map (:func:`surfidx.parameterize.parameterize` passes a bound on the loss
-        of resampling quality). Default: the geometric bound :data:`_MIN_SPACING_RATIO` on the
+        replace the map (:func:`surfidx.sphere.parameterize` passes a bound on the loss of
+        resampling quality). Default: the geometric bound :data:`_MIN_SPACING_RATIO` on the
         crowding of every point's neighbours, measured from ``x``.
-    anneal_steps : int
-        Flips :func:`anneal_flips` proposes from the flips of the first rung of
-        :data:`_LADDER` before they are realised alone (0: none); two of its triangulations
-        at most are realised per round (:func:`_annealed`).
+    options : MapOptions
+        ``realise_rounds``: most flip-and-realise rounds. ``flip_ladder``: the flips tried in
+        turn. ``anneal_steps``, ``anneal_temperature``: the annealed search
+        (:func:`anneal_flips`) from the flips of a rung of any flips, before they are realised
+        alone (0 steps: none); two of its triangulations at most are realised per round
+        (:func:`_annealed`).
 
     Returns
     -------
@@ -742,11 +712,9 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
         ``folds_before``, ``folds``, ``rounds`` (kept), ``refused`` (realisations that
         ``accept`` refused), ``annealed`` (rounds that kept an annealed triangulation).
     """
-    from .parameterize import hull_triangles
-
     tri = hull_triangles(x)
-    bad = _against_normals(p, normals, tri)
-    mirror = _mirrored(bad)
+    bad = against_normals(p, normals, tri)
+    mirror = mirrored(bad)
     folds = int((bad ^ mirror).sum())
     info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0, "annealed": 0}
     if accept is None:
@@ -755,17 +723,18 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
         def accept(y):
             return bool(np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO)
 
-    for _ in range(rounds):
+    for _ in range(options.realise_rounds):
         if not folds:
             break
         y = None
-        for convex, limit in _LADDER:     # flips with no realisation, or whose realisation
-            flipped, left = flip_folds(tri, p, normals, x, convex=convex,   # is refused: milder
-                                       max_violation=limit)
+        # flips with no realisation, or whose realisation is refused: milder ones
+        for convex, limit in options.flip_ladder:
+            flipped, left = flip_folds(tri, p, normals, x, convex=convex, max_violation=limit)
             tries = [(flipped, left, False)]
-            if anneal_steps and not convex and limit == np.inf:
-                tries = [(t, k, True) for t, k in _annealed(flipped, left, p, normals, x,
-                                                            anneal_steps)] + tries
+            if options.anneal_steps and not convex and limit == np.inf:
+                tries = [(t, k, True) for t, k in _annealed(
+                    flipped, left, p, normals, x, options.anneal_steps,
+                    options.anneal_temperature)] + tries
             for cand, cleft, annealed in tries:
                 y = realise(x, cand) if cleft < folds else None
                 if y is not None:
@@ -784,14 +753,14 @@ def lower_folds(x, p, normals, *, rounds: int = _ROUNDS, accept=None,
     return x, info
 
 
-def _annealed(flipped, left, p, normals, x, steps):
+def _annealed(flipped, left, p, normals, x, steps, temperature):
     """The triangulations of :func:`anneal_flips` from ``flipped`` (``left`` folds) that
     :func:`lower_folds` tries to realise, in turn: the one with the fewest folds, then the first
     found with at most halfway between that and ``left``. More flips turn more mesh faces over
-    in the realisation (scorpion: 15, 5 and 2 folds left after 106, 210 and 267 changed edges,
-    0.72, 0.92 and 0.98 % of the sphere turned over), and a realisation fails or is refused
-    more often. None when ``flipped`` has no fold left."""
-    found = anneal_flips(flipped, p, normals, x, steps=steps) if left else []
+    in the realisation, which then fails or is refused more often, hence the second, milder
+    one. Empty when ``flipped`` has no fold left."""
+    found = anneal_flips(flipped, p, normals, x, steps=steps,
+                         temperature=temperature) if left else []
     if not found:
         return []
     best = found[-1]

@@ -140,7 +140,7 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
 
 def _dot(a, b):
     """Dot product of two long vectors without BLAS (threaded BLAS dot products of this size
-    were measured 300x slower on a loaded 2-core machine)."""
+    are far slower on a loaded machine)."""
     return float(np.einsum("i,i->", a, b))
 
 
@@ -186,7 +186,7 @@ class _Energy:
         import scipy.sparse as sp
         from scipy.sparse.linalg import splu
 
-        from .mesh import cotangent_laplacian
+        from ..mesh import cotangent_laplacian
 
         lap = cotangent_laplacian(self.f, self.cot, self.n)
         lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
@@ -332,7 +332,7 @@ def _untangled(energy, y, **info):
 
 _PATCH_RINGS = 4   # rings of vertices around the inverted triangles that a patch frees
 _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
-                   # left at 1e-8 pins the balancing's line search at its barrier: glasses copy)
+                   # left at 1e-8 pins the balancing's line search at its barrier)
 
 
 def _near_inverted(energy, y, *, rings: int):

@@ -1,0 +1,103 @@
+"""The coarse-to-fine map of a mesh, and its fallback to the single-level map.
+
+A Tutte map squeezes a limb by ``exp(-2π length / girth)`` at any resolution, and balancing from
+there must undo factors of 1e20 in area; a mesh of a few dozen vertices has no limbs to squeeze.
+So the mesh is decimated (:mod:`surfidx.sphere._decimate`) by ``level_ratio`` per level down to a
+coarsest size of ``coarse_ladder``, the coarsest mesh is mapped by the single-level route
+(:mod:`surfidx.sphere._tutte`), and each finer level starts from a map that is right at large
+scales (Praun & Hoppe 2003 in spirit): the removed vertices come back at the mean-value
+combination of their ring's sphere positions, the triangles this folds are untangled and the map
+is balanced at the level's resolution (:mod:`surfidx.sphere._balance`), then normalised.
+
+A level left with more than ``inverted_kept`` of its triangles inverted fails the hierarchy; the
+next coarsest size is tried, and only when every one fails is the whole mesh mapped by the
+single-level route (the *fallback*).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..spherical import orientation
+from ..surfels import SurfelSet
+from ._balance import balance as balance_map, untangle
+from ._decimate import decimate
+from .options import MapOptions
+from ._surface import areas3, oriented_faces, vertex_areas
+from ._tutte import centre, tutte_map
+
+__all__ = ["mesh_map", "multilevel_map", "Untangled"]
+
+
+class Untangled(Exception):
+    """A level of the multilevel map kept inverted triangles (the caller tries another
+    hierarchy, or falls back)."""
+
+
+def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, **route):
+    """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, or the
+    single-level map when every hierarchy fails.
+
+    Returns the map, its figures and whether it fell back. ``route`` holds ``iterations``,
+    ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`)."""
+    f = oriented_faces(surfels) if faces is None else faces
+    large = len(surfels) > options.large_level
+    steps = options.final_steps_large if large else options.final_steps
+    for tries, coarse in enumerate(options.coarse_ladder):
+        try:
+            x, info = multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
+                                     options=options, **route)
+        except Untangled:
+            continue
+        return x, dict(info, coarse=coarse, retries=tries), False
+    x, info = tutte_map(surfels, faces=f, options=options, **route)
+    return x, dict(info, levels=1, base_vertices=len(surfels),
+                   retries=len(options.coarse_ladder)), True
+
+
+def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
+                   balance: bool, coarse: int, steps: int, faces=None):
+    """Decimate by ``options.level_ratio``, map the coarser mesh (recursively, down to
+    ``coarse`` vertices, which :func:`surfidx.sphere._tutte.tutte_map` maps), carry the map to
+    every vertex, untangle what folded on the way and balance for at most ``steps`` steps
+    (``options.level_steps`` on the coarser levels).
+
+    Raises
+    ------
+    Untangled
+        When a level keeps more than ``options.inverted_kept`` of its triangles inverted.
+    """
+    n = len(surfels)
+    f = oriented_faces(surfels) if faces is None else faces   # decimation keeps the topology
+    p = surfels.positions
+    h = decimate(p, f, max(coarse, n // options.level_ratio)) if n > coarse else None
+    if h is None or len(h.vertices) >= n:
+        x, info = tutte_map(surfels, options=options, iterations=iterations, gamma=gamma,
+                            balance=balance)
+        return x, dict(info, levels=1, base_vertices=n)
+    kept = h.vertices
+    index = np.full(n, -1, dtype=np.int64)
+    index[kept] = np.arange(len(kept))
+    small = SurfelSet(p[kept], surfels.normals[kept], surfels.radii[kept], faces=index[h.faces])
+    xc, info = multilevel_map(small, faces=small.faces, options=options, iterations=iterations,
+                              gamma=gamma, balance=balance, coarse=coarse,
+                              steps=options.level_steps)
+    x = np.zeros((n, 3))
+    x[kept] = xc
+    x = h.prolong(x, p, unit=True)
+    x, uinfo = untangle(x, p, f, rounds=options.untangle_rounds if balance else 0)
+    # a few triangles left inverted (slivers of a randomly split mesh can pin the untangling)
+    # cost a few folds; the single-level map instead squeezes every limb
+    if uinfo["inverted"] > options.inverted_kept * len(f):
+        raise Untangled(n)
+    large = n > options.large_level
+    x, binfo = balance_map(x, p, f, iterations=steps if balance else 0,
+                           lam=options.energy_lambda, max_cot=np.inf,
+                           tol=options.loose_tol if large else options.strict_tol,
+                           patience=options.loose_patience if large else options.strict_patience)
+    x = centre(x, vertex_areas(f, areas3(p, f), n), f, iterations=options.centre_iterations)
+    neg = int(np.count_nonzero(orientation(x, f) <= 0))
+    return x, {"mesh_folds": neg, "levels": info["levels"] + 1,
+               "base_vertices": info["base_vertices"],
+               "untangle_rounds": uinfo["rounds"] + info.get("untangle_rounds", 0),
+               "balance_steps": binfo["steps"], "balance_energy": float(binfo["energy"])}

@@ -1,0 +1,173 @@
+"""The switches and tuning values of the spherical map, in one frozen object.
+
+:func:`surfidx.sphere.parameterize` takes ``options=MapOptions(...)``; the default object gives
+the default map. Every stage stops on counts of steps or rounds, never on the clock, so a map
+depends on its input and these options only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from .._errors import InputError
+
+__all__ = ["MapOptions", "DEFAULT_OPTIONS"]
+
+_INF = math.inf
+
+
+@dataclass(frozen=True)
+class MapOptions:
+    """Tuning of :func:`surfidx.sphere.parameterize`.
+
+    Attributes
+    ----------
+    coarse_ladder : tuple of int
+        Coarsest sizes (vertices) of the multilevel hierarchy, tried in turn while a level cannot
+        be untangled. A prolonged map of a few dozen vertices can fold so deeply (a thin frame,
+        long fingers) that untangling, which on the sphere has no fixed boundary, collapses the
+        map; another hierarchy rarely does. When every size fails, the single-level map (which
+        squeezes every limb) is the last resort.
+    level_ratio : int
+        Each level has this many times the vertices of the next coarser one (≥ 2).
+    level_steps : int
+        Most balancing steps at each level but the finest.
+    final_steps : int
+        Most balancing steps at the finest level: long limbs keep gaining area after
+        ``level_steps``.
+    final_steps_large : int
+        ... at a finest level above ``large_level`` vertices, where a step costs far more.
+    large_level : int
+        Vertex count above which a level is large: ``final_steps_large`` and the loose stop.
+    strict_tol, strict_patience : float, int
+        A level's balancing stops when ``strict_patience`` steps in a row lower the energy by
+        less than the fraction ``strict_tol``.
+    loose_tol, loose_patience : float, int
+        The same stop on large levels.
+    untangle_rounds : int
+        Most ``eps`` rounds of untangling at each level.
+    inverted_kept : float
+        Share of a level's triangles that may stay inverted after untangling; beyond it the
+        hierarchy fails and the next coarsest size is tried.
+    energy_lambda : float
+        Area weight ``λ`` of the balancing energy ``Σ A (‖J‖²/det + λ (det + 1/det))``
+        (against angle preservation).
+    single_level_work : float
+        The single-level map balances at most ``single_level_work / n`` steps for ``n``
+        vertices, clipped to ``[single_level_min_steps, single_level_max_steps]``: its cost per
+        step grows with ``n``, so the bound on steps times vertices bounds its cost on any input.
+    single_level_min_steps, single_level_max_steps : int
+        The clip of the single-level step count.
+    reweight_smoothing : int
+        Graph-smoothing passes of the log area ratio in the Tutte reweighting (a smooth
+        reweighting keeps the map close to conformal).
+    reweight_min_gamma : float
+        The reweighting stops when its halved exponent falls below this.
+    reweight_growth : float
+        Factor of the exponent after an accepted reweighting step (at most ``gamma``).
+    reweight_fold_share : float
+        A reweighting step may leave at most the start's folded Delaunay triangles, or this
+        share of all of them if that is more.
+    centre_iterations : int
+        Most Möbius steps of the normalisation of the area-weighted centre of mass.
+    max_area_distortion : float
+        A single-level fallback map whose area distortion exceeds this is refused
+        (:class:`~surfidx.TopologyError`): the grid would miss the parts it squeezes.
+    proxy_coarser : float
+        A point cloud's last proxy mesh is built at this times the automatic grid resolution.
+    repair_rounds : int
+        Most rounds of the single-vertex fold repair.
+    search_folds : int
+        The random search follows the repair when at most this many folds are left.
+    search_trials : int
+        Most moves the random search draws per folded triangle.
+    search_work : float
+        The random search evaluates at most ``search_work / n`` moves in all (each costs
+        ``O(n)``).
+    second_pass : bool
+        Where the repair leaves folds, try every move again with the Delaunay triangulation's
+        unfolded triangles kept embedded too (their neighbourhoods propose other moves).
+    realise : bool
+        Where folds remain, choose the triangulation by edge flips and realise it as the
+        Delaunay triangulation of moved points (:mod:`surfidx.sphere._circlepattern`).
+    realise_rounds : int
+        Most flip-and-realise rounds.
+    flip_ladder : tuple of (bool, float)
+        The flips tried in turn, ``(convex only, largest Delaunay violation of a flipped-in
+        edge)``, when a realisation fails or is refused: any flips first, then milder ones.
+    anneal_steps : int
+        Flips the annealed search proposes before the flips alone are realised (0: none).
+    anneal_temperature : float
+        A flip that adds ``k`` folded triangles is taken with probability ``exp(-k / T)``.
+    mds_placement_steps : int
+        Gradient steps placing each non-landmark surfel in method ``"mds"``.
+    """
+
+    coarse_ladder: tuple = (64, 256, 32)
+    level_ratio: int = 4
+    level_steps: int = 300
+    final_steps: int = 1500
+    final_steps_large: int = 600
+    large_level: int = 20000
+    strict_tol: float = 1e-7
+    strict_patience: int = 20
+    loose_tol: float = 1e-5
+    loose_patience: int = 5
+    untangle_rounds: int = 60
+    inverted_kept: float = 1e-3
+    energy_lambda: float = 0.5
+    single_level_work: float = 6e7
+    single_level_min_steps: int = 300
+    single_level_max_steps: int = 3000
+    reweight_smoothing: int = 20
+    reweight_min_gamma: float = 0.02
+    reweight_growth: float = 1.5
+    reweight_fold_share: float = 1e-4
+    centre_iterations: int = 60
+    max_area_distortion: float = 4.0
+    proxy_coarser: float = 0.8
+    repair_rounds: int = 40
+    search_folds: int = 30
+    search_trials: int = 5000
+    search_work: float = 2e7
+    second_pass: bool = True
+    realise: bool = True
+    realise_rounds: int = 3
+    flip_ladder: tuple = ((False, _INF), (True, _INF), (True, 1.0), (True, 0.3))
+    anneal_steps: int = 200_000
+    anneal_temperature: float = 0.3
+    mds_placement_steps: int = 50
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.type == "bool":
+                if not isinstance(value, bool):
+                    raise InputError(f"MapOptions.{f.name} must be True or False, got {value!r}")
+            elif f.type == "int":
+                if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                    raise InputError(f"MapOptions.{f.name} must be an integer >= 0, "
+                                     f"got {value!r}")
+            elif f.type == "float":
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                        value >= 0 and math.isfinite(value)):
+                    raise InputError(f"MapOptions.{f.name} must be a finite number >= 0, "
+                                     f"got {value!r}")
+        if self.level_ratio < 2:
+            raise InputError(f"MapOptions.level_ratio must be at least 2, got {self.level_ratio}")
+        ladder = self.coarse_ladder
+        if not (isinstance(ladder, tuple) and ladder and all(
+                isinstance(c, int) and not isinstance(c, bool) and c >= 4 for c in ladder)):
+            raise InputError("MapOptions.coarse_ladder must be a non-empty tuple of vertex "
+                             f"counts >= 4, got {ladder!r}")
+        flips = self.flip_ladder
+        if not (isinstance(flips, tuple) and all(
+                isinstance(r, tuple) and len(r) == 2 and isinstance(r[0], bool)
+                and isinstance(r[1], (int, float)) and r[1] > 0 for r in flips)):
+            raise InputError("MapOptions.flip_ladder must be a tuple of (convex: bool, "
+                             f"max_violation > 0) pairs, got {flips!r}")
+
+
+DEFAULT_OPTIONS = MapOptions()
+"""The options of the default map."""
