@@ -96,6 +96,7 @@ class Stage:
 
     @classmethod
     def of(cls, name: str, figures: dict) -> "Stage":
+        """The record of stage ``name`` with a read-only copy of ``figures``."""
         return cls(name, MappingProxyType(dict(figures)))
 
 
