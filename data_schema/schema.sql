@@ -1,4 +1,4 @@
--- surfidx model database: the one source of truth of the schema (current schema version 1).
+-- surfidx model database: the one source of truth of the schema (current schema version 2).
 --
 -- surfidx.database creates a new database by executing this file in one transaction and then
 -- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION and PRAGMA application_id to
@@ -15,6 +15,13 @@
 -- through surfidx.database.escape_name (a byte that is not UTF-8 as a backslash, x and two hex
 -- digits, lossless). Statements must not contain semicolons inside comments or strings (the file
 -- is split on statement boundaries).
+--
+-- Deleting a model row removes its asset, descriptors, thumbnail and tags, and deleting a run
+-- its error records, whatever the client: the foreign keys cascade where PRAGMA foreign_keys is
+-- on, and the AFTER DELETE triggers below do it where it is off (the sqlite3 shell's and
+-- sqlite-utils' default). Views join the model's name to its asset and thumbnail for browsing
+-- (datasette surfidx.db --metadata datasette.json shows the thumbnails as images with the
+-- datasette-render-images plugin).
 
 -- Key/value facts about the database itself: schema_version, created_by, created_at.
 CREATE TABLE meta (
@@ -25,7 +32,7 @@ CREATE TABLE meta (
 -- One row per model: what was read and how it was processed.
 CREATE TABLE models (
     id           INTEGER PRIMARY KEY,
-    name         TEXT    NOT NULL,                      -- file stem
+    name         TEXT    NOT NULL,                      -- unique: file stem, else see below
     source       TEXT    NOT NULL,                      -- absolute path read at ingest time
     content_hash TEXT    NOT NULL,                      -- SHA-256 hex of file (+ texture) bytes
     n_surfels    INTEGER NOT NULL CHECK (n_surfels >= 0),
@@ -40,7 +47,9 @@ CREATE TABLE models (
     params       TEXT    NOT NULL DEFAULT '{}'          -- JSON: parameters that made the record
 );
 CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
-CREATE INDEX models_name ON models (name);
+-- Names are unique: a model whose file stem is taken is named after its parent folder, and
+-- when that is taken too, STEM-2, STEM-3, ... (surfidx.database.Database.add).
+CREATE UNIQUE INDEX models_name ON models (name);
 
 -- The compressed asset of a model: one container file holding the embedded bitstream, and its
 -- size and quality at its full rate.
@@ -97,3 +106,44 @@ CREATE TABLE ingest_errors (
     at     TEXT    NOT NULL                             -- ISO 8601 UTC
 );
 CREATE INDEX ingest_errors_run_id ON ingest_errors (run_id);
+
+-- Free-form labels of models (surfidx tag / untag, ingest --tag), one row per model and tag.
+CREATE TABLE tags (
+    model_id INTEGER NOT NULL REFERENCES models (id) ON DELETE CASCADE,
+    tag      TEXT    NOT NULL CHECK (length(tag) > 0),
+    PRIMARY KEY (model_id, tag)
+);
+CREATE INDEX tags_tag ON tags (tag);
+
+-- A model's rows go with it, whether the client enforces foreign keys or not.
+CREATE TRIGGER models_delete_rows AFTER DELETE ON models
+BEGIN
+    DELETE FROM assets WHERE model_id = OLD.id;
+    DELETE FROM descriptors WHERE model_id = OLD.id;
+    DELETE FROM thumbnails WHERE model_id = OLD.id;
+    DELETE FROM tags WHERE model_id = OLD.id;
+END;
+
+CREATE TRIGGER ingest_runs_delete_errors AFTER DELETE ON ingest_runs
+BEGIN
+    DELETE FROM ingest_errors WHERE run_id = OLD.id;
+END;
+
+-- Browsing: every model with its tags, figures and thumbnail, and the assets and thumbnails
+-- with their model's name.
+CREATE VIEW model_gallery AS
+SELECT m.id, m.name, t.png AS thumbnail,
+       (SELECT group_concat(tag, ', ') FROM (SELECT tag FROM tags WHERE model_id = m.id
+                                             ORDER BY tag)) AS tags,
+       m.n_surfels, m.has_color, a.bytes, a.bits_per_surfel, a.psnr_d1, a.psnr_y, m.source,
+       m.ingested_at
+FROM models m LEFT JOIN assets a ON a.model_id = m.id LEFT JOIN thumbnails t ON t.model_id = m.id;
+
+CREATE VIEW assets_named AS
+SELECT a.model_id, m.name, a.format_version, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2,
+       a.psnr_y
+FROM assets a JOIN models m ON m.id = a.model_id;
+
+CREATE VIEW thumbnails_named AS
+SELECT t.model_id, m.name, t.png
+FROM thumbnails t JOIN models m ON m.id = t.model_id;

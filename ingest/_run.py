@@ -73,7 +73,8 @@ def discover(paths) -> list:
     Raises
     ------
     InputError
-        A path does not exist, or ``paths`` is empty.
+        A path does not exist, ``paths`` is empty, or the folders given hold no supported file
+        and no file was named (nothing to ingest).
     """
     from surfidx.io import SUPPORTED_SUFFIXES
 
@@ -83,18 +84,30 @@ def discover(paths) -> list:
     if not paths:
         raise InputError("give at least one model file or folder to ingest")
     found = set()
+    empty_folders = []
     for p in paths:
         p = Path(p)
         if p.is_dir():
+            before = len(found)
             for root, dirs, files in os.walk(p):
                 dirs[:] = [d for d in dirs if not d.startswith(".")]
                 for f in files:
                     if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
                         found.add(Path(os.path.abspath(Path(root, f))))
+            if len(found) == before:
+                empty_folders.append(p)
         elif p.exists():                            # a file, or a FIFO/device (skipped later)
             found.add(Path(os.path.abspath(p)))
         else:
             raise InputError("no such file or folder", path=p)
+    if not found:
+        raise InputError("holds no model file (supported: " + ", ".join(SUPPORTED_SUFFIXES)
+                         + ")", path=empty_folders[0])
+    for folder in empty_folders:
+        import warnings
+
+        warnings.warn(f"{folder}: holds no model file (supported: "
+                      + ", ".join(SUPPORTED_SUFFIXES) + ")", UserWarning, stacklevel=2)
     return sorted(found)
 
 
@@ -290,17 +303,21 @@ def resolve_processor(processor=None):
     return process_model
 
 
-def process_task(task: Task, *, processor, bits_per_surfel: float) -> Outcome:
+def process_task(task: Task, *, processor, bits_per_surfel: float,
+                 allow_outside_textures: bool = False) -> Outcome:
     """Run the processor on one task, catching its errors (the per-model function of every
     executor; picklable when ``processor`` is a module-level function).
 
     ``processor(path, bits_per_surfel=B, texture=T)`` must return a
     ``surfidx.pipeline.ProcessedModel``; its ``content_hash`` is set to the task's so that a re-run
-    recognises the model. ``KeyboardInterrupt`` and ``SystemExit`` propagate.
+    recognises the model. With ``allow_outside_textures`` the processor also gets
+    ``allow_outside_textures=True``. ``KeyboardInterrupt`` and ``SystemExit`` propagate.
     """
     t0 = time.perf_counter()
+    extra = {"allow_outside_textures": True} if allow_outside_textures else {}
     try:
-        model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture)
+        model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture,
+                          **extra)
         model.content_hash = task.content_hash
         return Outcome(task, model=model, seconds=time.perf_counter() - t0)
     except Exception as exc:
@@ -567,7 +584,8 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
 
 def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
         progress: bool = True, executor=None, batch: int = 8,
-        flush_seconds: float = 2.0, scheduler=None, retries: int = 2) -> IngestSummary:
+        flush_seconds: float = 2.0, scheduler=None, retries: int = 2, name: str | None = None,
+        tags=(), allow_outside_textures: bool = False) -> IngestSummary:
     """Ingest model files and folders into a database, skipping models already stored.
 
     Parameters
@@ -602,6 +620,14 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     retries : int
         With ``scheduler``: times a model whose worker died is submitted again before it is
         recorded as failed.
+    name : str, optional
+        The stored model's name, when ``paths`` names one file (it must be free; by default a
+        model is named after its file's stem, see :meth:`surfidx.Database.add`).
+    tags : sequence of str
+        Tags given to every model this run stores.
+    allow_outside_textures : bool
+        Passed to the processor (``surfidx.pipeline.process_model``): use textures an OBJ's MTL
+        names outside the model's folder.
 
     Returns
     -------
@@ -634,7 +660,11 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     if not bits_per_surfel > 0:
         raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
     files = discover(paths)
+    if name is not None and len(files) != 1:
+        raise InputError(f"a name names one model; the paths hold {len(files)} model files")
+    tags = [tags] if isinstance(tags, str) else list(tags)
     processor = resolve_processor(processor)
+    common = {"name": name, "tags": tags, "allow_outside_textures": allow_outside_textures}
     if scheduler is not None:
         if executor is not None:
             raise InputError("give either executor or scheduler, not both")
@@ -644,14 +674,14 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         with DaskExecutor(scheduler, workers=workers, retries=retries) as dask_executor:
             return run(paths, db=db, workers=workers, bits_per_surfel=bits_per_surfel,
                        processor=processor, progress=progress, executor=dask_executor,
-                       batch=batch, flush_seconds=flush_seconds)
+                       batch=batch, flush_seconds=flush_seconds, **common)
     if executor is None and workers > 1:
         _check_picklable(processor)
     if not isinstance(db, Database):
         with Database(db) as opened:
             return run(paths, db=opened, workers=workers, bits_per_surfel=bits_per_surfel,
                        processor=processor, progress=progress, executor=executor, batch=batch,
-                       flush_seconds=flush_seconds)
+                       flush_seconds=flush_seconds, **common)
 
     t_start = time.perf_counter()
     n_workers = getattr(executor, "n_workers", workers)      # a cluster's actual worker count
@@ -685,7 +715,13 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                         summary.skipped += 1
                         continue
                     try:
-                        summary.ids.append(db.add(outcome.model))
+                        with db.transaction():
+                            if name is not None:
+                                outcome.model.name = name
+                            mid = db.add(outcome.model, exact_name=name is not None)
+                            if tags:
+                                db.tag(mid, tags)
+                        summary.ids.append(mid)
                         summary.stored += 1
                     except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
                         if is_storage_failure(exc):
@@ -709,7 +745,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip)
         flush()
         fn = functools.partial(process_task, processor=processor,
-                               bits_per_surfel=bits_per_surfel)
+                               bits_per_surfel=bits_per_surfel,
+                               allow_outside_textures=allow_outside_textures)
         if executor is None:
             executor = serial if workers == 1 else ProcessPool(workers)
         if progress and tasks:

@@ -56,14 +56,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import DatabaseError, InputError
+from ._errors import DatabaseError, InputError, SurfidxError
 from ._validate import as_array
 
 __all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
-           "escape_name", "unescape_name", "storable_text", "is_storage_failure"]
+           "escape_name", "unescape_name", "storable_text", "is_storage_failure",
+           "datasette_metadata"]
 
-#: Schema version written to ``PRAGMA user_version`` by this surfidx.
-SCHEMA_VERSION = 1
+#: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
+#: delete triggers that do not depend on the client's foreign-key setting, browsing views).
+SCHEMA_VERSION = 2
 
 #: ``PRAGMA application_id`` of a surfidx database: the bytes ``b"SFDX"``.
 APPLICATION_ID = int.from_bytes(b"SFDX", "big")
@@ -249,6 +251,72 @@ def _statements(script: str):
         raise DatabaseError("schema.sql ends with an incomplete statement")  # pragma: no cover
 
 
+def _create_missing(conn) -> None:
+    """Run the statements of ``schema.sql`` that create a table, index, trigger or view the
+    database lacks (the additive part of a migration: it leaves the objects ``schema.sql``
+    creates)."""
+    have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+    pattern = re.compile(r"CREATE\s+(?:UNIQUE\s+)?(?:TABLE|INDEX|TRIGGER|VIEW)\s+(\w+)", re.I)
+    for stmt in _statements(schema_sql()):
+        m = pattern.search(stmt)
+        if m and m.group(1) not in have:
+            conn.execute(stmt)
+
+
+def _free_name(conn, name: str, source: str, *, exclude=None) -> str:
+    """``name`` if no model has it, else the source's parent folder's name, else ``name-2``,
+    ``name-3``, ... (the first free one); ``exclude`` is a model id that does not count."""
+    def taken(n):
+        row = conn.execute("SELECT id FROM models WHERE name = ?", (n,)).fetchone()
+        return row is not None and row[0] != exclude
+
+    if not taken(name):
+        return name
+    parent = escape_name(Path(unescape_name(source)).parent.name) if source.startswith("/") \
+        else ""
+    if parent and not taken(parent):
+        return parent
+    k = 2
+    while taken(f"{name}-{k}"):
+        k += 1
+    return f"{name}-{k}"
+
+
+def _v1_to_v2(conn) -> None:
+    """Schema 1 → 2: models sharing a name are renamed as :meth:`Database.add` names them
+    (the lowest id keeps it), the name index becomes unique, rows orphaned by deletes without
+    foreign keys are removed, and the tags table, delete triggers and views are created."""
+    rows = conn.execute("SELECT id, name, source FROM models WHERE name IN (SELECT name FROM "
+                        "models GROUP BY name HAVING count(*) > 1) ORDER BY name, id").fetchall()
+    seen = set()
+    for mid, name, source in rows:
+        if name not in seen:
+            seen.add(name)
+            continue
+        conn.execute("UPDATE models SET name = ? WHERE id = ?",
+                     (_free_name(conn, name, source, exclude=mid), mid))
+    conn.execute("DROP INDEX IF EXISTS models_name")
+    for table in ("assets", "descriptors", "thumbnails"):
+        conn.execute(f"DELETE FROM {table} WHERE model_id NOT IN (SELECT id FROM models)")
+    conn.execute("DELETE FROM ingest_errors WHERE run_id NOT IN (SELECT id FROM ingest_runs)")
+    _create_missing(conn)
+
+
+_MIGRATIONS.append(_v1_to_v2)
+
+
+def datasette_metadata() -> dict:
+    """Datasette metadata for a surfidx database (``surfidx/data/datasette.json``): titles,
+    the models' ``name`` as the label of every ``model_id``, and the browsing views.
+
+    Returns
+    -------
+    dict
+    """
+    return json.loads(resources.files("surfidx").joinpath("data", "datasette.json")
+                      .read_text(encoding="utf-8"))
+
+
 def _json_default(o):
     if isinstance(o, np.generic):
         return o.item()
@@ -322,8 +390,6 @@ class Database:
 
     def __init__(self, path, *, create: bool = True, readonly: bool = False,
                  timeout: float = 30.0):
-        import sqlite_utils
-
         self.path = Path(path)
         self.readonly = bool(readonly)
         self.timeout = float(timeout)
@@ -351,7 +417,6 @@ class Database:
         self._cache_version = None
         try:
             self._check_and_prepare()
-            self.db = sqlite_utils.Database(conn)
         except BaseException:
             self._conn = None
             conn.close()
@@ -524,8 +589,22 @@ class Database:
     def __exit__(self, *exc):
         self.close()
 
+    @property
+    def db(self):
+        """The ``sqlite_utils.Database`` of this connection (imported on first use: it costs
+        ~0.5 s to import, which a query does not need)."""
+        if getattr(self, "_sqlite_utils", None) is None:
+            import sqlite_utils
+
+            self._sqlite_utils = sqlite_utils.Database(self.conn)
+        return self._sqlite_utils
+
     def close(self) -> None:
-        """Close the connection (idempotent)."""
+        """Close the connection (idempotent); after changes of models, first bring the
+        approximate index beside the file up to date (:func:`surfidx.ann.update`)."""
+        if self._conn is not None and getattr(self, "_index_dirty", False):
+            self._index_dirty = False
+            self._update_index()
         if self._conn is not None:
             self._conn.close()
             self._conn = None
@@ -608,12 +687,16 @@ class Database:
             self._cache.clear()
 
     # ------------------------------------------------------------------ writing models
-    def add(self, model) -> int:
+    def add(self, model, *, exact_name: bool = False) -> int:
         """Store one processed model: its row, asset, descriptors and thumbnail, in one transaction.
 
         Parameters
         ----------
         model : surfidx.pipeline.ProcessedModel
+        exact_name : bool
+            Store ``model.name`` or fail; by default a name another model has is replaced by
+            the model's parent folder's name, or else ``NAME-2``, ``NAME-3``, ... (the first
+            free one; ``model.name`` is left as it was).
 
         Returns
         -------
@@ -625,7 +708,8 @@ class Database:
         InputError
             A field of ``model`` is invalid (bbox shape, non-finite descriptor, non-JSON params).
         DatabaseError
-            A model with the same content hash is already stored.
+            A model with the same content hash is already stored, or (``exact_name``) one with
+            the same name.
 
         Notes
         -----
@@ -643,6 +727,15 @@ class Database:
                     f"model {row['name']!r} is already stored as id {existing[0]} "
                     f"({existing[1]!r}, same content hash {row['content_hash'][:12]}...)",
                     path=self.path)
+            if exact_name:
+                other = self.conn.execute("SELECT id FROM models WHERE name = ?",
+                                          (row["name"],)).fetchone()
+                if other is not None:
+                    raise DatabaseError(f"the name {row['name']!r} is taken by model {other[0]}; "
+                                        "choose another name (or rename that model)",
+                                        path=self.path)
+            else:
+                row["name"] = _free_name(self.conn, row["name"], row["source"])
             cols = list(row)
             cur = self.conn.execute(
                 f"INSERT INTO models ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
@@ -655,6 +748,7 @@ class Database:
             self.conn.executemany(_INSERT_DESCRIPTOR, [(model_id, *d) for d in descs])
             self.conn.execute("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                               (model_id, png))
+            self._descriptors_touched()
         return model_id
 
     @staticmethod
@@ -703,6 +797,127 @@ class Database:
         with self.transaction():
             if self.conn.execute("DELETE FROM models WHERE id = ?", (model_id,)).rowcount == 0:
                 raise DatabaseError(f"no model with id {model_id}", path=self.path)
+            self._descriptors_touched()
+
+    def remove(self, *models) -> list:
+        """Delete models given by id or name, with their assets, descriptors, thumbnails and
+        tags, all in one transaction (none is deleted if one is not found).
+
+        Parameters
+        ----------
+        *models : int or str
+            Ids or names (:meth:`resolve`).
+
+        Returns
+        -------
+        list of dict
+            ``{"id", "name"}`` of each model removed, in the order given.
+
+        Raises
+        ------
+        DatabaseError
+            A model is not found (nothing is deleted).
+        InputError
+            No model given.
+        """
+        if len(models) == 1 and isinstance(models[0], (list, tuple)):
+            models = tuple(models[0])
+        if not models:
+            raise InputError("name at least one model to remove")
+        with self.transaction():
+            ids = list(dict.fromkeys(self.resolve(m) for m in models))
+            names = [self.conn.execute("SELECT name FROM models WHERE id = ?", (i,)).fetchone()[0]
+                     for i in ids]
+            for i in ids:
+                self.delete(i)
+        return [{"id": i, "name": n} for i, n in zip(ids, names)]
+
+    def rename(self, model, new_name: str) -> dict:
+        """Give a model another (unique) name.
+
+        Returns
+        -------
+        dict
+            ``{"id", "old_name", "name"}``.
+
+        Raises
+        ------
+        InputError
+            An empty name.
+        DatabaseError
+            No such model, or another model has ``new_name``.
+        """
+        name = escape_name(new_name)
+        if not name.strip():
+            raise InputError("a model name must not be empty")
+        with self.transaction():
+            mid = self.resolve(model)
+            old = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+            other = self.conn.execute("SELECT id FROM models WHERE name = ?", (name,)).fetchone()
+            if other is not None and other[0] != mid:
+                raise DatabaseError(f"the name {name!r} is taken by model {other[0]}; choose "
+                                    "another", path=self.path)
+            self.conn.execute("UPDATE models SET name = ? WHERE id = ?", (name, mid))
+        return {"id": mid, "old_name": old, "name": name}
+
+    def tag(self, models, tags) -> int:
+        """Add tags to models (tags they already carry are kept once).
+
+        Parameters
+        ----------
+        models : int, str or sequence of them
+        tags : str or sequence of str
+
+        Returns
+        -------
+        int
+            Tags newly added.
+
+        Raises
+        ------
+        InputError
+            An empty tag or no tag.
+        DatabaseError
+            A model is not found (nothing is changed).
+        """
+        tags = self._tags_of(tags)
+        models = [models] if isinstance(models, (str, int, np.integer)) else list(models)
+        added = 0
+        with self.transaction():
+            for mid in dict.fromkeys(self.resolve(m) for m in models):
+                for t in tags:
+                    added += self.conn.execute("INSERT OR IGNORE INTO tags (model_id, tag) "
+                                               "VALUES (?, ?)", (mid, t)).rowcount
+        return added
+
+    def untag(self, models, tags) -> int:
+        """Remove tags from models; returns how many were removed (see :meth:`tag`)."""
+        tags = self._tags_of(tags)
+        models = [models] if isinstance(models, (str, int, np.integer)) else list(models)
+        removed = 0
+        with self.transaction():
+            for mid in dict.fromkeys(self.resolve(m) for m in models):
+                for t in tags:
+                    removed += self.conn.execute("DELETE FROM tags WHERE model_id = ? AND "
+                                                 "tag = ?", (mid, t)).rowcount
+        return removed
+
+    def tags(self, model=None):
+        """A model's tags (sorted list), or with no model every tag with its model count."""
+        if model is None:
+            return dict(self.conn.execute("SELECT tag, count(*) FROM tags GROUP BY tag "
+                                          "ORDER BY tag"))
+        mid = self.resolve(model)
+        return [r[0] for r in self.conn.execute("SELECT tag FROM tags WHERE model_id = ? "
+                                                "ORDER BY tag", (mid,))]
+
+    @staticmethod
+    def _tags_of(tags) -> list:
+        tags = [tags] if isinstance(tags, str) else list(tags)
+        out = [storable_text(t).strip() for t in tags]
+        if not out or not all(out):
+            raise InputError("give at least one tag, and no empty tag")
+        return list(dict.fromkeys(out))
 
     def set_descriptors(self, model_id: int, descriptors: dict, convention: dict) -> None:
         """Replace one model's descriptor vectors, in one transaction.
@@ -737,6 +952,111 @@ class Database:
                               (_to_json(params, f"model {model_id} params"), model_id))
             self.conn.execute("DELETE FROM descriptors WHERE model_id = ?", (model_id,))
             self.conn.executemany(_INSERT_DESCRIPTOR, rows)
+            self._descriptors_touched()
+
+    # ------------------------------------------------------------------ approximate index hooks
+    def descriptors_changed(self) -> None:
+        """Record that models or descriptors changed (increments the ``meta`` counter
+        ``descriptor_generation`` that :mod:`surfidx.ann` compares with its index).
+
+        :meth:`add`, :meth:`delete` and :meth:`set_descriptors` call it themselves; a writer
+        that changes the tables with its own SQL must call it in the same transaction.
+        """
+        with self.transaction():
+            self._descriptors_touched()
+
+    def _descriptors_touched(self) -> None:
+        self.conn.execute("INSERT INTO meta (key, value) VALUES ('descriptor_generation', '1') "
+                          "ON CONFLICT (key) DO UPDATE SET value = CAST(value AS INTEGER) + 1")
+        self._index_dirty = True
+
+    def index_state(self) -> dict:
+        """What an approximate index of this database must match (cheap: indexed look-ups).
+
+        Returns
+        -------
+        dict
+            ``generation`` (:meth:`descriptors_changed`), ``schema_version``, ``models`` (count),
+            ``max_model_id``, ``max_descriptor_rowid``.
+        """
+        conn = self.conn
+        row = conn.execute("SELECT value FROM meta WHERE key = 'descriptor_generation'").fetchone()
+        return {"generation": int(row[0]) if row else 0,
+                "schema_version": int(conn.execute("PRAGMA user_version").fetchone()[0]),
+                "models": int(conn.execute("SELECT count(*) FROM models").fetchone()[0]),
+                "max_model_id": int(conn.execute("SELECT max(id) FROM models").fetchone()[0]
+                                    or 0),
+                "max_descriptor_rowid": int(conn.execute(
+                    "SELECT max(rowid) FROM descriptors").fetchone()[0] or 0)}
+
+    def descriptor_rows(self, ids, kinds) -> tuple:
+        """The descriptors of some models, read by id (for re-ranking candidates).
+
+        Parameters
+        ----------
+        ids : (n,) int64
+        kinds : sequence of str
+            The first is required: models without it are left out.
+
+        Returns
+        -------
+        ids : (m,) int64
+            The stored models of ``ids`` holding ``kinds[0]``, ascending.
+        stored : dict of str -> (m, d_k) float32
+            Rows of absent kinds are zeros.
+        present : dict of str -> (m,) bool
+            For ``"texture"``: the model has colour and a texture descriptor.
+
+        Raises
+        ------
+        DatabaseError
+            Vectors of one kind with different dimensions.
+        """
+        ids = np.unique(as_array(ids, "ids", dtype=np.int64, shape=(None,)))
+        kinds = tuple(kinds)
+        got, color = {}, {}
+        for start in range(0, ids.size, 500):
+            chunk = [int(i) for i in ids[start:start + 500]]
+            marks = ", ".join("?" * len(chunk))
+            for mid, kind, blob in self.conn.execute(
+                    f"SELECT model_id, kind, vector FROM descriptors WHERE model_id IN ({marks}) "
+                    f"AND kind IN ({', '.join('?' * len(kinds))})", chunk + list(kinds)):
+                got.setdefault(kind, {})[int(mid)] = np.frombuffer(blob, "<f4")
+            color.update(self.conn.execute(f"SELECT id, has_color FROM models WHERE id IN "
+                                           f"({marks})", chunk))
+        first = got.get(kinds[0], {})
+        out_ids = np.array(sorted(i for i in first if i in color), np.int64)
+        stored, present = {}, {}
+        for kind in kinds:
+            rows = got.get(kind, {})
+            dims = {v.size for v in rows.values()}
+            if len(dims) > 1:
+                raise DatabaseError(f"descriptors of kind {kind!r} have different dimensions "
+                                    f"{sorted(dims)}; run `surfidx redescribe` to recompute "
+                                    "them with this surfidx's descriptors", path=self.path)
+            mat = np.zeros((out_ids.size, dims.pop() if dims else 0), np.float32)
+            has = np.zeros(out_ids.size, bool)
+            for j, i in enumerate(out_ids.tolist()):
+                v = rows.get(i)
+                if v is not None:
+                    mat[j], has[j] = v, True
+            if kind == "texture":
+                has &= np.array([bool(color[i]) for i in out_ids.tolist()], bool)
+            stored[kind], present[kind] = mat, has
+        return out_ids, stored, present
+
+    def _update_index(self) -> None:
+        """Update the approximate index after this connection changed models; a failure leaves
+        it stale, which the next query finds and repairs (so it is a warning, not an error)."""
+        import warnings
+
+        try:
+            from . import ann
+
+            ann.update(self)
+        except (ImportError, OSError, RuntimeError, SurfidxError, sqlite3.Error) as exc:
+            warnings.warn(f"{self.path}: the approximate index was not updated ({exc}); the "
+                          "next query rebuilds it", RuntimeWarning, stacklevel=3)
 
     def descriptor_conventions(self) -> dict:
         """Model ids by descriptor convention: ``{convention JSON text: [ids ascending]}``."""
@@ -827,6 +1147,8 @@ class Database:
         rec["descriptors"] = dict(conn.execute(
             "SELECT kind, dimension FROM descriptors WHERE model_id = ? ORDER BY kind",
             (model_id,)).fetchall())
+        rec["tags"] = [r[0] for r in conn.execute(
+            "SELECT tag FROM tags WHERE model_id = ? ORDER BY tag", (model_id,))]
         return rec
 
     def get_stream(self, id_or_name) -> bytes:
@@ -889,24 +1211,45 @@ class Database:
             descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
             params=rec["params"], timings={})
 
-    def list_models(self) -> list:
-        """All models, by id, with their asset figures (no blobs).
+    def list_models(self, *, tag=None, name_like: str | None = None) -> list:
+        """The models, by id, with their asset figures and tags (no blobs).
+
+        Parameters
+        ----------
+        tag : str or sequence of str, optional
+            Only models carrying every one of these tags.
+        name_like : str, optional
+            Only models whose name matches this SQL ``LIKE`` pattern (``%`` any text, ``_`` one
+            character; case-insensitive for ASCII).
 
         Returns
         -------
         list of dict
             Keys ``id``, ``name``, ``source``, ``content_hash``, ``n_surfels``, ``has_color``,
-            ``ingested_at``, ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``.
+            ``ingested_at``, ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``,
+            ``psnr_y``, ``tags`` (sorted list).
         """
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
                 "bits_per_surfel", "bytes", *_QUALITY_KEYS)
+        where, args = [], []
+        for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
+            where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
+            args.append(str(t))
+        if name_like is not None:
+            where.append("m.name LIKE ?")
+            args.append(str(name_like))
         cur = self.conn.execute(
             "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
             "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y "
-            "FROM models m LEFT JOIN assets a ON a.model_id = m.id ORDER BY m.id")
+            "FROM models m LEFT JOIN assets a ON a.model_id = m.id"
+            + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY m.id", args)
         out = [dict(zip(keys, r)) for r in cur]
+        tags = {}
+        for mid, t in self.conn.execute("SELECT model_id, tag FROM tags ORDER BY tag"):
+            tags.setdefault(mid, []).append(t)
         for r in out:
             r["has_color"] = bool(r["has_color"])
+            r["tags"] = tags.get(r["id"], [])
         return out
 
     def count(self) -> int:
@@ -1105,3 +1448,332 @@ class Database:
             args = (int(run_id),)
         return [dict(zip(("run_id", "path", "error", "at"), r))
                 for r in self.conn.execute(sql + " ORDER BY id", args)]
+
+    # ------------------------------------------------------------------ the one-call API
+    @classmethod
+    def open(cls, path, *, readonly: bool = False, create: bool = True,
+             timeout: float = 30.0) -> "Database":
+        """Open (and by default create) a database: ``surfidx.Database.open("scans.db")``.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+        readonly, create, timeout
+            As for :class:`Database`.
+
+        Returns
+        -------
+        Database
+        """
+        return cls(path, create=create, readonly=readonly, timeout=timeout)
+
+    def ingest(self, models, *, workers: int = 1, bits_per_surfel: float = 8.0, name=None,
+               tags=(), processor=None, progress: bool = False,
+               allow_outside_textures: bool = False, **options):
+        """Process and store models: files, folders (recursively) or models in memory.
+
+        Parameters
+        ----------
+        models : str, os.PathLike, model in memory, or a sequence of them
+            Files and folders as for ``surfidx ingest`` (:func:`ingest.run`: resumable, skipping
+            what is stored), and models in memory (a ``SurfelSet``, ``(vertices, faces[,
+            colours])``, a ``trimesh.Trimesh``: :func:`surfidx.io.as_surfels`), processed here.
+        workers : int
+            Worker processes for the files.
+        bits_per_surfel : float
+            Full rate of the stored streams.
+        name : str, optional
+            Name of the model, when ``models`` is one file or one model (must be free).
+        tags : str or sequence of str
+            Tags given to every model stored.
+        processor : callable, optional
+            As for :func:`ingest.run` (default :func:`surfidx.pipeline.process_model`).
+        progress : bool
+            A progress bar on stderr.
+        allow_outside_textures : bool
+            As for :func:`surfidx.read_surfels`.
+        **options
+            Further keywords of :func:`ingest.run` (``scheduler``, ``retries``, ``batch``...).
+
+        Returns
+        -------
+        ingest.IngestSummary
+            ``stored``, ``skipped``, ``failed``, ``ids``, ``errors`` (``(path, message)``).
+
+        Raises
+        ------
+        InputError
+            ``name`` with several models, a path that does not exist, a folder holding no
+            supported file.
+        DatabaseError
+            The database cannot be written (the run stops).
+        """
+        import ingest as _ingest
+
+        from .surfels import SurfelSet
+
+        items = [models] if isinstance(models, (str, os.PathLike, tuple, np.ndarray,
+                                                SurfelSet)) or not hasattr(models, "__iter__") \
+            or type(models).__module__.startswith("trimesh") else list(models)
+        paths = [m for m in items if isinstance(m, (str, os.PathLike))]
+        memory = [m for m in items if not isinstance(m, (str, os.PathLike))]
+        if name is not None and len(items) != 1:
+            raise InputError(f"name= names one model; {len(items)} were given")
+        tags = [] if not tags else self._tags_of(tags)
+        summary = None
+        if paths:
+            summary = _ingest.run(paths, db=self, workers=workers,
+                                  bits_per_surfel=bits_per_surfel, processor=processor,
+                                  progress=progress, name=name, tags=tags,
+                                  allow_outside_textures=allow_outside_textures, **options)
+        if memory:
+            proc = _ingest.resolve_processor(processor)
+            run = summary or _ingest.IngestSummary(run_id=self.start_run(
+                ["<memory>"], workers=1, bits_per_surfel=bits_per_surfel))
+            for i, model in enumerate(memory):
+                label = f"<memory model {i}>"
+                try:
+                    processed = proc(model, bits_per_surfel=bits_per_surfel,
+                                     **({"name": name} if name is not None else {}))
+                    if self.has_hash(processed.content_hash):
+                        run.skipped += 1
+                        continue
+                    with self.transaction():
+                        mid = self.add(processed, exact_name=name is not None)
+                        if tags:
+                            self.tag(mid, tags)
+                    run.ids.append(mid)
+                    run.stored += 1
+                except SurfidxError as exc:
+                    if is_storage_failure(exc):
+                        raise
+                    run.failed += 1
+                    run.errors.append((label, str(exc)))
+                    self.record_error(run.run_id, label, str(exc))
+            self.finish_run(run.run_id, stored=run.stored, skipped=run.skipped,
+                            failed=run.failed)
+            summary = run
+        if summary is None:
+            raise InputError("give at least one model file, folder or model to ingest")
+        return summary
+
+    def _example(self, model, *, processor=None, texture=None,
+                 allow_outside_textures: bool = False) -> dict:
+        """The query example: ``{"id", "name", "descriptors", "thumbnail", "has_color"}``
+        (``id`` is the stored model's, or None)."""
+        import ingest as _ingest
+
+        ref = model
+        if isinstance(model, str):
+            text = model.strip()
+            if re.fullmatch(r"(?:id:)?\d+", text) and not Path(model).is_file():
+                ref = int(text.removeprefix("id:"))
+            elif text.startswith("id:"):
+                raise InputError(f"{model!r} is not a model id; write id:N with an integer N")
+            elif Path(model).is_file():
+                ref = Path(model)
+            else:
+                try:
+                    ref = int(self.resolve(model))
+                except DatabaseError:
+                    raise InputError("no such model file, and no stored model has this name",
+                                     path=model) from None
+        if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
+            rec = self.get_model(int(ref))
+            return {"id": rec["id"], "name": rec["name"], "has_color": rec["has_color"],
+                    "descriptors": self.get_descriptors(rec["id"]),
+                    "thumbnail": self.get_thumbnail(rec["id"])}
+        proc = _ingest.resolve_processor(processor)
+        extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+        try:
+            if isinstance(ref, os.PathLike):
+                if not Path(ref).is_file():
+                    raise InputError("no such model file", path=ref)
+                tex = texture if texture is not None else _ingest.find_texture(ref)
+                processed = proc(str(ref), bits_per_surfel=8.0, texture=tex, **extra)
+            else:
+                processed = proc(ref, bits_per_surfel=8.0, **extra)
+        except SurfidxError as exc:
+            if exc.path is None and isinstance(ref, os.PathLike):
+                raise type(exc)(exc.reason, path=ref) from exc
+            raise
+        row = self.conn.execute("SELECT id FROM models WHERE content_hash = ?",
+                                (str(processed.content_hash),)).fetchone()
+        return {"id": None if row is None else int(row[0]), "name": processed.name,
+                "has_color": processed.has_color, "descriptors": dict(processed.descriptors),
+                "thumbnail": processed.thumbnail}
+
+    def query(self, model, *, k: int = 10, shape_weight: float | None = None,
+              include_self: bool = False, processor=None, texture=None,
+              allow_outside_textures: bool = False, _example: dict | None = None) -> list:
+        """The stored models most similar to ``model`` (:class:`surfidx.search.SearchIndex`).
+
+        Parameters
+        ----------
+        model : int, str, os.PathLike or model in memory
+            A stored model's id (``12`` or ``"id:12"``) or name, a model file (processed as an
+            ingest would, not stored), or a model in memory.
+        k : int
+            Number of results.
+        shape_weight : float, optional
+            Weight of shape against texture distance (default
+            :data:`surfidx.search.DEFAULT_SHAPE_WEIGHT`).
+        include_self : bool
+            Keep the query model itself among the results when it is stored (by default it is
+            left out).
+        processor, texture, allow_outside_textures
+            For a file or a model in memory (as for :meth:`ingest`).
+
+        Returns
+        -------
+        list of dict
+            ``{"id", "name", "source", "distance"}``, nearest first.
+
+        Raises
+        ------
+        InputError
+            Neither a file nor a stored model, or a bad ``k``.
+        DatabaseError
+            No such stored model.
+        """
+        from .search import DEFAULT_SHAPE_WEIGHT, SearchIndex
+
+        ex = _example if _example is not None else self._example(
+            model, processor=processor, texture=texture,
+            allow_outside_textures=allow_outside_textures)
+        descriptors = dict(ex["descriptors"])
+        if not ex["has_color"]:
+            descriptors.pop("texture", None)
+        k = int(k)
+        if k < 1:
+            raise InputError(f"k must be at least 1, got {k}")
+        drop = None if include_self else ex["id"]
+        ids, dist = SearchIndex(self).query(
+            descriptors, k=k + (drop is not None),
+            shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
+        rows = []
+        for i, d in zip(ids.tolist(), dist.tolist()):
+            if i == drop or len(rows) == k:
+                continue
+            rec = self.conn.execute("SELECT name, source FROM models WHERE id = ?",
+                                    (i,)).fetchone()
+            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
+        return rows
+
+    def get_sfz(self, model, *, bits_per_surfel: float | None = None) -> bytes:
+        """A stored model's stream as a ``.sfz`` file, truncated to ``bits_per_surfel`` (over
+        the stored input surfel count; default: all of it).
+
+        Raises
+        ------
+        InputError
+            A rate whose budget does not hold the header.
+        DatabaseError
+            No such model.
+        """
+        from .codec import max_file_bytes
+        from .container import truncate
+
+        mid = self.resolve(model)
+        stream = self.get_stream(mid)
+        if bits_per_surfel is None:
+            return stream
+        n = self.conn.execute("SELECT n_surfels FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        return truncate(stream, max_file_bytes(bits_per_surfel, int(n)),
+                        path=f"model {mid}")
+
+    def get(self, model, *, bits_per_surfel: float | None = None, level: int | None = None,
+            mesh: bool = False, max_surfels: int | None = None, decoder=None):
+        """Decode a stored model.
+
+        Parameters
+        ----------
+        model : int or str
+            Id or name.
+        bits_per_surfel : float, optional
+            Serve the stream truncated to this rate (default: all of it).
+        level : int, optional
+            Grid level of the output; default the level whose vertex count is closest to the
+            stored input's surfel count (:func:`surfidx.pipeline.output_level`).
+        mesh : bool
+            A :class:`~surfidx.TriangleMesh` on the grid instead of surfels.
+        max_surfels : int, optional
+            As for :func:`surfidx.codec.decode`.
+        decoder : callable, optional
+            Instead of :func:`surfidx.codec.decode`.
+
+        Returns
+        -------
+        SurfelSet or TriangleMesh
+            Named after the model.
+        """
+        from .pipeline import output_level
+
+        mid = self.resolve(model)
+        stream = self.get_stream(mid)
+        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        if level is None:
+            level = output_level(stream)
+        options = {} if level is None else {"level": level}
+        if mesh:
+            options["mesh"] = True
+        if max_surfels is not None:
+            options["max_surfels"] = max_surfels
+        if decoder is None:
+            from .codec import decode as decoder
+
+            options["path"] = f"model {mid}"
+        out = decoder(stream, bits_per_surfel=bits_per_surfel, **options)
+        out.name = name
+        return out
+
+    def export(self, model, path, *, format: str | None = None,
+               bits_per_surfel: float | None = None, level: int | None = None,
+               mesh: bool | None = None, max_surfels: int | None = None, text: bool = False,
+               decoder=None) -> dict:
+        """Write a stored model to a file: PLY, OBJ, GLB (decoded) or SFZ (the stream).
+
+        Parameters
+        ----------
+        model : int or str
+        path : str or os.PathLike
+        format : {"ply", "obj", "glb", "sfz"}, optional
+            Default from the suffix of ``path``; another suffix is an error.
+        bits_per_surfel, level, max_surfels, decoder
+            As for :meth:`get` (``sfz``: the stream truncated to the rate).
+        mesh : bool, optional
+            Decode to the grid mesh (default for OBJ and GLB) or to surfels (default for PLY).
+        text : bool
+            ASCII PLY.
+
+        Returns
+        -------
+        dict
+            ``id``, ``name``, ``output``, ``format``, ``bytes`` (sfz) or ``surfels``
+            (and ``faces`` for a mesh), ``level``, ``bits_per_surfel``.
+        """
+        from .io import output_format, write_atomic, write_model
+
+        fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
+        mid = self.resolve(model)
+        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        out = {"id": mid, "name": name, "output": str(path), "format": fmt,
+               "bits_per_surfel": bits_per_surfel}
+        if fmt == "sfz":
+            data = self.get_sfz(mid, bits_per_surfel=bits_per_surfel)
+            write_atomic(path, lambda tmp: tmp.write_bytes(data))
+            out["bytes"] = len(data)
+            return out
+        from .pipeline import output_level
+
+        if level is None:
+            level = output_level(self.get_stream(mid))
+        as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
+        decoded = self.get(mid, bits_per_surfel=bits_per_surfel, level=level, mesh=as_mesh,
+                           max_surfels=max_surfels, decoder=decoder)
+        write_model(decoded, path, format=fmt, text=text)
+        n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
+        out.update({"surfels": int(n), "level": level})
+        if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:
+            out["faces"] = int(len(decoded.faces))
+        return out

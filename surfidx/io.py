@@ -1,7 +1,12 @@
 """Reading and writing surfel sets: surfel PLY, meshes (PLY faces or tristrips, OBJ with MTL
-texture, OFF) and plain point clouds.
+texture, OFF, STL, glTF/GLB with vertex colours or a base-colour texture) and point clouds (PLY,
+PCD, XYZ, PTS); in-memory models (:func:`as_surfels`); PLY, OBJ and GLB output
+(:func:`write_model`).
 
-The readers keep the input's vertex order so surfels can be named by index.
+The readers keep the input's vertex order so surfels can be named by index. STL and glTF/GLB are
+read through trimesh (their vertices, duplicated at seams and in STL's triangle soup, are merged
+by exact position in order of first occurrence, so the surface is closed where it is); PCD
+(ASCII and binary), XYZ and PTS by small bounded readers.
 """
 
 from __future__ import annotations
@@ -16,14 +21,28 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import FileFormatError, InputError, SurfidxError
+from ._validate import as_array
 from .mesh import MAX_EDGE_RATIO, TriangleMesh
 from .pointcloud import points_to_surfels
 from .surfels import SurfelSet
 
-__all__ = ["SUPPORTED_SUFFIXES", "MAX_TEXTURE_PIXELS", "MAX_COORDINATE", "read_surfels",
-           "read_mesh", "write_ply", "write_atomic", "read_texture"]
+__all__ = ["SUPPORTED_SUFFIXES", "MESH_SUFFIXES", "POINT_SUFFIXES", "OUTPUT_FORMATS",
+           "MAX_TEXTURE_PIXELS", "MAX_COORDINATE", "MAX_TEXT_BYTES", "read_surfels", "read_mesh",
+           "as_surfels", "model_hash", "write_ply", "write_model", "output_format",
+           "write_atomic", "read_texture"]
 
-SUPPORTED_SUFFIXES = (".ply", ".obj", ".off")
+#: Suffixes of the mesh formats read (PLY may also hold surfels or points).
+MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl", ".glb", ".gltf")
+#: Suffixes of the point-cloud-only formats read.
+POINT_SUFFIXES = (".pcd", ".xyz", ".pts")
+#: Every suffix :func:`read_surfels` reads (and ``surfidx ingest`` looks for in folders).
+SUPPORTED_SUFFIXES = MESH_SUFFIXES + POINT_SUFFIXES
+#: Formats :func:`write_model` writes (``"sfz"``, the stored stream, is written by the callers
+#: that hold one: ``surfidx get``/``decode``, :meth:`surfidx.Database.get`).
+OUTPUT_FORMATS = ("ply", "obj", "glb")
+
+MAX_TEXT_BYTES = 2 ** 31
+"""Largest XYZ/PTS/ASCII-PCD point file read (2 GiB of text): numpy parses it whole."""
 
 MAX_TEXTURE_PIXELS = 2 ** 27
 """Largest texture image read, in pixels (134,217,728: 16384 × 8192, 384 MiB as RGB); a larger
@@ -45,9 +64,12 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
 
     Parameters
     ----------
-    path : str or os.PathLike
+    path : str or os.PathLike, or a model in memory
         A surfel PLY (x y z nx ny nz radius [red green blue]), a mesh (PLY with ``face`` or
-        ``tristrips``, OBJ, OFF) or a point-cloud PLY (positions, optional colours/normals).
+        ``tristrips``, OBJ, OFF, STL, glTF/GLB) or a point cloud (PLY with positions and
+        optional colours/normals, PCD, XYZ, PTS). A model in memory (a :class:`SurfelSet`,
+        :class:`TriangleMesh`, ``(vertices, faces[, colours])``, an (n, 3) point array or a
+        ``trimesh.Trimesh``/``PointCloud``) is converted by :func:`as_surfels`.
     texture : str or os.PathLike, optional
         Texture image for an OBJ whose UVs name no texture (overrides the MTL's ``map_Kd``).
     samples : int, optional
@@ -81,10 +103,17 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
     UserWarning
         Degenerate faces dropped (how many), unused vertices dropped, a texture skipped.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        return as_surfels(path, samples=samples, seed=seed, max_edge_ratio=max_edge_ratio)
     path = Path(path)
     try:
         mesh = read_mesh(path, texture=texture, allow_outside_textures=allow_outside_textures,
                          _allow_points=True)
+        if isinstance(mesh, _Points):
+            if samples is not None:
+                raise InputError("--samples needs a mesh; this file holds points only")
+            return points_to_surfels(mesh.positions, normals=mesh.normals, colors=mesh.colors,
+                                     name=path.stem)
         if isinstance(mesh, _PlyPoints) and mesh.faces is not None and samples is not None:
             mesh = TriangleMesh(np.stack([mesh.vertex[a] for a in "xyz"], axis=1), mesh.faces,
                                 vertex_colors=_ply_colors(mesh.vertex), name=path.stem)
@@ -104,7 +133,7 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
 
 def read_mesh(path, *, texture=None, allow_outside_textures: bool = False,
               _allow_points: bool = False):
-    """Read a triangle mesh (PLY, OBJ or OFF).
+    """Read a triangle mesh (PLY, OBJ, OFF, STL, glTF or GLB).
 
     Parameters
     ----------
@@ -135,6 +164,12 @@ def read_mesh(path, *, texture=None, allow_outside_textures: bool = False,
             result = _read_obj(path, texture, allow_outside_textures)
         elif suffix == ".off":
             result = _read_off(path)
+        elif suffix in (".stl", ".glb", ".gltf"):
+            result = _read_trimesh(path, allow_outside_textures)
+        elif suffix == ".pcd":
+            result = _read_pcd(path)
+        elif suffix in (".xyz", ".pts"):
+            result = _read_text_points(path)
         else:
             raise FileFormatError(
                 f"unknown format {suffix or '(no suffix)'}; supported: "
@@ -734,3 +769,514 @@ def _read_off(path: Path) -> TriangleMesh:
     if not len(faces):
         raise FileFormatError("OFF file has no faces", path=path)
     return TriangleMesh(positions, faces, vertex_colors=vcols, name=path.stem)
+
+
+# ---------------------------------------------------------------------- point clouds
+class _Points:
+    """Points read from a point-cloud file: positions, optional normals and colours."""
+
+    def __init__(self, positions, normals=None, colors=None):
+        self.positions = positions
+        self.normals = normals
+        self.colors = colors
+        self.faces = None
+
+
+def _colors_of(c, what: str, path) -> np.ndarray:
+    """(n, 3) colours 0..1 (all floats at most 1) or 0..255 as uint8."""
+    c = np.asarray(c, np.float64)
+    if not np.all(np.isfinite(c)):
+        raise FileFormatError(f"{what} colours contain NaN or infinite values", path=path)
+    if c.size and c.max() <= 1.0:
+        c = c * 255.0
+    return np.clip(np.round(c), 0, 255).astype(np.uint8)
+
+
+def _check_text_size(path: Path) -> None:
+    size = path.stat().st_size
+    if size > MAX_TEXT_BYTES:
+        raise FileFormatError(f"text point file of {size:,} bytes exceeds the limit of "
+                              f"{MAX_TEXT_BYTES:,} bytes; convert it to binary PLY or PCD",
+                              path=path)
+
+
+def _loadtxt(lines, path: Path, what: str) -> np.ndarray:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")               # an empty input warns
+            arr = np.loadtxt(lines, dtype=np.float64, comments=("#", "//"), ndmin=2)
+    except ValueError as exc:
+        raise FileFormatError(f"malformed {what} data ({exc}); every line must hold the same "
+                              "count of numbers", path=path) from None
+    if arr.size == 0:
+        raise FileFormatError(f"{what} file holds no points", path=path)
+    return arr
+
+
+def _read_text_points(path: Path) -> _Points:
+    """XYZ (``x y z``, ``x y z r g b``, ``x y z nx ny nz``, ``x y z nx ny nz r g b``) or PTS
+    (an optional first line with the point count, then ``x y z [intensity] [r g b]``)."""
+    _check_text_size(path)
+    lines = _read_text(path).splitlines()
+    what = path.suffix.lower().lstrip(".").upper()
+    count = None
+    if what == "PTS" and lines and re.fullmatch(r"\s*\d+\s*", lines[0]):
+        count = int(lines[0])
+        lines = lines[1:]
+    arr = _loadtxt(lines, path, what)
+    if count is not None and count != len(arr):
+        raise FileFormatError(f"PTS file announces {count:,} points and holds {len(arr):,}; "
+                              "it may be truncated", path=path)
+    k = arr.shape[1]
+    pos, normals, colors = arr[:, :3], None, None
+    if what == "PTS":
+        if k not in (3, 4, 6, 7):
+            raise FileFormatError(f"PTS lines hold {k} numbers; expected x y z, x y z "
+                                  "intensity, x y z r g b or x y z intensity r g b", path=path)
+        if k >= 6:
+            colors = _colors_of(arr[:, k - 3:], what, path)
+    else:
+        if k not in (3, 6, 9):
+            raise FileFormatError(f"XYZ lines hold {k} numbers; expected x y z, x y z r g b, "
+                                  "x y z nx ny nz or x y z nx ny nz r g b", path=path)
+        if k == 9:
+            normals, colors = arr[:, 3:6], _colors_of(arr[:, 6:9], what, path)
+        elif k == 6:
+            extra = arr[:, 3:6]
+            lengths = np.linalg.norm(extra, axis=1)
+            if np.all(np.abs(lengths - 1.0) < 1e-3):
+                normals = extra
+            elif np.all((extra >= 0) & (extra <= 255)):
+                colors = _colors_of(extra, what, path)
+            else:
+                raise FileFormatError("XYZ columns 4-6 are neither unit normals nor colours "
+                                      "(0..1 or 0..255)", path=path)
+    return _Points(_check_coordinates(pos, path), normals, colors)
+
+
+_PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("I", 1): "i1", ("I", 2): "<i2",
+              ("I", 4): "<i4", ("I", 8): "<i8", ("U", 1): "u1", ("U", 2): "<u2",
+              ("U", 4): "<u4", ("U", 8): "<u8"}
+
+
+def _read_pcd(path: Path) -> _Points:
+    """A PCD file (Point Cloud Library), ``DATA ascii`` or ``binary``: fields ``x y z``,
+    optionally ``normal_x normal_y normal_z`` and ``rgb``/``rgba`` (packed) or ``r g b``."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+    except OSError as exc:
+        raise FileFormatError(f"cannot read ({exc.strerror or exc})", path=path) from None
+    header, offset, data_kind = {}, 0, None
+    for raw in head.split(b"\n"):
+        offset += len(raw) + 1
+        line = raw.decode("latin-1").strip()
+        if not line or line.startswith("#"):
+            continue
+        key, _, value = line.partition(" ")
+        header[key.upper()] = value.split()
+        if key.upper() == "DATA":
+            data_kind = value.strip().lower()
+            break
+    if data_kind is None:
+        raise FileFormatError("not a PCD file (no DATA line in its header)", path=path)
+    try:
+        fields = header["FIELDS"]
+        sizes = [int(x) for x in header.get("SIZE", [])]
+        types = [t.upper() for t in header.get("TYPE", [])]
+        counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
+        n = int(header["POINTS"][0]) if "POINTS" in header else \
+            int(header["WIDTH"][0]) * int(header.get("HEIGHT", ["1"])[0])
+    except (KeyError, ValueError, IndexError) as exc:
+        raise FileFormatError(f"PCD header lacks or garbles a line ({exc})", path=path) from None
+    if not (len(fields) == len(sizes) == len(types) == len(counts)) or n < 0:
+        raise FileFormatError("PCD header's FIELDS, SIZE, TYPE and COUNT lines differ in length",
+                              path=path)
+    if not all(f in fields for f in "xyz"):
+        raise FileFormatError("PCD file lacks the fields x y z", path=path)
+    try:
+        dtype = np.dtype([(f if f != "_" else f"_{i}", _PCD_TYPES[(t, s)], (c,) if c > 1 else ())
+                          for i, (f, s, t, c) in enumerate(zip(fields, sizes, types, counts))])
+    except (KeyError, ValueError, TypeError) as exc:
+        raise FileFormatError(f"PCD field type or size not supported ({exc})", path=path) \
+            from None
+    size = path.stat().st_size
+    if data_kind == "binary":
+        if n * dtype.itemsize > size - offset:
+            raise FileFormatError(f"PCD header announces {n:,} points, more than the "
+                                  f"{size - offset:,} bytes after it hold; the file may be "
+                                  "truncated", path=path)
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            rows = np.frombuffer(fh.read(n * dtype.itemsize), dtype=dtype, count=n)
+    elif data_kind == "ascii":
+        _check_text_size(path)
+        text = _read_text(path)
+        body = text.encode("latin-1", "replace")[offset:].decode("latin-1").splitlines()
+        arr = _loadtxt(body, path, "PCD")
+        if arr.shape != (n, sum(counts)):
+            raise FileFormatError(f"PCD header announces {n:,} points of {sum(counts)} numbers, "
+                                  f"the data holds {arr.shape[0]:,} of {arr.shape[1]}", path=path)
+        rows = np.empty(n, dtype)
+        col = 0
+        for name, c in zip(dtype.names, counts):
+            vals = arr[:, col:col + c]
+            if name in ("rgb", "rgba") and c == 1:   # packed colour written as a float or int
+                v = vals[:, 0]
+                bits = v.astype("<f4").view("<u4") if rows[name].dtype.kind == "f" else \
+                    v.astype("<u4")
+                rows[name] = bits.view(rows[name].dtype) if rows[name].dtype.kind == "f" else bits
+            else:
+                rows[name] = vals.reshape(rows[name].shape)
+            col += c
+    else:
+        raise FileFormatError(f"PCD DATA {data_kind} is not supported; save it as ascii or "
+                              "binary (e.g. pcl_convert_pcd_ascii_binary IN OUT 1)", path=path)
+    pos = np.stack([rows[a] for a in "xyz"], axis=1).astype(np.float64)
+    keep = np.all(np.isfinite(pos), axis=1)             # PCL marks missing points with NaN
+    pos = _check_coordinates(pos[keep], path)
+    normals = None
+    if all(f"normal_{a}" in fields for a in "xyz"):
+        normals = np.stack([rows[f"normal_{a}"] for a in "xyz"], axis=1).astype(np.float64)[keep]
+        if not np.all(np.isfinite(normals)):
+            normals = None
+    colors = None
+    for name in ("rgb", "rgba"):
+        if name in fields:
+            packed = np.ascontiguousarray(rows[name]).view("<u4")[keep]
+            colors = np.stack([(packed >> 16) & 255, (packed >> 8) & 255, packed & 255],
+                              axis=1).astype(np.uint8)
+    if colors is None and all(c in fields for c in "rgb"):
+        colors = _colors_of(np.stack([rows[c] for c in "rgb"], axis=1)[keep], "PCD", path)
+    return _Points(pos, normals, colors)
+
+
+# ---------------------------------------------------------------------- STL, glTF, GLB
+def _merge_positions(vertices: np.ndarray):
+    """Vertices merged by exact position, in order of first occurrence: ``(unique, index)``
+    with ``vertices == unique[index]``."""
+    uniq, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    return vertices[first[order]], rank[np.asarray(inverse).ravel()]
+
+
+def _image_array(image, path) -> np.ndarray | None:
+    if image is None:
+        return None
+    w, h = image.size
+    if w * h > MAX_TEXTURE_PIXELS:
+        raise FileFormatError(f"texture image of {w} × {h} pixels exceeds the limit of "
+                              f"{MAX_TEXTURE_PIXELS:,} pixels; scale it down", path=path)
+    return np.asarray(image.convert("RGB"), dtype=np.uint8)
+
+
+def _mesh_parts(tm, path):
+    """``(vertices, faces, vertex colours or None, uv or None, texture or None)`` of one
+    ``trimesh.Trimesh``: a base-colour texture (times its factor) with UVs, or vertex or face
+    colours, or a uniform base colour."""
+    verts = np.asarray(tm.vertices, np.float64)
+    faces = np.asarray(tm.faces, np.int64)
+    visual = tm.visual
+    kind = getattr(visual, "kind", None)
+    colors, uv, tex = None, None, None
+    if kind == "texture":
+        mat = getattr(visual, "material", None)
+        image = getattr(mat, "baseColorTexture", None) or getattr(mat, "image", None)
+        factor = getattr(mat, "baseColorFactor", None)
+        tex = _image_array(image, path)
+        if tex is not None and getattr(visual, "uv", None) is not None and \
+                len(visual.uv) == len(verts):
+            uv = np.asarray(visual.uv, np.float64)
+            if factor is not None and image is getattr(mat, "baseColorTexture", None):
+                f = np.asarray(factor, np.float64)[:3] / 255.0
+                tex = np.clip(np.round(tex * f), 0, 255).astype(np.uint8)
+        else:
+            tex = None
+            if factor is not None:
+                colors = np.tile(np.asarray(factor, np.uint8)[:3], (len(verts), 1))
+    elif kind in ("vertex", "face"):
+        colors = np.asarray(visual.vertex_colors, np.uint8)[:, :3]
+    return verts, faces, colors, uv, tex
+
+
+def _from_trimesh(obj, path=None, name=None):
+    """A ``trimesh.Trimesh``, ``PointCloud`` or ``Scene`` as a :class:`TriangleMesh` (vertices
+    merged by position, see :func:`_merge_positions`) or as :class:`_Points`."""
+    import trimesh
+
+    if isinstance(obj, trimesh.Scene):
+        geoms = obj.dump(concatenate=False) if len(obj.geometry) else []
+    else:
+        geoms = [obj]
+    meshes = [g for g in geoms if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    clouds = [g for g in geoms if isinstance(g, trimesh.PointCloud) and len(g.vertices)]
+    if not meshes:
+        if not clouds:
+            raise FileFormatError("holds no triangles and no points", path=path)
+        pos = np.vstack([np.asarray(c.vertices, np.float64) for c in clouds])
+        cols = [getattr(c, "colors", None) for c in clouds]
+        colors = None
+        if all(c is not None and len(c) for c in cols):
+            colors = np.vstack([np.asarray(c, np.uint8)[:, :3] for c in cols])
+        return _Points(_check_coordinates(pos, path), None, colors)
+    parts = [_mesh_parts(m, path) for m in meshes]
+    if len(parts) == 1 and parts[0][4] is not None:
+        verts, faces, colors, uv, tex = parts[0]
+        merged, index = _merge_positions(verts)
+        return TriangleMesh(_check_coordinates(merged, path), index[faces], uv=uv, uv_faces=faces,
+                            texture=tex, name=name)
+    # several parts: textures are sampled at the vertices (colours per vertex), then joined
+    vs, fs, cs, base = [], [], [], 0
+    for verts, faces, colors, uv, tex in parts:
+        if tex is not None:
+            from .mesh import sample_texture
+
+            colors = np.clip(np.round(sample_texture(tex, uv)), 0, 255).astype(np.uint8)
+        vs.append(verts)
+        fs.append(faces + base)
+        cs.append(colors)
+        base += len(verts)
+    verts = np.vstack(vs)
+    colors = np.vstack(cs) if all(c is not None for c in cs) else None
+    merged, index = _merge_positions(verts)
+    if colors is not None:
+        first = np.full(len(merged), -1, np.int64)
+        first[index[::-1]] = np.arange(len(index))[::-1]
+        colors = colors[first]
+    return TriangleMesh(_check_coordinates(merged, path), index[np.vstack(fs)],
+                        vertex_colors=colors, name=name)
+
+
+def _read_trimesh(path: Path, allow_outside: bool = False):
+    """STL, glTF or GLB through trimesh. A ``.gltf`` refers to its buffers and images by
+    name: only files in its own folder are read unless ``allow_outside``."""
+    try:
+        import trimesh
+    except ImportError as exc:                              # pragma: no cover - a dependency
+        raise FileFormatError(f"reading {path.suffix} needs trimesh ({exc})", path=path) \
+            from None
+    if path.suffix.lower() == ".gltf" and not allow_outside:
+        _check_gltf_uris(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(str(path), process=False, force=None)
+    except MemoryError:
+        raise
+    except Exception as exc:  # trimesh raises many kinds on damaged input
+        msg = str(exc).strip() or type(exc).__name__
+        raise FileFormatError(f"not a readable {path.suffix.lstrip('.').upper()} file ({msg})",
+                              path=path) from None
+    return _from_trimesh(loaded, path, name=path.stem)
+
+
+def _check_gltf_uris(path: Path) -> None:
+    import json
+
+    try:
+        doc = json.loads(_read_text(path))
+    except ValueError as exc:
+        raise FileFormatError(f"not a readable glTF file ({exc})", path=path) from None
+    folder = path.parent.resolve()
+    for key in ("buffers", "images"):
+        for item in doc.get(key, []) if isinstance(doc, dict) else []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and not uri.startswith("data:"):
+                target = (path.parent / uri).resolve()
+                if not target.is_relative_to(folder):
+                    raise FileFormatError(
+                        f"refers to {uri} outside the model's folder; allow it with "
+                        "allow_outside_textures=True (--allow-outside-textures)", path=path)
+
+
+# ---------------------------------------------------------------------- models in memory
+def as_surfels(model, *, samples: int | None = None, seed: int = 0,
+               max_edge_ratio: float | None = MAX_EDGE_RATIO, name: str | None = None,
+               **read_options) -> SurfelSet:
+    """Any model, in memory or in a file, as surfels.
+
+    Parameters
+    ----------
+    model : SurfelSet, TriangleMesh, tuple, (n, 3) float64, trimesh object, str or os.PathLike
+        A :class:`SurfelSet` (returned as it is); a :class:`TriangleMesh`; ``(vertices,
+        faces)`` or ``(vertices, faces, colours)`` with (n, 3) float64 vertices, (m, 3) int64
+        faces (``None`` for a point cloud) and (n, 3) uint8 colours; an (n, 3) array of points;
+        a ``trimesh.Trimesh``, ``PointCloud`` or ``Scene``; or a file (:func:`read_surfels`,
+        which ``read_options`` go to).
+    samples, seed, max_edge_ratio
+        As for :func:`read_surfels` (meshes only).
+    name : str, optional
+        Name of the result (default: the model's own, else None).
+
+    Returns
+    -------
+    SurfelSet
+
+    Raises
+    ------
+    InputError
+        A model of another type, or arrays that are not a valid mesh or point cloud.
+    """
+    if isinstance(model, (str, os.PathLike)):
+        return read_surfels(model, samples=samples, seed=seed, max_edge_ratio=max_edge_ratio,
+                            **read_options)
+    if read_options.get("texture") is not None:
+        raise InputError("texture applies to OBJ files only, not to a model in memory")
+    if isinstance(model, SurfelSet):
+        if samples is not None:
+            raise InputError("samples needs a mesh; a SurfelSet is used as it is")
+        if name is not None and model.name != name:
+            model = SurfelSet(model.positions, model.normals, model.radii, model.colors,
+                              faces=model.faces, name=name)
+        return model
+    mesh = model
+    if type(model).__module__.startswith("trimesh"):
+        mesh = _from_trimesh(model, name=name or getattr(model, "metadata", {}).get("name"))
+    elif isinstance(model, tuple):
+        if len(model) not in (2, 3):
+            raise InputError(f"a model tuple is (vertices, faces) or (vertices, faces, colours), "
+                             f"got {len(model)} items")
+        verts, faces = model[0], model[1]
+        colors = model[2] if len(model) == 3 else None
+        if faces is None:
+            mesh = _Points(as_array(verts, "vertices", shape=(None, 3)), None, colors)
+        else:
+            mesh = TriangleMesh(verts, faces, vertex_colors=colors, name=name)
+    elif isinstance(model, np.ndarray):
+        mesh = _Points(as_array(model, "points", shape=(None, 3)))
+    elif not isinstance(model, TriangleMesh):
+        raise InputError(f"cannot read a model from a {type(model).__name__}; give a file, a "
+                         "SurfelSet, a TriangleMesh, (vertices, faces[, colours]), an (n, 3) "
+                         "point array or a trimesh object")
+    if isinstance(mesh, _Points):
+        if samples is not None:
+            raise InputError("samples needs a mesh; this model holds points only")
+        return points_to_surfels(mesh.positions, normals=mesh.normals, colors=mesh.colors,
+                                 name=name)
+    if name is not None:
+        mesh.name = name
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        return mesh.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio)
+
+
+def model_hash(surfels: SurfelSet) -> str:
+    """SHA-256 hex of a surfel set's arrays (positions, normals, radii, colours, faces): the
+    content hash of a model given in memory.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+
+    Returns
+    -------
+    str
+    """
+    import hashlib
+
+    h = hashlib.sha256(b"surfidx surfels v1")
+    for arr in (surfels.positions, surfels.normals, surfels.radii, surfels.colors, surfels.faces):
+        h.update(b"-" if arr is None else np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------------- writing models
+def output_format(path, format: str | None = None, *, allowed=OUTPUT_FORMATS) -> str:
+    """The output format of ``path``: ``format`` when given, else its suffix.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    format : str, optional
+        One of ``allowed``.
+    allowed : sequence of str
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        An unknown ``format``, or a suffix that names none of ``allowed`` (never a silent PLY).
+    """
+    if format is not None:
+        fmt = str(format).lower().lstrip(".")
+        if fmt not in allowed:
+            raise InputError(f"unknown output format {format!r}; use one of "
+                             + ", ".join(allowed), path=path)
+        return fmt
+    fmt = Path(path).suffix.lower().lstrip(".")
+    if fmt not in allowed:
+        raise InputError(f"cannot tell the output format from the suffix "
+                         f"{Path(path).suffix or '(none)'}; name the file ."
+                         + ", .".join(allowed) + " or give --format", path=path)
+    return fmt
+
+
+def write_model(model, path, *, format: str | None = None, text: bool = False) -> str:
+    """Write a model as PLY (surfels, or a mesh's vertices as surfels with its faces), OBJ or GLB.
+
+    Parameters
+    ----------
+    model : SurfelSet or TriangleMesh
+    path : str or os.PathLike
+    format : {"ply", "obj", "glb"}, optional
+        Default: from the suffix of ``path`` (:func:`output_format`).
+    text : bool
+        ASCII PLY (PLY only).
+
+    Returns
+    -------
+    str
+        The format written.
+
+    Notes
+    -----
+    OBJ holds ``v x y z r g b`` (colours 0..1) and ``vn`` lines, and ``f`` lines when the model
+    has faces; GLB (written by trimesh) a mesh with vertex colours and normals, or a point cloud
+    for surfels without faces. Both are read by trimesh, Blender and MeshLab.
+    """
+    fmt = output_format(path, format)
+    if isinstance(model, TriangleMesh):
+        model = model.to_surfels(max_edge_ratio=None)
+    if not isinstance(model, SurfelSet):
+        raise InputError(f"write_model needs a SurfelSet or TriangleMesh, got "
+                         f"{type(model).__name__}")
+    if fmt == "ply":
+        write_ply(model, path, text=text)
+    elif fmt == "obj":
+        write_atomic(path, lambda tmp: tmp.write_text(_obj_text(model), encoding="ascii"))
+    else:
+        data = _glb_bytes(model)
+        write_atomic(path, lambda tmp: tmp.write_bytes(data))
+    return fmt
+
+
+def _obj_text(s: SurfelSet) -> str:
+    cols = s.colors.astype(np.float64) / 255.0 if s.has_color else None
+    v = np.hstack([s.positions, cols]) if cols is not None else s.positions
+    vfmt = " ".join(["%.9g"] * 3 + (["%.6g"] * 3 if cols is not None else []))
+    out = [f"# written by surfidx: {len(s)} vertices"]
+    out += ["v " + vfmt % tuple(r) for r in v.tolist()]
+    out += ["vn %.6g %.6g %.6g" % tuple(r) for r in s.normals.tolist()]
+    if s.faces is not None and len(s.faces):
+        f = s.faces + 1
+        out += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f.tolist()]
+    return "\n".join(out) + "\n"
+
+
+def _glb_bytes(s: SurfelSet) -> bytes:
+    import trimesh
+
+    colors = None
+    if s.has_color:
+        colors = np.hstack([s.colors, np.full((len(s), 1), 255, np.uint8)])
+    if s.faces is not None and len(s.faces):
+        tm = trimesh.Trimesh(s.positions, s.faces, vertex_normals=s.normals,
+                             vertex_colors=colors, process=False)
+    else:
+        tm = trimesh.PointCloud(s.positions, colors=colors)
+    return tm.export(file_type="glb")

@@ -4,12 +4,14 @@ executor: read → map to the sphere → encode → describe → thumbnail, as o
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ProcessedModel", "content_hash", "process_model", "describe_stream", "redescribe"]
+__all__ = ["ProcessedModel", "content_hash", "process_model", "describe_stream", "redescribe",
+           "output_level"]
 
 
 @dataclass
@@ -95,13 +97,17 @@ def _png_bytes(image: np.ndarray) -> bytes:
 
 def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: int | None = None,
                   level: int | None = None, method: str = "tutte", thumbnail_size: int = 192,
-                  lmax: int | None = None) -> ProcessedModel:
+                  lmax: int | None = None, allow_outside_textures: bool = False,
+                  name: str | None = None) -> ProcessedModel:
     """Read, map, encode, evaluate, describe and draw one model.
 
     Parameters
     ----------
-    path : str or os.PathLike
-        Any file :func:`surfidx.read_surfels` reads.
+    path : str or os.PathLike, or a model in memory
+        Any file :func:`surfidx.read_surfels` reads, or a model in memory
+        (:func:`surfidx.io.as_surfels`: a ``SurfelSet``, ``(vertices, faces[, colours])``, a
+        ``trimesh.Trimesh``...): its source is then ``"<memory>"`` and its content hash that of
+        its surfels (:func:`surfidx.io.model_hash`).
     bits_per_surfel : float
         Full rate of the stored asset (lower rates are served by truncation).
     texture : str or os.PathLike, optional
@@ -116,10 +122,18 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
         Thumbnail width and height in pixels.
     lmax : int, optional
         Largest SH degree of the descriptors (default :data:`surfidx.descriptors.DEFAULT_LMAX`).
+    allow_outside_textures : bool
+        Use a texture an OBJ's MTL names outside the model's folder
+        (:func:`surfidx.read_surfels`).
+    name : str, optional
+        The model's name (default: the file stem, or the in-memory model's name, else
+        ``"model"``).
 
     Returns
     -------
     ProcessedModel
+        Its thumbnail looks along the model's smallest principal axis
+        (:func:`surfidx.render.principal_basis`).
 
     Raises
     ------
@@ -130,7 +144,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
 
     from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
-    from .io import read_surfels
+    from .io import model_hash, read_surfels
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
     from .render import render
@@ -138,7 +152,9 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
 
     timings = {}
     t0 = time.perf_counter()
-    surfels = read_surfels(path, texture=texture, samples=samples)
+    in_memory = not isinstance(path, (str, os.PathLike))
+    surfels = read_surfels(path, texture=texture, samples=samples,
+                           allow_outside_textures=allow_outside_textures)
     timings["read"] = time.perf_counter() - t0
     enc = Encoder(surfels, level=level, method=method)
     timings.update(enc.setup_seconds)
@@ -156,7 +172,8 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     desc = describe_grid(enc.grid, enc.level, lmax=DEFAULT_LMAX if lmax is None else lmax)
     timings["describe"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size))
+    thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size,
+                              view="principal"))
     timings["thumbnail"] = time.perf_counter() - t0
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
@@ -167,12 +184,47 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
               "texture": None if texture is None else str(texture),
               "folded": int(enc.sphere_map.folded),
               "descriptors": desc.params}
+    if in_memory:
+        label = name or getattr(path, "name", None) or surfels.name or "model"
+        source, digest = "<memory>", model_hash(surfels)
+    else:
+        label = name or Path(path).stem
+        source, digest = str(Path(path).resolve()), content_hash(path, texture=texture)
     return ProcessedModel(
-        name=Path(path).stem, source=str(Path(path).resolve()),
-        content_hash=content_hash(path, texture=texture), n_surfels=len(surfels),
+        name=str(label), source=source, content_hash=digest, n_surfels=len(surfels),
         has_color=surfels.has_color, bbox=surfels.bounds, stream=stream,
         format_version=CODEC_VERSION, rate=8.0 * len(stream) / len(surfels), quality=quality,
         descriptors=desc.vectors, thumbnail=thumb, params=params, timings=timings)
+
+
+def output_level(stream: bytes, *, path=None) -> int | None:
+    """The default output grid level of a stream: the level (at most the stream's) whose vertex
+    count ``10·4^L + 2`` is closest to the input's surfel count in its header (the lower level on
+    a tie), so a decoded model has about as many surfels as its input.
+
+    Parameters
+    ----------
+    stream : bytes
+        A container file.
+    path : str, optional
+        Name for messages.
+
+    Returns
+    -------
+    int or None
+        None when ``stream`` is not a container (a stand-in decoder's data).
+    """
+    from ._errors import BitstreamError
+    from .container import unpack
+    from .icosphere import vertex_count
+
+    try:
+        header, _ = unpack(bytes(stream), path=path)
+    except BitstreamError:
+        return None
+    n = max(int(header.n_surfels), 1)
+    levels = range(int(header.level) + 1)
+    return min(levels, key=lambda lv: (abs(vertex_count(lv) - n), lv))
 
 
 def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):

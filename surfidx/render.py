@@ -18,6 +18,10 @@ The camera looks at the model's centre. Views are named or given as ``(azimuth, 
 degrees: azimuth 0 and elevation 0 look along ``-z`` (the camera sits on ``+z``, ``+y`` up, ``+x``
 right), positive azimuth moves the camera towards ``+x``, positive elevation raises it towards
 ``+y``.
+
+The view ``"principal"`` looks along the model's smallest principal axis (of its surfels'
+positions, weighted by disk area), with the largest axis across and the middle one up: a flat
+model (a bird, pliers) shows its largest silhouette. Thumbnails use it.
 """
 
 from __future__ import annotations
@@ -32,7 +36,11 @@ from ._errors import FileFormatError, InputError
 from ._validate import as_array, check_positive_int
 from .surfels import SurfelSet
 
-__all__ = ["VIEWS", "render", "save_png", "camera_basis", "read_polyline"]
+__all__ = ["VIEWS", "PRINCIPAL", "render", "save_png", "camera_basis", "principal_basis",
+           "read_polyline"]
+
+#: The view name that looks along the model's smallest principal axis (:func:`principal_basis`).
+PRINCIPAL = "principal"
 
 #: Named views as (azimuth, elevation) in degrees.
 VIEWS = {
@@ -100,6 +108,34 @@ def camera_basis(view="three-quarter", *, up: str = "y") -> np.ndarray:
     right = np.array([math.cos(a), 0.0, -math.sin(a)])  # perpendicular to back for every e
     upward = np.cross(back, right)
     return np.stack([right, upward, back]) @ np.array(_UP[up], float)
+
+
+def principal_basis(surfels: SurfelSet) -> np.ndarray:
+    """Camera axes looking along the smallest principal axis of a model.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+
+    Returns
+    -------
+    (3, 3) float64
+        Rows: screen right (the largest principal axis), screen up (the middle one), towards the
+        camera (the smallest), right-handed. Each axis of the covariance of the positions
+        (weighted by the disks' areas) is signed so that its largest component is positive, so
+        the view is the same on every run.
+    """
+    w = surfels.radii ** 2
+    w = w / w.sum() if w.sum() > 0 else np.full(len(surfels), 1.0 / max(len(surfels), 1))
+    centred = surfels.positions - w @ surfels.positions
+    cov = (centred * w[:, None]).T @ centred
+    _, vecs = np.linalg.eigh(cov)                       # ascending eigenvalues
+    axes = vecs.T[::-1].copy()                          # largest, middle, smallest
+    for a in axes[:2]:
+        if a[np.argmax(np.abs(a))] < 0:
+            a *= -1.0
+    axes[2] = np.cross(axes[0], axes[1])
+    return axes
 
 
 # ---------------------------------------------------------------------- kernels
@@ -242,7 +278,8 @@ def render(surfels: SurfelSet, *, width: int = 800, height: int = 800, view="thr
         Image size in pixels.
     view : str or (2,) float
         ``"three-quarter"``, ``"front"``, ``"back"``, ``"left"``, ``"right"``, ``"top"``,
-        ``"bottom"`` or ``(azimuth_deg, elevation_deg)`` (see the module notes).
+        ``"bottom"``, ``"principal"`` (along the smallest principal axis, ``up`` ignored) or
+        ``(azimuth_deg, elevation_deg)`` (see the module notes).
     up : str
         Model axis shown upwards: ``"y"``, ``"z"``, ``"x"`` or negated (``"-z"``).
     background : (3,) int
@@ -288,7 +325,8 @@ def render(surfels: SurfelSet, *, width: int = 800, height: int = 800, view="thr
     path = None
     if path_points is not None:
         path = as_array(path_points, "path_points", shape=(None, 3), min_len=1)
-    basis = camera_basis(view, up=up)
+    basis = principal_basis(surfels) if isinstance(view, str) and view == PRINCIPAL else \
+        camera_basis(view, up=up)
 
     # camera space: x right, y up, depth away from the camera
     cam = surfels.positions @ basis.T

@@ -45,14 +45,15 @@ def filled(tmp_path):
     root = make_tree(tmp_path / "data", 6, extra={"bad.ply": "FAIL"})
     db = tmp_path / "s.db"
     r = invoke(["ingest", root, "--db", db, "--no-progress"])
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output                  # stored what it could, then exit 1
+    assert "Error: 1 file(s) failed (the others were stored)" in r.stderr
     return root, db
 
 
 def test_ingest_summary_and_rerun(filled, tmp_path):
     root, db = filled
     r = invoke(["ingest", root, "--db", db, "--workers", 2, "--json", "--no-progress"])
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output
     out = json.loads(r.stdout)
     assert (out["stored"], out["skipped"], out["failed"]) == (0, 6, 1)
     assert out["errors"][0]["error"].endswith("deliberately unusable model")
@@ -63,14 +64,15 @@ def test_ingest_summary_and_rerun(filled, tmp_path):
 def test_ingest_prints_failures(tmp_path):
     root = make_tree(tmp_path / "data", 1, extra={"bad.ply": "FAIL"})
     r = invoke(["ingest", root, "--db", tmp_path / "x.db", "--no-progress"])
-    assert r.exit_code == 0
+    assert r.exit_code == 1                        # the good file is stored, then exit 1
     assert f"failed: {root / 'bad.ply'}: deliberately unusable model" in r.stderr
     assert "stored 1, skipped 0, failed 1" in r.stdout
 
 
 def test_query_by_file_returns_example_first(filled, tmp_path):
     root, db = filled
-    r = invoke(["query", root / "sub" / "m3.ply", "--db", db, "-k", 3, "--json"])
+    r = invoke(["query", root / "sub" / "m3.ply", "--db", db, "-k", 3, "--json",
+                "--include-self"])
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout)
     assert list(out) == ["results"] and len(out["results"]) == 3
@@ -87,14 +89,14 @@ def test_query_by_file_returns_example_first(filled, tmp_path):
 
 def test_query_by_id_table_and_weights(filled):
     _, db = filled
-    r = invoke(["query", "id:4", "--db", db, "-k", 10])          # m1, coloured
+    r = invoke(["query", "id:4", "--db", db, "-k", 10, "--include-self"])   # m1, coloured
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()
     assert lines[0].split() == ["rank", "id", "name", "distance", "source"]
     assert lines[1].split()[:3] == ["1", "4", "m1"] and len(lines) == 7
-    shape_only = json.loads(invoke(["query", "id:4", "--db", db, "--json",
+    shape_only = json.loads(invoke(["query", "id:4", "--db", db, "--json", "--include-self",
                                     "--shape-weight", 1]).stdout)["results"]
-    tex_heavy = json.loads(invoke(["query", "id:4", "--db", db, "--json",
+    tex_heavy = json.loads(invoke(["query", "id:4", "--db", db, "--json", "--include-self",
                                    "--shape-weight", 0]).stdout)["results"]
     assert shape_only[0]["id"] == tex_heavy[0]["id"] == 4
     assert [x["distance"] for x in shape_only] != [x["distance"] for x in tex_heavy]
@@ -122,7 +124,7 @@ def test_get_writes_ply_at_rate(filled, tmp_path):
     assert r.exit_code == 0, r.output
     assert len(read_surfels(out)) == 16 and DECODED[-1] == (64, None)
     r = invoke(["get", "id:1", "--db", db, "-o", out, "--bits-per-surfel", 5])
-    assert r.exit_code == 0 and "5 surfels of model 1 (m0) at 5 bits/surfel" in r.stdout
+    assert r.exit_code == 0 and "5 surfels (PLY) at 5 bits/surfel (model 1, m0)" in r.stdout
     assert len(read_surfels(out)) == 5 and DECODED[-1] == (64, 5.0)
     r = invoke(["get", "m4", "--db", db, "-o", out, "--level", 2])      # passed to the decoder
     assert r.exit_code == 0 and len(read_surfels(out)) == 5 and DECODED[-1] == (64, None, 2)
@@ -207,7 +209,8 @@ def test_foreign_database_cli(tmp_path):
     conn.execute("CREATE TABLE orders (id INTEGER)")
     conn.commit()
     conn.close()
-    for args in (["ls"], ["ingest", tmp_path]):
+    make_tree(tmp_path / "data", 1)
+    for args in (["ls"], ["ingest", tmp_path / "data"]):
         r = invoke(args + ["--db", path, "--no-progress"] if args[0] == "ingest"
                    else args + ["--db", path])
         assert r.exit_code == 1
@@ -392,9 +395,9 @@ def test_names_are_escaped_in_text_and_exact_in_json(tmp_path):
     root = _weird_tree(tmp_path / "data")
     db = tmp_path / "w.db"
     r = invoke(["ingest", root, "--db", db, "--no-progress"])
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output
     assert "\x1b" not in r.output and "failed: " in r.stderr and "evil\\x1b[2J.obj" in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 1
+    assert len(r.stderr.strip().splitlines()) == 2            # the failure, then the exit line
     r = invoke(["ls", "--db", db])
     assert r.exit_code == 0 and "\x1b" not in r.stdout
     lines = r.stdout.splitlines()

@@ -122,7 +122,7 @@ def test_built_package_finds_schema(tmp_path):
 
 def test_new_database_layout(db):
     assert db.schema_version == SCHEMA_VERSION
-    assert set(db.db.table_names()) == set(dbmod._TABLES)
+    assert set(db.db.table_names()) == set(dbmod._TABLES) | {"tags"}
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
     meta = dict(db.conn.execute("SELECT key, value FROM meta"))
@@ -233,13 +233,16 @@ def test_duplicate_hash_rejected(db):
 
 def test_get_by_name_and_errors(db):
     a = db.add(make_model(1, name="bunny"))
-    db.add(make_model(2, name="twin"))
-    db.add(make_model(3, name="twin"))
+    db.add(make_model(2, name="twin", source="/scans/a/twin.ply"))
+    db.add(make_model(3, name="twin", source="/scans/b/twin.ply"))     # named after its folder
+    db.add(make_model(4, name="twin", source="/scans/b/twin.obj"))     # folder taken: twin-2
+    db.add(make_model(5, name="twin", source="/scans/b/twin.off"))
     assert db.get_model("bunny")["id"] == a
+    assert [db.get_model(n)["id"] for n in ("twin", "b", "twin-2", "twin-3")] == [2, 3, 4, 5]
     with pytest.raises(DatabaseError, match="no model named 'nobody'"):
         db.get_model("nobody")
-    with pytest.raises(DatabaseError, match=r"'twin' matches 2 models \(ids 2, 3\)"):
-        db.get_model("twin")
+    with pytest.raises(DatabaseError, match="the name 'twin' is taken by model 2"):
+        db.add(make_model(6, name="twin"), exact_name=True)
     with pytest.raises(DatabaseError, match="no model with id 99"):
         db.get_stream(99)
     with pytest.raises(InputError, match="model id must be an integer"):

@@ -219,7 +219,8 @@ def _write(tmp_path, name, content):
     ("badnum.obj", "v 0 0 zz\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "malformed vertex line"),
     ("short.off", "OFF\n4 4 0\n0 0 0\n1 0 0\n", "truncated"),
     ("header.off", "XYZ\n1 2\n", "not an OFF file"),
-    ("model.stl", "solid x\n", "unknown format .stl"),
+    ("model.3ds", "solid x\n", "unknown format .3ds"),
+    ("model.stl", "solid x\n", "holds no triangles and no points"),
 ])
 def test_damaged_files_raise_clear_errors(tmp_path, name, content, match):
     with pytest.raises(FileFormatError, match=match) as info:

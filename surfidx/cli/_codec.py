@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from . import cli
-from ._common import command_errors, echo_json, input_options
-from ._convert import outside_textures_option, read_model
+from ._common import (command_errors, echo_json, input_options, output_format_option, plain,
+                      read_input)
 
 
 @cli.command()
@@ -28,11 +28,10 @@ from ._convert import outside_textures_option, read_model
               help="Weight coefficients by the input's surfel density on the sphere (default: "
                    "when the estimated gain is at least 1 dB).")
 @input_options
-@outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, allow_outside_textures, as_json):
+           density_weighting, texture, samples, as_json):
     """Encode a model into an embedded .sfz bitstream."""
     from ..codec import TANGENT_WEIGHT, Encoder
     from ..io import write_atomic
@@ -40,7 +39,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
     tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
-    s = read_model(input, texture, samples, allow_outside_textures)
+    s = read_input(input, texture, samples)
     enc = Encoder(s, level=level, color=False if no_color else None, method=method,
                   tangent_weight=tw, density_weighting=density_weighting)
     data = enc.encode(bits)
@@ -56,37 +55,69 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
                    f"({len(s)} surfels, grid level {enc.level}{', colour' if enc.color else ''})")
 
 
+#: Help of the options shared by ``decode`` and ``get``.
+LEVEL_HELP = ("Grid level of the output (default: the level whose vertex count is closest to the "
+              "input's surfel count; lower: fewer surfels).")
+MAX_SURFELS_HELP = ("Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
+                    "grid); --level gives fewer.")
+OUTPUT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
+               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
+               "stream, truncated to --bits-per-surfel).")
+
+
+def output_summary(out: dict) -> str:
+    """The one line ``decode`` and ``get`` print about what they wrote."""
+    rate = ("full rate" if out.get("bits_per_surfel") is None
+            else f"{out['bits_per_surfel']:g} bits/surfel")
+    if out["format"] == "sfz":
+        return f"{out['output']}: {out['bytes']:,} bytes of stream at {rate}"
+    what = f"{out['surfels']:,} surfels"
+    if out.get("faces") is not None:
+        what = f"mesh of {out['surfels']:,} vertices and {out['faces']:,} faces"
+    level = "" if out.get("level") is None else f", grid level {out['level']}"
+    return f"{out['output']}: {what} ({out['format'].upper()}{level}) at {rate}"
+
+
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Surfel PLY (or mesh PLY with --mesh) to write.")
-@click.option("--bits-per-surfel", "bits", type=float, default=None,
-              help="Decode only the prefix of the embedded stream that fits this rate.")
-@click.option("--mesh", is_flag=True, help="Write a triangle mesh with the grid's connectivity.")
-@click.option("--level", type=int, default=None,
-              help="Grid level of the output (default: the stream's; lower: fewer surfels).")
-@click.option("--max-surfels", type=click.IntRange(min=1), default=None,
-              help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
-                   "grid); --level gives fewer.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help=OUTPUT_HELP)
+@output_format_option
+@click.option("--bits-per-surfel", "bits", type=click.FloatRange(min=0, min_open=True),
+              default=None, help="Decode (or keep, for .sfz) only the prefix of the embedded "
+                                 "stream that fits this rate.")
+@click.option("--mesh/--surfels", "mesh", default=None,
+              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
+                   "surfels for PLY).")
+@click.option("--level", type=int, default=None, help=LEVEL_HELP)
+@click.option("--max-surfels", type=click.IntRange(min=1), default=None, help=MAX_SURFELS_HELP)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def decode(input, output, bits, mesh, level, max_surfels):
-    """Decode a .sfz file (optionally at a lower rate) to PLY."""
-    from ..codec import MAX_SURFELS, decode as _decode, read_sfz
-    from ..io import write_ply
+def decode(input, output, fmt, bits, mesh, level, max_surfels, as_json):
+    """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
+    lower rate as a .sfz."""
+    from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
+    from ..container import truncate, unpack
+    from ..io import output_format, write_atomic, write_model
+    from ..pipeline import output_level
 
+    fmt = output_format(output, fmt, allowed=("ply", "obj", "glb", "sfz"))
     data = read_sfz(input)
-    model = _decode(data, bits_per_surfel=bits, mesh=mesh, level=level, path=input,
-                    max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
-    if mesh:
-        _write_mesh(model, output)
-        click.echo(f"{output}: mesh with {len(model.vertices)} vertices, {len(model.faces)} faces")
+    out = {"input": str(input), "output": str(output), "format": fmt, "bits_per_surfel": bits}
+    if fmt == "sfz":
+        header, _ = unpack(data, path=input)
+        cut = data if bits is None else truncate(data, max_file_bytes(bits, header.n_surfels),
+                                                 path=input)
+        write_atomic(output, lambda tmp: tmp.write_bytes(cut))
+        out["bytes"] = len(cut)
     else:
-        write_ply(model, output)
-        click.echo(f"{output}: {len(model)} surfels")
-
-
-def _write_mesh(mesh, path):
-    """A mesh PLY (every grid vertex is used, so surfel order equals vertex order)."""
-    from ..io import write_ply
-
-    write_ply(mesh.to_surfels(), path)
+        level = output_level(data, path=input) if level is None else level
+        as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
+        model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
+                        max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
+        write_model(model, output, format=fmt)
+        out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
+                    "faces": len(model.faces) if as_mesh else None})
+    if as_json:
+        echo_json(out)
+    else:
+        click.echo(plain(output_summary(out)))

@@ -6,6 +6,7 @@ import functools
 import json
 import re
 import sqlite3
+import sys
 import warnings
 
 import click
@@ -13,7 +14,11 @@ import numpy as np
 
 from .._errors import SurfidxError, TopologyError
 
-__all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain"]
+__all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
+           "outside_textures_option", "output_format_option"]
+
+#: The arguments that name the file a command reads, for errors found after reading.
+_INPUT_ARGS = ("input", "example", "reference")
 
 _NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 _UNSAFE = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
@@ -42,33 +47,47 @@ def plain(text) -> str:
 def command_errors(func):
     """Map library errors to ``click.ClickException`` (one line, exit 1), and OS errors too.
 
-    A :class:`~surfidx.TopologyError` (found after reading, so naming no file) is prefixed with
-    the command's ``input`` argument, if any. The line goes through :func:`plain` (names with
-    control characters stay on one line); an ``sqlite3`` error the library did not map is one
-    line too.
+    An error that names no file (a :class:`~surfidx.TopologyError` or
+    :class:`~surfidx.InputError` found after reading) is prefixed with the command's ``input``
+    (or ``example``, ``reference``) argument, if any. The line goes through :func:`plain` (names
+    with control characters stay on one line); an ``sqlite3`` error the library did not map is
+    one line too. With ``--json`` (an ``as_json`` argument) the error is printed on stdout as
+    ``{"error": "..."}`` (exact, not escaped) and the exit status is 1. A closed pipe
+    (``surfidx ls | head``) ends the command quietly (click's handling of ``EPIPE``).
 
     Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format.
     """
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        as_json = bool(kwargs.get("as_json"))
+
+        def fail(text):
+            if as_json:
+                echo_json({"error": text})
+                raise click.exceptions.Exit(1)
+            raise click.ClickException(plain(text))
+
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                return func(*args, **kwargs)
+                out = func(*args, **kwargs)
+                sys.stdout.flush()                  # a closed pipe shows here, not at exit
+                return out
             except SurfidxError as exc:
-                # a topology problem is found after reading: name the input file it concerns
-                src = kwargs.get("input")
-                named = exc.path is not None or src is None or not isinstance(exc, TopologyError)
-                raise click.ClickException(plain(str(exc) if named else f"{src}: {exc}")) \
-                    from None
+                # a problem found after reading names no file: name the input it concerns
+                src = next((kwargs[a] for a in _INPUT_ARGS if kwargs.get(a) is not None), None)
+                named = exc.path is not None or src is None
+                fail(str(exc) if named else f"{src}: {exc}")
             except sqlite3.Error as exc:
-                raise click.ClickException(plain(f"SQLite error ({exc})")) from None
+                fail(f"SQLite error ({exc})")
             except MemoryError:
-                raise click.ClickException("out of memory; try a smaller input or level") from None
+                fail("out of memory; try a smaller input or level")
+            except BrokenPipeError:
+                raise                               # click's main ends quietly on EPIPE
             except OSError as exc:
                 where = f"{exc.filename}: " if exc.filename else ""
-                raise click.ClickException(plain(f"{where}{exc.strerror or exc}")) from None
+                fail(f"{where}{exc.strerror or exc}")
             finally:
                 seen = set()
                 for w in caught:
@@ -93,8 +112,35 @@ def echo_json(obj) -> None:
     click.echo(json.dumps(obj, indent=2, default=_default))
 
 
+_OUTSIDE = "surfidx.allow_outside_textures"
+
+
+def outside_textures_option(func):
+    """The ``--allow-outside-textures`` flag (part of :func:`input_options`): kept in the click
+    context for :func:`read_input`, so the command does not take it as an argument."""
+    @functools.wraps(func)
+    def wrapper(*args, allow_outside_textures=False, **kwargs):
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None:
+            ctx.meta[_OUTSIDE] = bool(allow_outside_textures)
+        return func(*args, **kwargs)
+
+    return click.option(
+        "--allow-outside-textures", is_flag=True,
+        help="Use a texture (or glTF buffer) that the model names outside its folder (absolute "
+             "path or '..'); by default it is skipped with a warning.")(wrapper)
+
+
+def allow_outside_textures() -> bool:
+    """Whether the running command was given ``--allow-outside-textures``."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.meta.get(_OUTSIDE))
+
+
 def input_options(func):
-    """The ``--texture`` and ``--samples`` options every command that reads a model takes."""
+    """The ``--texture``, ``--samples`` and ``--allow-outside-textures`` options every command
+    that reads a model takes (the last is read by :func:`read_input` from the context)."""
+    func = outside_textures_option(func)
     func = click.option("--samples", type=click.IntRange(min=4), default=None,
                         help="Sample N surfels uniformly over a mesh instead of one per vertex.")(func)
     func = click.option("--texture", type=click.Path(dir_okay=False), default=None,
@@ -102,8 +148,19 @@ def input_options(func):
     return func
 
 
-def read_input(path, texture=None, samples=None):
-    """Read a model file as surfels (the library's :func:`surfidx.read_surfels`)."""
+def output_format_option(func):
+    """``--format``: the output format when the suffix does not say it."""
+    return click.option("--format", "fmt", type=click.Choice(["ply", "obj", "glb", "sfz"],
+                                                            case_sensitive=False),
+                        default=None,
+                        help="Output format (default: from the output's suffix: .ply, .obj, "
+                             ".glb, .sfz).")(func)
+
+
+def read_input(path, texture=None, samples=None, allow_outside=None):
+    """Read a model file as surfels (the library's :func:`surfidx.read_surfels`), with the
+    command's ``--allow-outside-textures`` unless ``allow_outside`` says otherwise."""
     from ..io import read_surfels
 
-    return read_surfels(path, texture=texture, samples=samples)
+    allow = allow_outside_textures() if allow_outside is None else bool(allow_outside)
+    return read_surfels(path, texture=texture, samples=samples, allow_outside_textures=allow)

@@ -7,51 +7,43 @@ from pathlib import Path
 import click
 
 from . import cli
-from ._common import command_errors, echo_json, input_options
+from ._common import (allow_outside_textures, command_errors, echo_json, input_options, plain,
+                      read_input)
 
-__all__ = ["convert", "info", "outside_textures_option", "read_model"]
-
-
-def outside_textures_option(func):
-    """The ``--allow-outside-textures`` flag of the commands that read a model."""
-    return click.option(
-        "--allow-outside-textures", is_flag=True,
-        help="Use a texture that the OBJ's MTL names outside the model's folder (absolute path "
-             "or '..'); by default it is skipped with a warning.")(func)
-
-
-def read_model(path, texture=None, samples=None, allow_outside_textures=False):
-    """Read a model file as surfels (:func:`surfidx.read_surfels`)."""
-    from ..io import read_surfels
-
-    return read_surfels(path, texture=texture, samples=samples,
-                        allow_outside_textures=allow_outside_textures)
+__all__ = ["convert", "info"]
 
 
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Surfel PLY to write (binary little-endian).")
+              help="File to write: .ply (surfels, binary little-endian), .obj or .glb.")
+@click.option("--format", "fmt", type=click.Choice(["ply", "obj", "glb"], case_sensitive=False),
+              default=None, help="Output format (default: from the output's suffix).")
 @input_options
-@outside_textures_option
 @click.option("--ascii", "text", is_flag=True, help="Write ASCII PLY instead of binary.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def convert(input, output, texture, samples, allow_outside_textures, text):
-    """Convert a mesh, point cloud or surfel file to a surfel PLY."""
-    from ..io import write_ply
+def convert(input, output, fmt, texture, samples, text, as_json):
+    """Convert a mesh or point cloud (PLY, OBJ, OFF, STL, glTF/GLB, PCD, XYZ, PTS) to surfels,
+    written as PLY, OBJ or GLB."""
+    from ..io import output_format, write_model
 
-    s = read_model(input, texture, samples, allow_outside_textures)
-    write_ply(s, output, text=text)
-    click.echo(f"{output}: {len(s)} surfels{' with colour' if s.has_color else ''}")
+    fmt = output_format(output, fmt)               # before reading: a bad suffix fails fast
+    s = read_input(input, texture, samples)
+    write_model(s, output, format=fmt, text=text)
+    if as_json:
+        echo_json({"input": str(input), "output": str(output), "format": fmt,
+                   "surfels": len(s), "color": s.has_color})
+        return
+    click.echo(plain(f"{output}: {len(s)} surfels{' with colour' if s.has_color else ''}"))
 
 
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @input_options
-@outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def info(input, texture, samples, allow_outside_textures, as_json):
+def info(input, texture, samples, as_json):
     """Surfel count, bounding box, colour and (for meshes) closedness and genus; for a .sfz
     stream, its container header."""
     from ..io import read_mesh
@@ -59,13 +51,13 @@ def info(input, texture, samples, allow_outside_textures, as_json):
     if Path(input).suffix.lower() == ".sfz":
         _echo(_stream_info(input), as_json)
         return
-    s = read_model(input, texture, samples, allow_outside_textures)
+    s = read_input(input, texture, samples)
     lo, hi = s.bounds
     out = {"file": str(input), "surfels": len(s), "color": s.has_color,
            "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "diagonal": s.diagonal,
            "mean_radius": float(s.radii.mean())}
     if Path(input).suffix.lower() in (".obj", ".off") or s.faces is not None:
-        topo = read_mesh(input, allow_outside_textures=allow_outside_textures).topology() \
+        topo = read_mesh(input, allow_outside_textures=allow_outside_textures()).topology() \
             if s.faces is None else _topology_of(s)
         out.update({"mesh": True, "faces": topo.faces, "closed": topo.closed,
                     "components": topo.components, "boundary_edges": topo.boundary_edges,

@@ -1,5 +1,6 @@
-"""``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors`` and ``redescribe``: the model
-database.
+"""``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors``, ``redescribe``, ``rm``,
+``rename``, ``tag`` and ``untag``: the model database, each a thin layer over a
+:class:`surfidx.Database` method.
 
 The model processor (``surfidx.pipeline.process_model``) and the stream decoder
 (``surfidx.codec.decode``) are imported when a command needs them; tests (and embedding
@@ -17,10 +18,11 @@ import click
 
 from .._errors import DatabaseError, InputError, SurfidxError
 from . import cli
-from ._common import command_errors, echo_json, plain
+from ._common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
+                      output_format_option, plain)
 
 __all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
-           "parse_model_ref"]
+           "parse_model_ref", "rm", "rename", "tag", "untag"]
 
 _DB_HELP = "Database file (default surfidx.db, or $SURFIDX_DB)."
 
@@ -105,11 +107,16 @@ def _table(rows, columns):
                    "recorded as failed.")
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=8.0,
               show_default=True, help="Coding rate of the stored streams.")
+@click.option("--name", default=None,
+              help="Name of the stored model (one file only; default: the file's stem, or when "
+                   "another model has it the parent folder's name, then STEM-2, STEM-3...).")
+@click.option("--tag", "tags", multiple=True, help="Tag every stored model (repeatable).")
+@outside_textures_option
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @command_errors
-def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, no_progress,
-                   as_json):
+def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, name, tags,
+                   no_progress, as_json):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
@@ -118,17 +125,25 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     An OBJ with UVs but no texture named gets <stem>_texture.png, <stem>.png or the folder's only
     PNG. With --scheduler the models are processed on a Dask cluster's workers (which need the
     package and read access to the paths); this process alone writes the database.
+    Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ and PTS files; a folder
+    with none is an error. The exit status is 1 when any file failed (what could be stored is).
     """
     import ingest
 
+    # ingest.run (what Database.ingest runs for files) opens the database itself, after every
+    # argument and the scheduler were checked: a bad call leaves no new file behind
     summary = ingest.run(list(paths), db=db_path, workers=workers,
                          bits_per_surfel=bits_per_surfel, processor=_processor(),
-                         progress=not no_progress, scheduler=scheduler, retries=retries)
+                         progress=not no_progress, scheduler=scheduler, retries=retries,
+                         name=name, tags=list(tags),
+                         allow_outside_textures=allow_outside_textures())
     if as_json:
         echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
                    "failed": summary.failed, "ids": summary.ids, "seconds": summary.seconds,
                    "errors": [{"path": p, "error": e} for p, e in summary.errors],
                    "skips": [{"path": p, "reason": r} for p, r in summary.skips]})
+        if summary.failed:
+            raise click.exceptions.Exit(1)
         return
     for path, message in summary.skips:
         click.echo(plain(f"skipped: {path}: {message}"), err=True)
@@ -136,6 +151,9 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
         line = message if message.startswith(path) else f"{path}: {message}"
         click.echo(plain(f"failed: {line}"), err=True)
     click.echo(plain(f"{db_path}: {summary}"))
+    if summary.failed:
+        raise click.ClickException(f"{summary.failed} file(s) failed (the others were stored); "
+                                   "see `surfidx errors`")
 
 
 # ---------------------------------------------------------------------- query
@@ -148,41 +166,26 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
               help="Weight w of shape against texture distance (1 = shape only).")
 @click.option("--sheet", type=click.Path(dir_okay=False),
               help="Also draw the query and its results side by side into this PNG.")
+@click.option("--include-self", is_flag=True,
+              help="Keep the query model itself among the results when it is stored.")
+@outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def query(example, db_path, k, shape_weight, sheet, as_json):
+def query(example, db_path, k, shape_weight, sheet, include_self, as_json):
     """Find the stored models most similar to EXAMPLE.
 
-    EXAMPLE is a model file (processed like an ingest, not stored) or id:N (a stored model).
-    Distance: w*|shape difference| + (1-w)*|texture difference| when both have colour, else
-    the shape difference alone (shape: the shape descriptor with the KLT spectrum appended).
+    EXAMPLE is a model file (processed like an ingest, not stored), a stored model's NAME, or
+    id:N. The query model itself is left out of the results when it is stored (--include-self
+    keeps it). Distance: w*|shape difference| + (1-w)*|texture difference| when both have
+    colour, else the shape difference alone (shape: the shape descriptor with the KLT spectrum
+    appended).
     """
-    from ..search import SearchIndex
-
     with _open(db_path) as db:
-        if re.fullmatch(r"id:.*", example):
-            qid = parse_model_ref(example)
-            rec = db.get_model(qid)
-            descriptors = db.get_descriptors(qid)
-            label, qthumb, has_color = rec["name"], db.get_thumbnail(qid), rec["has_color"]
-        else:
-            import ingest
-
-            path = Path(example)
-            if not path.is_file():
-                raise InputError("no such model file (give a file, or id:N for a stored model)",
-                                 path=example)
-            model = _processor()(str(path), bits_per_surfel=8.0,
-                                 texture=ingest.find_texture(path))
-            descriptors, label = dict(model.descriptors), model.name
-            qthumb, has_color = model.thumbnail, model.has_color
-        if not has_color:
-            descriptors.pop("texture", None)
-        ids, dist = SearchIndex(db).query(descriptors, k=k, shape_weight=shape_weight)
-        rows = []
-        for i, d in zip(ids.tolist(), dist.tolist()):
-            rec = db.get_model(i)
-            rows.append({"id": i, "name": rec["name"], "source": rec["source"], "distance": d})
+        ex = db._example(example, processor=_processor(),
+                         allow_outside_textures=allow_outside_textures())
+        label, qthumb = ex["name"], ex["thumbnail"]
+        rows = db.query(example, k=k, shape_weight=shape_weight, include_self=include_self,
+                        _example=ex)
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])
@@ -237,43 +240,61 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 @click.argument("model")
 @_db_option
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Surfel PLY to write.")
+              help="File to write, its format from the suffix (or --format): .ply (surfels, or "
+                   "a mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz "
+                   "(the stored stream, truncated to --bits-per-surfel).")
+@output_format_option
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Decode only this rate's prefix of the stream (default: all of it).")
+              help="Serve only this rate's prefix of the stream (default: all of it).")
 @click.option("--level", type=int, default=None,
-              help="Grid level of the output (default: the stream's; lower: fewer surfels).")
+              help="Grid level of the output (default: the level whose vertex count is closest "
+                   "to the input's surfel count; lower: fewer surfels).")
+@click.option("--mesh/--surfels", "mesh", default=None,
+              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
+                   "surfels for PLY).")
+@click.option("--max-surfels", type=click.IntRange(min=1), default=None,
+              help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
+                   "grid); --level gives fewer.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def get(model, db_path, output, bits_per_surfel, level):
-    """Decode a stored model (ID, id:ID or NAME) to a surfel PLY, optionally at a lower rate."""
-    from ..io import write_ply
+def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, as_json):
+    """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
+    .sfz, optionally at a lower rate."""
+    from ._codec import output_summary
 
     with _open(db_path) as db:
-        mid = db.resolve(parse_model_ref(model))
-        stream = db.get_stream(mid)
-        name = db.get_model(mid)["name"]
-    options = {} if level is None else {"level": level}
-    surfels = _decoder()(stream, bits_per_surfel=bits_per_surfel, **options)
-    write_ply(surfels, output)
-    rate = "full rate" if bits_per_surfel is None else f"{bits_per_surfel:g} bits/surfel"
-    click.echo(plain(f"{output}: {len(surfels)} surfels of model {mid} ({name}) at {rate}"))
+        out = db.export(parse_model_ref(model), output, format=fmt,
+                        bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
+                        max_surfels=max_surfels,
+                        decoder=None if (fmt or Path(output).suffix).lower().endswith("sfz")
+                        else _decoder())
+    if as_json:
+        echo_json(out)
+        return
+    click.echo(plain(f"{output_summary(out)} (model {out['id']}, {out['name']})"))
 
 
 # ---------------------------------------------------------------------- ls, show, errors
 @cli.command()
 @_db_option
 @click.option("--errors", "show_errors", is_flag=True, help="List ingest failures instead.")
+@click.option("--tag", "tags", multiple=True, help="Only models with this tag (repeatable: all).")
+@click.option("--name-like", default=None,
+              help="Only models whose name matches this SQL LIKE pattern (%: any text).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def ls(db_path, show_errors, as_json):
+def ls(db_path, show_errors, tags, name_like, as_json):
     """List the stored models (or, with --errors, the ingest failures)."""
     if show_errors:
         return _print_errors(db_path, None, as_json)
     with _open(db_path) as db:
-        rows = db.list_models()
+        rows = db.list_models(tag=list(tags) or None, name_like=name_like)
     if as_json:
         echo_json({"models": rows})
         return
-    _table(rows, [("id", "id"), ("name", "name"), ("n_surfels", "surfels"),
+    for r in rows:
+        r["tags_s"] = ",".join(r["tags"]) or None
+    _table(rows, [("id", "id"), ("name", "name"), ("tags_s", "tags"), ("n_surfels", "surfels"),
                   ("has_color", "colour"), ("bytes", "bytes"), ("bits_per_surfel", "bits/surfel"),
                   ("psnr_d1", "PSNR D1"), ("psnr_y", "PSNR Y"), ("source", "source")])
 
@@ -366,3 +387,62 @@ def redescribe_command(db_path, everything, as_json):
             click.echo(plain(f"  failed id {mid}: {msg}"))
     if out["failed"]:
         raise click.ClickException(f"{len(out['failed'])} model(s) could not be redescribed")
+
+
+# ---------------------------------------------------------------------- rm, rename, tag, untag
+@cli.command()
+@click.argument("models", nargs=-1, required=True)
+@_db_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def rm(models, db_path, as_json):
+    """Remove stored models (ID, id:ID or NAME, several at once) with their assets, descriptors,
+    thumbnails and tags; none is removed when one is not found."""
+    with _open(db_path, readonly=False) as db:
+        removed = db.remove(*[parse_model_ref(m) for m in models])
+    if as_json:
+        echo_json({"removed": removed})
+        return
+    for r in removed:
+        click.echo(plain(f"removed model {r['id']} ({r['name']})"))
+
+
+@cli.command()
+@click.argument("model")
+@click.argument("new_name")
+@_db_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def rename(model, new_name, db_path, as_json):
+    """Give a stored model (ID, id:ID or NAME) another name (names are unique)."""
+    with _open(db_path, readonly=False) as db:
+        out = db.rename(parse_model_ref(model), new_name)
+    if as_json:
+        echo_json(out)
+        return
+    click.echo(plain(f"model {out['id']}: {out['old_name']} -> {out['name']}"))
+
+
+def _tag_command(name, method, verb):
+    @cli.command(name, help=f"{method.capitalize()} a stored model (ID, id:ID or NAME): "
+                            f"{'add' if method == 'tag' else 'remove'} the TAGS given.")
+    @click.argument("model")
+    @click.argument("tags", nargs=-1, required=True)
+    @_db_option
+    @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+    @command_errors
+    def command(model, tags, db_path, as_json):
+        with _open(db_path, readonly=False) as db:
+            mid = db.resolve(parse_model_ref(model))
+            changed = getattr(db, method)(mid, list(tags))
+            now = db.tags(mid)
+        if as_json:
+            echo_json({"id": mid, verb: changed, "tags": now})
+            return
+        click.echo(plain(f"model {mid}: {verb} {changed}; tags: {', '.join(now) or '-'}"))
+
+    return command
+
+
+tag = _tag_command("tag", "tag", "added")
+untag = _tag_command("untag", "untag", "removed")

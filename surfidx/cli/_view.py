@@ -9,7 +9,8 @@ import click
 
 from .._errors import InputError
 from . import cli
-from ._common import command_errors, echo_json, input_options, plain, read_input
+from ._common import (command_errors, echo_json, input_options, outside_textures_option, plain,
+                      read_input)
 
 _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2", "peak",
                "n_reference", "n_test")
@@ -21,6 +22,7 @@ _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2"
 @click.option("--peak", type=float, default=None,
               help="PSNR peak instead of the reference's bounding-box diagonal.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@outside_textures_option
 @command_errors
 def eval_(reference, test, peak, as_json):
     """Distortion of TEST against REFERENCE: PSNR D1/D2, luma PSNR and Hausdorff.
@@ -62,7 +64,8 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="PNG file to write.")
 @click.option("--view", default=None,
-              help="three-quarter (default), front, back, left, right, top or bottom.")
+              help="three-quarter (default), front, back, left, right, top, bottom, or "
+                   "principal (along the model's smallest principal axis, as thumbnails).")
 @click.option("--azimuth", type=float, default=None,
               help="Camera azimuth in degrees (0 = front, 90 = right); instead of --view.")
 @click.option("--elevation", type=float, default=None,
@@ -75,9 +78,10 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option("--supersample", type=int, default=2, show_default=True,
               help="Render at N times the size and average down (anti-aliasing).")
 @input_options
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
 def render_(input, output, view, azimuth, elevation, up, size, path_file, supersample, texture,
-            samples):
+            samples, as_json):
     """Render a model to a PNG as lit, z-buffered disk splats (colours when present)."""
     from ..render import read_polyline, render, save_png
 
@@ -93,4 +97,8 @@ def render_(input, output, view, azimuth, elevation, up, size, path_file, supers
     img = render(s, width=width, height=height, view=view, up=up, path_points=path,
                  supersample=supersample)
     save_png(img, output)
+    if as_json:
+        echo_json({"input": str(input), "output": str(output), "width": width, "height": height,
+                   "surfels": len(s), "view": view})
+        return
     click.echo(plain(f"{output}: {width}x{height}, {len(s)} surfels"))
