@@ -168,10 +168,14 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
               help="Also draw the query and its results side by side into this PNG.")
 @click.option("--include-self", is_flag=True,
               help="Keep the query model itself among the results when it is stored.")
+@click.option("--exact", is_flag=True,
+              help="Scan every stored model instead of using the approximate index (which "
+                   "is used from 20,000 stored models on; its results are re-ranked by the "
+                   "exact distance).")
 @outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def query(example, db_path, k, shape_weight, sheet, include_self, as_json):
+def query(example, db_path, k, shape_weight, sheet, include_self, exact, as_json):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (processed like an ingest, not stored), a stored model's NAME, or
@@ -181,11 +185,12 @@ def query(example, db_path, k, shape_weight, sheet, include_self, as_json):
     appended).
     """
     with _open(db_path) as db:
-        ex = db._example(example, processor=_processor(),
+        # the processor (and its imports) only for a model file, not for id:N or a name
+        ex = db._example(example, processor=lambda *a, **kw: _processor()(*a, **kw),
                          allow_outside_textures=allow_outside_textures())
         label, qthumb = ex["name"], ex["thumbnail"]
         rows = db.query(example, k=k, shape_weight=shape_weight, include_self=include_self,
-                        _example=ex)
+                        exact=exact, _example=ex)
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])
@@ -446,3 +451,25 @@ def _tag_command(name, method, verb):
 
 tag = _tag_command("tag", "tag", "added")
 untag = _tag_command("untag", "untag", "removed")
+
+
+# ---------------------------------------------------------------------- datasette
+@cli.command("datasette-metadata")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Write it to this file instead of printing it.")
+@command_errors
+def datasette_metadata_command(output):
+    """Print the Datasette metadata of a surfidx database (titles, model names as the labels of
+    model_id, browsing views). Use: surfidx datasette-metadata -o meta.json; datasette
+    surfidx.db --metadata meta.json (thumbnails as images with datasette-render-images)."""
+    import json
+
+    from ..database import datasette_metadata
+    from ..io import write_atomic
+
+    text = json.dumps(datasette_metadata(), indent=2) + "\n"
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    write_atomic(output, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    click.echo(plain(f"{output}: Datasette metadata"))
