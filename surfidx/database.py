@@ -1605,7 +1605,8 @@ class Database:
 
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, texture=None,
-              allow_outside_textures: bool = False, _example: dict | None = None) -> list:
+              allow_outside_textures: bool = False, exact: bool = False,
+              _example: dict | None = None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.search.SearchIndex`).
 
         Parameters
@@ -1623,6 +1624,9 @@ class Database:
             left out).
         processor, texture, allow_outside_textures
             For a file or a model in memory (as for :meth:`ingest`).
+        exact : bool
+            Scan every stored model, never the approximate index (:mod:`surfidx.ann`, used from
+            :data:`surfidx.ann.DEFAULT_THRESHOLD` models on).
 
         Returns
         -------
@@ -1648,7 +1652,7 @@ class Database:
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
         drop = None if include_self else ex["id"]
-        ids, dist = SearchIndex(self).query(
+        ids, dist = SearchIndex(self, exact=exact).query(
             descriptors, k=k + (drop is not None),
             shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
         rows = []

@@ -1,9 +1,17 @@
 """Query by example: rank the stored models by descriptor distance to a query.
 
-The stored vectors are read once into dense float32 matrices (:class:`SearchIndex`, built from
-:meth:`surfidx.database.Database.descriptor_matrix`) and every query is one vectorised scan
-followed by ``np.argpartition`` for the top ``k``: about 10 ms for 100 000 models on one core
-(``benchmarks/query_latency.py``).
+Two paths, one answer:
+
+* exact scan (below :data:`surfidx.ann.DEFAULT_THRESHOLD` stored models, or ``exact=True``): the
+  stored vectors are read once into dense float32 matrices (built from
+  :meth:`surfidx.database.Database.descriptor_matrix`) and every query is one vectorised scan
+  followed by ``np.argpartition`` for the top ``k``: about 13 ms for 10 000 models and 130 ms for
+  100 000 on one core (``benchmarks/query_latency.py``);
+* approximate index (from the threshold on): an HNSW index beside the database
+  (:mod:`surfidx.ann`) gives ``factor * k`` candidates by the shape vector (and as many by
+  texture for a coloured query), whose rows are read from SQLite by id and ranked by the exact
+  distance below: under 1 ms per query at 100 000 and 1 000 000 models, recall@10 >= 0.99
+  against the exact scan.
 
 Distance
 --------
@@ -29,7 +37,12 @@ import numpy as np
 from ._errors import InputError
 from ._validate import as_array, check_positive_int
 
-__all__ = ["SearchIndex", "search", "weighted_l2", "DEFAULT_SHAPE_WEIGHT", "DEFAULT_KINDS"]
+#: Candidates per result of the approximate path (as :data:`surfidx.ann.DEFAULT_FACTOR`; kept
+#: here so that importing this module does not import the index library).
+DEFAULT_FACTOR = 8
+
+__all__ = ["SearchIndex", "search", "weighted_l2", "DEFAULT_SHAPE_WEIGHT", "DEFAULT_KINDS",
+           "DEFAULT_FACTOR"]
 
 #: Default ``w``, as in ``surfidx.descriptors.descriptor_distance``.
 DEFAULT_SHAPE_WEIGHT = 0.7
@@ -80,29 +93,73 @@ def _sq(matrix, vec) -> np.ndarray:
 
 
 class SearchIndex:
-    """The stored descriptors of a database as dense matrices, built once and queried many times.
+    """The stored descriptors of a database, set up once and queried many times: dense matrices
+    for the exact scan, or the approximate index (:mod:`surfidx.ann`) from ``threshold`` models.
 
     Parameters
     ----------
     db : surfidx.database.Database
+        Stays in use by the approximate path (candidate rows are read from it per query).
     kinds : sequence of str
         Descriptor kinds to load; the first (``"shape"``) is required of every model that takes
         part, the others are optional per model.
+    exact : bool
+        Always scan every stored vector (never the approximate index).
+    threshold : int, optional
+        Stored models from which the approximate index is used (default
+        :data:`surfidx.ann.DEFAULT_THRESHOLD`); only with the default ``kinds``.
+    factor : int
+        Candidates per result of the approximate path (``factor * k`` by shape, as many by
+        texture for a coloured query), re-ranked by the exact distance.
 
     Attributes
     ----------
+    approximate : bool
+        Whether queries use the approximate index.
     ids : (m,) int64
-        Ids of the models holding ``kinds[0]``, ascending.
+        Ids of the models holding ``kinds[0]``, ascending (read on first use in the approximate
+        path).
     stored : dict of str -> (m, d_k) float32
     present : dict of str -> (m,) bool
+
+    Notes
+    -----
+    Opening the approximate index checks it against the database (:func:`surfidx.ann.open_index`):
+    a missing or stale index is rebuilt or patched first, written beside the database when its
+    folder can be written (the database itself is never written).
     """
 
-    def __init__(self, db, *, kinds=DEFAULT_KINDS):
+    def __init__(self, db, *, kinds=DEFAULT_KINDS, exact: bool = False, threshold=None,
+                 factor: int = DEFAULT_FACTOR):
         kinds = tuple(kinds)
         if not kinds:
             raise InputError("kinds must name at least one descriptor kind")
         self.kinds = kinds
+        self.factor = check_positive_int(factor, "factor")
+        self._db = db
         self._norms = {}
+        self._ann = None
+        self._loaded = False
+        self.approximate = False
+        if not exact and kinds == DEFAULT_KINDS:
+            from . import ann
+
+            limit = ann.DEFAULT_THRESHOLD if threshold is None else int(threshold)
+            if db.count() >= max(limit, 1):
+                self._ann = ann.open_index(db)
+                self.approximate = True
+                return
+        self._load()
+
+    def __getattr__(self, name):
+        if name in ("ids", "stored", "present") and not self.__dict__.get("_loaded", True):
+            self._load()
+            return self.__dict__[name]
+        raise AttributeError(name)
+
+    def _load(self):
+        db, kinds = self._db, self.kinds
+        self._loaded = True
         self.ids, first = db.descriptor_matrix(kinds[0])
         m = self.ids.size
         self.stored = {kinds[0]: first}
@@ -123,6 +180,8 @@ class SearchIndex:
             self.present[kind] = has
 
     def __len__(self):
+        if self.approximate and not self._loaded:
+            return int(self._ann.state["models"])
         return int(self.ids.size)
 
     def query(self, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_WEIGHT,
@@ -160,6 +219,8 @@ class SearchIndex:
         w = float(shape_weight)
         if not 0.0 <= w <= 1.0:
             raise InputError(f"shape_weight must be in [0, 1], got {shape_weight!r}")
+        if self.approximate and distance is None:
+            return self._query_ann(descriptors, k, w, exclude)
         q = {}
         for kind, vec in descriptors.items():
             if kind not in self.stored:
@@ -213,6 +274,43 @@ class SearchIndex:
         order = order[np.isfinite(d[order])]
         return self.ids[order].copy(), d[order]
 
+    def _query_ann(self, descriptors, k, w, exclude):
+        """Candidates from the approximate index, ranked by the exact :func:`weighted_l2` on
+        their rows as stored now."""
+        dims = self._ann.dims
+        q = {}
+        for kind, vec in descriptors.items():
+            if kind not in self.kinds or (kind != "shape" and not dims.get(kind)):
+                continue                                  # stored by no model: ignored
+            v = as_array(vec, f"query descriptor {kind!r}", dtype=np.float32, shape=(None,))
+            if self._ann.count and v.size != dims[kind]:
+                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
+                                 f"ones have {dims[kind]}; use the same descriptor settings "
+                                 "(after an upgrade: `surfidx redescribe` updates the stored "
+                                 "ones)")
+            q[kind] = v
+        if "shape" not in q:
+            raise InputError("the query has no 'shape' descriptor")
+        excl = np.zeros(0, np.int64) if exclude is None else np.unique(
+            np.asarray(list(exclude), np.int64))
+        n = self.factor * (k + excl.size)
+        spec = q.get("spectrum", np.zeros(dims.get("spectrum", 0), np.float32))
+        cand = [self._ann.candidates("shape", np.concatenate([q["shape"], spec]), n)]
+        if "texture" in q and w < 1.0:
+            cand.append(self._ann.candidates("texture", q["texture"], n))
+        cand = np.setdiff1d(np.concatenate(cand), excl)
+        ids, stored, present = self._db.descriptor_rows(cand, self.kinds)
+        if ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        for kind, v in q.items():
+            if kind in stored and stored[kind].shape[1] != v.size and present[kind].any():
+                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
+                                 f"ones have {stored[kind].shape[1]}; run `surfidx redescribe`")
+        q = {kd: v for kd, v in q.items() if kd in stored and stored[kd].shape[1] == v.size}
+        d = weighted_l2(q, stored, present, shape_weight=w)
+        order = np.lexsort((ids, d))[:k]
+        return ids[order].copy(), d[order]
+
     def _sqnorms(self, kind):
         if kind not in self._norms:
             s = self.stored[kind]
@@ -240,7 +338,7 @@ class SearchIndex:
 
 
 def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_WEIGHT,
-           distance=None, exclude=None) -> tuple:
+           distance=None, exclude=None, exact: bool = False) -> tuple:
     """One query by example against a database (builds, or reuses cached, matrices).
 
     Parameters
@@ -251,11 +349,13 @@ def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_
         query has no colour) or :meth:`Database.get_descriptors`.
     k, shape_weight, distance, exclude
         As in :meth:`SearchIndex.query`.
+    exact : bool
+        As in :class:`SearchIndex`.
 
     Returns
     -------
     ids : (k,) int64
     distances : (k,) float64
     """
-    return SearchIndex(db).query(descriptors, k=k, shape_weight=shape_weight, distance=distance,
+    return SearchIndex(db, exact=exact).query(descriptors, k=k, shape_weight=shape_weight, distance=distance,
                                  exclude=exclude)

@@ -1,0 +1,273 @@
+"""The approximate index beside the database (surfidx.ann) and its use by surfidx.search: the
+re-ranked candidates are the exact scan's top k, a stale or damaged index is repaired, removed
+models never come back, a read-only query never writes the database."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from surfidx import ann
+from surfidx._errors import DatabaseError, InputError
+from surfidx.database import Database, utc_now
+from surfidx.search import SearchIndex
+
+DIM, TEX = 40, 12
+
+
+def rows(m, seed=0):
+    """Clustered shape (m, DIM + 3) and texture (m, TEX) vectors, 60 % coloured."""
+    rng = np.random.default_rng(seed)
+    centres = rng.standard_normal((max(m // 25, 2), DIM + 3)) * 3
+    tcent = rng.standard_normal((len(centres), TEX)) * 3
+    sub = rng.integers(len(centres), size=m)
+    shape = (centres[sub] + rng.standard_normal((m, DIM + 3))).astype(np.float32)
+    tex = (tcent[sub] + rng.standard_normal((m, TEX))).astype(np.float32)
+    return shape, tex, rng.random(m) < 0.6
+
+
+def fill(db, shape, tex, color, *, start=1, conv="{}"):
+    now = utc_now()
+    ins = ("INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
+           "VALUES (?, ?, ?, ?, ?)")
+    with db.transaction():
+        for j in range(len(shape)):
+            i = start + j
+            db.conn.execute(
+                "INSERT INTO models (id, name, source, content_hash, n_surfels, has_color, "
+                "bbox_min_x, bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, "
+                "ingested_at, params) VALUES (?, ?, ?, ?, 10, ?, 0, 0, 0, 1, 1, 1, ?, '{}')",
+                (i, f"m{i}", f"/s/m{i}.ply", f"{i:064x}", int(color[j]), now))
+            db.conn.execute("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)", (i, b""))
+            db.conn.execute(ins, (i, "shape", DIM, shape[j, :DIM].tobytes(), conv))
+            db.conn.execute(ins, (i, "spectrum", 3, shape[j, DIM:].tobytes(), conv))
+            if color[j]:
+                db.conn.execute(ins, (i, "texture", TEX, tex[j].tobytes(), conv))
+        db.descriptors_changed()
+
+
+def query_of(shape, tex, i, *, colour):
+    q = {"shape": shape[i, :DIM], "spectrum": shape[i, DIM:]}
+    if colour:
+        q["texture"] = tex[i]
+    return q
+
+
+@pytest.fixture
+def big(tmp_path):
+    path = tmp_path / "big.db"
+    shape, tex, color = rows(1500)
+    with Database(path) as db:
+        fill(db, shape, tex, color)
+    return path, shape, tex, color
+
+
+def noisy(shape, tex, seed=1, n=24):
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(len(shape), size=n)
+    return ((shape[pick] + 0.5 * rng.standard_normal((n, shape.shape[1]))).astype(np.float32),
+            (tex[pick] + 0.5 * rng.standard_normal((n, TEX))).astype(np.float32))
+
+
+def test_reranked_candidates_are_the_exact_top_k(big):
+    path, shape, tex, _ = big
+    qs, qt = noisy(shape, tex)
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        approx = SearchIndex(db, threshold=0)
+        assert approx.approximate and not exact.approximate
+        assert len(approx) == 1500
+        for i in range(len(qs)):
+            for colour in (False, True):
+                for w in (0.7, 1.0, 0.2):
+                    q = query_of(qs, qt, i, colour=colour)
+                    ei, ed = exact.query(q, k=10, shape_weight=w)
+                    ai, ad = approx.query(q, k=10, shape_weight=w)
+                    assert ai.tolist() == ei.tolist()
+                    np.testing.assert_allclose(ad, ed, rtol=1e-9)
+        q = query_of(shape, tex, 7, colour=True)
+        ai, _ = approx.query(q, k=5, exclude=[8])
+        ei, _ = exact.query(q, k=5, exclude=[8])
+        assert ai.tolist() == ei.tolist() and 8 not in ai.tolist()
+
+
+def test_index_is_persisted_and_reused(big):
+    path = big[0]
+    d = ann.index_dir(path)
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    man = json.loads((d / "manifest.json").read_text())
+    assert set(man["kinds"]) == {"shape", "texture"} and ann.index_size(path) > 0
+    with Database(path, readonly=True) as db:
+        assert man["state"] == db.index_state()
+        SearchIndex(db, threshold=0)
+    assert json.loads((d / "manifest.json").read_text())["kinds"] == man["kinds"]   # not rebuilt
+
+
+def test_same_rows_give_the_same_index_files(tmp_path):
+    shape, tex, color = rows(600)
+    digests = []
+    for name in ("a.db", "b.db"):
+        with Database(tmp_path / name) as db:
+            fill(db, shape, tex, color)
+            ann.build(db)
+        d = ann.index_dir(tmp_path / name)
+        man = json.loads((d / "manifest.json").read_text())
+        digests.append((d / man["kinds"]["shape"]["file"]).read_bytes())
+    assert digests[0] == digests[1]
+
+
+def test_removed_model_never_appears(big):
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    with Database(path) as db:
+        db.delete(5)                       # close() updates the index
+    with Database(path, readonly=True) as db:
+        assert json.loads((ann.index_dir(path) / "manifest.json").read_text())["state"] \
+            == db.index_state()
+        ids, _ = SearchIndex(db, threshold=0).query(query_of(shape, tex, 4, colour=True), k=20)
+        assert 5 not in ids.tolist()           # its own vector: it would be first
+
+
+def test_stale_index_is_patched_after_a_crashed_writer(big):
+    """A writer that died before updating the index (no close): the next query finds the state
+    changed and patches the index from the stored rows (redescribed, removed, new models)."""
+    path, shape, tex, color = big
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    db = Database(path)
+    new = np.full(DIM, 50.0, np.float32)
+    db.set_descriptors(3, {"shape": new, "spectrum": np.zeros(3, np.float32)}, {})
+    db.delete(9)
+    s2, t2, c2 = rows(5, seed=7)
+    fill(db, s2, t2, c2, start=2000)
+    db._index_dirty = False                # as if the process was killed here
+    db.close()
+    with Database(path, readonly=True) as db:
+        idx = SearchIndex(db, threshold=0)
+        ids, d = idx.query({"shape": new, "spectrum": np.zeros(3, np.float32)}, k=3)
+        assert ids[0] == 3 and d[0] == 0.0
+        ids, _ = idx.query(query_of(shape, tex, 8, colour=False), k=30)
+        assert 9 not in ids.tolist()
+        ids, _ = idx.query(query_of(s2, t2, 2, colour=bool(c2[2])), k=1)
+        assert ids[0] == 2002
+        assert json.loads((ann.index_dir(path) / "manifest.json").read_text())["state"] \
+            == db.index_state()
+
+
+def test_crash_between_index_write_and_replace_keeps_a_working_index(big, monkeypatch):
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    d = ann.index_dir(path)
+    before = (d / "manifest.json").read_bytes()
+    real_replace = os.replace
+
+    def crash(src, dst):
+        if str(dst).endswith("manifest.json"):
+            raise OSError("killed")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(ann.os, "replace", crash)
+    with Database(path) as db:
+        db.delete(11)                      # the update's manifest replace fails: old index kept
+    monkeypatch.setattr(ann.os, "replace", real_replace)
+    assert (d / "manifest.json").read_bytes() == before
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        approx = SearchIndex(db, threshold=0)
+        q = query_of(shape, tex, 10, colour=True)
+        assert approx.query(q, k=10)[0].tolist() == exact.query(q, k=10)[0].tolist()
+        assert 11 not in approx.query(q, k=10)[0].tolist()
+
+
+def test_readonly_query_never_writes_the_database(big):
+    path = big[0]
+    before = path.read_bytes()
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    assert path.read_bytes() == before and (ann.index_dir(path) / "manifest.json").exists()
+
+
+def test_unwritable_index_folder_keeps_the_index_in_memory(big):
+    path, shape, tex, _ = big
+    ann.index_dir(path).write_text("not a folder")
+    with Database(path, readonly=True) as db:
+        idx = SearchIndex(db, threshold=0)
+        assert idx.approximate
+        assert idx.query(query_of(shape, tex, 0, colour=False), k=1)[0].tolist() == [1]
+    assert ann.index_size(path) == 0
+
+
+def test_damaged_index_file_is_rebuilt(big):
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    d = ann.index_dir(path)
+    man = json.loads((d / "manifest.json").read_text())
+    (d / man["kinds"]["shape"]["file"]).write_bytes(b"garbage")
+    with Database(path, readonly=True) as db:
+        ids, _ = SearchIndex(db, threshold=0).query(query_of(shape, tex, 0, colour=False), k=1)
+    assert ids.tolist() == [1]
+
+
+def test_threshold_and_exact_choose_the_scan(big):
+    with Database(big[0], readonly=True) as db:
+        assert not SearchIndex(db).approximate            # 1500 < DEFAULT_THRESHOLD
+        assert not SearchIndex(db, threshold=0, exact=True).approximate
+        assert SearchIndex(db, threshold=1500).approximate
+
+
+def test_mixed_descriptor_versions_are_refused(tmp_path):
+    path = tmp_path / "mixed.db"
+    shape, tex, color = rows(60)
+    with Database(path) as db:
+        fill(db, shape[:30], tex[:30], color[:30], conv='{"lmax": 24}')
+        fill(db, shape[30:], tex[30:], color[30:], start=31, conv='{"lmax": 16}')
+    with Database(path, readonly=True) as db:
+        with pytest.raises(DatabaseError, match="different conventions"):
+            SearchIndex(db, threshold=0)
+
+
+def test_query_of_the_wrong_size_is_refused(big):
+    with Database(big[0], readonly=True) as db:
+        idx = SearchIndex(db, threshold=0)
+        with pytest.raises(InputError, match="has 7 values but the stored ones have 40"):
+            idx.query({"shape": np.zeros(7)}, k=3)
+        with pytest.raises(InputError, match="no 'shape' descriptor"):
+            idx.query({"spectrum": np.zeros(3)}, k=3)
+        with pytest.raises(InputError, match="factor"):
+            SearchIndex(db, threshold=0, factor=0)
+
+
+def test_descriptor_rows_and_generation(big):
+    path, shape, _, color = big
+    with Database(path) as db:
+        g = db.index_state()["generation"]
+        db.descriptors_changed()
+        assert db.index_state()["generation"] == g + 1
+        ids, stored, present = db.descriptor_rows([3, 1, 99999, 3], ("shape", "texture"))
+        assert ids.tolist() == [1, 3]
+        np.testing.assert_array_equal(stored["shape"][1], shape[2, :DIM])
+        assert present["texture"].tolist() == [bool(color[0]), bool(color[2])]
+
+
+def test_cli_query_exact_and_approximate_agree(big, monkeypatch):
+    from surfidx.cli import cli
+
+    path = big[0]
+    monkeypatch.setattr(ann, "DEFAULT_THRESHOLD", 0)
+    runner = CliRunner()
+    out = []
+    for extra in ([], ["--exact"]):
+        res = runner.invoke(cli, ["query", "id:12", "--db", str(path), "-k", "5", "--json",
+                                  *extra])
+        assert res.exit_code == 0, res.output
+        out.append(json.loads(res.output)["results"])
+    assert out[0] == out[1] and len(out[0]) == 5
+    assert ann.index_size(path) > 0
