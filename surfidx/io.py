@@ -1241,42 +1241,49 @@ def write_model(model, path, *, format: str | None = None, text: bool = False) -
     """
     fmt = output_format(path, format)
     if isinstance(model, TriangleMesh):
-        model = model.to_surfels(max_edge_ratio=None)
-    if not isinstance(model, SurfelSet):
+        if fmt == "ply":
+            model = model.to_surfels(max_edge_ratio=None)
+            parts = None
+        else:       # written as it is: a coarse decoded grid may hold degenerate triangles
+            parts = (model.vertices, None, model.vertex_colors, model.faces)
+    elif isinstance(model, SurfelSet):
+        parts = (model.positions, model.normals, model.colors, model.faces)
+    else:
         raise InputError(f"write_model needs a SurfelSet or TriangleMesh, got "
                          f"{type(model).__name__}")
     if fmt == "ply":
         write_ply(model, path, text=text)
     elif fmt == "obj":
-        write_atomic(path, lambda tmp: tmp.write_text(_obj_text(model), encoding="ascii"))
+        write_atomic(path, lambda tmp: tmp.write_text(_obj_text(*parts), encoding="ascii"))
     else:
-        data = _glb_bytes(model)
+        data = _glb_bytes(*parts)
         write_atomic(path, lambda tmp: tmp.write_bytes(data))
     return fmt
 
 
-def _obj_text(s: SurfelSet) -> str:
-    cols = s.colors.astype(np.float64) / 255.0 if s.has_color else None
-    v = np.hstack([s.positions, cols]) if cols is not None else s.positions
+def _obj_text(positions, normals, colors, faces) -> str:
+    cols = colors.astype(np.float64) / 255.0 if colors is not None else None
+    v = np.hstack([positions, cols]) if cols is not None else positions
     vfmt = " ".join(["%.9g"] * 3 + (["%.6g"] * 3 if cols is not None else []))
-    out = [f"# written by surfidx: {len(s)} vertices"]
+    out = [f"# written by surfidx: {len(positions)} vertices"]
     out += ["v " + vfmt % tuple(r) for r in v.tolist()]
-    out += ["vn %.6g %.6g %.6g" % tuple(r) for r in s.normals.tolist()]
-    if s.faces is not None and len(s.faces):
-        f = s.faces + 1
-        out += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in f.tolist()]
+    if normals is not None:
+        out += ["vn %.6g %.6g %.6g" % tuple(r) for r in normals.tolist()]
+    if faces is not None and len(faces):
+        f = faces + 1
+        pattern = "f {0}//{0} {1}//{1} {2}//{2}" if normals is not None else "f {0} {1} {2}"
+        out += [pattern.format(a, b, c) for a, b, c in f.tolist()]
     return "\n".join(out) + "\n"
 
 
-def _glb_bytes(s: SurfelSet) -> bytes:
+def _glb_bytes(positions, normals, colors, faces) -> bytes:
     import trimesh
 
-    colors = None
-    if s.has_color:
-        colors = np.hstack([s.colors, np.full((len(s), 1), 255, np.uint8)])
-    if s.faces is not None and len(s.faces):
-        tm = trimesh.Trimesh(s.positions, s.faces, vertex_normals=s.normals,
-                             vertex_colors=colors, process=False)
+    if colors is not None:
+        colors = np.hstack([colors, np.full((len(colors), 1), 255, np.uint8)])
+    if faces is not None and len(faces):
+        tm = trimesh.Trimesh(positions, faces, vertex_normals=normals, vertex_colors=colors,
+                             process=False)
     else:
-        tm = trimesh.PointCloud(s.positions, colors=colors)
+        tm = trimesh.PointCloud(positions, colors=colors)
     return tm.export(file_type="glb")
