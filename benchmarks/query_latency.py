@@ -32,6 +32,7 @@ load changes them little. Run: ``python benchmarks/query_latency.py --real-db re
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import gc
 import os
@@ -355,7 +356,8 @@ def main() -> None:
     ap.add_argument("--factors", type=int, nargs="+", default=[2, 4, 8])
     ap.add_argument("--ef", type=int, default=64, help="Search expansion (compare mode).")
     ap.add_argument("--ef-add", type=int, default=128, help="Build expansion (compare mode).")
-    ap.add_argument("--tmp", default=None, help="Folder for the databases (default: a temp).")
+    ap.add_argument("--tmp", default=None,
+                    help="Folder for the databases, kept afterwards (default: a temp, removed).")
     args = ap.parse_args()
     real = real_descriptors(args.real_db)
     print(f"real descriptors: {len(real['shape'])} models ({len(set(real['classes']))} classes), "
@@ -377,7 +379,8 @@ def main() -> None:
     print(f"{'models':>8} {'fill s':>7} {'exact load s':>12} {'exact MB':>8} {'p50':>6} "
           f"{'p99':>6} | {'build s':>7} {'build MB':>8} {'disk MB':>7} {'open ms':>7} "
           f"{'open MB':>7} {'p50':>6} {'p99':>6} {'rec sh':>6} {'rec col':>7}")
-    with tempfile.TemporaryDirectory(dir=args.tmp) as tmp:
+    with (tempfile.TemporaryDirectory() if args.tmp is None
+          else contextlib.nullcontext(args.tmp)) as tmp:
         for m in args.sizes:
             gen = Generator(real, m)
             qs = queries(gen, args.queries)

@@ -58,7 +58,7 @@ DEFAULT_THRESHOLD = 20_000
 DEFAULT_FACTOR = 8
 
 #: HNSW search expansion (``ef``), raised to the candidate count when that is larger.
-DEFAULT_EXPANSION = 96
+DEFAULT_EXPANSION = 128
 
 #: Manifest format version.
 FORMAT = 1

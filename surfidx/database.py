@@ -1014,35 +1014,44 @@ class Database:
         """
         ids = np.unique(as_array(ids, "ids", dtype=np.int64, shape=(None,)))
         kinds = tuple(kinds)
-        got, color = {}, {}
+        rows, color = [], []
         for start in range(0, ids.size, 500):
-            chunk = [int(i) for i in ids[start:start + 500]]
+            chunk = ids[start:start + 500].tolist()
             marks = ", ".join("?" * len(chunk))
-            for mid, kind, blob in self.conn.execute(
-                    f"SELECT model_id, kind, vector FROM descriptors WHERE model_id IN ({marks}) "
-                    f"AND kind IN ({', '.join('?' * len(kinds))})", chunk + list(kinds)):
-                got.setdefault(kind, {})[int(mid)] = np.frombuffer(blob, "<f4")
-            color.update(self.conn.execute(f"SELECT id, has_color FROM models WHERE id IN "
-                                           f"({marks})", chunk))
-        first = got.get(kinds[0], {})
-        out_ids = np.array(sorted(i for i in first if i in color), np.int64)
-        stored, present = {}, {}
+            rows += self.conn.execute(
+                f"SELECT kind, model_id, vector FROM descriptors WHERE model_id IN ({marks}) "
+                f"AND +kind IN ({', '.join('?' * len(kinds))})",     # + : by primary key
+                chunk + list(kinds)).fetchall()
+            color += self.conn.execute(f"SELECT id, has_color FROM models WHERE id IN ({marks})",
+                                       chunk).fetchall()
+        rows.sort(key=lambda r: (r[0], r[1]))
+        color.sort()
+        cid = np.array([c[0] for c in color], np.int64)
+        cval = np.array([bool(c[1]) for c in color], bool)
+        per_kind = {}
         for kind in kinds:
-            rows = got.get(kind, {})
-            dims = {v.size for v in rows.values()}
+            sel = [r for r in rows if r[0] == kind]
+            dims = {len(r[2]) for r in sel}
             if len(dims) > 1:
                 raise DatabaseError(f"descriptors of kind {kind!r} have different dimensions "
-                                    f"{sorted(dims)}; run `surfidx redescribe` to recompute "
-                                    "them with this surfidx's descriptors", path=self.path)
-            mat = np.zeros((out_ids.size, dims.pop() if dims else 0), np.float32)
-            has = np.zeros(out_ids.size, bool)
-            for j, i in enumerate(out_ids.tolist()):
-                v = rows.get(i)
-                if v is not None:
-                    mat[j], has[j] = v, True
+                                    f"{sorted(d // 4 for d in dims)}; run `surfidx redescribe` "
+                                    "to recompute them with this surfidx's descriptors",
+                                    path=self.path)
+            kid = np.fromiter((r[1] for r in sel), np.int64, len(sel))
+            mat = np.frombuffer(b"".join(r[2] for r in sel), "<f4").reshape(
+                len(sel), (dims.pop() // 4) if dims else 0)
+            per_kind[kind] = (kid, mat)
+        out_ids = np.intersect1d(per_kind[kinds[0]][0], cid)
+        stored, present = {}, {}
+        for kind in kinds:
+            kid, mat = per_kind[kind]
+            full = np.zeros((out_ids.size, mat.shape[1]), np.float32)
+            has = np.isin(out_ids, kid)
+            if kid.size:
+                full[has] = mat[np.searchsorted(kid, out_ids[has])]
             if kind == "texture":
-                has &= np.array([bool(color[i]) for i in out_ids.tolist()], bool)
-            stored[kind], present[kind] = mat, has
+                has &= cval[np.searchsorted(cid, out_ids)]
+            stored[kind], present[kind] = full, has
         return out_ids, stored, present
 
     def _update_index(self) -> None:
