@@ -856,3 +856,45 @@ def test_non_utf8_names_are_stored(db):
     assert db.runs()[-1]["paths"] == ["/d/\\xff"]
     with pytest.raises(DatabaseError, match=r"no model named 'x\\\\xff'"):
         db.resolve(os.fsdecode(b"x\xff"))
+
+
+def _real_v1_database(path):
+    """A database as surfidx schema 1 made it (no tags, triggers or views; a name index that
+    is not unique), holding two models of one name and rows a delete without foreign keys
+    left behind."""
+    conn = sqlite3.connect(path)
+    for stmt in dbmod._statements(schema_sql()):
+        code = "\n".join(ln for ln in stmt.splitlines() if not ln.strip().startswith("--"))
+        if __import__("re").search(r"\b(tags|TRIGGER|VIEW)\b", code):
+            continue
+        conn.execute(stmt.replace("CREATE UNIQUE INDEX models_name", "CREATE INDEX models_name"))
+    conn.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    for i, src in enumerate(("/a/twin.obj", "/b/twin.obj", "/c/gone.obj")):
+        conn.execute("INSERT INTO models (name, source, content_hash, n_surfels, has_color, "
+                     "bbox_min_x, bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, "
+                     "ingested_at) VALUES (?, ?, ?, 3, 0, 0, 0, 0, 1, 1, 1, 'then')",
+                     ("gone" if i == 2 else "twin", src, f"h{i}"))
+        conn.execute("INSERT INTO thumbnails VALUES (?, x'00')", (i + 1,))
+    conn.execute("DELETE FROM models WHERE id = 3")             # foreign keys off: an orphan
+    conn.execute(f"PRAGMA application_id = {dbmod.APPLICATION_ID}")
+    conn.execute("PRAGMA user_version = 1")
+    conn.commit()
+    conn.close()
+
+
+def test_real_migration_1_to_2(tmp_path):
+    import re as _re
+
+    path = tmp_path / "v1.db"
+    _real_v1_database(path)
+    with Database(path) as d:
+        assert d.schema_version == 2
+        assert d.conn.execute("SELECT id, name FROM models ORDER BY id").fetchall() == [
+            (1, "twin"), (2, "b")]
+        assert d.conn.execute("SELECT model_id FROM thumbnails").fetchall() == [(1,), (2,)]
+        migrated = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
+            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+    with Database(tmp_path / "new.db") as d:
+        fresh = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
+            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+    assert migrated == fresh
