@@ -11,17 +11,7 @@ use_user_cache()   # before any kernel is compiled: numba's cache stays out of t
 
 from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError,  # noqa: E402
                       SurfidxError, TopologyError)
-from ._tolerance import TOL, Tolerances
-from .geodesics import (GeodesicPath, GeodesicSolver, farthest_point_landmarks,
-                        geodesic_distances, geodesic_path)
-from .graph import SphereOfInfluenceGraph
-from .icosphere import Icosphere, choose_level, icosphere
-from .io import read_mesh, read_surfels, write_ply
-from .klt import KLT
-from .mesh import TriangleMesh
-from .metrics import evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
-from .pointcloud import points_to_surfels
-from .surfels import SurfelSet
+from ._tolerance import TOL, Tolerances  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -35,14 +25,30 @@ __all__ = [
     "farthest_point_landmarks", "SphereOfInfluenceGraph",
 ]
 
-# The SQLite store is imported on first use (sqlite-utils costs ~0.5 s to import).
-_LAZY = {"Database": "database", "SearchIndex": "search"}
-__all__ += list(_LAZY)
+# Everything else is imported on first use: numba, scipy and sqlite-utils cost seconds to
+# import, which a query of a stored model (`surfidx query id:N`) does not need.
+_LAZY = {"GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
+         "farthest_point_landmarks": "geodesics", "geodesic_distances": "geodesics",
+         "geodesic_path": "geodesics", "SphereOfInfluenceGraph": "graph",
+         "Icosphere": "icosphere", "choose_level": "icosphere", "icosphere": "icosphere",
+         "read_mesh": "io", "read_surfels": "io", "write_ply": "io", "KLT": "klt",
+         "TriangleMesh": "mesh", "evaluate": "metrics", "hausdorff": "metrics",
+         "psnr_d1": "metrics", "psnr_d2": "metrics", "psnr_luma": "metrics",
+         "points_to_surfels": "pointcloud", "SurfelSet": "surfels",
+         "Database": "database", "SearchIndex": "search"}
+__all__ += [n for n in _LAZY if n not in __all__]
 
 
 def __getattr__(name):
     if name in _LAZY:
         import importlib
 
-        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        if name != _LAZY[name]:        # a function named as its module (icosphere) stays lazy
+            globals()[name] = value
+        return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
