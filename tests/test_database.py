@@ -559,7 +559,7 @@ def test_search_errors_and_empty(db):
 def test_package_exports_lazily():
     code = ("import sys, surfidx; assert 'sqlite_utils' not in sys.modules; "
             "from surfidx import Database, SearchIndex; "
-            "assert Database.__module__ == 'surfidx.database'; "
+            "assert Database.__module__ == 'surfidx.store'; "
             "assert SearchIndex.__module__ == 'surfidx.search'")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
     with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):

@@ -69,7 +69,7 @@ def parse_model_ref(text: str):
 def _open(db_path, *, readonly=True):
     """The database of a command: read-only (``ls``, ``show``, ``query``, ``get``, ``errors``:
     never written, a missing or empty file is an error), or for writing an existing one."""
-    from ..database import Database
+    from ..store import Database
 
     return Database(db_path, create=False, readonly=readonly)
 
