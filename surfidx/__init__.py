@@ -20,17 +20,19 @@ __all__ = [
     "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
     "DatabaseError", "TOL", "Tolerances", "__version__",
     "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
-    "Icosphere", "icosphere", "choose_level", "KLT",
+    "Icosphere", "choose_level", "KLT",
     "GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
     "farthest_point_landmarks", "SphereOfInfluenceGraph",
 ]
 
 # Everything else is imported on first use: numba, scipy and sqlite-utils cost seconds to
-# import, which a query of a stored model (`surfidx query id:N`) does not need.
+# import, which a query of a stored model (`surfidx query id:N`) does not need. No export is
+# named as a submodule: importing the submodule would replace the export by the module
+# (the grid function is `surfidx.Icosphere(level)` or `surfidx.icosphere.icosphere(level)`).
 _LAZY = {"GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
          "farthest_point_landmarks": "geodesics", "geodesic_distances": "geodesics",
          "geodesic_path": "geodesics", "SphereOfInfluenceGraph": "graph",
-         "Icosphere": "icosphere", "choose_level": "icosphere", "icosphere": "icosphere",
+         "Icosphere": "icosphere", "choose_level": "icosphere",
          "read_mesh": "io", "read_surfels": "io", "write_ply": "io", "KLT": "klt",
          "TriangleMesh": "mesh", "evaluate": "metrics", "hausdorff": "metrics",
          "psnr_d1": "metrics", "psnr_d2": "metrics", "psnr_luma": "metrics",
@@ -45,8 +47,7 @@ def __getattr__(name):
         import importlib
 
         value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        if name != _LAZY[name]:        # a function named as its module (icosphere) stays lazy
-            globals()[name] = value
+        globals()[name] = value
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

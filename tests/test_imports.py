@@ -145,3 +145,16 @@ def test_sphere_stage_has_no_import_cycle():
 @pytest.mark.xfail(strict=True, reason="known cycles in modules owned elsewhere (KNOWN_CYCLES)")
 def test_no_import_cycle_at_all():
     assert not _cycles(_graph())
+
+
+def test_no_lazy_export_is_shadowed_by_its_submodule():
+    """An export named as a submodule would turn into the module once that is imported."""
+    import importlib
+
+    import surfidx
+
+    for name, module in surfidx._LAZY.items():
+        assert name != module, name
+        importlib.import_module(f"surfidx.{module}")
+        assert getattr(surfidx, name) is getattr(importlib.import_module(f"surfidx.{module}"),
+                                                 name)
