@@ -537,7 +537,8 @@ class IngestSummary:
                 f"failed {self.failed} in {self.seconds:.1f} s")
 
 
-def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) -> list:
+def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None,
+               on_known=None) -> list:
     """Hash the files (with their textures) and make a :class:`Task` for each new one.
 
     Parameters
@@ -551,6 +552,9 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
         ``on_skip(path, reason)`` for files skipped: ``reason`` is None for files already stored
         or repeated in ``files``, the message (``"not a regular file: a named pipe (FIFO)"``)
         for files that are not regular files and are not read.
+    on_known : callable, optional
+        ``on_known(path, content_hash)`` for files whose model is stored already (one of
+        ``known_hashes``), besides ``on_skip``.
 
     Returns
     -------
@@ -576,6 +580,8 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None) 
         if h in seen:
             if on_skip is not None:
                 on_skip(f, None)
+            if on_known is not None and h in known_hashes:
+                on_known(f, h)
             continue
         seen.add(h)
         tasks.append(Task(str(f), None if tex is None else str(tex), h))
@@ -742,7 +748,12 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     bar = None
     status = "failed"
     try:
-        tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip)
+        known = []
+        tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip,
+                           on_known=lambda path, h: known.append(h))
+        if tags and known:          # a re-run with tags tags the models it finds stored
+            with db.transaction():
+                db.tag(db.ids_of_hashes(known), tags)
         flush()
         fn = functools.partial(process_task, processor=processor,
                                bits_per_surfel=bits_per_surfel,

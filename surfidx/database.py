@@ -1081,6 +1081,16 @@ class Database:
         return self.conn.execute("SELECT 1 FROM models WHERE content_hash = ?",
                                  (str(content_hash),)).fetchone() is not None
 
+    def ids_of_hashes(self, content_hashes) -> list:
+        """Ids of the stored models with these content hashes (unknown hashes are left out)."""
+        out = []
+        for h in dict.fromkeys(str(h) for h in content_hashes):
+            row = self.conn.execute("SELECT id FROM models WHERE content_hash = ?",
+                                    (h,)).fetchone()
+            if row is not None:
+                out.append(int(row[0]))
+        return out
+
     def hashes(self) -> set:
         """The content hashes of all stored models (one query, for bulk skipping)."""
         return {r[0] for r in self.conn.execute("SELECT content_hash FROM models")}

@@ -251,3 +251,14 @@ def test_datasette_shows_names_and_thumbnails(tmp_path):
     assert pages["thumbnails"].count("<img") >= 2
     for page in ("model_gallery", "assets_named", "descriptors"):
         assert ">m0<" in pages[page] or ">m0 " in pages[page] or "m0</a>" in pages[page], page
+
+
+def test_ingest_again_with_tags_tags_the_stored_models(tmp_path):
+    """A re-run with ``tags`` stores nothing new but tags the models it finds stored."""
+    root = make_tree(tmp_path / "data", 2)
+    with surfidx.Database.open(tmp_path / "t.db") as db:
+        db.ingest([root], processor=fake_processor)
+        assert db.tags() == {}
+        s = db.ingest([root], processor=fake_processor, tags=["archive"])
+        assert (s.stored, s.skipped) == (0, 2)
+        assert db.tags() == {"archive": 2}
