@@ -123,7 +123,10 @@ def test_cli_encode_decode(tmp_path, blob):
     out = tmp_path / "dec.ply"
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--bits-per-surfel", "2"])
     assert r.exit_code == 0, r.output
-    assert len(read_surfels(out)) == 10 * 4 ** 5 + 2
+    # by default the grid level whose vertex count is closest to the input's surfel count
+    assert len(read_surfels(out)) == 10 * 4 ** 4 + 2 == len(blob)
+    r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--level", "5"])
+    assert r.exit_code == 0 and len(read_surfels(out)) == 10 * 4 ** 5 + 2, r.output
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "m.ply"), "--mesh"])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(out), "--level", "3"])
@@ -364,8 +367,8 @@ def test_cli_hostile_streams(tmp_path, enc):
     sfz = tmp_path / "ok.sfz"
     sfz.write_bytes(data)
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "o.ply"),
-                                 "--max-surfels", "5000"])
+                                 "--max-surfels", "5000", "--level", "5"])
     assert r.exit_code == 1 and "more than max_surfels = 5,000" in r.output
     r = CliRunner().invoke(cli, ["decode", str(sfz), "-o", str(tmp_path / "o.ply"),
                                  "--max-surfels", "5000", "--level", "4"])
-    assert r.exit_code == 0 and "2562 surfels" in r.output
+    assert r.exit_code == 0 and "2,562 surfels" in r.output
