@@ -361,15 +361,16 @@ def test_cli_geodesic_refine_writes_path_and_render_draws_it(sphere_obj, tmp_pat
 
 
 @pytest.mark.parametrize("args, message", [
-    (("--source", 642, "--target", 0), "Error: a: surfel index 642 is out of range 0..641"),
-    (("--source", 0, "--target", -2), "Error: b: surfel index -2 is out of range 0..641"),
-    (("--source", 0, "--target", 1, "--max-angle", 0), "Error: max_angle must lie in"),
+    (("--source", 642, "--target", 0), "a: surfel index 642 is out of range 0..641"),
+    (("--source", 0, "--target", -2), "b: surfel index -2 is out of range 0..641"),
+    (("--source", 0, "--target", 1, "--max-angle", 0), "max_angle must lie in"),
 ])
 def test_cli_geodesic_bad_arguments_one_line(sphere_obj, args, message):
+    """One line naming the input file, then the problem."""
     path, _ = sphere_obj
     res = run("geodesic", path, *args)
     assert res.exit_code != 0
-    assert res.output.startswith(message)
+    assert res.output.startswith(f"Error: {path}: {message}")
     assert len(res.output.strip().splitlines()) == 1
     assert "Traceback" not in res.output and not isinstance(res.exception, InputError)
 

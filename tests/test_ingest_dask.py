@@ -212,13 +212,13 @@ def test_cli_scheduler_address_and_local(cluster, tmp_path):
     obj = {"processor": dask_processor}
     r = CliRunner().invoke(cli, ["ingest", str(root), "--db", str(tmp_path / "a.db"),
                                  "--scheduler", cluster, "--json", "--no-progress"], obj=obj)
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output          # a file failed: stored what it could, exit 1
     out = json.loads(r.stdout)
     assert (out["stored"], out["failed"]) == (4, 1)
     r = CliRunner().invoke(cli, ["ingest", str(root), "--db", str(tmp_path / "b.db"),
                                  "--scheduler", "local", "--workers", "2", "--no-progress"],
                            obj=obj)
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output
     assert "stored 4, skipped 0, failed 1" in r.stdout
     a, b = _models(tmp_path / "a.db"), _models(tmp_path / "b.db")
     assert a == b and [name for name, _ in a] == [f"m{i}" for i in range(4)]
