@@ -199,7 +199,7 @@ class DaskExecutor:
     def _run(self, fn, tasks):
         from concurrent.futures import CancelledError
 
-        from distributed import KilledWorker, as_completed
+        from distributed import KilledWorker, as_completed, wait
 
         client = self.client
         token = uuid.uuid4().hex[:8]
@@ -207,11 +207,9 @@ class DaskExecutor:
         attempts = {}                                 # task -> submissions so far
         in_flight = {}                                # future -> (task, submitted)
         ac = as_completed(loop=client.loop, with_results=True, raise_errors=False)
-        window, window_at = self._window(), time.monotonic()
+        window = self._window()
         try:
             while pending or in_flight:
-                if time.monotonic() - window_at >= self.heartbeat:
-                    window, window_at = self._window(), time.monotonic()
                 while pending and len(in_flight) < window:
                     task = pending.pop()
                     n = attempts[task] = attempts.get(task, 0) + 1
@@ -221,13 +219,16 @@ class DaskExecutor:
                     ac.add(fut)
                 done = ac.next_batch(block=False)
                 if not done:
-                    deadline = time.monotonic() + self.heartbeat
-                    while not ac.has_ready() and time.monotonic() < deadline:
-                        time.sleep(0.005)
-                    if not ac.has_ready():
+                    try:        # distributed's own timeout: no clock is read here
+                        with client.as_current():
+                            wait(list(in_flight), timeout=self.heartbeat,
+                                 return_when="FIRST_COMPLETED")
+                    except TimeoutError:
+                        window = self._window()     # workers may have joined or left
                         yield None                  # heartbeat: lets the caller flush by time
                         continue
-                    done = ac.next_batch(block=False)
+                    done = ac.next_batch(block=True)
+                    window = self._window()
                 for fut, result in done:
                     task, submitted = in_flight.pop(fut)
                     received = time.perf_counter()
