@@ -880,27 +880,24 @@ class Database:
         DatabaseError
             A model is not found (nothing is changed).
         """
-        tags = self._tags_of(tags)
-        models = [models] if isinstance(models, (str, int, np.integer)) else list(models)
-        added = 0
-        with self.transaction():
-            for mid in dict.fromkeys(self.resolve(m) for m in models):
-                for t in tags:
-                    added += self.conn.execute("INSERT OR IGNORE INTO tags (model_id, tag) "
-                                               "VALUES (?, ?)", (mid, t)).rowcount
-        return added
+        return self._per_tag(models, tags, "INSERT OR IGNORE INTO tags (model_id, tag) "
+                                           "VALUES (?, ?)")
 
     def untag(self, models, tags) -> int:
         """Remove tags from models; returns how many were removed (see :meth:`tag`)."""
+        return self._per_tag(models, tags, "DELETE FROM tags WHERE model_id = ? AND tag = ?")
+
+    def _per_tag(self, models, tags, sql: str) -> int:
+        """Run ``sql`` with ``(model id, tag)`` for every model and tag in one transaction
+        (a missing model rolls it all back); returns the rows changed."""
         tags = self._tags_of(tags)
         models = [models] if isinstance(models, (str, int, np.integer)) else list(models)
-        removed = 0
+        changed = 0
         with self.transaction():
             for mid in dict.fromkeys(self.resolve(m) for m in models):
                 for t in tags:
-                    removed += self.conn.execute("DELETE FROM tags WHERE model_id = ? AND "
-                                                 "tag = ?", (mid, t)).rowcount
-        return removed
+                    changed += self.conn.execute(sql, (mid, t)).rowcount
+        return changed
 
     def tags(self, model=None):
         """A model's tags (sorted list), or with no model every tag with its model count."""
