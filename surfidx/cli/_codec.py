@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from . import cli
+from ._group import cli
 from ._common import (command_errors, echo_json, input_options, output_format_option, plain,
                       read_input)
 

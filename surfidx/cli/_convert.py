@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from . import cli
+from ._group import cli
 from ._common import (allow_outside_textures, command_errors, echo_json, input_options, plain,
                       read_input)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import click
 
 from .._errors import DatabaseError, InputError, SurfidxError
-from . import cli
+from ._group import cli
 from ._common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
                       output_format_option, plain)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from . import cli
+from ._group import cli
 from ._common import command_errors, echo_json, input_options, read_input
 
 _METHODS = ("tutte", "mds")   # surfidx.sphere.METHODS, without importing the map at startup

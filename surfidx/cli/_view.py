@@ -8,7 +8,7 @@ import re
 import click
 
 from .._errors import InputError
-from . import cli
+from ._group import cli
 from ._common import (command_errors, echo_json, input_options, outside_textures_option, plain,
                       read_input)
 
