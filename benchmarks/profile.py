@@ -1,0 +1,264 @@
+"""Per-stage CPU time of ingesting a model, on the example, shared and retrieval models.
+
+Every model goes through :func:`surfidx.pipeline.process_model` (what ``surfidx ingest`` runs
+per file: read, map, resample, transform, code, decode for the quality figures, describe,
+thumbnail; only the database write is left out) in a worker process. The stage functions are
+wrapped, in the worker only, by a timer that charges each call's CPU time
+(``time.process_time``: this process, not the machine's load) to its stage, less the time of
+the listed stages nested in it (self time: the fold repair's own resampling is charged to
+``resample``, not to ``map.repair``). What no stage claims is ``other``.
+
+Stages (module attribute -> stage name) are listed in :data:`STAGES`; ``map.*`` stages are the
+spherical map's steps (coarse-to-fine levels, decimation, Tutte maps, balancing, untangling,
+point-cloud proxy, fold repair, realised flips, quality figures).
+
+The table gives, per stage, the median, 90th percentile and maximum CPU seconds over the
+models, the same per 10k surfels, and the exponent ``b`` of a least-squares fit
+``seconds ~ a * n ** b`` over the models' surfel counts ``n`` (a stage that costs n log n
+fits about 1.1 over this range). Models that fail (the awkward topologies, until they are
+repaired) are listed apart.
+
+Run::
+
+    python benchmarks/profile.py [--set examples shared retrieval] [--workers 2] [--limit N]
+        [--per-model] [--json out.json]
+
+Workers are warmed up first (imports, numba caches) on the smallest example model.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import statistics
+import sys
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared" / "data"
+
+#: (module, attribute, stage): the functions whose self CPU time is charged to a stage. An
+#: attribute ``Class.method`` is patched on the class; a function is patched in every loaded
+#: ``surfidx`` module that holds it (``from .x import f`` binds the name there).
+STAGES = (
+    ("surfidx.io", "read_surfels", "read"),
+    ("surfidx.graph", "sphere_of_influence_graph", "graph"),
+    ("surfidx.geodesics", "GeodesicSolver.__init__", "geodesics"),
+    ("surfidx.sphere._multilevel", "mesh_map", "map.multilevel"),
+    ("surfidx.sphere._decimate", "decimate", "map.decimate"),
+    ("surfidx.sphere._tutte", "tutte_map", "map.tutte"),
+    ("surfidx.sphere._balance", "balance", "map.balance"),
+    ("surfidx.sphere._balance", "untangle", "map.untangle"),
+    ("surfidx.sphere._cloud", "cloud_map", "map.proxy"),
+    ("surfidx.sphere.proxy", "proxy_mesh", "map.proxy"),
+    ("surfidx.sphere._repair", "repair", "map.repair"),
+    ("surfidx.sphere._foldrepair", "repair_folds", "map.repair"),
+    ("surfidx.sphere._circlepattern", "lower_folds", "map.realise"),
+    ("surfidx.sphere.quality", "count_folds", "map.quality"),
+    ("surfidx.sphere.quality", "area_distortion", "map.quality"),
+    ("surfidx.sphere.quality", "sparse_sampling", "map.quality"),
+    ("surfidx.resample", "resample", "resample"),
+    ("surfidx.klt", "KLT.fit", "klt"),
+    ("surfidx.wavelets", "forward", "wavelets"),
+    ("surfidx.wavelets", "forward_anchored", "wavelets"),
+    ("surfidx.wavelets", "choose_anchors", "wavelets"),
+    ("surfidx.density", "weight_field", "density"),
+    ("surfidx.codec", "Encoder.encode", "coding"),
+    ("surfidx.codec", "decode", "decode"),
+    ("surfidx.metrics", "evaluate", "evaluate"),
+    ("surfidx.descriptors", "describe_grid", "describe"),
+    ("surfidx.render", "render", "thumbnail"),
+)
+
+_self: dict = {}
+_stack: list = []
+
+
+def _wrap(fn, stage):
+    def timed(*args, **kwargs):
+        t0 = time.process_time()
+        _stack.append(0.0)
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            spent = time.process_time() - t0
+            nested = _stack.pop()
+            _self[stage] = _self.get(stage, 0.0) + spent - nested
+            if _stack:
+                _stack[-1] += spent
+    timed.__wrapped__ = fn
+    timed.__name__ = getattr(fn, "__name__", "timed")
+    return timed
+
+
+def _instrument():
+    """Wrap every function of :data:`STAGES` (in this process only)."""
+    import importlib
+
+    import surfidx
+    import surfidx.pipeline  # noqa: F401  (everything the ingest path imports)
+    for name in ("codec", "descriptors", "render", "metrics", "graph", "geodesics", "sphere",
+                 "resample", "klt", "wavelets", "density", "io"):
+        importlib.import_module(f"surfidx.{name}")
+    modules = [m for n, m in list(sys.modules.items())
+               if m is not None and (n == "surfidx" or n.startswith("surfidx."))]
+    for modname, attr, stage in STAGES:
+        mod = importlib.import_module(modname)
+        if "." in attr:
+            cls_name, meth = attr.split(".")
+            cls = getattr(mod, cls_name)
+            raw = cls.__dict__[meth]
+            if isinstance(raw, classmethod):
+                setattr(cls, meth, classmethod(_wrap(raw.__func__, stage)))
+            else:
+                setattr(cls, meth, _wrap(raw, stage))
+            continue
+        orig = getattr(mod, attr)
+        timed = _wrap(orig, stage)
+        for m in modules:
+            for key, val in list(vars(m).items()):
+                if val is orig:
+                    setattr(m, key, timed)
+    _ = surfidx
+
+
+def _warm(path: str):
+    _instrument()
+    _run(path)
+
+
+def _run(path: str) -> dict:
+    from surfidx.pipeline import process_model
+
+    _self.clear()
+    t0 = time.process_time()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = process_model(path)
+    except Exception as exc:  # noqa: BLE001 - a benchmark lists what fails
+        return {"path": path, "error": f"{type(exc).__name__}: {str(exc)[:120]}",
+                "total": time.process_time() - t0}
+    total = time.process_time() - t0
+    stages = dict(_self)
+    stages["other"] = max(0.0, total - sum(stages.values()))
+    return {"path": path, "n": rec.n_surfels, "total": total, "stages": stages,
+            "psnr_d2": rec.quality.get("psnr_d2"), "folded": rec.params.get("folded")}
+
+
+_MODEL_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+
+def _model_file(p: Path) -> str:
+    """A model file, or the mesh file of a model folder (an OBJ beside its texture)."""
+    if p.is_dir():
+        inside = sorted(f for f in p.iterdir() if f.suffix.lower() in _MODEL_SUFFIXES)
+        return str(inside[0])
+    return str(p)
+
+
+def model_set(name: str) -> list[str]:
+    """The model files of a set: ``examples``, ``shared`` or ``retrieval`` (genus 0)."""
+    if name in ("examples", "shared"):
+        base = ROOT / "examples" / "models" if name == "examples" else SHARED / "models"
+        return sorted(_model_file(p) for p in base.iterdir()
+                      if p.is_dir() or p.suffix.lower() in _MODEL_SUFFIXES)
+    if name == "retrieval":
+        base = SHARED / "retrieval"
+        with open(base / "meta.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        return [str(base / r["path"]) for r in rows if int(r["genus"]) == 0]
+    raise SystemExit(f"unknown set {name!r}: examples, shared or retrieval")
+
+
+def _fit_exponent(n, t) -> float:
+    n, t = np.asarray(n, float), np.asarray(t, float)
+    ok = (n > 0) & (t > 1e-4)
+    if ok.sum() < 3 or np.ptp(np.log(n[ok])) < 0.5:
+        return math.nan
+    return float(np.polyfit(np.log(n[ok]), np.log(t[ok]), 1)[0])
+
+
+def _pct(values, q):
+    return float(np.percentile(values, q)) if values else math.nan
+
+
+def table(results: list[dict]) -> str:
+    ok = [r for r in results if "stages" in r]
+    names = sorted({s for r in ok for s in r["stages"]},
+                   key=lambda s: ([x[2] for x in STAGES] + ["other"]).index(s))
+    lines = [f"{'stage':16s} {'median s':>9s} {'p90 s':>8s} {'max s':>8s} "
+             f"{'med s/10k':>9s} {'p90 s/10k':>9s} {'exponent':>8s}"]
+    rows = names + ["total"]
+    for s in rows:
+        t = [r["total"] if s == "total" else r["stages"].get(s, 0.0) for r in ok]
+        per = [x / (r["n"] / 1e4) for x, r in zip(t, ok)]
+        lines.append(f"{s:16s} {_pct(t, 50):9.3f} {_pct(t, 90):8.3f} {max(t):8.3f} "
+                     f"{_pct(per, 50):9.3f} {_pct(per, 90):9.3f} "
+                     f"{_fit_exponent([r['n'] for r in ok], t):8.2f}")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--set", nargs="+", default=["examples", "shared", "retrieval"],
+                    choices=["examples", "shared", "retrieval"])
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--limit", type=int, default=None, help="first N models of each set")
+    ap.add_argument("--per-model", action="store_true", help="print a line per model")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+
+    import surfidx
+
+    jobs = []
+    for s in args.set:
+        files = model_set(s)[: args.limit]
+        jobs += [(s, f) for f in files]
+    warm = min(model_set("examples"), key=os.path.getsize)
+    print(f"surfidx {surfidx.__version__}: {len(jobs)} models, {args.workers} workers; CPU seconds "
+          "per model (time.process_time of the worker)", flush=True)
+    results = []
+    with ProcessPoolExecutor(args.workers, initializer=_warm, initargs=(warm,)) as ex:
+        futures = [(s, ex.submit(_run, f)) for s, f in jobs]
+        for i, (s, fut) in enumerate(futures, 1):
+            r = fut.result()
+            r["set"] = s
+            results.append(r)
+            if args.per_model:
+                msg = r.get("error") or (f"n={r['n']:7d} total {r['total']:6.2f} s  " + "  ".join(
+                    f"{k} {v:.2f}" for k, v in sorted(r["stages"].items(), key=lambda kv: -kv[1])[:5]))
+                print(f"  [{i}/{len(jobs)}] {s:9s} {Path(r['path']).name:22s} {msg}", flush=True)
+    for s in args.set + ["all"]:
+        sub = [r for r in results if s == "all" or r["set"] == s]
+        ok = [r for r in sub if "stages" in r]
+        if not ok:
+            continue
+        n = [r["n"] for r in ok]
+        print(f"\n## {s}: {len(ok)} models ({min(n):,}-{max(n):,} surfels, median "
+              f"{int(statistics.median(n)):,})")
+        print(table(ok))
+    failed = [r for r in results if "error" in r]
+    if failed:
+        print(f"\nfailed ({len(failed)}):")
+        for r in failed:
+            print(f"  {Path(r['path']).name}: {r['error']}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
