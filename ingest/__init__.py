@@ -5,15 +5,18 @@
 >>> print(summary)                                                        # doctest: +SKIP
 run 1: stored 41, skipped 0, failed 1 in 312.4 s
 
-See :mod:`ingest._run` for the data flow, the executor abstraction and the texture discovery, and
-:mod:`ingest._dask` for the dask.distributed executor (``ingest.run(..., scheduler="local")`` or
-``scheduler="tcp://HOST:PORT"``; needs ``pip install 'surfidx[distributed]'``).
+Modules: :mod:`ingest._files` (discovery, bounded reading, texture discovery),
+:mod:`ingest._tasks` (tasks, the per-model function, outcomes), :mod:`ingest._run` (the data
+flow, executors, the single writer) and :mod:`ingest._dask` (the dask.distributed executor:
+``ingest.run(..., scheduler="local")`` or ``scheduler="tcp://HOST:PORT"``; needs
+``pip install 'surfidx[distributed]'``).
 """
 
 from ._dask import DaskExecutor
-from ._run import (IngestSummary, NotRegularFile, Outcome, ProcessPool, Task, discover,
-                   error_message, exit_with_parent, find_texture, hash_files, make_tasks,
-                   process_task, resolve_processor, run, serial)
+from ._files import NotRegularFile, discover, find_texture, hash_files
+from ._run import IngestSummary, ProcessPool, exit_with_parent, run, serial
+from ._tasks import (Outcome, Task, error_message, make_tasks, process_task,
+                     resolve_processor)
 
 __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
            "process_task", "resolve_processor", "serial", "ProcessPool", "DaskExecutor",

@@ -30,7 +30,7 @@ import uuid
 from surfidx._errors import InputError, SurfidxError
 from surfidx._validate import check_positive_int
 
-from ._run import Outcome, error_message
+from ._tasks import Outcome, error_message
 
 __all__ = ["DaskExecutor", "import_distributed"]
 

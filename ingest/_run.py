@@ -2,20 +2,21 @@
 
 Data flow of :func:`run`:
 
-1. :func:`discover` lists the model files (folders recursively, every suffix of
-   ``surfidx.io.SUPPORTED_SUFFIXES``, sorted), and :func:`find_texture` pairs a textured OBJ whose
-   UVs name no texture with a PNG beside it.
-2. Every file's content hash (file bytes, then texture bytes) is computed first; files already
+1. :func:`ingest.discover` (:mod:`ingest._files`) lists the model files once (folders
+   recursively, every suffix of ``surfidx.io.SUPPORTED_SUFFIXES``, sorted), and
+   :func:`ingest.find_texture` pairs a textured OBJ whose UVs name no texture with a PNG beside
+   it.
+2. :func:`ingest.make_tasks` (:mod:`ingest._tasks`) computes every file's content hash (file bytes, then texture bytes) is computed first; files already
    stored (or seen earlier in the same run) are skipped, so re-running an interrupted ingest
    resumes where it stopped. Only regular files are read (a FIFO, a device, a socket or a link
    to one is skipped unread and recorded with the reason), and never beyond the size the file
    had when it was opened.
-3. The remaining :class:`Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
+3. The remaining :class:`ingest.Task` s go to an *executor*: a callable ``executor(fn, tasks)`` that
    yields ``fn(task)`` for every task, in completion order (and may yield ``None`` as a
    heartbeat while it waits). :class:`ProcessPool` runs them in
    worker processes (restarting the pool when a worker dies), :func:`serial` in-process,
    :class:`ingest.DaskExecutor` on a dask.distributed cluster (``scheduler=``). ``fn`` is
-   :func:`process_task` bound to the processor and rate: one picklable per-model function for
+   :func:`ingest.process_task` bound to the processor and rate: one picklable per-model function for
    every executor.
 4. Results are written by this process alone, in batched transactions (every ``batch`` models or
    ``flush_seconds``), each model inside its own savepoint: a model is stored whole or not at all,
@@ -34,294 +35,23 @@ processed like any other and stored and reported through :func:`surfidx.database
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import functools
-import hashlib
 import os
 import signal
-import stat
 import sys
 import threading
 import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from surfidx._errors import InputError, SurfidxError
 from surfidx._validate import check_positive_int
 
-__all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
-           "process_task", "resolve_processor", "serial", "ProcessPool", "error_message",
-           "hash_files", "NotRegularFile", "exit_with_parent"]
+from ._files import discover
+from ._tasks import Outcome, error_message, make_tasks, process_task, resolve_processor
 
-
-# ---------------------------------------------------------------------- discovery
-def discover(paths) -> list:
-    """The model files named by ``paths``, absolute (symbolic links kept), deduplicated, sorted.
-
-    Parameters
-    ----------
-    paths : sequence of str or os.PathLike
-        Files (taken as given, whatever their suffix or type) and folders (searched recursively
-        for every suffix in ``surfidx.io.SUPPORTED_SUFFIXES``, case-insensitively; hidden entries
-        skipped). Entries that are not regular files are listed too: :func:`make_tasks` skips
-        them with the reason.
-
-    Returns
-    -------
-    list of pathlib.Path
-
-    Raises
-    ------
-    InputError
-        A path does not exist, ``paths`` is empty, or the folders given hold no supported file
-        and no file was named (nothing to ingest).
-    """
-    from surfidx.io import SUPPORTED_SUFFIXES
-
-    if isinstance(paths, (str, os.PathLike)):
-        paths = [paths]
-    paths = list(paths)
-    if not paths:
-        raise InputError("give at least one model file or folder to ingest")
-    found = set()
-    empty_folders = []
-    for p in paths:
-        p = Path(p)
-        if p.is_dir():
-            before = len(found)
-            for root, dirs, files in os.walk(p):
-                dirs[:] = [d for d in dirs if not d.startswith(".")]
-                for f in files:
-                    if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
-                        found.add(Path(os.path.abspath(Path(root, f))))
-            if len(found) == before:
-                empty_folders.append(p)
-        elif p.exists():                            # a file, or a FIFO/device (skipped later)
-            found.add(Path(os.path.abspath(p)))
-        else:
-            raise InputError("no such file or folder", path=p)
-    if not found:
-        raise InputError("holds no model file (supported: " + ", ".join(SUPPORTED_SUFFIXES)
-                         + ")", path=empty_folders[0])
-    for folder in empty_folders:
-        import warnings
-
-        warnings.warn(f"{folder}: holds no model file (supported: "
-                      + ", ".join(SUPPORTED_SUFFIXES) + ")", UserWarning, stacklevel=2)
-    return sorted(found)
-
-
-# ---------------------------------------------------------------------- bounded reading
-class NotRegularFile(OSError):
-    """A path that is not a regular file (FIFO, device, socket, directory, or a link to one)."""
-
-
-def _file_type(mode: int) -> str:
-    for test, name in ((stat.S_ISFIFO, "a named pipe (FIFO)"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory")):
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
-def _not_regular(path, mode: int) -> NotRegularFile:
-    kind = _file_type(mode)
-    link = os.path.islink(path)
-    return NotRegularFile(f"not a regular file: {'a symbolic link to ' if link else ''}{kind}")
-
-
-def _open_regular(path):
-    """``(binary file, size)`` of a regular file, opened without blocking (opening a FIFO for
-    reading would wait for a writer); anything else raises :class:`NotRegularFile`."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise _not_regular(path, st.st_mode)
-        if hasattr(os, "set_blocking"):
-            os.set_blocking(fd, True)
-        return os.fdopen(fd, "rb"), st.st_size
-    except BaseException:
-        os.close(fd)
-        raise
-
-
-def _read_regular(path) -> bytes:
-    """The bytes of a regular file, at most its size when opened."""
-    fh, size = _open_regular(path)
-    with fh:
-        return fh.read(size)
-
-
-def _lines_of_regular(path):
-    """The lines of a regular file, read no further than its size when opened."""
-    fh, size = _open_regular(path)
-    with fh:
-        while size > 0:
-            line = fh.readline(min(size, 1 << 20))
-            if not line:
-                return
-            size -= len(line)
-            yield line
-
-
-def hash_files(path, *, texture=None) -> str:
-    """SHA-256 hex of a model file's bytes and then its texture's (as
-    ``surfidx.pipeline.content_hash``), reading regular files only and each no further than
-    its size when opened.
-
-    Raises
-    ------
-    NotRegularFile
-        ``path`` or ``texture`` is a FIFO, device, socket or directory (or a link to one).
-    OSError
-        A file cannot be opened or read.
-    """
-    h = hashlib.sha256()
-    for p in (path, texture):
-        if p is None:
-            continue
-        fh, size = _open_regular(p)
-        with fh:
-            while size > 0:
-                chunk = fh.read(min(size, 1 << 20))
-                if not chunk:
-                    break
-                h.update(chunk)
-                size -= len(chunk)
-    return h.hexdigest()
-
-
-def _obj_needs_texture(path: Path) -> bool:
-    """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``."""
-    has_vt, mtllibs = False, []
-    for line in _lines_of_regular(path):
-        if line.startswith(b"vt "):
-            has_vt = True
-        elif line.startswith(b"mtllib "):
-            mtllibs.append(os.fsdecode(line[7:].strip()))
-    if not has_vt:
-        return False
-    for lib in mtllibs:
-        mtl = path.parent / lib
-        try:
-            text = _read_regular(mtl).decode("utf-8", "replace")
-        except OSError:
-            continue
-        if any(ln.strip().split()[:1] == ["map_Kd"] for ln in text.splitlines()):
-            return False
-    return True
-
-
-def find_texture(path):
-    """The texture image of a textured OBJ whose UVs name none (like Keenan Crane's spot).
-
-    For an OBJ with texture coordinates and no ``map_Kd`` in its material libraries, the first of
-    these beside it is the texture: ``<stem>_texture.png``, ``<stem>.png``, or the only PNG of the
-    folder. Any other file gets None.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-
-    Returns
-    -------
-    pathlib.Path or None
-
-    Raises
-    ------
-    NotRegularFile
-        ``path`` is an OBJ that is not a regular file.
-    OSError
-        ``path`` cannot be read.
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".obj" or not _obj_needs_texture(path):
-        return None
-    for name in (f"{path.stem}_texture.png", f"{path.stem}.png"):
-        if (path.parent / name).is_file():
-            return path.parent / name
-    pngs = [p for p in path.parent.iterdir() if p.suffix.lower() == ".png" and p.is_file()]
-    return pngs[0] if len(pngs) == 1 else None
-
-
-# ---------------------------------------------------------------------- tasks and outcomes
-@dataclass(frozen=True)
-class Task:
-    """One model file to process.
-
-    Attributes
-    ----------
-    path : str
-        Absolute path of the model file.
-    texture : str or None
-        Texture image found by :func:`find_texture`.
-    content_hash : str
-        SHA-256 hex of the file's bytes and then the texture's (``surfidx.pipeline.content_hash``).
-    """
-
-    path: str
-    texture: str | None
-    content_hash: str
-
-
-@dataclass
-class Outcome:
-    """What processing one task produced: a model, or an error message."""
-
-    task: Task
-    model: object = None
-    error: str | None = None
-    seconds: float = 0.0
-
-
-def error_message(exc: BaseException) -> str:
-    """The message recorded for a failure: a ``SurfidxError``'s own message, otherwise
-    ``"TypeName: message"``."""
-    if isinstance(exc, SurfidxError):
-        return str(exc)
-    text = str(exc)
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
-def resolve_processor(processor=None):
-    """``processor``, or :func:`surfidx.pipeline.process_model` when None (imported now).
-
-    Raises
-    ------
-    SurfidxError
-        ``surfidx.pipeline.process_model`` is not available.
-    """
-    if processor is not None:
-        return processor
-    try:
-        from surfidx.pipeline import process_model
-    except ImportError as exc:
-        raise SurfidxError(f"the model processor surfidx.pipeline.process_model is not "
-                           f"available ({exc})") from exc
-    return process_model
-
-
-def process_task(task: Task, *, processor, bits_per_surfel: float,
-                 allow_outside_textures: bool = False) -> Outcome:
-    """Run the processor on one task, catching its errors (the per-model function of every
-    executor; picklable when ``processor`` is a module-level function).
-
-    ``processor(path, bits_per_surfel=B, texture=T)`` must return a
-    ``surfidx.pipeline.ProcessedModel``; its ``content_hash`` is set to the task's so that a re-run
-    recognises the model. With ``allow_outside_textures`` the processor also gets
-    ``allow_outside_textures=True``. ``KeyboardInterrupt`` and ``SystemExit`` propagate.
-    """
-    t0 = time.perf_counter()
-    extra = {"allow_outside_textures": True} if allow_outside_textures else {}
-    try:
-        model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture,
-                          **extra)
-        model.content_hash = task.content_hash
-        return Outcome(task, model=model, seconds=time.perf_counter() - t0)
-    except Exception as exc:
-        return Outcome(task, error=error_message(exc), seconds=time.perf_counter() - t0)
+__all__ = ["run", "IngestSummary", "serial", "ProcessPool", "exit_with_parent"]
 
 
 # ---------------------------------------------------------------------- executors
@@ -536,58 +266,6 @@ class IngestSummary:
         return (f"run {self.run_id}: stored {self.stored}, skipped {self.skipped}, "
                 f"failed {self.failed} in {self.seconds:.1f} s")
 
-
-def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None,
-               on_known=None) -> list:
-    """Hash the files (with their textures) and make a :class:`Task` for each new one.
-
-    Parameters
-    ----------
-    files : sequence of pathlib.Path
-    known_hashes : set of str
-        Hashes already stored: those files are skipped.
-    on_error : callable, optional
-        ``on_error(path, message)`` for files that cannot be read.
-    on_skip : callable, optional
-        ``on_skip(path, reason)`` for files skipped: ``reason`` is None for files already stored
-        or repeated in ``files``, the message (``"not a regular file: a named pipe (FIFO)"``)
-        for files that are not regular files and are not read.
-    on_known : callable, optional
-        ``on_known(path, content_hash)`` for files whose model is stored already (one of
-        ``known_hashes``), besides ``on_skip``.
-
-    Returns
-    -------
-    list of Task
-    """
-    seen = set(known_hashes)
-    tasks = []
-    for f in files:
-        try:
-            st = os.stat(f)
-            if not stat.S_ISREG(st.st_mode):
-                raise _not_regular(f, st.st_mode)
-            tex = find_texture(f)
-            h = hash_files(f, texture=tex)
-        except NotRegularFile as exc:
-            if on_skip is not None:
-                on_skip(f, str(exc))
-            continue
-        except OSError as exc:
-            if on_error is not None:
-                on_error(f, f"cannot read ({exc.strerror or exc})")
-            continue
-        if h in seen:
-            if on_skip is not None:
-                on_skip(f, None)
-            if on_known is not None and h in known_hashes:
-                on_known(f, h)
-            continue
-        seen.add(h)
-        tasks.append(Task(str(f), None if tex is None else str(tex), h))
-    return tasks
-
-
 def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
         progress: bool = True, executor=None, batch: int = 8,
         flush_seconds: float = 2.0, scheduler=None, retries: int = 2, name: str | None = None,
@@ -658,40 +336,47 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.database import Database, escape_name, is_storage_failure, storable_text
+    from surfidx.database import Database
 
     workers = check_positive_int(workers, "workers")
     batch = check_positive_int(batch, "batch")
     bits_per_surfel = float(bits_per_surfel)
     if not bits_per_surfel > 0:
         raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
+    paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     files = discover(paths)
     if name is not None and len(files) != 1:
         raise InputError(f"a name names one model; the paths hold {len(files)} model files")
-    tags = [tags] if isinstance(tags, str) else list(tags)
     processor = resolve_processor(processor)
-    common = {"name": name, "tags": tags, "allow_outside_textures": allow_outside_textures}
-    if scheduler is not None:
-        if executor is not None:
-            raise InputError("give either executor or scheduler, not both")
-        from ._dask import DaskExecutor
-
-        # Connect (or start the LocalCluster) before anything is written.
-        with DaskExecutor(scheduler, workers=workers, retries=retries) as dask_executor:
-            return run(paths, db=db, workers=workers, bits_per_surfel=bits_per_surfel,
-                       processor=processor, progress=progress, executor=dask_executor,
-                       batch=batch, flush_seconds=flush_seconds, **common)
-    if executor is None and workers > 1:
+    if scheduler is not None and executor is not None:
+        raise InputError("give either executor or scheduler, not both")
+    if scheduler is None and executor is None and workers > 1:
         _check_picklable(processor)
-    if not isinstance(db, Database):
-        with Database(db) as opened:
-            return run(paths, db=opened, workers=workers, bits_per_surfel=bits_per_surfel,
-                       processor=processor, progress=progress, executor=executor, batch=batch,
-                       flush_seconds=flush_seconds, **common)
+    with contextlib.ExitStack() as stack:
+        if scheduler is not None:
+            from ._dask import DaskExecutor
+
+            # Connect (or start the LocalCluster) before anything is written.
+            executor = stack.enter_context(DaskExecutor(scheduler, workers=workers,
+                                                        retries=retries))
+        if not isinstance(db, Database):
+            db = stack.enter_context(Database(db))
+        return _ingest(files, [str(p) for p in paths], db=db, workers=workers,
+                       bits_per_surfel=bits_per_surfel, processor=processor, progress=progress,
+                       executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
+                       tags=[tags] if isinstance(tags, str) else list(tags),
+                       allow_outside_textures=allow_outside_textures)
+
+
+def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, executor, batch,
+            flush_seconds, name, tags, allow_outside_textures) -> IngestSummary:
+    """The run of :func:`run` on its checked arguments: ``files`` found once by
+    :func:`discover`, ``db`` open, ``executor`` None or ready."""
+    from surfidx.database import escape_name, is_storage_failure, storable_text
 
     t_start = time.perf_counter()
     n_workers = getattr(executor, "n_workers", workers)      # a cluster's actual worker count
-    summary = IngestSummary(run_id=db.start_run([str(p) for p in paths], workers=n_workers,
+    summary = IngestSummary(run_id=db.start_run(paths, workers=n_workers,
                                                 bits_per_surfel=bits_per_surfel))
     pending_errors = []
 

@@ -38,9 +38,10 @@ import numpy as np
 from . import container, density, wavelets, zerotree
 from ._errors import BitstreamError, InputError
 from ._validate import check_positive_int
-from .icosphere import choose_level, icosphere
+from .icosphere import MAX_LEVEL, choose_level, icosphere, vertex_count
 from .klt import KLT
 from .resample import resample
+from .sphere import METHODS as MAP_METHODS
 from .surfels import SurfelSet
 
 __all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
@@ -68,10 +69,9 @@ benchmark when the map improves.
 TANGENT_WEIGHT = 0.5
 """Weight of the tangential geometry components in local frames (see the module docstring)."""
 
-MAP_METHODS = ("tutte", "mds")
 _PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
 
-MAX_SURFELS = 10 * 4 ** 9 + 2
+MAX_SURFELS = vertex_count(MAX_LEVEL)
 """Default of :func:`decode`'s ``max_surfels``: the level-9 grid (2,621,442 surfels), the finest
 the encoder uses. A stream that would decode to more is refused before decoding; decode it at a
 coarser ``level``, or raise the limit."""
@@ -330,8 +330,6 @@ def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,
 
 def _check_surfels(level: int, stream_level: int, max_surfels, path) -> None:
     """Refuse (cheaply, before decoding) an output grid of more than ``max_surfels`` vertices."""
-    from .icosphere import vertex_count
-
     limit = check_positive_int(max_surfels, "max_surfels")
     if vertex_count(level) <= limit:
         return
@@ -366,8 +364,6 @@ def check_header(header, *, path=None):
     BitstreamError
         Naming ``path``, for any implausible value.
     """
-    from .icosphere import MAX_LEVEL
-
     try:
         zh = zerotree.unpack_header(header.coder)
     except BitstreamError as exc:
@@ -472,7 +468,6 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     BitstreamError
         See :func:`decode_grid`.
     """
-    from .icosphere import vertex_count
     from .resample import grid_to_mesh, grid_to_surfels
 
     header, stream = container.unpack(data, path=path)

@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._errors import BitstreamError, InputError
+from .icosphere import vertex_count
 
 __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
-           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN"]
+           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE"]
 
 MAGIC = b"\x89SFZ"
 FORMAT_VERSION = 3
@@ -33,7 +34,9 @@ FLAG_WEIGHTED = 8
 # magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
 _FIXED = struct.Struct("<4sBBBBIBBH")
 _TAIL = struct.Struct("<III")  # stream length, header crc (of everything before it), stream crc
-_MAX_ANCHOR = 61  # an anchor is a zerotree bit plane (surfidx.zerotree._MAX_PLANE)
+MAX_PLANE = 61
+"""Highest bit plane of the format: a zerotree stream's top and final planes
+(:mod:`surfidx.zerotree`) and every frame anchor the header stores lie in 0 … MAX_PLANE."""
 
 GRID_PER_BYTE = 2048
 """Grid vertices a container's bytes may claim: a level-L stream (10·4^L + 2 vertices) must be a
@@ -53,7 +56,7 @@ the model's centre from the origin; float64 holds no shape beyond that)."""
 def min_file_bytes(level: int) -> int:
     """Smallest container, in bytes, that may hold a level-``level`` stream (see
     :data:`GRID_PER_BYTE`)."""
-    return -(-(10 * 4 ** int(level) + 2) // GRID_PER_BYTE)
+    return -(-vertex_count(level) // GRID_PER_BYTE)
 
 
 @dataclass
@@ -207,8 +210,8 @@ def pack(header: Header, stream: bytes) -> bytes:
         if not (0 < tw <= 1):
             raise InputError(f"tangent_weight must be in (0, 1], got {header.tangent_weight!r}")
         anchors = [int(a) for a in header.anchors]
-        if len(anchors) > 255 or any(not 0 <= a <= _MAX_ANCHOR for a in anchors):
-            raise InputError(f"frame anchors must be at most 255 planes in 0..{_MAX_ANCHOR}, got "
+        if len(anchors) > 255 or any(not 0 <= a <= MAX_PLANE for a in anchors):
+            raise InputError(f"frame anchors must be at most 255 planes in 0..{MAX_PLANE}, got "
                              f"{anchors}")
         flags |= FLAG_FRAMES
         extra += tw.astype("<f4").tobytes() + bytes([len(anchors)]) + bytes(anchors)
@@ -336,7 +339,7 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         if not (0 < tangent_weight <= 1):
             raise BitstreamError(f"corrupt header (tangent weight {tangent_weight!r})", path=path)
         anchors = tuple(int(a) for a in data[coder_end + 5:coder_end + 5 + n_anchors])
-        if any(a > _MAX_ANCHOR for a in anchors):
+        if any(a > MAX_PLANE for a in anchors):
             raise BitstreamError(f"corrupt header (frame anchors {list(anchors)})", path=path)
     header = Header(
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),

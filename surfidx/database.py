@@ -51,17 +51,18 @@ import json
 import os
 import re
 import sqlite3
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from ._errors import DatabaseError, InputError
+from ._errors import DatabaseError, InputError, SurfidxError
 from ._validate import as_array
 
 __all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
            "escape_name", "unescape_name", "storable_text", "is_storage_failure",
-           "datasette_metadata"]
+           "datasette_metadata", "ProcessedModel"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
 #: delete triggers that do not depend on the client's foreign-key setting, browsing views).
@@ -85,6 +86,59 @@ _QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
 _MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min_x",
                   "bbox_min_y", "bbox_min_z", "bbox_max_x", "bbox_max_y", "bbox_max_z",
                   "ingested_at", "params")
+
+
+@dataclass
+class ProcessedModel:
+    """Everything the database stores for one model (picklable, numpy + bytes only).
+
+    Attributes
+    ----------
+    name : str
+        Model name (file stem).
+    source : str
+        Path the model was read from (as given, resolved to absolute).
+    content_hash : str
+        SHA-256 hex of the model file's bytes and of its texture image's bytes, if any.
+    n_surfels : int
+        Surfels of the input (the rate denominator).
+    has_color : bool
+    bbox : (2, 3) float64
+        Minimum and maximum corner of the input's bounding box.
+    stream : bytes
+        The compressed asset: a complete container file holding the embedded bitstream.
+    format_version : int
+        Bitstream container format version of ``stream``.
+    rate : float
+        Bits per input surfel of ``stream`` (whole file counted).
+    quality : dict of str -> float or None
+        ``psnr_d1``, ``psnr_d2``, ``psnr_y`` (None without colour) of ``stream`` decoded at full
+        rate against the input.
+    descriptors : dict of str -> (d,) float32
+        Descriptor vectors by kind (``"shape"``, ``"texture"``, ``"spectrum"``).
+    thumbnail : bytes
+        PNG image of the decoded model.
+    params : dict
+        JSON-serialisable parameters that produced the record (grid level, map method, codec
+        version, descriptor lmax and normalisation, ...).
+    timings : dict of str -> float
+        Seconds per stage.
+    """
+
+    name: str
+    source: str
+    content_hash: str
+    n_surfels: int
+    has_color: bool
+    bbox: np.ndarray
+    stream: bytes
+    format_version: int
+    rate: float
+    quality: dict
+    descriptors: dict
+    thumbnail: bytes
+    params: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
 
 
 def schema_sql() -> str:
@@ -692,7 +746,7 @@ class Database:
 
         Parameters
         ----------
-        model : surfidx.pipeline.ProcessedModel
+        model : ProcessedModel
         exact_name : bool
             Store ``model.name`` or fail; by default a name another model has is replaced by
             the model's parent folder's name, or else ``NAME-2``, ``NAME-3``, ... (the first
@@ -1211,12 +1265,10 @@ class Database:
                     (model_id,))}
 
     def load(self, id_or_name):
-        """Read a stored model back as a :class:`surfidx.pipeline.ProcessedModel`.
+        """Read a stored model back as a :class:`ProcessedModel`.
 
         ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
         """
-        from .pipeline import ProcessedModel
-
         rec = self.get_model(id_or_name)
         a = rec["asset"]
         return ProcessedModel(

@@ -62,11 +62,10 @@ import numpy as np
 
 from ._errors import InputError
 from ._validate import check_positive_int
-from .mesh import vertex_area_shares
 from .spherical import triangle_areas
 
-__all__ = ["Icosphere", "icosphere", "vertex_count", "choose_level", "MAX_LEVEL", "SPARSE_MIN",
-           "BUTTERFLY_WEIGHTS"]
+__all__ = ["Icosphere", "icosphere", "vertex_count", "level_of_count", "choose_level", "MAX_LEVEL",
+           "SPARSE_MIN", "BUTTERFLY_WEIGHTS"]
 
 MAX_LEVEL = 9
 """Finest grid level supported (2,621,442 vertices)."""
@@ -81,6 +80,15 @@ BUTTERFLY_WEIGHTS.flags.writeable = False
 def vertex_count(level: int) -> int:
     """Number of vertices ``10·4^level + 2`` of the level-``level`` grid."""
     return 10 * 4 ** int(level) + 2
+
+
+def level_of_count(n: int) -> int | None:
+    """The grid level whose grid has ``n`` vertices (:func:`vertex_count`), or None when no
+    level has."""
+    level = 0
+    while vertex_count(level) < n:
+        level += 1
+    return level if vertex_count(level) == n else None
 
 
 def _check_level(level, name: str = "level") -> int:
@@ -397,6 +405,8 @@ def icosphere(level: int) -> Icosphere:
 @functools.lru_cache(maxsize=MAX_LEVEL + 1)
 def _vertex_areas(level: int) -> np.ndarray:
     ico = icosphere(level)
+    from .mesh import vertex_area_shares     # scipy: not needed to count vertices
+
     area = np.abs(triangle_areas(ico.vertices, ico.faces))
     out = vertex_area_shares(ico.faces, area, len(ico.vertices))
     out.flags.writeable = False

@@ -542,18 +542,54 @@ def _points_from_ply_data(points: _PlyPoints, path: Path) -> SurfelSet:
 
 
 # ---------------------------------------------------------------------- OBJ
-def _read_obj(path: Path, texture, allow_outside: bool = False) -> TriangleMesh:
-    text = _read_text(path)
-    v_lines, vt_lines, f_lines, mtllibs = [], [], [], []
-    for line in text.splitlines():
+_OBJ_KEYS = ("v", "vt", "f", "mtllib")
+
+
+def _obj_statements(lines, keys=_OBJ_KEYS) -> dict:
+    """The statements of an OBJ file's lines that :func:`_read_obj` reads.
+
+    Parameters
+    ----------
+    lines : iterable of str
+    keys : sequence of str
+        The statement keywords to collect (``"v"``, ``"vt"``, ``"f"``, ``"mtllib"``).
+
+    Returns
+    -------
+    dict of str -> list of str
+        Per keyword, the text after it of each of its lines, in file order (``f`` lines split
+        into their corners, ``mtllib`` names stripped).
+    """
+    out = {k: [] for k in keys}
+    v, vt, f, mtl = (out.get(k) for k in _OBJ_KEYS)
+    for line in lines:
         if line.startswith("v "):
-            v_lines.append(line[2:])
+            if v is not None:
+                v.append(line[2:])
         elif line.startswith("vt "):
-            vt_lines.append(line[3:])
+            if vt is not None:
+                vt.append(line[3:])
         elif line.startswith("f "):
-            f_lines.append(line[2:].split())
+            if f is not None:
+                f.append(line[2:].split())
         elif line.startswith("mtllib "):
-            mtllibs.append(line[7:].strip())
+            if mtl is not None:
+                mtl.append(line[7:].strip())
+    return out
+
+
+def _mtl_texture_name(text: str) -> str | None:
+    """The image file named by the first ``map_Kd`` statement of an MTL file's text, or None."""
+    for line in text.splitlines():
+        parts = line.strip().split()
+        if parts and parts[0] == "map_Kd" and len(parts) > 1:
+            return parts[-1]
+    return None
+
+
+def _read_obj(path: Path, texture, allow_outside: bool = False) -> TriangleMesh:
+    st = _obj_statements(_read_text(path).splitlines())
+    v_lines, vt_lines, f_lines, mtllibs = (st[k] for k in _OBJ_KEYS)
     if not v_lines:
         raise FileFormatError("OBJ has no vertices ('v' lines)", path=path)
     verts, vcols = _parse_obj_vertices(v_lines, path)
@@ -657,18 +693,18 @@ def _texture_from_mtl(path: Path, mtllibs, allow_outside: bool = False):
         if not mtl.is_file():
             warnings.warn(f"{path}: material library {lib} not found; no texture", UserWarning)
             continue
-        for line in _read_text(mtl).splitlines():
-            parts = line.strip().split()
-            if parts and parts[0] == "map_Kd" and len(parts) > 1:
-                image = mtl.parent / parts[-1]
-                if not allow_outside and not image.resolve().is_relative_to(folder):
-                    warnings.warn(
-                        f"{path}: texture {image} (map_Kd in {mtl.name}) lies outside the "
-                        "model's folder; skipped, the model is read without its texture (allow "
-                        "it with allow_outside_textures=True, --allow-outside-textures)",
-                        UserWarning)
-                    return None
-                return read_texture(image, _source=f"map_Kd in {mtl}, used by {path}")
+        name = _mtl_texture_name(_read_text(mtl))
+        if name is None:
+            continue
+        image = mtl.parent / name
+        if not allow_outside and not image.resolve().is_relative_to(folder):
+            warnings.warn(
+                f"{path}: texture {image} (map_Kd in {mtl.name}) lies outside the "
+                "model's folder; skipped, the model is read without its texture (allow "
+                "it with allow_outside_textures=True, --allow-outside-textures)",
+                UserWarning)
+            return None
+        return read_texture(image, _source=f"map_Kd in {mtl}, used by {path}")
     return None
 
 

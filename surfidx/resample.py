@@ -40,7 +40,7 @@ import numpy as np
 
 from ._errors import InputError
 from ._validate import as_array
-from .icosphere import icosphere, vertex_count
+from .icosphere import icosphere, level_of_count, vertex_count
 from .mesh import TriangleMesh
 from ._tolerance import TOL
 from .spherical import hull_triangles, map_points, triangle_areas
@@ -437,12 +437,10 @@ def _grid_level(values) -> tuple[np.ndarray, int]:
     if vals.shape[1] not in (3, 6):
         raise InputError(f"values must have 3 (x, y, z) or 6 (x, y, z, r, g, b) columns, got "
                          f"{vals.shape[1]}")
-    n = len(vals)
-    level = 0
-    while 10 * 4 ** level + 2 < n:
-        level += 1
-    if 10 * 4 ** level + 2 != n:
-        raise InputError(f"values must have 10·4^L + 2 rows (one per grid vertex), got {n}")
+    level = level_of_count(len(vals))
+    if level is None:
+        raise InputError(f"values must have 10·4^L + 2 rows (one per grid vertex), got "
+                         f"{len(vals)}")
     return vals, level
 
 

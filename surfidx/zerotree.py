@@ -59,6 +59,7 @@ from numba import njit
 
 from ._errors import BitstreamError, InputError
 from ._validate import as_array
+from .container import MAX_PLANE as _MAX_PLANE
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
@@ -72,7 +73,6 @@ HEADER_SIZE = 8
 """Bytes of :func:`pack_header`'s output."""
 
 _HEADER = struct.Struct("<BbBBf")
-_MAX_PLANE = 61
 
 # ---------------------------------------------------------------- contexts
 _NL = 8          # layer slots (layers >= 7 share the last)

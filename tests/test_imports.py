@@ -2,19 +2,9 @@
 
 import ast
 
-import pytest
-
 from conftest import REPO
 
 PACKAGES = ("surfidx", "ingest")
-
-KNOWN_CYCLES = {frozenset(pair) for pair in (
-    # Cycles in modules owned elsewhere, left for their owners (issue 23): each pair imports
-    # each other. Remove a pair once it is fixed; the test then checks it too.
-    ("ingest._run", "ingest._dask"),
-    ("surfidx.database", "surfidx.pipeline"),
-)}
-"""Pairs of modules whose mutual import is known (expected failures of the full check)."""
 
 
 def _modules():
@@ -94,12 +84,6 @@ def _cycles(graph):
     return out
 
 
-def _without_known(graph):
-    """The graph without the edges between the modules of a known pair."""
-    return {v: {w for w in ws if frozenset((v, w)) not in KNOWN_CYCLES}
-            for v, ws in graph.items()}
-
-
 def test_the_graph_sees_the_imports():
     """The graph finds module-level, relative, aliased and function-level imports."""
     graph = _graph()
@@ -114,20 +98,6 @@ def test_the_cycle_finder_finds_a_cycle():
     assert _cycles({"a": {"b"}, "b": set()}) == []
 
 
-def test_no_import_cycle_outside_the_known_pairs():
-    """Without the edges of the known pairs the graph is acyclic: no other cycle, and none
-    that passes through a known pair on its way."""
-    cycles = _cycles(_without_known(_graph()))
-    assert not cycles, f"import cycles: {[sorted(c) for c in cycles]}"
-
-
-def test_the_known_pairs_are_still_cycles():
-    """Each known pair is a real mutual import (a fixed one must leave the list)."""
-    graph = _graph()
-    for a, b in map(sorted, KNOWN_CYCLES):
-        assert b in graph[a] and a in graph[b], (a, b)
-
-
 def test_sphere_stage_has_no_import_cycle():
     """The spherical map, the sphere geometry, the resampling and the grid: acyclic."""
     own = ("surfidx.sphere", "surfidx.spherical", "surfidx.resample", "surfidx.icosphere")
@@ -139,9 +109,19 @@ def test_sphere_stage_has_no_import_cycle():
     assert not cycles, f"import cycles: {[sorted(c) for c in cycles]}"
 
 
-@pytest.mark.xfail(strict=True, reason="known cycles in modules owned elsewhere (KNOWN_CYCLES)")
 def test_no_import_cycle_at_all():
-    assert not _cycles(_graph())
+    """No module of the packages imports, directly or through others, a module that imports it."""
+    cycles = _cycles(_graph())
+    assert not cycles, f"import cycles: {[sorted(c) for c in cycles]}"
+
+
+def test_the_command_modules_import_the_group_not_the_package():
+    """The click group lives in ``cli/_group.py``; the package imports the command modules."""
+    graph = _graph()
+    for m in ("_codec", "_convert", "_db", "_geodesic", "_sphere", "_view"):
+        assert "surfidx.cli._group" in graph[f"surfidx.cli.{m}"]
+        assert "surfidx.cli" not in graph[f"surfidx.cli.{m}"]
+        assert f"surfidx.cli.{m}" in graph["surfidx.cli"]
 
 
 def test_no_lazy_export_is_shadowed_by_its_submodule():

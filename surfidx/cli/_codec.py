@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import click
 
-from ._group import cli
+from ..sphere import METHODS
 from ._common import (command_errors, echo_json, input_options, output_format_option, plain,
                       read_input)
+from ._group import cli
 
 
 @cli.command()
@@ -18,7 +19,7 @@ from ._common import (command_errors, echo_json, input_options, output_format_op
 @click.option("--no-color", is_flag=True, help="Code geometry only.")
 @click.option("--level", type=click.IntRange(0, 9), default=None,
               help="Icosahedral grid level (default: chosen from the surfel count).")
-@click.option("--method", type=click.Choice(["tutte", "mds"]), default="tutte",
+@click.option("--method", type=click.Choice(METHODS), default=METHODS[0],
               help="Spherical map: fold-free Tutte with area balancing, or the original MDS.")
 @click.option("--tangent-weight", type=float, default=None,
               help="Weight in (0, 1] of the tangential geometry details in local frames "

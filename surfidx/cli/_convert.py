@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from ._group import cli
 from ._common import (allow_outside_textures, command_errors, echo_json, input_options, plain,
                       read_input)
+from ._group import cli
 
 __all__ = ["convert", "info"]
 
@@ -72,6 +72,7 @@ def _stream_info(path) -> dict:
     """The container header of a .sfz file, as the fields a user asks about."""
     from ..codec import MAP_METHODS, check_header, read_sfz
     from ..container import unpack
+    from ..icosphere import vertex_count
 
     data = read_sfz(path)
     header, stream = unpack(data, path=path)
@@ -80,7 +81,7 @@ def _stream_info(path) -> dict:
            "input_surfels": header.n_surfels,
            "bits_per_surfel": 8.0 * len(data) / header.n_surfels if header.n_surfels else None,
            "grid_level": header.level,
-           "grid_vertices": 10 * 4 ** header.level + 2, "color": header.color,
+           "grid_vertices": vertex_count(header.level), "color": header.color,
            "layers": header.layers, "stream_bytes": len(stream),
            "map_method": MAP_METHODS[header.map_method]
            if header.map_method < len(MAP_METHODS) else header.map_method,

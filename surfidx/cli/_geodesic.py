@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import click
 
-from ._group import cli
 from ._common import command_errors, echo_json, input_options, read_input
+from ._group import cli
 
 
 @cli.command()

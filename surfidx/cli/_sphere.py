@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import click
 
-from ._group import cli
+from ..sphere import METHODS
 from ._common import command_errors, echo_json, input_options, read_input
-
-_METHODS = ("tutte", "mds")   # surfidx.sphere.METHODS, without importing the map at startup
+from ._group import cli
 
 
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Surfel PLY to write, with the sphere position as properties sx sy sz.")
-@click.option("--method", type=click.Choice(_METHODS), default="tutte", show_default=True,
+@click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True,
               help="tutte: fold-free Tutte map with area balancing; mds: original spherical MDS.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Landmark seed.")
 @input_options
@@ -45,7 +44,7 @@ def parameterize(input, output, method, seed, texture, samples, as_json):
               help="PLY to write: grid surfels, or with --mesh the grid mesh as surfels with faces.")
 @click.option("--level", type=click.IntRange(0, 9), default=None,
               help="Grid level (default: chosen from the surfel count).")
-@click.option("--method", type=click.Choice(_METHODS), default="tutte", show_default=True)
+@click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True)
 @click.option("--mesh", "as_mesh", is_flag=True, help="Write the grid triangle mesh.")
 @input_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")

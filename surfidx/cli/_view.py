@@ -8,9 +8,9 @@ import re
 import click
 
 from .._errors import InputError
-from ._group import cli
 from ._common import (command_errors, echo_json, input_options, outside_textures_option, plain,
                       read_input)
+from ._group import cli
 
 _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2", "peak",
                "n_reference", "n_test")

@@ -12,7 +12,14 @@ from dataclasses import dataclass, fields
 
 from .._errors import InputError
 
-__all__ = ["MapOptions", "DEFAULT_OPTIONS"]
+__all__ = ["MapOptions", "DEFAULT_OPTIONS", "METHODS", "STAGES"]
+
+METHODS = ("tutte", "mds")
+"""Names of the map's methods, accepted by :func:`surfidx.sphere.parameterize` (the first is
+the default), by the codec and by the CLI."""
+
+STAGES = ("multilevel", "single_level", "proxy", "repair", "realise", "mds")
+"""Names of the stage records of a :class:`surfidx.sphere.SphericalMap`, in the order they run."""
 
 _INF = math.inf
 
