@@ -1,38 +1,49 @@
 """The approximate nearest-neighbour index beside a database: candidates for the exact distance.
 
 Above :data:`DEFAULT_THRESHOLD` stored models, :class:`surfidx.search.SearchIndex` does not scan
-every stored vector: it asks an HNSW graph (usearch, ``connectivity`` 16, vectors as float16) for
-the ``factor * k`` models nearest by the shape vector (shape with the KLT spectrum appended), and
-for a coloured query also the ``factor * k`` coloured models nearest by texture, then reads those
-candidates' rows from SQLite (by id) and ranks them by the exact
-:func:`surfidx.search.weighted_l2`. Every distance returned is the exact one, computed from the
-rows stored at query time; the index decides only which models are looked at
-(``benchmarks/query_latency.py`` measures recall@10 against the exact scan: >= 0.99 at 1M models
-with :data:`DEFAULT_FACTOR`).
+every stored vector. It asks HNSW graphs (usearch, ``connectivity`` 16, vectors as float16) for
+candidates and ranks them by the exact distance:
+
+* the ``"shape"`` graph holds, per model with the first kind (``"shape"``), every kind of the
+  search but ``"texture"`` side by side (today shape with the KLT spectrum appended; a kind a
+  model lacks is zeros there);
+* the ``"texture"`` graph holds the texture vectors of the coloured models.
+
+A query takes the ``factor * k`` nearest models of the shape graph, for a coloured query also
+the ``factor * k`` nearest of the texture graph, and ranks them by the exact distance (the
+search's, e.g. :func:`surfidx.search.weighted_l2`) on float32 copies of their stored rows. The
+index is generic over the descriptor kinds of the search: they are arguments, stored in the
+manifest, and an index of other kinds is rebuilt.
 
 Files
 -----
-``DB.ann/`` beside the database file ``DB``: ``manifest.json`` and one ``TOKEN-KIND.usearch`` per
-indexed kind. The manifest names the files, the library and settings, the descriptor dimensions
-and conventions, the database state the index reflects (:meth:`Database.index_state`: the
-descriptor generation counter that :class:`~surfidx.database.Database` increments with every
-change of a model or its descriptors, the schema version, the largest model id and descriptor
-rowid, the model count), and a content digest per indexed model. A new or updated index is
-written to new files first and then the manifest is replaced (``os.replace``, atomic): a crash
-leaves the old manifest naming the old files.
+``DB.ann/`` beside the database file ``DB``: ``manifest.json``; one ``TOKEN-GROUP.usearch`` per
+graph; per kind ``TOKEN-ids-KIND.npy`` (ids ascending, int64) and ``TOKEN-rows-KIND.npy`` (the
+stored vectors, float32, exactly as in the database; for ``"texture"`` only the coloured models);
+``TOKEN-digests.npz`` (a content digest per indexed model). The manifest names the files, the
+library and settings, the kinds, dimensions and conventions, and the database state the files
+reflect (:meth:`Database.index_state`: the ``descriptor_generation`` counter that
+:class:`~surfidx.database.Database` increments with every change of a model or its
+descriptors, the schema version, the model count, the largest model id and descriptor rowid). A
+new or updated index is written to new files first and then the manifest is replaced
+(``os.replace``, atomic): a crash leaves the old manifest naming the old, whole files.
 
 Consistency
 -----------
 :func:`open_index` compares the manifest's state with the database's. Equal: the files are
-memory-mapped as they are (``view``: no loading, a query touches only the pages it visits).
-Different (the database was changed by a process that did not update the index, or the index
-update did not finish): the stored rows are read and compared by digest with the indexed ones;
-changed and new models are added, removed ones removed (a full rebuild when more than a quarter
-changed, or the conventions or dimensions changed), and the result is written back (only the
-index files, never the database; in memory when the folder cannot be written). A writer that
-changed models through :class:`~surfidx.database.Database` updates the index when it closes
-(:func:`update`). The descriptor-version guard stays: descriptors of one kind made with two
-conventions are refused as by :meth:`Database.descriptor_matrix`.
+memory-mapped as they are (no loading; a query touches only the pages it visits). Different (the
+database was changed by a process that did not update the index, or the update did not finish):
+the stored rows are read and compared by digest with the indexed ones; changed and new models are
+added to the graphs, removed ones removed (a full rebuild when more than a quarter changed, or the
+kinds, dimensions or conventions changed), the row copies rewritten, and the result is written
+back (only the index files, never the database; in memory when the folder cannot be written).
+Before each query, :meth:`AnnIndex.query` checks that the database is still in that state
+(``PRAGMA data_version`` and the generation counter, microseconds; the whole state when either
+moved) and catches up first when it is not, so the distances and the candidates are those of the
+rows stored at query time. A writer that changed models through
+:class:`~surfidx.database.Database` updates the index when it closes (:func:`update`).
+Descriptors of one kind made with two conventions are refused as by
+:meth:`Database.descriptor_matrix`.
 """
 
 from __future__ import annotations
@@ -45,31 +56,38 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import InputError
+from ._validate import as_array, check_positive_int
 
 __all__ = ["AnnIndex", "open_index", "build", "update", "index_dir", "index_size",
-           "DEFAULT_THRESHOLD", "DEFAULT_FACTOR", "DEFAULT_EXPANSION", "FORMAT"]
+           "DEFAULT_THRESHOLD", "DEFAULT_FACTOR", "DEFAULT_EXPANSION", "BUILD_KINDS", "FORMAT"]
 
 #: Model count from which :class:`surfidx.search.SearchIndex` uses the index (the exact scan
-#: below it). Measured (``benchmarks/query_latency.py``): the scan costs ~0.13 ms per 1000
-#: models on one core, an index query with its re-rank ~0.6-1 ms, opening the index a few ms.
+#: below it): where an index query with its re-rank costs less than the scan
+#: (``benchmarks/query_latency.py`` prints both).
 DEFAULT_THRESHOLD = 20_000
 
-#: Candidates per result: ``factor * k`` models are re-ranked by the exact distance.
+#: Candidates per result: ``factor * k`` models per graph are ranked by the exact distance.
 DEFAULT_FACTOR = 8
 
 #: HNSW search expansion (``ef``), raised to the candidate count when that is larger.
 DEFAULT_EXPANSION = 128
 
-#: Manifest format version.
-FORMAT = 1
+#: Manifest format version (an index of another format is rebuilt).
+FORMAT = 2
 
 _CONNECTIVITY = 16
 _EXPANSION_ADD = 128
 _DTYPE = "f16"
 #: Share of changed models above which a stale index is rebuilt rather than patched.
 _REBUILD_SHARE = 0.25
-
-_MULT = None
+#: The kind compared only between coloured models (its graph and rows hold only those).
+_COLOUR_KIND = "texture"
+#: Kinds of an index made without a search naming its kinds (:func:`update` after an ingest
+#: into a database without an index); a search of other kinds rebuilds it for its own.
+BUILD_KINDS = ("shape", "spectrum", "texture")
+#: Per-column multipliers of :func:`_digest` (fixed: digests are stored).
+_MULT = np.random.default_rng(0x5F5A).integers(1, 2 ** 63, size=1024,
+                                               dtype=np.uint64) | np.uint64(1)
 
 
 def index_dir(db_path) -> Path:
@@ -78,14 +96,22 @@ def index_dir(db_path) -> Path:
     return p.with_name(p.name + ".ann")
 
 
+def _files(man) -> list:
+    out = [g["file"] for g in man.get("graphs", {}).values()]
+    for r in man.get("rows", {}).values():
+        out += [r["ids"], r["rows"]]
+    if man.get("digests"):
+        out.append(man["digests"])
+    return out
+
+
 def index_size(db_path) -> int:
     """Bytes of the index files the manifest names (0 without an index)."""
     d = index_dir(db_path)
     man = _read_manifest(d)
     if man is None:
         return 0
-    return sum((d / f["file"]).stat().st_size for f in man["kinds"].values()
-               if (d / f["file"]).exists())
+    return sum((d / f).stat().st_size for f in _files(man) if (d / f).exists())
 
 
 def _usearch():
@@ -96,14 +122,13 @@ def _usearch():
 
 def _digest(*mats) -> np.ndarray:
     """A 64-bit digest per row of float32 matrices side by side (exact bytes, order-aware)."""
-    global _MULT
     words = np.hstack([np.ascontiguousarray(m, np.float32).view(np.uint32) for m in mats])
-    if _MULT is None or _MULT.size < words.shape[1]:
-        rng = np.random.default_rng(0x5F5A)
-        _MULT = rng.integers(1, 2 ** 63, size=512, dtype=np.uint64) | np.uint64(1)
+    if words.shape[1] > _MULT.size:
+        raise InputError(f"rows of {words.shape[1]} values are too wide for the index digest "
+                         f"(at most {_MULT.size})")
     with np.errstate(over="ignore"):
         acc = np.zeros(words.shape[0], np.uint64)
-        for j in range(words.shape[1]):          # column loop: 280 columns, vectorised rows
+        for j in range(words.shape[1]):          # column loop, vectorised over rows
             acc = (acc ^ words[:, j].astype(np.uint64)) * _MULT[j]
     return acc
 
@@ -114,84 +139,262 @@ def _read_manifest(d: Path):
             man = json.load(f)
     except (OSError, ValueError):
         return None
-    if not isinstance(man, dict) or man.get("format") != FORMAT or "kinds" not in man:
+    if not isinstance(man, dict) or man.get("format") != FORMAT or "graphs" not in man:
         return None
     return man
 
 
-def _rows(db):
-    """Everything the index is built from: ids, shape+spectrum, texture (coloured), digests."""
-    ids, shape = db.descriptor_matrix("shape")
-    m = ids.size
-    sid, spec = db.descriptor_matrix("spectrum")
-    full_spec = np.zeros((m, spec.shape[1] if spec.ndim == 2 else 0), np.float32)
-    if m and sid.size:
-        pos = np.searchsorted(ids, sid)
-        ok = (pos < m) & (ids[np.minimum(pos, m - 1)] == sid)
-        full_spec[pos[ok]] = spec[ok]
-    vec = np.hstack([shape, full_spec]).astype(np.float32)
-    tid, tex = db.descriptor_matrix("texture")
-    color = db.color_mask(tid) if tid.size else np.zeros(0, bool)
-    tid, tex = tid[color], tex[color]
-    conventions = {kind: [r[0] for r in db.conn.execute(
-        "SELECT DISTINCT convention FROM descriptors WHERE kind = ?", (kind,))]
-        for kind in ("shape", "spectrum", "texture")}
-    return {"ids": ids, "vec": vec, "tids": tid, "tex": np.ascontiguousarray(tex, np.float32),
-            "digest": _digest(vec), "tdigest": _digest(tex) if tid.size else np.zeros(0, np.uint64),
-            "dims": {"shape": int(shape.shape[1]) if m else 0,
-                     "spectrum": int(full_spec.shape[1]),
-                     "texture": int(tex.shape[1]) if tid.size else 0},
-            "conventions": conventions}
+def _check_kinds(kinds) -> tuple:
+    kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+    if not kinds or not all(isinstance(k, str) and k for k in kinds) \
+            or len(set(kinds)) != len(kinds):
+        raise InputError(f"kinds must name distinct descriptor kinds, got {kinds!r}")
+    if kinds[0] == _COLOUR_KIND:
+        raise InputError(f"the first kind is required of every model and cannot be "
+                         f"{_COLOUR_KIND!r}; got {kinds!r}")
+    return kinds
 
 
-def _new_index(ndim):
+def _same_kinds(a, b) -> bool:
+    """Kinds of the same search: the same first kind and the same set."""
+    return list(a)[:1] == list(b)[:1] and set(a) == set(b)
+
+
+def _groups(kinds) -> dict:
+    """Graph name -> the kinds side by side in its vectors."""
+    out = {"shape": [k for k in kinds if k != _COLOUR_KIND]}
+    if _COLOUR_KIND in kinds:
+        out[_COLOUR_KIND] = [_COLOUR_KIND]
+    return out
+
+
+def _rows(db, kinds):
+    """Everything the index is built from: per kind the ids and rows that take part, the graph
+    vectors and their digests, dimensions and conventions."""
+    ids, first = db.descriptor_matrix(kinds[0])
+    per = {kinds[0]: (np.asarray(ids, np.int64), np.ascontiguousarray(first, np.float32))}
+    for kind in kinds[1:]:
+        kid, mat = db.descriptor_matrix(kind)
+        keep = np.isin(kid, ids)
+        if kind == _COLOUR_KIND and kid.size:
+            keep &= db.color_mask(kid)
+        per[kind] = (np.asarray(kid[keep], np.int64), np.ascontiguousarray(mat[keep], np.float32))
+    dims = {k: int(per[k][1].shape[1]) if per[k][0].size else 0 for k in kinds}
+    graphs = {}
+    for name, members in _groups(kinds).items():
+        gid = per[members[0]][0]
+        cols, flags = [], []
+        for kind in members:
+            kid, mat = per[kind]
+            full = np.zeros((gid.size, dims[kind]), np.float32)
+            has = np.zeros(gid.size, np.float32)
+            if kid.size:
+                pos = np.searchsorted(gid, kid)
+                full[pos] = mat
+                has[pos] = 1.0
+            cols.append(full)
+            flags.append(has[:, None])
+        vec = np.ascontiguousarray(np.hstack(cols), np.float32)
+        graphs[name] = (gid, vec, _digest(vec, *flags) if gid.size else np.zeros(0, np.uint64))
+    conventions = {kind: sorted(r[0] for r in db.conn.execute(
+        "SELECT DISTINCT convention FROM descriptors WHERE kind = ?", (kind,)))
+        for kind in kinds}
+    return {"per": per, "graphs": graphs, "dims": dims, "conventions": conventions}
+
+
+def _new_graph(ndim):
     return _usearch()(ndim=int(ndim), metric="l2sq", dtype=_DTYPE, connectivity=_CONNECTIVITY,
                       expansion_add=_EXPANSION_ADD)
 
 
-class AnnIndex:
-    """The HNSW indexes of one database state, queried for candidates.
+def _marks(db) -> tuple:
+    """What moves when any connection changes the database: ``PRAGMA data_version`` (commits of
+    other connections) and the generation counter (this connection's changes)."""
+    return tuple(db.conn.execute(
+        "SELECT (SELECT data_version FROM pragma_data_version), "
+        "(SELECT value FROM meta WHERE key = 'descriptor_generation')").fetchone())
 
-    Built by :func:`open_index` or :func:`build`; not thread-safe for updates.
+
+class AnnIndex:
+    """The HNSW graphs and row copies of one database state, queried for exact top-k results.
+
+    Made by :func:`open_index` or :func:`build`; not thread-safe.
 
     Attributes
     ----------
+    kinds : tuple of str
+        The descriptor kinds of the search (the first required of every model).
     state : dict
-        The :meth:`Database.index_state` this index reflects.
+        The :meth:`Database.index_state` the files reflect.
     dims : dict of str -> int
-        Dimensions of ``shape``, ``spectrum``, ``texture`` of the indexed rows.
+        Dimension of every kind (0 when no model holds it).
     count : int
-        Models in the shape index.
+        Models in the shape graph.
+    manifest : dict
     """
 
-    def __init__(self, indexes, manifest, digests):
-        self._ix = indexes                      # kind -> usearch.Index
+    def __init__(self, db, graphs, rows, manifest, digests, *, write: bool):
+        self._db = db
+        self._write = write
+        self._set(graphs, rows, manifest, digests)
+
+    def _set(self, graphs, rows, manifest, digests):
+        self._ix = graphs                       # graph name -> usearch.Index
+        self._rows = rows                       # kind -> (ids (n,) int64, rows (n, d) float32)
         self.manifest = manifest
+        self.kinds = tuple(manifest["kinds"])
         self.state = manifest["state"]
         self.dims = manifest["dims"]
-        self._digests = digests                 # kind -> (ids, digests), or None until needed
+        self._digests = digests                 # graph -> (ids, digests), or None until needed
+        self._marks = _marks(self._db)
 
     @property
     def count(self) -> int:
         return int(len(self._ix["shape"])) if "shape" in self._ix else 0
 
-    def candidates(self, kind: str, vector, n: int, *, expansion: int = DEFAULT_EXPANSION):
-        """Ids of the ``n`` models nearest to ``vector`` in the ``kind`` index (``"shape"``:
-        shape with the spectrum appended; ``"texture"``).
+    # ---------------------------------------------------------------- consistency
+    def refresh(self) -> bool:
+        """Catch up with the database when it changed since this index was opened.
+
+        Returns
+        -------
+        bool
+            Whether the index was changed.
+        """
+        marks = _marks(self._db)
+        if marks == self._marks:
+            return False
+        state = self._db.index_state()
+        if state == self.state:
+            self._marks = marks
+            return False
+        new = open_index(self._db, kinds=self.kinds, write=self._write)
+        self._set(new._ix, new._rows, new.manifest, new._digests)
+        return True
+
+    # ---------------------------------------------------------------- queries
+    def candidates(self, graph: str, vector, n: int, *, expansion: int = DEFAULT_EXPANSION):
+        """Ids of the ``n`` models nearest to ``vector`` in one graph (``"shape"``: the kinds
+        of :attr:`kinds` but texture side by side; ``"texture"``).
 
         Returns
         -------
         (<= n,) int64
         """
-        ix = self._ix.get(kind)
+        ix = self._ix.get(graph)
         if ix is None or len(ix) == 0 or n < 1:
             return np.zeros(0, np.int64)
         v = np.ascontiguousarray(vector, np.float32)
         if v.size != ix.ndim:
-            raise InputError(f"query vector of {kind!r} has {v.size} values but the index "
+            raise InputError(f"query vector of {graph!r} has {v.size} values but the index "
                              f"holds {ix.ndim}")
         ix.expansion_search = max(int(expansion), int(n))
         return np.asarray(ix.search(v, int(n), threads=1).keys, np.int64)
+
+    def rows(self, ids) -> tuple:
+        """The stored descriptors of some models from the row copies (as
+        :meth:`Database.descriptor_rows` reads them from SQLite).
+
+        Parameters
+        ----------
+        ids : (n,) int64
+
+        Returns
+        -------
+        ids : (m,) int64
+            The models of ``ids`` holding the first kind, ascending.
+        stored : dict of str -> (m, d_k) float32
+            Rows of absent kinds are zeros.
+        present : dict of str -> (m,) bool
+            For ``"texture"``: the model has colour and a texture descriptor.
+        """
+        ids = np.unique(as_array(ids, "ids", dtype=np.int64, shape=(None,)))
+        fid = self._rows[self.kinds[0]][0]
+        out = ids[_member(fid, ids)]
+        stored, present = {}, {}
+        for kind in self.kinds:
+            kid, mat = self._rows[kind]
+            has = _member(kid, out)
+            full = np.zeros((out.size, self.dims[kind]), np.float32)
+            if has.any():
+                full[has] = mat[np.searchsorted(kid, out[has])]
+            stored[kind], present[kind] = full, has
+        return out, stored, present
+
+    def query(self, descriptors, *, distance, k: int = 10, shape_weight: float,
+              exclude=None, factor: int = DEFAULT_FACTOR,
+              expansion: int = DEFAULT_EXPANSION) -> tuple:
+        """The ``k`` models nearest to a query by ``distance``, among the candidates of the
+        graphs, with the database as stored now (:meth:`refresh` first).
+
+        Parameters
+        ----------
+        descriptors : dict of str -> (d_k,) array_like
+            The query's descriptors (the first kind required; kinds no model holds are ignored;
+            leave out ``"texture"`` for a query without colour).
+        distance : callable
+            ``distance(query, stored, present, *, shape_weight) -> (m,) float``, e.g.
+            :func:`surfidx.search.weighted_l2`.
+        k : int
+        shape_weight : float
+            ``w`` in [0, 1]; at 1 the texture graph is not asked.
+        exclude : sequence of int, optional
+            Model ids to leave out.
+        factor : int
+            Candidates per result and graph.
+        expansion : int
+            HNSW search expansion.
+
+        Returns
+        -------
+        ids : (<= k,) int64
+            Nearest first; ties broken by ascending id.
+        distances : (<= k,) float64
+
+        Raises
+        ------
+        InputError
+            Missing or mis-sized query descriptor, ``k`` or ``factor`` below 1, or a distance
+            function returning the wrong shape.
+        """
+        k = check_positive_int(k, "k")
+        factor = check_positive_int(factor, "factor")
+        self.refresh()
+        first = self.kinds[0]
+        q = {}
+        for kind, vec in descriptors.items():
+            if kind not in self.kinds or (kind != first and not self.dims.get(kind)):
+                continue                                  # not searched, or stored by no model
+            v = as_array(vec, f"query descriptor {kind!r}", dtype=np.float32, shape=(None,))
+            if self.count and v.size != self.dims[kind]:
+                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
+                                 f"ones have {self.dims[kind]}; use the same descriptor "
+                                 "settings (after an upgrade: `surfidx redescribe` updates the "
+                                 "stored ones)")
+            q[kind] = v
+        if first not in q:
+            raise InputError(f"the query has no {first!r} descriptor")
+        excl = np.zeros(0, np.int64) if exclude is None else np.unique(
+            as_array(list(exclude), "exclude", dtype=np.int64, shape=(None,)))
+        n = factor * (k + excl.size)
+        cand = []
+        for graph, members in _groups(self.kinds).items():
+            if graph == _COLOUR_KIND and (_COLOUR_KIND not in q or float(shape_weight) >= 1.0):
+                continue
+            vec = np.concatenate([q.get(kd, np.zeros(self.dims[kd], np.float32))
+                                  for kd in members])
+            cand.append(self.candidates(graph, vec, n, expansion=expansion))
+        cand = np.setdiff1d(np.concatenate(cand), excl)
+        ids, stored, present = self.rows(cand)
+        if ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float64)
+        d = np.asarray(distance(q, stored, present, shape_weight=shape_weight), np.float64)
+        if d.shape != ids.shape:
+            raise InputError(f"the distance function returned shape {d.shape}, expected "
+                             f"({ids.size},)")
+        order = np.lexsort((ids, d))[:k]
+        order = order[np.isfinite(d[order])]
+        return ids[order].copy(), d[order]
 
     # ---------------------------------------------------------------- writing
     def _save(self, d: Path) -> bool:
@@ -200,24 +403,42 @@ class AnnIndex:
         token = secrets.token_hex(6)
         old = _read_manifest(d)
         written = []
+
+        def put(name, write):
+            tmp = d / (name + ".tmp")
+            write(tmp)
+            os.replace(tmp, d / name)
+            written.append(d / name)
+
+        def npy(arr):
+            def write(p):
+                with open(p, "wb") as f:
+                    np.save(f, np.ascontiguousarray(arr))
+            return write
+
         try:
             d.mkdir(exist_ok=True)
-            kinds = {}
-            for kind, ix in self._ix.items():
-                name = f"{token}-{kind}.usearch"
-                tmp = d / (name + ".tmp")
-                ix.save(str(tmp))
-                os.replace(tmp, d / name)
-                written.append(d / name)
-                kinds[kind] = {"file": name, "count": int(len(ix)), "ndim": int(ix.ndim)}
-            ids, dg = self._digests["shape"]
-            tids, tdg = self._digests["texture"]
+            graphs = {}
+            for name, ix in self._ix.items():
+                fname = f"{token}-{name}.usearch"
+                put(fname, lambda p, ix=ix: ix.save(str(p)))
+                graphs[name] = {"file": fname, "count": int(len(ix)), "ndim": int(ix.ndim),
+                                "kinds": _groups(self.kinds)[name]}
+            rows = {}
+            for kind, (kid, mat) in self._rows.items():
+                rows[kind] = {"ids": f"{token}-ids-{kind}.npy", "rows": f"{token}-rows-{kind}.npy",
+                              "count": int(kid.size), "dim": int(mat.shape[1])}
+                put(rows[kind]["ids"], npy(np.asarray(kid, np.int64)))
+                put(rows[kind]["rows"], npy(np.asarray(mat, np.float32)))
             dname = f"{token}-digests.npz"
-            with open(d / (dname + ".tmp"), "wb") as f:
-                np.savez(f, ids=ids, digest=dg, tids=tids, tdigest=tdg)
-            os.replace(d / (dname + ".tmp"), d / dname)
-            written.append(d / dname)
-            man = dict(self.manifest, kinds=kinds, digests=dname)
+            dg = self._digests
+
+            def write_digests(p):
+                with open(p, "wb") as f:
+                    np.savez(f, **{f"{g}_ids": v[0] for g, v in dg.items()},
+                             **{f"{g}_digest": v[1] for g, v in dg.items()})
+            put(dname, write_digests)
+            man = dict(self.manifest, graphs=graphs, rows=rows, digests=dname)
             tmp = d / f"manifest.{token}.tmp"
             with open(tmp, "w", encoding="utf-8") as f:
                 json.dump(man, f, indent=1, sort_keys=True)
@@ -231,11 +452,20 @@ class AnnIndex:
                     p.unlink()
             return False
         if old is not None:                      # the files the old manifest named
-            for name in [f["file"] for f in old["kinds"].values()] + [old.get("digests")]:
-                if name and name not in [f["file"] for f in self.manifest["kinds"].values()]:
+            keep = set(_files(self.manifest))
+            for name in _files(old):
+                if name not in keep:
                     with _quiet():
                         (d / name).unlink()
         return True
+
+
+def _member(sorted_ids, ids) -> np.ndarray:
+    """Which of ``ids`` are in the ascending array ``sorted_ids``."""
+    if sorted_ids.size == 0:
+        return np.zeros(ids.size, bool)
+    pos = np.minimum(np.searchsorted(sorted_ids, ids), sorted_ids.size - 1)
+    return np.asarray(sorted_ids[pos] == ids)
 
 
 class _quiet:
@@ -246,32 +476,34 @@ class _quiet:
         return et is not None and issubclass(et, OSError)
 
 
-def _manifest_of(state, rows):
+def _manifest_of(state, kinds, rows):
     import usearch
 
     return {"format": FORMAT, "library": f"usearch {usearch.__version__}", "dtype": _DTYPE,
             "connectivity": _CONNECTIVITY, "expansion_add": _EXPANSION_ADD, "state": state,
-            "dims": rows["dims"], "conventions": rows["conventions"], "kinds": {}}
+            "kinds": list(kinds), "dims": rows["dims"], "conventions": rows["conventions"],
+            "graphs": {}}
 
 
 def _fresh(rows):
-    """New indexes of all rows (one thread: the same rows give the same index files)."""
+    """New graphs of all rows (one thread: the same rows give the same index files)."""
     ix = {}
-    if rows["ids"].size:
-        ix["shape"] = _new_index(rows["vec"].shape[1])
-        ix["shape"].add(rows["ids"].astype(np.uint64), rows["vec"], threads=1)
-    if rows["tids"].size:
-        ix["texture"] = _new_index(rows["tex"].shape[1])
-        ix["texture"].add(rows["tids"].astype(np.uint64), rows["tex"], threads=1)
+    for name, (gid, vec, _) in rows["graphs"].items():
+        if gid.size:
+            ix[name] = _new_graph(vec.shape[1])
+            ix[name].add(gid.astype(np.uint64), vec, threads=1)
     return ix
 
 
-def build(db, *, write: bool = True) -> AnnIndex:
+def build(db, *, kinds=None, write: bool = True) -> AnnIndex:
     """Build the index of a database from all its rows (and write it beside the file).
 
     Parameters
     ----------
     db : surfidx.database.Database
+    kinds : sequence of str, optional
+        The descriptor kinds of the search (e.g. :data:`surfidx.search.DEFAULT_KINDS`; default
+        :data:`BUILD_KINDS`); the first is required of every model that takes part.
     write : bool
         Write it to :func:`index_dir` (when the folder can be written).
 
@@ -284,12 +516,14 @@ def build(db, *, write: bool = True) -> AnnIndex:
     DatabaseError
         Descriptors of one kind with different dimensions or conventions (as
         :meth:`Database.descriptor_matrix`).
+    InputError
+        ``kinds`` empty, repeated, or starting with ``"texture"``.
     """
+    kinds = _check_kinds(BUILD_KINDS if kinds is None else kinds)
     state = db.index_state()
-    rows = _rows(db)
-    index = AnnIndex(_fresh(rows), _manifest_of(state, rows),
-                     {"shape": (rows["ids"], rows["digest"]),
-                      "texture": (rows["tids"], rows["tdigest"])})
+    rows = _rows(db, kinds)
+    index = AnnIndex(db, _fresh(rows), rows["per"], _manifest_of(state, kinds, rows),
+                     {g: (v[0], v[2]) for g, v in rows["graphs"].items()}, write=write)
     if write:
         index._save(index_dir(db.path))
     return index
@@ -298,28 +532,39 @@ def build(db, *, write: bool = True) -> AnnIndex:
 def _load(d: Path, man, *, view: bool):
     Index = _usearch()
     ix = {}
-    for kind, f in man["kinds"].items():
+    for name, f in man["graphs"].items():
         p = d / f["file"]
         got = Index.restore(str(p), view=view)
         if got is None or len(got) != f["count"] or got.ndim != f["ndim"]:
             raise OSError(f"index file {p} does not match its manifest")
-        ix[kind] = got
-    return ix
+        ix[name] = got
+    rows = {}
+    for kind, r in man["rows"].items():
+        kid = np.load(d / r["ids"], mmap_mode="r" if view else None, allow_pickle=False)
+        mat = np.load(d / r["rows"], mmap_mode="r" if view else None, allow_pickle=False)
+        if kid.shape != (r["count"],) or mat.shape != (r["count"], r["dim"]) \
+                or kid.dtype != np.int64 or mat.dtype != np.float32:
+            raise OSError(f"row files of {kind!r} in {d} do not match their manifest")
+        rows[kind] = (kid, mat)
+    return ix, rows
 
 
 def _load_digests(d: Path, man):
     with np.load(d / man["digests"]) as z:
-        return {"shape": (z["ids"], z["digest"]), "texture": (z["tids"], z["tdigest"])}
+        return {g: (z[f"{g}_ids"], z[f"{g}_digest"]) for g in man["graphs"]}
 
 
-def open_index(db, *, write: bool = True) -> AnnIndex:
+def open_index(db, *, kinds=None, write: bool = True) -> AnnIndex:
     """The index of a database, current with its rows: memory-mapped from :func:`index_dir`,
-    patched or rebuilt when it is stale or missing (see the module notes).
+    patched or rebuilt when it is stale, missing or of other kinds (see the module notes).
 
     Parameters
     ----------
     db : surfidx.database.Database
         Read-only is fine: only the index folder is written.
+    kinds : sequence of str, optional
+        The descriptor kinds of the search (default: those of the index on disk, else
+        :data:`BUILD_KINDS`).
     write : bool
         Write a patched or rebuilt index back (when the folder can be written).
 
@@ -331,70 +576,77 @@ def open_index(db, *, write: bool = True) -> AnnIndex:
     state = db.index_state()
     for _ in range(2):                          # a writer may replace the files meanwhile
         man = _read_manifest(d)
-        if man is None:
-            return build(db, write=write)
+        if kinds is None:
+            kinds = tuple(man["kinds"]) if man is not None else BUILD_KINDS
+        kinds = _check_kinds(kinds)
+        if man is None or not _same_kinds(man["kinds"], kinds):
+            return build(db, kinds=kinds, write=write)
         try:
             if man["state"] == state:
-                return AnnIndex(_load(d, man, view=True), man, None)
+                graphs, rows = _load(d, man, view=True)
+                return AnnIndex(db, graphs, rows, man, None, write=write)
             return _catch_up(db, d, man, state, write=write)
         except (OSError, ValueError, KeyError, RuntimeError):
             continue
-    return build(db, write=write)
+    return build(db, kinds=kinds, write=write)
 
 
 def _catch_up(db, d, man, state, *, write):
     """Patch a stale index to the rows stored now (or rebuild it)."""
-    rows = _rows(db)
-    if (rows["dims"] != man["dims"] or rows["conventions"] != man["conventions"]):
-        return build(db, write=write)
+    kinds = tuple(man["kinds"])
+    rows = _rows(db, kinds)
+    if rows["dims"] != man["dims"] or rows["conventions"] != man["conventions"]:
+        return build(db, kinds=kinds, write=write)
     old = _load_digests(d, man)
     plan = {}
-    for kind, ids, dg in (("shape", rows["ids"], rows["digest"]),
-                          ("texture", rows["tids"], rows["tdigest"])):
-        oid, odg = old[kind]
+    for graph, (ids, _, dg) in rows["graphs"].items():
+        oid, odg = old.get(graph, (np.zeros(0, np.int64), np.zeros(0, np.uint64)))
         now = dict(zip(ids.tolist(), dg.tolist()))
         was = dict(zip(oid.tolist(), odg.tolist()))
         gone = [i for i in was if i not in now]
         changed = [i for i, h in now.items() if was.get(i) != h]
-        plan[kind] = (gone, changed)
-    total = max(rows["ids"].size, 1)
+        plan[graph] = (gone, changed)
+    total = max(rows["graphs"]["shape"][0].size, 1)
     if sum(len(g) + len(c) for g, c in plan.values()) > _REBUILD_SHARE * total:
-        return build(db, write=write)
-    ix = _load(d, man, view=False)
-    for kind, src_ids, src in (("shape", rows["ids"], rows["vec"]),
-                               ("texture", rows["tids"], rows["tex"])):
-        gone, changed = plan[kind]
+        return build(db, kinds=kinds, write=write)
+    ix, _ = _load(d, man, view=False)
+    for graph, (src_ids, src, _) in rows["graphs"].items():
+        gone, changed = plan[graph]
         if not gone and not changed:
             continue
-        if kind not in ix:
-            ix[kind] = _new_index(src.shape[1])
-        target = ix[kind]
+        if graph not in ix:
+            ix[graph] = _new_graph(src.shape[1])
+        target = ix[graph]
         drop = [i for i in gone + changed if i in target]
         if drop:
             target.remove(np.asarray(drop, np.uint64))
         if changed:
             pos = np.searchsorted(src_ids, np.asarray(changed, np.int64))
             target.add(np.asarray(changed, np.uint64), src[pos], threads=1)
-    index = AnnIndex(ix, dict(man, state=state),
-                     {"shape": (rows["ids"], rows["digest"]),
-                      "texture": (rows["tids"], rows["tdigest"])})
+    index = AnnIndex(db, ix, rows["per"], dict(man, state=state),
+                     {g: (v[0], v[2]) for g, v in rows["graphs"].items()}, write=write)
     if write:
         index._save(d)
     return index
 
 
-def update(db, *, write: bool = True):
+def update(db, *, kinds=None, write: bool = True):
     """Bring the index beside ``db`` up to date after this process changed models (what
     :meth:`Database.close` runs); builds it when missing and the database holds at least
     :data:`DEFAULT_THRESHOLD` models, does nothing otherwise.
+
+    Parameters
+    ----------
+    db : surfidx.database.Database
+    kinds : sequence of str, optional
+        As in :func:`open_index`.
+    write : bool
 
     Returns
     -------
     AnnIndex or None
     """
     d = index_dir(db.path)
-    if _read_manifest(d) is None:
-        if db.count() < DEFAULT_THRESHOLD:
-            return None
-        return build(db, write=write)
-    return open_index(db, write=write)
+    if _read_manifest(d) is None and db.count() < DEFAULT_THRESHOLD:
+        return None
+    return open_index(db, kinds=kinds, write=write)

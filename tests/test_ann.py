@@ -101,11 +101,12 @@ def test_index_is_persisted_and_reused(big):
     with Database(path, readonly=True) as db:
         SearchIndex(db, threshold=0)
     man = json.loads((d / "manifest.json").read_text())
-    assert set(man["kinds"]) == {"shape", "texture"} and ann.index_size(path) > 0
+    assert set(man["graphs"]) == {"shape", "texture"} and ann.index_size(path) > 0
+    assert man["kinds"] == ["shape", "spectrum", "texture"]
     with Database(path, readonly=True) as db:
         assert man["state"] == db.index_state()
         SearchIndex(db, threshold=0)
-    assert json.loads((d / "manifest.json").read_text())["kinds"] == man["kinds"]   # not rebuilt
+    assert json.loads((d / "manifest.json").read_text())["graphs"] == man["graphs"]  # not rebuilt
 
 
 def test_same_rows_give_the_same_index_files(tmp_path):
@@ -117,7 +118,7 @@ def test_same_rows_give_the_same_index_files(tmp_path):
             ann.build(db)
         d = ann.index_dir(tmp_path / name)
         man = json.loads((d / "manifest.json").read_text())
-        digests.append((d / man["kinds"]["shape"]["file"]).read_bytes())
+        digests.append((d / man["graphs"]["shape"]["file"]).read_bytes())
     assert digests[0] == digests[1]
 
 
@@ -210,7 +211,7 @@ def test_damaged_index_file_is_rebuilt(big):
         SearchIndex(db, threshold=0)
     d = ann.index_dir(path)
     man = json.loads((d / "manifest.json").read_text())
-    (d / man["kinds"]["shape"]["file"]).write_bytes(b"garbage")
+    (d / man["graphs"]["shape"]["file"]).write_bytes(b"garbage")
     with Database(path, readonly=True) as db:
         ids, _ = SearchIndex(db, threshold=0).query(query_of(shape, tex, 0, colour=False), k=1)
     assert ids.tolist() == [1]
@@ -271,3 +272,147 @@ def test_cli_query_exact_and_approximate_agree(big, monkeypatch):
         out.append(json.loads(res.output)["results"])
     assert out[0] == out[1] and len(out[0]) == 5
     assert ann.index_size(path) > 0
+
+
+# ---------------------------------------------------------------------- AnnIndex.query
+from surfidx.search import DEFAULT_KINDS, weighted_l2  # noqa: E402
+
+
+def ann_query(index, q, **kw):
+    kw.setdefault("shape_weight", 0.7)
+    return index.query(q, distance=weighted_l2, **kw)
+
+
+def test_ann_query_on_row_copies_is_the_exact_top_k(big):
+    path, shape, tex, _ = big
+    qs, qt = noisy(shape, tex, seed=3)
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        ann.open_index(db, kinds=DEFAULT_KINDS)             # built and written
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)     # memory-mapped
+        for i in range(len(qs)):
+            for colour in (False, True):
+                for w in (0.7, 1.0, 0.0):
+                    q = query_of(qs, qt, i, colour=colour)
+                    ei, ed = exact.query(q, k=10, shape_weight=w)
+                    ai, ad = ann_query(index, q, k=10, shape_weight=w, factor=4)
+                    assert ai.tolist() == ei.tolist()
+                    np.testing.assert_allclose(ad, ed, rtol=1e-9)
+        q = query_of(shape, tex, 7, colour=True)
+        ai, _ = ann_query(index, q, k=5, exclude=[8])
+        assert ai.tolist() == exact.query(q, k=5, exclude=[8])[0].tolist()
+        ids, stored, present = index.rows([3, 1, 99999, 3])
+        rid, rstored, rpresent = db.descriptor_rows([3, 1, 99999, 3], DEFAULT_KINDS)
+        assert ids.tolist() == rid.tolist() == [1, 3]
+        for kind in DEFAULT_KINDS:
+            np.testing.assert_array_equal(stored[kind], rstored[kind])
+            assert present[kind].tolist() == rpresent[kind].tolist()
+        assert isinstance(index._rows["shape"][1], np.memmap)       # memory-mapped copies
+
+
+def test_ann_query_follows_changes_made_after_it_was_opened(big):
+    """Another connection removes and redescribes models and adds new ones without updating
+    the index (a writer killed before close), then this connection's own changes: every query
+    answers for the rows stored at its time."""
+    path, shape, tex, color = big
+    db = Database(path)
+    try:
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)
+        exact_before = SearchIndex(db, exact=True).query(query_of(shape, tex, 4, colour=True),
+                                                         k=10)
+        assert ann_query(index, query_of(shape, tex, 4, colour=True), k=10)[0].tolist() \
+            == exact_before[0].tolist()
+        other = Database(path)
+        other.delete(5)
+        new = np.full(DIM, 40.0, np.float32)
+        other.set_descriptors(3, {"shape": new, "spectrum": np.zeros(3, np.float32)}, {})
+        s2, t2, c2 = rows(4, seed=9)
+        fill(other, s2, t2, c2, start=5000)
+        other._index_dirty = False             # killed before its close updated the index
+        other.close()
+        ids, d = ann_query(index, {"shape": new, "spectrum": np.zeros(3, np.float32)}, k=2)
+        assert ids[0] == 3 and d[0] == 0.0
+        ids, _ = ann_query(index, query_of(shape, tex, 4, colour=True), k=20)
+        assert 5 not in ids.tolist()
+        ids, d = ann_query(index, query_of(s2, t2, 1, colour=bool(c2[1])), k=1)
+        assert ids.tolist() == [5001] and d[0] == 0.0
+        db.delete(5001)                        # this connection: the generation moves
+        db.set_descriptors(7, {"shape": new + 1, "spectrum": np.zeros(3, np.float32)}, {})
+        ids, _ = ann_query(index, query_of(s2, t2, 1, colour=bool(c2[1])), k=5)
+        assert 5001 not in ids.tolist()
+        ids, d = ann_query(index, {"shape": new + 1, "spectrum": np.zeros(3, np.float32)}, k=1)
+        assert ids.tolist() == [7] and d[0] == 0.0
+        exact = SearchIndex(db, exact=True)
+        for i in range(0, 60, 7):
+            q = query_of(shape, tex, i, colour=bool(i % 2))
+            assert ann_query(index, q, k=10)[0].tolist() == exact.query(q, k=10)[0].tolist()
+        assert index.state == db.index_state()
+    finally:
+        db.close()
+
+
+def test_index_is_generic_over_the_search_kinds(big):
+    """A search with a fourth kind: its graph holds it, its rows are copied, and a distance
+    using it gets the exact top k; an index of other kinds is rebuilt for the search's."""
+    path, shape, tex, _ = big
+    rng = np.random.default_rng(5)
+    layers = (shape[:, :6] * 2 + 0.1 * rng.standard_normal((len(shape), 6))).astype(np.float32)
+    with Database(path) as db:
+        with db.transaction():
+            db.conn.executemany(
+                "INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
+                "VALUES (?, 'layers', 6, ?, '{}')",
+                [(i + 1, layers[i].tobytes()) for i in range(0, len(shape), 2)])   # half
+            db.descriptors_changed()
+    kinds = ("shape", "spectrum", "texture", "layers")
+
+    def with_layers(q, stored, present, *, shape_weight):
+        d = weighted_l2(q, stored, present, shape_weight=shape_weight)
+        if "layers" in q:
+            dl = np.sqrt(((stored["layers"] - q["layers"]) ** 2).sum(1))
+            d = d + np.where(present["layers"], dl, 0.0)
+        return d
+
+    with Database(path, readonly=True) as db:
+        ann.open_index(db, kinds=DEFAULT_KINDS)
+        index = ann.open_index(db, kinds=kinds)
+        man = json.loads((ann.index_dir(path) / "manifest.json").read_text())
+        assert man["kinds"] == list(kinds) and man["graphs"]["shape"]["ndim"] == DIM + 3 + 6
+        assert man["graphs"]["shape"]["kinds"] == ["shape", "spectrum", "layers"]
+        assert index.dims["layers"] == 6 and index._rows["layers"][0].size == 750
+        full = SearchIndex(db, kinds=kinds, exact=True)
+        for i in range(0, 40, 3):
+            q = dict(query_of(shape, tex, i, colour=bool(i % 2)), layers=layers[i])
+            ei, ed = full.query(q, k=10, distance=with_layers)
+            ai, ad = index.query(q, k=10, distance=with_layers, shape_weight=0.7)
+            assert ai.tolist() == ei.tolist()
+            np.testing.assert_allclose(ad, ed, rtol=1e-6)
+        again = ann.open_index(db)                # the kinds on disk
+        assert again.kinds == kinds
+
+
+def test_ann_query_and_kinds_errors(big):
+    with Database(big[0], readonly=True) as db:
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)
+        q = {"shape": np.zeros(DIM), "spectrum": np.zeros(3)}
+        with pytest.raises(InputError, match="has 7 values but the stored ones have 40"):
+            ann_query(index, {"shape": np.zeros(7)})
+        with pytest.raises(InputError, match="no 'shape' descriptor"):
+            ann_query(index, {"spectrum": np.zeros(3)})
+        with pytest.raises(InputError, match="factor must be at least 1"):
+            ann_query(index, q, factor=0)
+        with pytest.raises(InputError, match="k must be at least 1"):
+            ann_query(index, q, k=0)
+        with pytest.raises(InputError, match=r"distance function returned shape \(3,\)"):
+            index.query(q, distance=lambda *a, **kw: np.zeros(3), shape_weight=0.7)
+        with pytest.raises(InputError, match="query vector of 'shape' has 5 values but the "
+                                             "index holds 43"):
+            index.candidates("shape", np.zeros(5), 10)
+        with pytest.raises(InputError, match="distinct descriptor kinds"):
+            ann.open_index(db, kinds=("shape", "shape"))
+        with pytest.raises(InputError, match="distinct descriptor kinds"):
+            ann.build(db, kinds=())
+        with pytest.raises(InputError, match="cannot be 'texture'"):
+            ann.build(db, kinds=("texture", "shape"))
+    with pytest.raises(InputError, match="1100 values are too wide"):
+        ann._digest(np.zeros((2, 1100), np.float32))
