@@ -1,9 +1,9 @@
 """The SQLite model store: one file holding every model's record, compressed asset, descriptors and
 thumbnail, plus the bookkeeping of bulk ingestion runs.
 
-The schema is ``data_schema/schema.sql`` (shipped as ``surfidx/data/schema.sql``): plain tables
-with readable columns, foreign keys and indexes, so the file can be browsed as it is with
-``sqlite-utils`` or Datasette. The schema version is ``PRAGMA user_version``; opening an older
+The schema is ``surfidx/data/schema.sql`` (package data; ``data_schema/schema.sql`` links to it):
+plain tables with readable columns, foreign keys and indexes, so the file can be browsed as it is
+with ``sqlite-utils`` or Datasette. The schema version is ``PRAGMA user_version``; opening an older
 database runs the migration functions of :data:`_MIGRATIONS` in one transaction; a database of a
 newer surfidx raises :class:`DatabaseError`. The database runs in WAL mode, so readers
 (``surfidx query``) see a consistent state while an ingest writes, and every model is written in

@@ -80,10 +80,17 @@ def assert_same(a: ProcessedModel, b: ProcessedModel):
 
 
 # ---------------------------------------------------------------------- schema and packaging
-def test_packaged_schema_is_identical_to_canonical():
-    canonical = (REPO / "data_schema" / "schema.sql").read_text(encoding="utf-8")
-    assert (REPO / "surfidx" / "data" / "schema.sql").read_text(encoding="utf-8") == canonical
-    assert schema_sql() == canonical
+def test_schema_has_one_source():
+    """``surfidx/data`` holds the schema and the Datasette metadata; ``data_schema/`` links to
+    them (a relative link, so the package data, wheels and sdists hold the files themselves)."""
+    import os
+
+    for name in ("schema.sql", "datasette.json"):
+        link = REPO / "data_schema" / name
+        assert link.is_symlink(), link
+        assert os.readlink(link) == f"../surfidx/data/{name}"
+        assert link.resolve() == (REPO / "surfidx" / "data" / name).resolve()
+    assert schema_sql() == (REPO / "surfidx" / "data" / "schema.sql").read_text(encoding="utf-8")
 
 
 def test_pyproject_ships_schema_as_package_data():
