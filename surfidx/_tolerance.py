@@ -29,12 +29,12 @@ class Tolerances:
         The shortening of a refined path on a mesh stops when no crossing point moves more than
         this fraction of the path length in a sweep.
     geodesic_steiner : int
-        Steiner points per mesh edge for refined paths on a mesh (falconstatue, mean excess over
-        exact geodesics: 4 points 0.22 %, 5 points 0.11 %, 7 points 0.06 % at 1.5x the time).
+        Steiner points per mesh edge for refined paths on a mesh: more points bring a path closer
+        to the exact geodesic at a cost growing with their number.
     geodesic_corridor : float
         Half-width of the corridor of triangles searched for a refined path on a mesh, as a
-        fraction of the mesh-edge path length (plus two of its longest edges); 0.05 lost the
-        true path on falconstatue (one pair 22 % long).
+        fraction of the mesh-edge path length (plus two of its longest edges): wide enough to
+        hold the true path where the mesh-edge path strays from it.
     degenerate_angle : float
         Angles (radians) below this count as degenerate: cotangent weights are clipped at
         ``±1/degenerate_angle`` so sliver triangles of a squeezed map keep a finite Laplacian.
@@ -42,14 +42,13 @@ class Tolerances:
         Largest relative deviation from 4π of the summed spherical areas of a mesh's mapped faces
         (all counter-clockwise) for them to count as covering the sphere once.
     inverted_area : float
-        Largest share of the sphere that the faces a map turns over may cover (the fold
-        realisation of :mod:`surfidx._circlepattern` turns over small ones: scorpion about 600
-        faces, 0.6 % of the sphere; two swapped vertices of a level-3 icosphere turn over 2.3 %
-        of it) for resampling to interpolate in the mesh's faces rather than in the Delaunay
-        triangles of the mapped surfels.
+        Largest share of the sphere that the faces a map turns over may cover for resampling to
+        interpolate in the mesh's faces rather than in the Delaunay triangles of the mapped
+        surfels: the fold realisation of :mod:`surfidx.sphere._circlepattern` turns over small
+        faces only, a map with swapped vertices turns over more.
     realise_loss : float
         dB of infinite-rate PSNR_D2 (resampled at the grid level of the map before) that a fold
-        realisation of :mod:`surfidx._circlepattern` may cost and be kept: it moves the points,
+        realisation of :mod:`surfidx.sphere._circlepattern` may cost and be kept: it moves the points,
         and where it turns mesh faces over, the grid samples the surfels there less well.
     """
 

@@ -9,16 +9,15 @@ served at a lower rate by truncation (:func:`decode` with ``bits_per_surfel``). 
 Units. Before the KLT, geometry is divided by the input's bounding-box diagonal (the PSNR peak) and
 colour by 255 and multiplied by :data:`COLOR_WEIGHT`; the zerotree coder spends bits where the
 (normalised) wavelet coefficients are largest, so this weight sets the split of bits between
-geometry and texture. Its value was chosen by rate–distortion measurement
-(``benchmarks/color_weight.py``).
+geometry and texture; ``benchmarks/color_weight.py`` measures the split at several weights and
+rates.
 
 Two weightings fit the coder's uniform thresholds to point-to-plane distortion over the input:
 
 * **local frames** (:func:`surfidx.wavelets.forward` with ``frames=True``): the geometry details
   are coded as normal and tangential components, the tangential ones multiplied by
-  :data:`TANGENT_WEIGHT` (scorpion at 1.39 / 2 / 3.56 bits/surfel: 0.25, 0.5, 0.6, 0.7 gave
-  62.2 / 62.6 / 62.4 / 62.5, 64.4 / 65.3 / 65.1 / 64.9 and 68.4 / 69.4 / 69.1 / 68.8 dB PSNR_D2;
-  Igea +2.9 / +2.9 / +1.7 dB at 0.89 / 1.39 / 3.56 over no frames). The frames are closed-loop
+  :data:`TANGENT_WEIGHT`: a tangential error moves a point along the surface, which costs
+  point-to-plane distortion far less than a normal one. The frames are closed-loop
   (:func:`surfidx.wavelets.forward_anchored`): computed from the coarse surface quantised to a
   per-level anchor bit plane stored in the header, which a decoder that has that plane
   reproduces exactly;
@@ -52,18 +51,10 @@ CODEC_VERSION = container.FORMAT_VERSION
 COLOR_WEIGHT = 0.02
 """Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
 
-Chosen by ``benchmarks/color_weight.py`` (PSNR_D2 and luma PSNR at 0.89, 2, 3.56 and 8 bits/surfel
-for w = 0.01 … 0.4; textured models as meshes split twice by edge midpoints, one surfel per vertex):
-
-* spot (46,850 surfels): w = 0.02 has the best PSNR_D2 + PSNR_Y at every rate (0.89: 50.9 + 23.4 dB
-  against 50.0 + 23.7 at 0.05 and 51.3 + 22.5 at 0.01; 2: 51.2 + 24.4 against 50.9 + 24.1 at 0.05);
-  w >= 0.1 loses both at low rates (0.4 at 0.89: 40.2 + 16.8 dB), since geometry errors also
-  mis-pair the colours the luma metric compares;
-* ycb_banana (125,826 surfels): all of w = 0.01 … 0.1 within 0.2 dB (39.7 dB D2, 30.2–30.6 dB Y).
-
-Both models are limited by their spherical maps (quality saturates from 2 bits/surfel on: spot at
-51 dB D2 / 24.4 dB Y, banana at 39.7 / 30.5), so the choice rests on the low rates; re-run the
-benchmark when the map improves.
+It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
+colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
+both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
+of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
 """
 
 TANGENT_WEIGHT = 0.5

@@ -404,9 +404,9 @@ def icosphere(level: int) -> Icosphere:
 
 @functools.lru_cache(maxsize=MAX_LEVEL + 1)
 def _vertex_areas(level: int) -> np.ndarray:
-    ico = icosphere(level)
     from .mesh import vertex_area_shares     # scipy: not needed to count vertices
 
+    ico = icosphere(level)
     area = np.abs(triangle_areas(ico.vertices, ico.faces))
     out = vertex_area_shares(ico.faces, area, len(ico.vertices))
     out.flags.writeable = False
@@ -418,37 +418,17 @@ def choose_level(n_surfels: int, *, oversampling: float = 4.0, sparse_sampling: 
     """The grid level for a model of ``n_surfels`` surfels.
 
     Rule: the smallest ``L`` with ``N = 10·4^L + 2 ≥ oversampling · n_surfels`` and
-    ``N · sparse_sampling ≥ SPARSE_MIN · n_surfels``, capped at ``max_level``. With the default
-    ``oversampling=4`` the grid has 4–16 samples per surfel; the second condition (``SPARSE_MIN``
-    = 1/2) gives the 5 % of surfels the map squeezes most at least half a grid point each
-    (``sparse_sampling`` from :func:`surfidx.sphere.sparse_sampling`, a map's
-    ``SphericalMap.sparse_sampling``). Of the 11 benchmark models it raises homer, 6 → 7:
-    its map's sparse sampling is 0.030 (0.20 grid points each for its sparsest 5 % at level 6; a
-    quarter of its input triangles held no grid point), and PSNR_D2 goes 65.8 → 71.1 dB, the
-    coder within ±0.5 dB at 0.5–2 bits/surfel and +0.9 dB at 3.56; and scorpion, 8 → 9 (0.032:
-    0.41 grid points each at level 8): PSNR_D2 78.4 → 81.2 dB, the coder within ±0.2 dB at
-    0.5–8 bits/surfel, its setup 33 → 39 s. The others: Igea 0.57, bunny 0.23, falcon 0.16,
-    nefertiti 0.13, armadillo 0.12, horse 0.11, banana 0.11, koala 0.057, spot 0.042. On the 77
-    genus-0 models of the retrieval collection, which the rule was not tuned on, ``SPARSE_MIN``
-    1/4 → 1/2 raised 14 models by one level: coverage holes over 0.5 % 3 → 0 models, PSNR_D2
-    ≥ 70 dB 54 → 62 models (ants, four-legged animals, a hand, a table: 66.6–69.7 → 76.9–80.6
-    dB). The rule raises the level by one at most: each level costs four times the grid. The
-    grid samples the smooth (Phong-lifted) surface between the surfels and must still sample the
-    parts the spherical map compresses; measured at the default map, infinite-rate PSNR_D2 (dB)
-    and coverage holes against the input, level chosen with oversampling 1.5 → 4:
+    ``N · sparse_sampling ≥ SPARSE_MIN · n_surfels``, capped at ``max_level``.
 
-    ========== ======= ================ ========================
-    model      surfels level 1.5 → 4    PSNR_D2, holes
-    ========== ======= ================ ========================
-    scorpion   49,997  7 → 8            68.6 → 77.8, 2.87 → 0 %
-    armadillo  14,587  6 → 7            65.6 → 71.0
-    homer       6,002  5 → 6            55.7 → 65.8, 0.42 → 0 %
-    spot        2,930  5 → 6            62.3 → 69.4
-    ========== ======= ================ ========================
-
-    The coder pays little for the finer grid at a given rate (homer and armadillo: within 0.5 dB
-    at 0.5–1.39 bits/surfel, +1.0 to +4.5 dB at 3.56; encoding takes 0.02 s at level 7).
-    Igea (134,345 surfels) keeps level 8.
+    Why: the grid samples the smooth (Phong-lifted) surface between the surfels, so it needs
+    several samples per surfel (the default ``oversampling=4`` gives 4–16); and it must still
+    sample the parts the spherical map squeezes, so the second condition gives the 5 % of surfels
+    the map squeezes most (``sparse_sampling`` from :func:`surfidx.sphere.sparse_sampling`, a
+    map's ``SphericalMap.sparse_sampling``) at least ``SPARSE_MIN`` grid points each. That
+    condition raises the level by one at most, on maps that squeeze parts of the surface hard;
+    each level costs four times the grid, and the coder pays little for a finer grid at a given
+    rate. ``benchmarks/parameterization.py`` prints the sparse sampling and the chosen level of
+    the benchmark models.
 
     Parameters
     ----------

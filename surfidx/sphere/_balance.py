@@ -291,7 +291,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     rounds, inner : int
         Most ``eps`` rounds, L-BFGS steps in each.
     precondition : bool
-        As in :func:`balance` (without it, a prolonged Igea-size map untangles several times
+        As in :func:`balance` (without it, a large prolonged map untangles several times
         slower).
 
     Returns
