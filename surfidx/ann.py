@@ -76,7 +76,7 @@ DEFAULT_EXPANSION = 128
 FORMAT = 2
 
 _CONNECTIVITY = 16
-_EXPANSION_ADD = 128
+_EXPANSION_ADD = 64
 _DTYPE = "f16"
 #: Share of changed models above which a stale index is rebuilt rather than patched.
 _REBUILD_SHARE = 0.25
@@ -308,17 +308,24 @@ class AnnIndex:
         present : dict of str -> (m,) bool
             For ``"texture"``: the model has colour and a texture descriptor.
         """
-        ids = np.unique(as_array(ids, "ids", dtype=np.int64, shape=(None,)))
-        fid = self._rows[self.kinds[0]][0]
-        out = ids[_member(fid, ids)]
-        stored, present = {}, {}
-        for kind in self.kinds:
+        return self._take(np.unique(as_array(ids, "ids", dtype=np.int64, shape=(None,))))
+
+    def _take(self, ids):
+        """:meth:`rows` of ascending unique ``ids``."""
+        fid, fmat = self._rows[self.kinds[0]]
+        pos, has = _positions(fid, ids)
+        out = ids[has]
+        pos = pos[has]
+        stored = {self.kinds[0]: np.asarray(fmat[pos])}
+        present = {self.kinds[0]: np.ones(out.size, bool)}
+        for kind in self.kinds[1:]:
             kid, mat = self._rows[kind]
-            has = _member(kid, out)
-            full = np.zeros((out.size, self.dims[kind]), np.float32)
-            if has.any():
-                full[has] = mat[np.searchsorted(kid, out[has])]
-            stored[kind], present[kind] = full, has
+            kpos, khas = _positions(kid, out)
+            full = np.asarray(mat[kpos]) if kid.size else np.zeros((out.size, self.dims[kind]),
+                                                                      np.float32)
+            if not khas.all():
+                full[~khas] = 0.0
+            stored[kind], present[kind] = full, khas
         return out, stored, present
 
     def query(self, descriptors, *, distance, k: int = 10, shape_weight: float,
@@ -384,8 +391,10 @@ class AnnIndex:
             vec = np.concatenate([q.get(kd, np.zeros(self.dims[kd], np.float32))
                                   for kd in members])
             cand.append(self.candidates(graph, vec, n, expansion=expansion))
-        cand = np.setdiff1d(np.concatenate(cand), excl)
-        ids, stored, present = self.rows(cand)
+        cand = np.unique(np.concatenate(cand))
+        if excl.size:
+            cand = cand[~np.isin(cand, excl)]
+        ids, stored, present = self._take(cand)
         if ids.size == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.float64)
         d = np.asarray(distance(q, stored, present, shape_weight=shape_weight), np.float64)
@@ -460,12 +469,13 @@ class AnnIndex:
         return True
 
 
-def _member(sorted_ids, ids) -> np.ndarray:
-    """Which of ``ids`` are in the ascending array ``sorted_ids``."""
+def _positions(sorted_ids, ids) -> tuple:
+    """Positions of ``ids`` in the ascending array ``sorted_ids`` (clipped) and which of them
+    are there."""
     if sorted_ids.size == 0:
-        return np.zeros(ids.size, bool)
+        return np.zeros(ids.size, np.intp), np.zeros(ids.size, bool)
     pos = np.minimum(np.searchsorted(sorted_ids, ids), sorted_ids.size - 1)
-    return np.asarray(sorted_ids[pos] == ids)
+    return pos, np.asarray(sorted_ids[pos] == ids)
 
 
 class _quiet:
