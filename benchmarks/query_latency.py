@@ -3,30 +3,37 @@ exact scan beside the approximate index (surfidx.ann), and the candidate librari
 
 Rows
 ----
-Built from the real descriptors of a database of ingested models (``--real-db``, e.g. a subset of
-the retrieval collection ingested with ``surfidx ingest``), perturbed so that neighbourhoods look
-like real ones (:func:`synthesize`): every row belongs to a sub-class whose centre mixes two real
-models of one class (classes from ``labels.csv`` of the retrieval collection; the mixing weight
-drawn towards the first) plus noise along the real models' principal directions (15 % of their
-spread), and every row is its centre plus 5 % of that spread (plus a 1 % isotropic floor). 70 %
-of the rows are coloured, their texture vectors built the same way from the real coloured models.
-Queries are fresh rows of the same generator (new scans of stored sub-classes), half of them
-without colour.
+Built from real descriptors: ``--real-npz`` folders of per-model grids cached by
+``benchmarks/retrieval.py`` (``/tmp/surfidx_retrieval_cache/<key>/*.npz``, the retrieval
+collection; their descriptors are computed with :func:`surfidx.descriptors.describe_grid` and
+cached in ``/tmp/surfidx_query_latency_desc``)
+and/or ``--real-db`` databases of ingested models. Every stored kind is generated (``shape``,
+``spectrum``, ``layers``, ``texture``), searched by :data:`surfidx.search.DEFAULT_KINDS`. They are
+perturbed so that neighbourhoods look like real ones (:class:`Generator`): every row belongs to a
+sub-class whose centre mixes two real models of one class (classes from ``labels.csv`` of the
+retrieval collection; the mixing weight drawn towards the first) plus noise along the real models'
+principal directions (15 % of their spread), and every row is its centre plus 5 % of that spread
+(plus a 1 % isotropic floor). 70 % of the rows are coloured, their texture vectors built the same
+way from the real coloured models (made up when there are none). Queries are fresh rows of the
+same generator (new scans of stored sub-classes), half of them without colour.
 
 Modes
 -----
-* default: fills a surfidx database per size by bulk SQL (then ``Database.descriptors_changed``),
-  and measures ``SearchIndex(db, exact=True)`` against ``SearchIndex(db)`` (the approximate
-  index above :data:`surfidx.ann.DEFAULT_THRESHOLD` models: build or load, then top-10 with the
-  exact re-rank on rows fetched from SQLite): build CPU time, resident memory, index size,
-  p50/p99 CPU time of a top-10 query and recall@10 against the exact scan, for shape-only and
-  coloured queries.
+* default: fills a surfidx database per size by bulk SQL (then ``Database.descriptors_changed``)
+  and measures, in one run, ``SearchIndex(db, exact=True)`` (the exact scan), the index build
+  (:func:`surfidx.ann.build`: CPU time, resident memory, size on disk), opening it
+  (:func:`surfidx.ann.open_index`, memory-mapped) and top-10 queries through
+  :meth:`surfidx.ann.AnnIndex.query` (candidates re-ranked on the row copies) for several
+  candidate factors, and through ``SearchIndex(db)`` as it stands (``search`` column); p50/p99
+  CPU time of a top-10 query and recall@10 against the exact scan, for shape-only and coloured
+  queries.
 * ``--compare``: the same rows in memory, hnswlib, faiss-cpu and usearch HNSW indexes of the shape
   vector (one thread, connectivity 16), each with the exact re-rank of ``factor * k`` candidates.
 
 Times are ``time.process_time`` (CPU of this process, one thread), so that a shared machine's
-load changes them little. Run: ``python benchmarks/query_latency.py --real-db real.db
-[--sizes 10000 100000 1000000] [--compare]``.
+load changes them little. Run: ``python benchmarks/query_latency.py --real-npz
+/tmp/surfidx_retrieval_cache/* [--real-db real.db] [--sizes 10000 100000 1000000]
+[--compare]``.
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ import argparse
 import contextlib
 import csv
 import gc
+import json
 import os
 import tempfile
 import time
@@ -43,9 +51,10 @@ from pathlib import Path
 import numpy as np
 
 from surfidx.database import Database, utc_now
-from surfidx.search import DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
+from surfidx.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
 
 LABELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval" / "labels.csv"
+COLOUR = "texture"
 
 
 def rss_mb() -> float:
@@ -57,29 +66,96 @@ def rss_mb() -> float:
     return float("nan")  # pragma: no cover
 
 
-def real_descriptors(path) -> dict:
-    """Real descriptors of a database: ``shape`` (n, 201) shape + spectrum, ``classes`` (n,),
-    ``texture`` (c, 78) of the coloured models."""
-    with Database(path, readonly=True) as db:
-        ids, shape = db.descriptor_matrix(("shape", "spectrum"))
-        names = {r["id"]: r["name"] for r in db.list_models()}
-        _, texture = db.descriptor_matrix("texture")
-    labels = {}
-    if LABELS.exists():
-        with open(LABELS) as f:
-            labels = {Path(r["path"]).stem: r["class"] for r in csv.DictReader(f)}
-    classes = np.array([labels.get(names[int(i)], names[int(i)]) for i in ids])
-    return {"shape": np.asarray(shape, np.float64), "classes": classes,
-            "texture": np.asarray(texture, np.float64)}
+def _labels() -> dict:
+    if not LABELS.exists():
+        return {}
+    with open(LABELS) as f:
+        return {Path(r["path"]).stem: r["class"] for r in csv.DictReader(f)}
+
+
+def _described(npz: Path, cache: Path):
+    """describe_grid vectors of one cached grid (themselves cached per descriptors.py)."""
+    import hashlib
+
+    import surfidx.descriptors as sd
+
+    key = hashlib.sha256(Path(sd.__file__).read_bytes()).hexdigest()[:12]
+    out = cache / f"{npz.stem}-{key}.npz"
+    if out.exists():
+        with np.load(out, allow_pickle=False) as z:
+            return str(z["name"]), {k: z[k] for k in z.files if k != "name"}
+    with np.load(npz, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        if "grid" not in z.files or meta.get("error"):
+            return None
+        grid = z["grid"]
+    vec = {k: np.asarray(v, np.float64) for k, v in sd.describe_grid(grid, meta["level"]
+                                                                      ).vectors.items()}
+    name = Path(meta["path"]).stem
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, name=np.array(name), **vec)
+    os.replace(tmp, out)
+    return name, vec
+
+
+def real_descriptors(dbs=(), npz_dirs=(), cache=Path("/tmp/surfidx_query_latency_desc")) -> dict:
+    """Real descriptors: ``names`` (n,), ``classes`` (n,), ``vectors`` list of dicts kind ->
+    (d,) float64 without texture, ``textures`` (c, d) of the coloured models. Models whose
+    kinds have other dimensions than the first one's (older descriptor versions) are left out
+    of ``vectors``; their textures are kept when of the first texture's dimension."""
+    labels = _labels()
+    names, vectors, textures = [], [], []
+    seen = set()
+    for folder in npz_dirs:
+        for f in sorted(Path(folder).glob("*.npz")):
+            if "-copy" in f.name or f.name.endswith(".tmp.npz") or f.stem in seen:
+                continue
+            got = _described(f, cache)
+            if got is None:
+                continue
+            seen.add(f.stem)
+            names.append(got[0])
+            vectors.append(got[1])
+    for path in dbs:
+        with Database(path, readonly=True) as db:
+            for r in db.list_models():
+                vec = {k: np.asarray(v, np.float64)
+                       for k, v in db.get_descriptors(r["id"]).items()}
+                names.append(r["name"])
+                vectors.append(vec)
+                if not r["has_color"]:
+                    vec.pop(COLOUR, None)
+    for v in vectors:
+        if COLOUR in v:
+            textures.append(v.pop(COLOUR))
+    dims = {k: x.size for k, x in vectors[0].items()} if vectors else {}
+    keep = [i for i, v in enumerate(vectors)
+            if set(v) == set(dims) and all(v[k].size == dims[k] for k in dims)]
+    textures = [t for t in textures if t.size == textures[0].size]
+    names = [names[i] for i in keep]
+    vectors = [vectors[i] for i in keep]
+    classes = np.array([labels.get(n, n) for n in names])
+    if textures:
+        dims[COLOUR] = textures[0].size
+    return {"names": names, "classes": classes, "vectors": vectors, "dims": dims,
+            "textures": np.array(textures)}
 
 
 class Generator:
-    """Rows around real descriptors (see the module notes), deterministic for a seed."""
+    """Rows around real descriptors (see the module notes), deterministic for a seed.
+
+    The kinds but texture are generated side by side (a model's missing kind as zeros), texture
+    apart from the real coloured models.
+    """
 
     def __init__(self, real: dict, m: int, seed: int = 0):
         rng = np.random.default_rng(seed)
         self.rng = rng
-        s = real["shape"]
+        self.geo_kinds = [k for k in real["dims"] if k != COLOUR]
+        self.dims = real["dims"]
+        s = np.array([np.concatenate([v.get(k, np.zeros(self.dims[k])) for k in self.geo_kinds])
+                      for v in real["vectors"]])
         self.basis, self.spread = self._pca(s)
         self.iso = 0.01 * float(s.std())
         n_sub = max(m // 20, len(s))
@@ -89,9 +165,10 @@ class Generator:
         lam = rng.beta(1.0, 3.0, n_sub)[:, None]
         self.centres = ((1 - lam) * s[base] + lam * s[other]
                         + self._noise(n_sub, 0.15, self.basis, self.spread))
-        t = real["texture"]
-        if len(t) == 0:                             # no coloured model: a made-up one
-            t = np.abs(rng.standard_normal((2, 78)))
+        t = real["textures"]
+        if len(t) == 0:                             # no coloured model: made-up ones
+            t = np.abs(rng.standard_normal((2, self.dims.get(COLOUR, 78))))
+        self.tdim = t.shape[1]
         self.tbasis, self.tspread = self._pca(t)
         tb = rng.integers(len(t), size=n_sub)
         tl = rng.beta(1.0, 3.0, n_sub)[:, None]
@@ -114,20 +191,25 @@ class Generator:
         return z @ basis
 
     def rows(self, n: int, *, color_fraction: float = 0.7):
-        """``shape`` (n, 201) float32, ``texture`` (n, 78) float32, ``color`` (n,) bool."""
+        """``kinds`` dict kind -> (n, d_kind) float32 (texture for every row), ``color`` (n,)
+        bool."""
         rng = self.rng
         sub = rng.integers(len(self.centres), size=n)
-        shape = (self.centres[sub] + self._noise(n, 0.05, self.basis, self.spread)
-                 + self.iso * rng.standard_normal((n, self.centres.shape[1])))
+        geo = (self.centres[sub] + self._noise(n, 0.05, self.basis, self.spread)
+               + self.iso * rng.standard_normal((n, self.centres.shape[1])))
         texture = (self.tcentres[sub] + self._noise(n, 0.1, self.tbasis, self.tspread)
                    + self.tiso * rng.standard_normal((n, self.tcentres.shape[1])))
-        color = rng.random(n) < color_fraction
-        return shape.astype(np.float32), texture.astype(np.float32), color
+        out, at = {}, 0
+        for k in self.geo_kinds:
+            out[k] = np.ascontiguousarray(geo[:, at:at + self.dims[k]], np.float32)
+            at += self.dims[k]
+        out[COLOUR] = texture.astype(np.float32)
+        return out, rng.random(n) < color_fraction
 
 
-def fill(db: Database, shape, texture, color) -> None:
-    """Bulk-insert rows (shape = 198 shape + 3 spectrum values) as models 1..m."""
-    m = len(shape)
+def fill(db: Database, kinds: dict, color) -> None:
+    """Bulk-insert rows (every kind of ``kinds``; texture where coloured) as models 1..m."""
+    m = len(color)
     now = utc_now()
     conv = "{}"
     with db.transaction():
@@ -139,27 +221,23 @@ def fill(db: Database, shape, texture, color) -> None:
              for i in range(m)))
         db.conn.executemany("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                             ((i + 1, b"") for i in range(m)))
-        sh = shape[:, :198].astype("<f4")
-        sp = shape[:, 198:].astype("<f4")
-        tx = texture.astype("<f4")
         ins = ("INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
                "VALUES (?, ?, ?, ?, ?)")
-        db.conn.executemany(ins, ((i + 1, "shape", 198, sh[i].tobytes(), conv) for i in range(m)))
-        db.conn.executemany(ins, ((i + 1, "spectrum", 3, sp[i].tobytes(), conv)
-                                  for i in range(m)))
-        db.conn.executemany(ins, ((i + 1, "texture", tx.shape[1], tx[i].tobytes(), conv)
-                                  for i in range(m) if color[i]))
+        for kind, mat in kinds.items():
+            mat = mat.astype("<f4")
+            db.conn.executemany(ins, ((i + 1, kind, mat.shape[1], mat[i].tobytes(), conv)
+                                      for i in range(m) if kind != COLOUR or color[i]))
         db.descriptors_changed()
 
 
 def queries(gen: Generator, n: int):
     """Query descriptor dicts: the first half coloured, the second shape-only."""
-    shape, texture, _ = gen.rows(n, color_fraction=1.0)
+    kinds, _ = gen.rows(n, color_fraction=1.0)
     out = []
     for i in range(n):
-        q = {"shape": shape[i, :198], "spectrum": shape[i, 198:]}
+        q = {k: v[i] for k, v in kinds.items() if k != COLOUR}
         if i < n // 2:
-            q["texture"] = texture[i]
+            q[COLOUR] = kinds[COLOUR][i]
         out.append(q)
     return out
 
@@ -239,9 +317,10 @@ class _Usearch:
 
 
 def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
-    shape, texture, color = gen.rows(m)
-    stored = {"shape": shape[:, :198], "spectrum": shape[:, 198:], "texture": texture}
-    present = {"shape": np.ones(m, bool), "spectrum": np.ones(m, bool), "texture": color}
+    kinds, color = gen.rows(m)
+    stored = {kd: kinds[kd] for kd in DEFAULT_KINDS if kd in kinds}
+    present = {kd: (color if kd == COLOUR else np.ones(m, bool)) for kd in stored}
+    shape = np.hstack([stored[kd] for kd in DEFAULT_KINDS if kd in stored and kd != COLOUR])
     truth = [exact_topk(q, stored, present, k) for q in qs]
     t_exact = []
     for q in qs[:20]:
@@ -272,13 +351,10 @@ def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
             times = []
             for q, t in zip(qs, truth):
                 t0 = time.process_time()
-                cand = lib.search(q_vec(q), n, ef)
-                if "texture" in q:
-                    # the texture term: candidates of the shape index alone (see surfidx.ann)
-                    pass
+                cand = lib.search(q_vec(q), n, ef)       # the shape graph alone
                 got = rerank(q, stored, present, cand, k)
                 times.append(time.process_time() - t0)
-                rec["texture" in q].append(len(t & set(got.tolist())) / k)
+                rec[COLOUR in q].append(len(t & set(got.tolist())) / k)
             print(f"{m:>8} {lib.name:>14} {f:>7} {t_build:>7.1f} {mem:>7.0f} {size:>6.0f} "
                   f"{pct(times, 50):>7.2f} {pct(times, 99):>7.2f} {np.mean(rec[False]):>7.3f} "
                   f"{np.mean(rec[True]):>7.3f}", flush=True)
@@ -286,66 +362,81 @@ def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
 
 
 def q_vec(q):
-    return np.concatenate([q["shape"], q["spectrum"]]).astype(np.float32)
+    """The shape-graph vector of a query: the search's kinds but texture side by side."""
+    return np.concatenate([q[kd] for kd in DEFAULT_KINDS if kd != COLOUR and kd in q]
+                          ).astype(np.float32)
 
 
 # ---------------------------------------------------------------------- surfidx end to end
-def end_to_end(gen, m, qs, *, k, tmp):
+def recall_and_times(fn, qs, truth):
+    times, rec = [], {True: [], False: []}
+    for q, t in zip(qs, truth):
+        t0 = time.process_time()
+        ids = fn(q)
+        times.append(time.process_time() - t0)
+        rec[COLOUR in q].append(len(t & set(ids.tolist())) / len(t))
+    return {"p50": pct(times, 50), "p99": pct(times, 99), "rec_shape": float(np.mean(rec[False])),
+            "rec_color": float(np.mean(rec[True]))}
+
+
+def end_to_end(gen, m, qs, *, k, tmp, factors):
     from surfidx import ann
 
     path = Path(tmp) / f"bench{m}.db"
-    shape, texture, color = gen.rows(m)
+    kinds, color = gen.rows(m)
     with Database(path) as db:
         t0 = time.perf_counter()
-        fill(db, shape, texture, color)
+        fill(db, kinds, color)
         t_fill = time.perf_counter() - t0
-    del shape, texture, color
+    del kinds, color
     gc.collect()
-    out = {}
+    out = {"fill": t_fill, "db_mb": path.stat().st_size / 2 ** 20}
     with Database(path, readonly=True) as db:
         r0 = rss_mb()
         t0 = time.process_time()
         exact = SearchIndex(db, exact=True)
-        t_load = time.process_time() - t0
-        mem_exact = rss_mb() - r0
+        out["load"] = time.process_time() - t0
+        out["mem_exact"] = rss_mb() - r0
         truth, t_exact = [], []
         for q in qs:
             t0 = time.process_time()
             ids, _ = exact.query(q, k=k)
             t_exact.append(time.process_time() - t0)
             truth.append(set(ids.tolist()))
+        out["exact50"], out["exact99"] = pct(t_exact, 50), pct(t_exact, 99)
         del exact
+        db._cache.clear()                           # the exact scan's matrices
         gc.collect()
         r0 = rss_mb()
         t0 = time.process_time()
-        built = ann.build(db)                     # writes the index beside the database
-        t_build = time.process_time() - t0
-        mem_build = rss_mb() - r0
+        built = ann.build(db, kinds=DEFAULT_KINDS)  # writes the index beside the database
+        out["build"] = time.process_time() - t0
+        out["mem_build"] = rss_mb() - r0
         del built
+        db._cache.clear()
         gc.collect()
-        size = ann.index_size(path) / 2 ** 20
+        out["size"] = ann.index_size(path) / 2 ** 20
         r0 = rss_mb()
         t0 = time.process_time()
-        approx = SearchIndex(db, threshold=0)     # opens (memory-maps) the index
-        t_open = time.process_time() - t0
-        mem_open = rss_mb() - r0
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)       # memory-maps the files
+        out["open"] = time.process_time() - t0
+        out["runs"] = {}
+        for f in factors:
+            out["runs"][f] = recall_and_times(
+                lambda q: index.query(q, distance=weighted_l2, k=k,
+                                      shape_weight=DEFAULT_SHAPE_WEIGHT, factor=f)[0], qs, truth)
+        out["mem_open"] = rss_mb() - r0
+        approx = SearchIndex(db, threshold=0)
         assert approx.approximate
-        t_ann, rec = [], {True: [], False: []}
-        for q, t in zip(qs, truth):
-            t0 = time.process_time()
-            ids, _ = approx.query(q, k=k)
-            t_ann.append(time.process_time() - t0)
-            rec["texture" in q].append(len(t & set(ids.tolist())) / k)
-    out.update(fill=t_fill, load=t_load, mem_exact=mem_exact, build=t_build, mem_build=mem_build,
-               size=size, open=t_open, mem_open=mem_open, exact50=pct(t_exact, 50),
-               exact99=pct(t_exact, 99), ann50=pct(t_ann, 50), ann99=pct(t_ann, 99),
-               rec_shape=float(np.mean(rec[False])), rec_color=float(np.mean(rec[True])))
+        out["search"] = recall_and_times(lambda q: approx.query(q, k=k)[0], qs, truth)
     return out
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--real-db", required=True, help="Database of real ingested models.")
+    ap.add_argument("--real-npz", nargs="*", default=[],
+                    help="Folders of grids cached by benchmarks/retrieval.py.")
+    ap.add_argument("--real-db", nargs="*", default=[], help="Databases of real ingested models.")
     ap.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
     ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("-k", type=int, default=10)
@@ -359,10 +450,14 @@ def main() -> None:
     ap.add_argument("--tmp", default=None,
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
     args = ap.parse_args()
-    real = real_descriptors(args.real_db)
-    print(f"real descriptors: {len(real['shape'])} models ({len(set(real['classes']))} classes), "
-          f"{len(real['texture'])} coloured; {args.queries} queries (half coloured), "
-          f"k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; load {os.getloadavg()[0]:.1f}")
+    if not args.real_npz and not args.real_db:
+        ap.error("give --real-npz and/or --real-db")
+    real = real_descriptors(args.real_db, args.real_npz)
+    n_col = len(real["textures"])
+    print(f"real descriptors: {len(real['vectors'])} models ({len(set(real['classes']))} "
+          f"classes), {n_col} coloured, kinds {real['dims']}; search kinds {DEFAULT_KINDS}; "
+          f"{args.queries} queries (half coloured), k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; "
+          f"load {os.getloadavg()[0]:.1f}", flush=True)
     if args.compare:
         make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "usearch-f32": lambda: _Usearch("f32"),
                 "usearch-f16": lambda: _Usearch("f16"), "usearch-i8": lambda: _Usearch("i8")}
@@ -376,20 +471,26 @@ def main() -> None:
             compare(gen, m, qs, k=args.k, factors=args.factors, ef=args.ef, ef_add=args.ef_add,
                     libs=[make[n]() for n in args.libs])
         return
-    print(f"{'models':>8} {'fill s':>7} {'exact load s':>12} {'exact MB':>8} {'p50':>6} "
-          f"{'p99':>6} | {'build s':>7} {'build MB':>8} {'disk MB':>7} {'open ms':>7} "
-          f"{'open MB':>7} {'p50':>6} {'p99':>6} {'rec sh':>6} {'rec col':>7}")
+    print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
+          "it stands (factor 8, rows read from SQLite), 'fN' = AnnIndex.query with N*k "
+          "candidates per graph re-ranked on the row copies", flush=True)
+    print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
+          f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>6} {'p50':>6} "
+          f"{'p99':>6} {'rec sh':>6} {'rec col':>7}")
     with (tempfile.TemporaryDirectory() if args.tmp is None
           else contextlib.nullcontext(args.tmp)) as tmp:
         for m in args.sizes:
             gen = Generator(real, m)
             qs = queries(gen, args.queries)
-            r = end_to_end(gen, m, qs, k=args.k, tmp=tmp)
-            print(f"{m:>8} {r['fill']:>7.1f} {r['load']:>12.2f} {r['mem_exact']:>8.0f} "
-                  f"{r['exact50']:>6.2f} {r['exact99']:>6.2f} | {r['build']:>7.1f} "
-                  f"{r['mem_build']:>8.0f} {r['size']:>7.0f} {r['open'] * 1e3:>7.1f} "
-                  f"{r['mem_open']:>7.0f} {r['ann50']:>6.2f} {r['ann99']:>6.2f} "
-                  f"{r['rec_shape']:>6.3f} {r['rec_color']:>7.3f}", flush=True)
+            r = end_to_end(gen, m, qs, k=args.k, tmp=tmp, factors=args.factors)
+            head = (f"{m:>8} {r['db_mb']:>6.0f} {r['exact50']:>9.2f} {r['exact99']:>6.2f} "
+                    f"{r['mem_exact']:>5.0f} | {r['build']:>7.1f} {r['mem_build']:>5.0f} "
+                    f"{r['size']:>7.0f} {r['open'] * 1e3:>7.1f} {r['mem_open']:>5.0f} |")
+            lines = [(f"f{f}", x) for f, x in r["runs"].items()] + [("search", r["search"])]
+            for j, (name, x) in enumerate(lines):
+                print(f"{head if j == 0 else ' ' * len(head)} {name:>6} {x['p50']:>6.2f} "
+                      f"{x['p99']:>6.2f} {x['rec_shape']:>6.3f} {x['rec_color']:>7.3f}",
+                      flush=True)
 
 
 if __name__ == "__main__":
