@@ -416,3 +416,70 @@ def test_ann_query_and_kinds_errors(big):
             ann.build(db, kinds=("texture", "shape"))
     with pytest.raises(InputError, match="1100 values are too wide"):
         ann._digest(np.zeros((2, 1100), np.float32))
+
+
+# ---------------------------------------------------------------------- at the threshold
+@pytest.fixture(scope="module")
+def at_threshold(tmp_path_factory):
+    """A database of DEFAULT_THRESHOLD models: the CLI's query uses the index by itself."""
+    path = tmp_path_factory.mktemp("thr") / "thr.db"
+    shape, tex, color = rows(ann.DEFAULT_THRESHOLD, seed=11)
+    with Database(path) as db:
+        fill(db, shape, tex, color)            # close() builds the index
+    assert (ann.index_dir(path) / "manifest.json").exists()
+    return path, shape, tex, color
+
+
+def test_cli_query_by_id_imports_no_heavy_module(at_threshold):
+    """``surfidx query id:N`` on a database using the index imports neither numba, scipy,
+    trimesh, pyshtools nor sqlite-utils."""
+    import subprocess
+    import sys
+
+    path = at_threshold[0]
+    code = ("import sys, json\n"
+            "from surfidx.cli import cli\n"
+            f"cli.main(['query', 'id:12', '--db', {str(path)!r}, '-k', '3', '--json'], "
+            "standalone_mode=False)\n"
+            "heavy = {'numba', 'scipy', 'trimesh', 'pyshtools', 'sqlite_utils'}\n"
+            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & heavy)))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout.strip().splitlines()
+    assert json.loads(out[-1]) == []
+    assert len(json.loads("\n".join(out[:-1]))["results"]) == 3
+
+
+def test_cli_queries_stay_exact_while_models_are_removed_and_redescribed(at_threshold, tmp_path):
+    """The index beside a database at the threshold, changed by ``surfidx rm`` and by a
+    redescribe through the library: every CLI query agrees with ``--exact``."""
+    import shutil
+
+    from surfidx.cli import cli
+
+    src, shape, tex, color = at_threshold
+    path = tmp_path / "thr.db"
+    shutil.copy(src, path)
+    shutil.copytree(ann.index_dir(src), ann.index_dir(path))
+    runner = CliRunner()
+
+    def both(ref):
+        out = []
+        for extra in ([], ["--exact"]):
+            res = runner.invoke(cli, ["query", ref, "--db", str(path), "-k", "10", "--json",
+                                      *extra])
+            assert res.exit_code == 0, res.output
+            out.append(json.loads(res.output)["results"])
+        assert out[0] == out[1]
+        return [r["id"] for r in out[0]]
+
+    near = both("id:40")
+    res = runner.invoke(cli, ["rm", f"id:{near[0]}", "--db", str(path)])
+    assert res.exit_code == 0, res.output
+    assert near[0] not in both("id:40")
+    with Database(path) as db:                 # id 41 now holds id 40's descriptors
+        db.set_descriptors(41, db.get_descriptors(40), {})
+    got = both("id:40")
+    assert got[0] == 41
+    with Database(path, readonly=True) as db:
+        assert json.loads((ann.index_dir(path) / "manifest.json").read_text())["state"] \
+            == db.index_state()
