@@ -16,6 +16,7 @@ from surfidx._errors import InputError
 
 __all__ = ["discover", "NotRegularFile", "not_regular", "hash_files", "find_texture"]
 
+
 # ---------------------------------------------------------------------- discovery
 def discover(paths) -> list:
     """The model files named by ``paths``, absolute (symbolic links kept), deduplicated, sorted.

@@ -18,6 +18,7 @@ from ._files import NotRegularFile, find_texture, hash_files, not_regular
 
 __all__ = ["Task", "Outcome", "error_message", "resolve_processor", "process_task", "make_tasks"]
 
+
 # ---------------------------------------------------------------------- tasks and outcomes
 @dataclass(frozen=True)
 class Task:

@@ -37,7 +37,7 @@ import numpy as np
 from . import container, density, wavelets, zerotree
 from ._errors import BitstreamError, InputError
 from ._validate import check_positive_int
-from .icosphere import MAX_LEVEL, choose_level, icosphere, vertex_count
+from .icosphere import MAX_LEVEL, icosphere, vertex_count
 from .klt import KLT
 from .resample import resample
 from .sphere import METHODS as MAP_METHODS
@@ -96,7 +96,8 @@ class Encoder:
     surfels : SurfelSet
         A closed genus-0 surface (mesh input for the default map).
     level : int, optional
-        Icosahedral grid level; default :func:`surfidx.icosphere.choose_level` of the surfel count.
+        Icosahedral grid level; default the map's ``grid_level``
+        (:func:`surfidx.icosphere.choose_level` of the surfel count and the map's sparse sampling).
     color : bool, optional
         Code colour (default: when the surfels have it).
     method : {"tutte", "mds"}
@@ -165,8 +166,7 @@ class Encoder:
             sphere_map = parameterize(surfels, method=method, stress=False)
         self.sphere_map = sphere_map
         t["map"] = time.perf_counter() - t0
-        self.level = choose_level(self.n_surfels, sparse_sampling=sphere_map.sparse_sampling) \
-            if level is None else level
+        self.level = sphere_map.grid_level if level is None else level
         t0 = time.perf_counter()
         grid = resample(surfels, sphere_map.points, self.level, color=self.color)
         self.grid = grid

@@ -1229,12 +1229,8 @@ class Database:
         DatabaseError
             No such model (or it has no asset).
         """
-        model_id = self.resolve(id_or_name)
-        row = self.conn.execute("SELECT stream FROM assets WHERE model_id = ?",
-                                (model_id,)).fetchone()
-        if row is None:
-            raise DatabaseError(f"model {model_id} has no stored stream", path=self.path)
-        return bytes(row[0])
+        return self._blob(id_or_name, "SELECT stream FROM assets WHERE model_id = ?",
+                          "stored stream")
 
     def get_thumbnail(self, id_or_name) -> bytes:
         """The stored PNG thumbnail of a model.
@@ -1244,11 +1240,16 @@ class Database:
         DatabaseError
             No such model (or it has no thumbnail).
         """
+        return self._blob(id_or_name, "SELECT png FROM thumbnails WHERE model_id = ?",
+                          "thumbnail")
+
+    def _blob(self, id_or_name, sql: str, what: str) -> bytes:
+        """The one blob ``sql`` selects for a model (by its id), or :class:`DatabaseError`
+        naming ``what`` it lacks."""
         model_id = self.resolve(id_or_name)
-        row = self.conn.execute("SELECT png FROM thumbnails WHERE model_id = ?",
-                                (model_id,)).fetchone()
+        row = self.conn.execute(sql, (model_id,)).fetchone()
         if row is None:
-            raise DatabaseError(f"model {model_id} has no thumbnail", path=self.path)
+            raise DatabaseError(f"model {model_id} has no {what}", path=self.path)
         return bytes(row[0])
 
     def get_descriptors(self, id_or_name) -> dict:

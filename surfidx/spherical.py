@@ -51,21 +51,10 @@ def unit_vectors(points, *, count: int | None = None, name: str = "sphere_points
 
 
 def map_points(surfels: SurfelSet, sphere_points) -> np.ndarray:
-    """The checked sphere positions of ``surfels``: one unit vector per surfel, renormalised.
+    """The checked sphere positions of ``surfels``: :func:`unit_vectors` with one row per surfel.
 
-    Parameters
-    ----------
-    surfels : SurfelSet
-    sphere_points : (n, 3) float64
-
-    Returns
-    -------
-    (n, 3) float64
-
-    Raises
-    ------
-    InputError
-        ``surfels`` is no SurfelSet, or the points are not one unit vector per surfel.
+    Raises :class:`InputError` as :func:`unit_vectors` does, and when ``surfels`` is no
+    :class:`~surfidx.SurfelSet`.
     """
     if not isinstance(surfels, SurfelSet):
         raise InputError(f"surfels must be a SurfelSet, got {type(surfels).__name__}")

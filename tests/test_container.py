@@ -266,3 +266,11 @@ def test_pack_refuses_values_it_would_not_read():
     h.mean = np.full(6, 1e13)
     with pytest.raises(InputError, match="the KLT values cannot be stored: KLT mean"):
         pack(h, b"")
+
+
+def test_one_plane_bound_for_anchors_and_zerotree():
+    """The container's anchors and the zerotree's planes share one bound."""
+    from surfidx import container, zerotree
+
+    assert zerotree._MAX_PLANE is container.MAX_PLANE
+    assert container.min_file_bytes(9) == -(-(10 * 4 ** 9 + 2) // container.GRID_PER_BYTE)

@@ -219,3 +219,22 @@ def test_choose_level():
         choose_level(10, oversampling=0)
     with pytest.raises(InputError, match="max_level must be at most 9"):
         choose_level(10, max_level=12)
+
+
+def test_level_of_count_inverts_vertex_count():
+    from surfidx.icosphere import level_of_count
+
+    for level in range(MAX_LEVEL + 1):
+        assert level_of_count(vertex_count(level)) == level
+    assert level_of_count(vertex_count(3) + 1) is None
+    assert level_of_count(11) is None and level_of_count(0) is None
+
+
+def test_icosphere_imports_without_scipy():
+    """Counting grid vertices (the container, the CLI's ``info``) imports no scipy."""
+    import subprocess
+    import sys
+
+    code = "import sys, surfidx.icosphere, surfidx.container; print('scipy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

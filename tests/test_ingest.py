@@ -616,3 +616,24 @@ def test_exit_with_parent_fallback_thread(tmp_path):
     finally:
         proc.wait()
     assert _wait_dead([pid]) == []
+
+
+def test_find_texture_reads_the_mtl_as_io_does(tmp_path):
+    """A ``map_Kd`` without an image names no texture (as surfidx.io reads it), so the PNG beside
+    the OBJ is used; an MTL that cannot be read names none either."""
+    obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n"
+    (tmp_path / "t.png").write_bytes(tiny_png())
+    (tmp_path / "a.obj").write_text("mtllib a.mtl\n" + obj)
+    (tmp_path / "a.mtl").write_text("newmtl m\nmap_Kd\n")
+    assert ingest.find_texture(tmp_path / "a.obj") == tmp_path / "t.png"
+    (tmp_path / "b.obj").write_text("mtllib missing.mtl\n" + obj)
+    assert ingest.find_texture(tmp_path / "b.obj") == tmp_path / "t.png"
+
+
+def test_run_records_a_single_path_given_as_text(tmp_path):
+    """``paths`` may be one path as text: the run record holds it whole."""
+    root = make_tree(tmp_path / "data", 2)
+    s = ingest.run(str(root), db=tmp_path / "s.db", processor=fake_processor, progress=False)
+    assert s.stored == 2
+    with Database(tmp_path / "s.db") as d:
+        assert d.last_run()["paths"] == [str(root)]

@@ -223,8 +223,9 @@ def test_horse_full_size(horse):
 
 @pytest.mark.slow
 def test_horse_delaunay_fold_target(horse):
-    """Issue #4's fold target on horse: no folded Delaunay triangle (73-110 before the repair, 4-5
-    after it, near-collinear triples on the legs, 0 after the flips and their realisation)."""
+    """Issue #4's fold target on horse: no folded Delaunay triangle once the repair, the flips
+    and their realisation have run (the repair alone leaves near-collinear triples on the
+    legs)."""
     _, m = horse
     assert m.folded == 0
     assert m.info["folds_repaired"] >= 40 and m.info["folds_realised"] >= 1
@@ -512,3 +513,36 @@ def test_repair_switches_are_options():
     full = parameterize(s, stress=False, options=MapOptions(realise=False))
     assert plain.stage("realise") is None and plain.stage("repair").figures["second_pass"] == 0
     assert full.folded <= plain.folded
+
+
+def test_grid_level_is_choose_level_of_the_map():
+    """The default grid level of a map: one rule (icosphere.choose_level) for codec and CLI."""
+    from surfidx.icosphere import choose_level
+
+    s = TriangleMesh(*icosphere_mesh(2)).to_surfels()
+    m = parameterize(s, stress=False)
+    assert m.grid_level == choose_level(len(s), sparse_sampling=m.sparse_sampling)
+
+
+def test_figures_of_the_map_are_the_public_measures():
+    """parameterize checks its points once and computes the figures with the private kernels:
+    the same values as the public functions."""
+    s = TriangleMesh(*icosphere_mesh(2)).to_surfels()
+    m = parameterize(s, stress=False)
+    assert (m.folded, m.triangles) == count_folds(s, m.points)
+    assert m.area_distortion == area_distortion(s, m.points)
+    assert m.sparse_sampling == sparse_sampling(s, m.points)
+
+
+def test_method_names_and_options_import_without_the_stages():
+    """The CLI reads sphere.METHODS at startup: the package exports the stages lazily."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from surfidx.sphere import METHODS, MapOptions; import surfidx.cli; "
+            "print(METHODS, 'numba' in sys.modules, 'scipy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["('tutte',", "'mds')", "False", "False"]
+    import surfidx.sphere as S
+    with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
+        S.nothing

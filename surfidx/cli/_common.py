@@ -12,7 +12,7 @@ import warnings
 import click
 import numpy as np
 
-from .._errors import SurfidxError, TopologyError
+from .._errors import SurfidxError
 
 __all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
            "outside_textures_option", "output_format_option"]

@@ -51,14 +51,13 @@ def parameterize(input, output, method, seed, texture, samples, as_json):
 @command_errors
 def resample(input, output, level, method, as_mesh, texture, samples, as_json):
     """Map a model to the sphere and write its uncompressed icosahedral-grid reconstruction."""
-    from ..icosphere import choose_level
     from ..io import write_ply
     from ..sphere import parameterize as run
     from ..resample import grid_to_mesh, grid_to_surfels, resample as resample_grid
 
     s = read_input(input, texture, samples)
     m = run(s, method=method, stress=False)
-    lev = choose_level(len(s), sparse_sampling=m.sparse_sampling) if level is None else level
+    lev = m.grid_level if level is None else level
     vals = resample_grid(s, m.points, lev)
     g = grid_to_surfels(vals, name=s.name)
     if as_mesh:

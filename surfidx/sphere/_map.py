@@ -13,7 +13,8 @@ import numpy as np
 
 from .._errors import InputError, TopologyError
 from .._validate import check_positive_int
-from ..spherical import hull_triangles
+from ..icosphere import choose_level
+from ..spherical import hull_triangles, map_points
 from ..surfels import SurfelSet
 from ._cloud import cloud_map
 from ._mds import geodesics, mds_map
@@ -21,7 +22,7 @@ from ._multilevel import mesh_map
 from ._repair import repair
 from ._surface import check_surfels, has_faces, oriented_faces
 from .options import DEFAULT_OPTIONS, METHODS, MapOptions
-from .quality import area_distortion, count_folds, landmark_stress, sparse_sampling
+from .quality import _area_distortion, _count_folds, _sparse_sampling, landmark_stress
 
 __all__ = ["parameterize", "SphericalMap", "Stage"]
 
@@ -75,7 +76,7 @@ class SphericalMap:
     stages : tuple of Stage
         The stages that ran, in order.
     sparse_sampling : float
-        :func:`sparse_sampling` of the map: how densely an even grid on the sphere samples the
+        :func:`surfidx.sphere.sparse_sampling` of the map: how densely an even grid on the sphere samples the
         sparsest-mapped surfels, relative to their count (1 for an even map); it sets the grid
         level with the surfel count (:func:`surfidx.icosphere.choose_level`).
     """
@@ -89,6 +90,13 @@ class SphericalMap:
     seconds: float
     stages: tuple = ()
     sparse_sampling: float = 1.0
+
+    @property
+    def grid_level(self) -> int:
+        """The icosahedral grid level for these surfels: :func:`surfidx.icosphere.choose_level`
+        of the surfel count and this map's :attr:`sparse_sampling` (the codec's and the CLI's
+        default level)."""
+        return choose_level(len(self.points), sparse_sampling=self.sparse_sampling)
 
     @property
     def fold_fraction(self) -> float:
@@ -206,8 +214,9 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     stages += [Stage.of(name, figs) for name, figs in repaired]
     seconds = time.perf_counter() - t0
     tri = hull_triangles(pts)
-    folded, total = count_folds(surfels, pts, triangles=tri)
-    ad = area_distortion(surfels, pts, triangles=tri)
+    on_sphere = map_points(surfels, pts)      # checked once for the three figures
+    folded, total = _count_folds(surfels, tri)
+    ad = _area_distortion(surfels.positions, on_sphere, tri)
     if fallback and ad > options.max_area_distortion:
         cloud = not has_faces(surfels)
         what = "its proxy surface" if cloud else "the mesh"
@@ -217,7 +226,7 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
             f"level of {what} could be untangled, so the grid would miss those parts; thin or "
             "touching parts are the usual cause" + (": mesh the scan, or sample it more densely"
                                                     if cloud else ""))
-    sparse = sparse_sampling(surfels, pts, triangles=tri)
+    sparse = _sparse_sampling(on_sphere, tri)
     st = float("nan")
     if stress:
         if lm is None:

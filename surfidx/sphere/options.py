@@ -23,6 +23,15 @@ STAGES = ("multilevel", "single_level", "proxy", "repair", "realise", "mds")
 
 _INF = math.inf
 
+_FIELD_CHECKS = {
+    "bool": (lambda v: isinstance(v, bool), "True or False"),
+    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "an integer >= 0"),
+    "float": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
+              and math.isfinite(v), "a finite number >= 0"),
+}
+"""Per field type of :class:`MapOptions`: the test of a value and what the message asks for."""
+
 
 @dataclass(frozen=True)
 class MapOptions:
@@ -149,18 +158,9 @@ class MapOptions:
     def __post_init__(self):
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.type == "bool":
-                if not isinstance(value, bool):
-                    raise InputError(f"MapOptions.{f.name} must be True or False, got {value!r}")
-            elif f.type == "int":
-                if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                    raise InputError(f"MapOptions.{f.name} must be an integer >= 0, "
-                                     f"got {value!r}")
-            elif f.type == "float":
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
-                        value >= 0 and math.isfinite(value)):
-                    raise InputError(f"MapOptions.{f.name} must be a finite number >= 0, "
-                                     f"got {value!r}")
+            check = _FIELD_CHECKS.get(f.type)
+            if check is not None and not check[0](value):
+                raise InputError(f"MapOptions.{f.name} must be {check[1]}, got {value!r}")
         if self.level_ratio < 2:
             raise InputError(f"MapOptions.level_ratio must be at least 2, got {self.level_ratio}")
         ladder = self.coarse_ladder

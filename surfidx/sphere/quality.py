@@ -36,7 +36,7 @@ def count_folds(surfels: SurfelSet, sphere_points, *, triangles=None) -> tuple[i
         The surfels' positions on the unit sphere.
     triangles : (m, 3) int64, optional
         The hull of ``sphere_points`` when already computed
-        (:func:`surfidx.spherical.hull_triangles`).
+        (:func:`surfidx.spherical.hull_triangles`), or other triangles to measure on.
 
     Returns
     -------
@@ -44,6 +44,11 @@ def count_folds(surfels: SurfelSet, sphere_points, *, triangles=None) -> tuple[i
     total : int
     """
     _, tri = _points_and_triangles(surfels, sphere_points, triangles)
+    return _count_folds(surfels, tri)
+
+
+def _count_folds(surfels: SurfelSet, tri: np.ndarray) -> tuple[int, int]:
+    """:func:`count_folds` on checked triangles."""
     return int(np.count_nonzero(folded_mask(surfels.positions, surfels.normals, tri))), len(tri)
 
 
@@ -60,10 +65,8 @@ def area_distortion(surfels: SurfelSet, sphere_points, *, triangles=None) -> flo
 
     Parameters
     ----------
-    surfels : SurfelSet
-    sphere_points : (n, 3) float64
-    triangles : (m, 3) int64, optional
-        Triangles to measure on (default: the hull of ``sphere_points``).
+    surfels, sphere_points, triangles
+        As in :func:`count_folds` (triangles: those to measure on).
 
     Returns
     -------
@@ -71,7 +74,12 @@ def area_distortion(surfels: SurfelSet, sphere_points, *, triangles=None) -> flo
         0 for an area-preserving map; ``log(10)`` ≈ 2.3 means tenfold typical area errors.
     """
     pts, tri = _points_and_triangles(surfels, sphere_points, triangles)
-    a3 = areas3(surfels.positions, tri)
+    return _area_distortion(surfels.positions, pts, tri)
+
+
+def _area_distortion(positions: np.ndarray, pts: np.ndarray, tri: np.ndarray) -> float:
+    """:func:`area_distortion` of checked sphere points and triangles."""
+    a3 = areas3(positions, tri)
     asph = np.abs(triangle_areas(pts, tri))
     w = a3 / a3.sum()
     ratio = (asph / asph.sum()) / np.maximum(w, _TINY)
@@ -92,10 +100,8 @@ def sparse_sampling(surfels: SurfelSet, sphere_points, *, triangles=None,
 
     Parameters
     ----------
-    surfels : SurfelSet
-    sphere_points : (n, 3) float64
-    triangles : (m, 3) int64, optional
-        Triangles to measure on (default: the hull of ``sphere_points``).
+    surfels, sphere_points, triangles
+        As in :func:`count_folds` (triangles: those to measure on).
     quantile : float
         In (0, 1).
 
@@ -106,6 +112,11 @@ def sparse_sampling(surfels: SurfelSet, sphere_points, *, triangles=None,
     if not 0.0 < float(quantile) < 1.0:
         raise InputError(f"quantile must lie in (0, 1), got {quantile!r}")
     pts, tri = _points_and_triangles(surfels, sphere_points, triangles)
+    return _sparse_sampling(pts, tri, float(quantile))
+
+
+def _sparse_sampling(pts: np.ndarray, tri: np.ndarray, quantile: float = SPARSE_QUANTILE) -> float:
+    """:func:`sparse_sampling` of checked sphere points and triangles."""
     a = np.abs(triangle_areas(pts, tri))
     share = vertex_area_shares(tri, a, len(pts))
     return float(np.quantile(len(pts) * share / (4.0 * np.pi), float(quantile)))
