@@ -181,6 +181,345 @@ def distance_matrix(descs, **kw) -> np.ndarray:
     return d
 
 
+# --------------------------------------------------------------------- descriptor study
+STUDY_GRIDS = (16, 24, 48)
+"""Driscoll–Healy grid degrees of the layer-energy variants of ``--study``."""
+STUDY_LMAX = (8, 12, 16, 24)
+"""Largest degrees of the layer-energy variants (at most the grid degree)."""
+STUDY_TRANSFORMS = ("sqrt", "log", "eig-sqrt")
+"""``sqrt(E)``, ``log(E + STUDY_LOG_EPS)``, ``sqrt(E / s_j)`` (per layer over its KLT eigenvalue
+share)."""
+STUDY_LOG_EPS = 1e-5
+STUDY_WEIGHTS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
+"""Weights of the layers part beside the other shape parts (the weight of a part is its median
+distance over 1.15, as ``surfidx.descriptors.SHAPE_PART_WEIGHTS``)."""
+
+
+def study_parts(rec):
+    """The unscaled shape parts, the KLT spectrum and the layer energies of every study grid."""
+    from surfidx import descriptors as D
+    from surfidx.icosphere import icosphere
+    from surfidx.klt import KLT
+
+    if rec["grid"] is None:
+        return None
+    x, level = rec["grid"][:, :3], rec["level"]
+    geo = KLT.fit(x, sample_weights=icosphere(level).vertex_areas())
+    total = float(np.sum(geo.eigenvalues))
+    g = geo.forward(x) / np.sqrt(total)
+    shares = np.asarray(geo.eigenvalues) / total
+    parts = D._shape_parts(x, level, g, shares)
+    parts["spectral_l5"] = D._log_spectrum(x, min(level, 5))
+    return {"parts": parts, "shares": shares,
+            "energies": {G: np.maximum(D._degree_energies(g, level, G), 0.0)
+                         for G in STUDY_GRIDS}}
+
+
+def layer_variant(p, grid, lmax, transform):
+    e = p["energies"][grid][:, :lmax + 1]
+    if transform == "sqrt":
+        return np.sqrt(e).ravel()
+    if transform == "log":
+        return np.log(e + STUDY_LOG_EPS).ravel()
+    return np.sqrt(e / np.maximum(p["shares"], 1e-12)[:, None]).ravel()
+
+
+def pairwise(vectors) -> np.ndarray:
+    """(N, N) L2 distances of a list of vectors (None: inf row and column)."""
+    ok = np.array([v is not None for v in vectors])
+    n = len(vectors)
+    d = np.full((n, n), np.inf)
+    if ok.any():
+        m = np.stack([v for v in vectors if v is not None]).astype(np.float64)
+        sq = np.einsum("ij,ij->i", m, m)
+        dd = np.sqrt(np.maximum(sq[:, None] + sq[None, :] - 2.0 * m @ m.T, 0.0))
+        np.fill_diagonal(dd, 0.0)
+        d[np.ix_(ok, ok)] = dd
+    return d
+
+
+def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
+    """Tables of ``--study``: every kind alone and combined, layer variants, the plateau."""
+    from surfidx import descriptors as D
+
+    names = D.SHAPE_PARTS
+    scales = dict(zip(names, D.SHAPE_PART_SCALES))
+    base_idx = np.arange(n_base)
+    g0_idx = np.flatnonzero(g0)
+    off = ~np.eye(len(g0_idx), dtype=bool)
+
+    def part_d(fn):
+        return pairwise([None if p is None else fn(p) for p in parts])
+
+    sq = {k: part_d(lambda p, k=k: p["parts"][k]) ** 2 for k in names}
+    sq["spectrum"] = part_d(lambda p: p["shares"]) ** 2
+
+    def med_g0(d):
+        sub = d[np.ix_(g0_idx, g0_idx)][off]
+        return float(np.median(sub[np.isfinite(sub)]))
+
+    def evaluate(d):
+        out = {}
+        for subset, idx in (("genus-0", g0_idx), ("all", base_idx)):
+            s = sb.psb_statistics(d[np.ix_(idx, idx)], classes[idx])
+            out[subset] = {m: s[m] for m in ("nn", "ft", "map")}
+        b = d[:n_base, :n_base]
+        fin = np.isfinite(b) & ~np.eye(n_base, dtype=bool)
+        med = float(np.median(b[fin]))
+        r = [d[i, c] / med for i, c in inv_pairs if np.isfinite(d[i, c])]
+        out["invariance_max"] = float(max(r)) if r else float("nan")
+        out["invariance_median"] = float(np.median(r)) if r else float("nan")
+        return out
+
+    old_shape = sum(scales[k] ** 2 * sq[k] for k in names if k != "layers")
+    rows, record = [], {}
+
+    def row(label, d):
+        e = evaluate(d)
+        record[label] = e
+        rows.append([label] + [f"{e[s][m]:.3f}" for s in ("genus-0", "all")
+                               for m in ("nn", "ft", "map")]
+                    + [f"{100 * e['invariance_max']:.2f}"])
+        return e
+
+    header = ["distance", "g0 NN", "g0 FT", "g0 mAP", "all NN", "all FT", "all mAP",
+              "inv. max %"]
+    layers_kind = part_d(lambda p: layer_variant(p, 24, 24, "sqrt"))
+    row("layers (stored kind: sqrt, lmax 24, plain L2)", layers_kind)
+    for k in names:
+        row(f"part {k} alone", np.sqrt(sq[k]))
+    row("shape without layers (version 4 shape)", np.sqrt(old_shape))
+    row("version 4 default (shape + KLT spectrum)", np.sqrt(old_shape + sq["spectrum"]))
+    new = np.sqrt(sum(scales[k] ** 2 * sq[k] for k in names) + sq["spectrum"])
+    row("new default (descriptor_distance)", new)
+    sq5 = part_d(lambda p: p["parts"]["spectral_l5"]) ** 2
+    old5 = old_shape + scales["spectral"] ** 2 * (sq5 - sq["spectral"])
+    row("version 4 default, spectral part at level 5", np.sqrt(old5 + sq["spectrum"]))
+    row("new default, spectral part at level 5",
+        np.sqrt(old5 + scales["layers"] ** 2 * sq["layers"] + sq["spectrum"]))
+    print("\nStudy: each kind alone and the defaults (leave-one-out; invariance: max ratio of "
+          "the copies)\n")
+    print_table(header, rows)
+
+    variants = [(G, L, t) for G in STUDY_GRIDS for L in STUDY_LMAX if L <= G
+                for t in STUDY_TRANSFORMS]
+    vrows, vd, vrec = [], {}, {}
+    for G, L, t in variants:
+        d = part_d(lambda p, G=G, L=L, t=t: layer_variant(p, G, L, t))
+        vd[(G, L, t)] = d
+        e = evaluate(d)
+        vrec[f"grid {G} lmax {L} {t}"] = e
+        vrows.append([G, L, t] + [f"{e[s][m]:.3f}" for s in ("genus-0", "all")
+                                  for m in ("nn", "ft", "map")]
+                     + [f"{100 * e['invariance_max']:.2f}"])
+    print("\nLayer energies alone, by DH grid degree, lmax and transform (plain L2)\n")
+    print_table(["grid", "lmax", "transform"] + header[1:], vrows)
+
+    prow, irow, arow, prec = [], [], [], {}
+    plateau = [(key, 6) for key in vd] + [(key, 5) for key in vd
+                                          if key[0] == 24 and key[2] != "log"]
+    for (key, spec) in plateau:
+        d = vd[key]
+        med = med_g0(d)
+        cells, icells, acells = [], [], []
+        rest = old_shape if spec == 6 else old5
+        for w in weights:
+            dist = np.sqrt(rest + sq["spectrum"] + (1.15 * w / med) ** 2 * d ** 2)
+            e = evaluate(dist)
+            prec[f"grid {key[0]} lmax {key[1]} {key[2]} w {w:g} spectral level {spec}"] = dict(
+                e, median=med)
+            cells.append(f"{e['genus-0']['nn']:.2f}/{e['genus-0']['map']:.3f}")
+            acells.append(f"{e['all']['nn']:.2f}/{e['all']['map']:.3f}")
+            icells.append(f"{100 * e['invariance_max']:.2f}")
+        lab = [key[0], key[1], key[2], spec, f"{med:.4g}"]
+        prow.append(lab + cells)
+        arow.append(lab + acells)
+        irow.append(lab + icells)
+    wh = ["grid", "lmax", "transform", "spectral level", "g0 median"] + [f"w={w:g}" for w in weights]
+    print("\nPlateau: version 4 default + layers part of weight w (median-normalised on genus-0); "
+          "genus-0 NN/mAP\n")
+    print_table(wh, prow)
+    print("\nPlateau, all models: NN/mAP\n")
+    print_table(wh, arow)
+    print("\nPlateau: invariance max ratio %\n")
+    print_table(wh, irow)
+    if json_out is not None:
+        json_out.write_text(json.dumps({"kinds": record, "variants": vrec, "plateau": prec},
+                                       indent=1))
+
+
+# --------------------------------------------------------------------- texture descriptor
+MODELS = ROOT.parent / "shared" / "data" / "models"
+TEXTURED = {"spot": ("spot/spot_triangulated.obj", "spot/spot_texture.png"),
+            "ycb_banana": ("ycb_banana/textured_simple_reoriented.obj", None)}
+"""Textured shared models of the texture table: mesh and texture (None: the OBJ's MTL)."""
+
+
+def read_textured(name, data=MODELS):
+    import surfidx
+
+    path, texture = TEXTURED[name]
+    kw = {} if texture is None else {"texture": data / texture}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return surfidx.read_mesh(data / path, **kw)
+
+
+def textured_copy(mesh, rng, fraction=SPLIT_FRACTION):
+    """A random similarity of a textured mesh with a random ``fraction`` of its faces split 1→3
+    at a random interior point (positions and texture coordinates with the same barycentrics)."""
+    from surfidx.mesh import TriangleMesh
+
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    pick = rng.random(len(f)) < fraction
+    w = rng.dirichlet([2.0, 2.0, 2.0], size=int(pick.sum()))
+
+    def split(points, faces):
+        new = np.einsum("fk,fkd->fd", w, points[faces[pick]])
+        m = len(points) + np.arange(len(new))
+        a, b, c = faces[pick].T
+        return (np.vstack([points, new]),
+                np.vstack([faces[~pick], np.c_[a, b, m], np.c_[b, c, m], np.c_[c, a, m]]))
+
+    v2, f2 = split(v, f)
+    uv = uvf = None
+    if mesh.uv is not None and mesh.uv_faces is not None:
+        uv, uvf = split(np.asarray(mesh.uv, float), np.asarray(mesh.uv_faces, np.int64))
+    rot, scale, shift = sb.random_similarity(rng)
+    return TriangleMesh(scale * v2 @ rot.T + shift, f2, uv=uv, uv_faces=uvf,
+                        texture=mesh.texture, name=mesh.name)
+
+
+def grid_of(mesh, method="tutte", *, other_texture=None):
+    """(grid (n_grid, 6), level, surfel count) of a textured mesh through the ingest path; with
+    ``other_texture`` also the grid of the same surfels coloured by that texture image (the same
+    geometry, so the same map)."""
+    from surfidx.icosphere import choose_level
+    from surfidx.mesh import TriangleMesh
+    from surfidx.resample import resample
+    from surfidx.sphere import parameterize
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        surfels = mesh.to_surfels()
+    m = parameterize(surfels, method=method, stress=False)
+    level = choose_level(len(surfels), sparse_sampling=m.sparse_sampling)
+    grids = [resample(surfels, m.points, level)]
+    if other_texture is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            other = TriangleMesh(mesh.vertices, mesh.faces, uv=mesh.uv, uv_faces=mesh.uv_faces,
+                                 texture=other_texture, name=mesh.name).to_surfels()
+        grids.append(resample(other, m.points, level))
+    return grids, level, len(surfels)
+
+
+def grey_axis_rotation(rgb, degrees):
+    """Colours (n, 3) in 0..255 rotated about the grey axis through mid-grey (an orthogonal map
+    of colour space: the colour KLT layers' energies do not change, only the mean colour)."""
+    t = np.radians(degrees)
+    k = np.ones(3) / np.sqrt(3.0)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    r = np.eye(3) + np.sin(t) * kx + (1 - np.cos(t)) * kx @ kx
+    return np.clip((rgb - 127.5) @ r.T + 127.5, 0.0, 255.0)
+
+
+def hsv_hue_shift(rgb, degrees):
+    """Colours (n, 3) in 0..255 with their HSV hue turned by ``degrees`` (saturation and value
+    kept)."""
+    x = rgb / 255.0
+    mx, mn = x.max(axis=1), x.min(axis=1)
+    c = mx - mn
+    r, g, b = x.T
+    safe = np.where(c > 0, c, 1.0)
+    h = np.where(mx == r, ((g - b) / safe) % 6, np.where(mx == g, (b - r) / safe + 2,
+                                                         (r - g) / safe + 4))
+    h = np.where(c > 0, h, 0.0)
+    h = (h + degrees / 60.0) % 6
+    xx = c * (1 - np.abs(h % 2 - 1))
+    z = np.zeros_like(c)
+    sector = h.astype(int)
+    table = [(c, xx, z), (xx, c, z), (z, c, xx), (z, xx, c), (xx, z, c), (c, z, xx)]
+    out = np.zeros_like(x)
+    for k, (a, b2, d) in enumerate(table):
+        sel = sector == k
+        out[sel] = np.c_[a, b2, d][sel]
+    return 255.0 * (out + (mx - c)[:, None])
+
+
+RECOLOURINGS = {"grey-axis rotation 120°": lambda c: grey_axis_rotation(c, 120.0),
+                "HSV hue +60°": lambda c: hsv_hue_shift(c, 60.0),
+                "HSV hue +180°": lambda c: hsv_hue_shift(c, 180.0),
+                "channels RGB→BRG": lambda c: c[:, [2, 0, 1]],
+                "inverted": lambda c: 255.0 - c}
+"""Recolourings of the texture table (the same grid, colours changed)."""
+
+
+def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
+    """Texture invariance (similarity + resampled copies) and discrimination (recoloured) of
+    the textured shared models: ``‖Δtexture‖`` over the median distance between differently
+    coloured models (every model and recolouring of the table)."""
+    from surfidx.descriptors import _texture_vector, describe_grid, descriptor_distance
+
+    models = [n for n in TEXTURED if (MODELS / TEXTURED[n][0]).exists()]
+    if not models:
+        print("\nTexture: no textured shared model found", file=sys.stderr)
+        return None
+    meshes = {n: read_textured(n) for n in models}
+    coloured, copies, full = {}, {}, {}
+    cpu = time.process_time()
+    for n in models:
+        others = [o for o in models if o != n and meshes[o].texture is not None]
+        grids, level, count = grid_of(meshes[n], method, other_texture=None if not others
+                                      else meshes[others[0]].texture)
+        full[n] = describe_grid(grids[0], level, lmax=lmax).vectors
+        coloured[n] = _texture_vector(grids[0][:, 3:], level, lmax)
+        for name, fn in RECOLOURINGS.items():
+            coloured[f"{n} {name}"] = _texture_vector(fn(grids[0][:, 3:]), level, lmax)
+        if len(grids) > 1:
+            coloured[f"{n} with {others[0]}'s texture"] = _texture_vector(grids[1][:, 3:],
+                                                                        level, lmax)
+        rng = np.random.default_rng(seed)
+        for k in range(n_copies):
+            cg, clevel, ccount = grid_of(textured_copy(meshes[n], rng), method)
+            copies[(n, k)] = (_texture_vector(cg[0][:, 3:], clevel, lmax), level, clevel,
+                              count, ccount, describe_grid(cg[0], clevel, lmax=lmax).vectors)
+    keys = list(coloured)
+    pair = [float(np.linalg.norm(coloured[a] - coloured[b])) for i, a in enumerate(keys)
+            for b in keys[i + 1:]]
+    med = float(np.median(pair))
+    inv_rows, inv = [], {}
+    for (n, k), (vec, level, clevel, count, ccount, vfull) in copies.items():
+        r = float(np.linalg.norm(vec - coloured[n])) / med
+        inv[f"{n} copy {k}"] = r
+        inv_rows.append([n, k, f"{count}→{ccount}", f"{level}→{clevel}", f"{100 * r:.2f}",
+                         "yes" if r <= 0.05 else "NO",
+                         f"{descriptor_distance(full[n], vfull):.4g}"])
+    print(f"\nTexture invariance: ‖Δtexture‖(model, rotated+scaled+translated+resampled copy) / "
+          f"median ‖Δtexture‖ between differently coloured models ({len(keys)} colourings, "
+          f"median {med:.4g}); target <= 5%; last column the default distance\n")
+    print_table(["model", "copy", "surfels", "level", "ratio %", "<= 5%", "default distance"],
+                inv_rows)
+    dis_rows, dis = [], {}
+    for n in models:
+        worst = max([v for k, v in inv.items() if k.startswith(f"{n} copy")], default=0.0)
+        for key in keys:
+            if key.startswith(f"{n} ") and key != n:
+                r = float(np.linalg.norm(coloured[key] - coloured[n])) / med
+                dis[key] = r
+                dis_rows.append([n, key[len(n) + 1:], f"{100 * r:.1f}",
+                                 f"{r / worst:.1f}" if worst > 0 else "inf",
+                                 "yes" if r > worst else "NO"])
+    print("\nTexture discrimination: the same shape recoloured, ‖Δtexture‖ / the median (%) "
+          "and over the largest invariance copy's\n")
+    print_table(["model", "recolouring", "ratio %", "× largest copy", "farther"], dis_rows)
+    print(f"\ntexture table: {time.process_time() - cpu:.0f} s CPU")
+    out = {"median": med, "invariance": inv, "discrimination": dis}
+    if json_out is not None:
+        json_out.write_text(json.dumps(out, indent=1))
+    return out
+
+
 def fmt_row(cells, widths):
     return " | ".join(str(c).ljust(w) for c, w in zip(cells, widths))
 
@@ -240,12 +579,31 @@ def main(argv=None) -> int:
     ap.add_argument("--confusion", action="store_true", help="print per-class figures")
     ap.add_argument("--json", type=Path, default=None, help="write the figures to this file")
     ap.add_argument("--limit", type=int, default=None, help="first N models only (smoke test)")
+    ap.add_argument("--study", type=Path, default=None, metavar="OUT.json",
+                    help="also measure every descriptor part alone, the layer-energy variants "
+                         "and the layers weight plateau; figures to this file")
+    ap.add_argument("--weights", default=None,
+                    help="comma-separated layers weights of the --study plateau (default "
+                         + ",".join(f"{w:g}" for w in STUDY_WEIGHTS) + ")")
+    ap.add_argument("--texture", type=int, default=0, metavar="COPIES",
+                    help="also the texture table of the textured shared models with this many "
+                         "similarity + resampled copies each (maps computed, not cached)")
+    ap.add_argument("--texture-json", type=Path, default=None, metavar="OUT.json")
+    ap.add_argument("--texture-only", action="store_true", help="only the texture table")
+    ap.add_argument("--cached-only", action="store_true",
+                    help="leave out the models and copies whose maps are not cached yet")
+    ap.add_argument("--study-only", action="store_true", help="with --study: skip the main "
+                    "tables (the descriptors are computed once for the study)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
 
     from surfidx.descriptors import DEFAULT_LMAX
 
     lmax = DEFAULT_LMAX if args.lmax is None else args.lmax
+    if args.texture or args.texture_only:
+        texture_table(max(args.texture, 1), args.seed, lmax, args.method, args.texture_json)
+        if args.texture_only:
+            return 0
     labels = read_table(args.data / "labels.csv")[:args.limit]
     meta = {r["path"]: r for r in read_table(args.data / "meta.csv")}
     paths = [r["path"] for r in labels]
@@ -278,14 +636,38 @@ def main(argv=None) -> int:
                      "method": args.method,
                      "cache_file": None if cache_dir is None else
                      str(cache_dir / f"{h}-copy{variant['seed']}.npz")})
+    if args.cached_only:
+        # the models (and copies) already in the cache; the others are left out entirely
+        have = [j["cache_file"] is not None and Path(j["cache_file"]).exists() for j in jobs]
+        keep = [i for i in range(len(paths)) if have[i]]
+        new_of = {old: new for new, old in enumerate(keep)}
+        copies_kept = [(new_of[i], jobs[len(paths) + k]) for k, i in enumerate(inv_models)
+                       if i in new_of and have[len(paths) + k]]
+        jobs = [jobs[i] for i in keep] + [j for _, j in copies_kept]
+        paths = [paths[i] for i in keep]
+        classes, genus, g0 = classes[keep], genus[keep], g0[keep]
+        inv_models = [i for i, _ in copies_kept]
+        print(f"cached only: {len(paths)} models, {len(inv_models)} copies", file=sys.stderr)
     t0 = time.perf_counter()
     recs = run_jobs(jobs, args.workers)
     t_compute = time.perf_counter() - t0
     base, copies = recs[:len(paths)], recs[len(paths):]
 
+    if args.study is not None:
+        t0 = time.process_time()
+        parts = [study_parts(r) for r in recs]
+        print(f"study parts: {time.process_time() - t0:.0f} s CPU", file=sys.stderr, flush=True)
+        inv_pairs = [(i, len(paths) + k) for k, i in enumerate(inv_models)]
+        weights = STUDY_WEIGHTS if args.weights is None else tuple(
+            float(w) for w in args.weights.split(","))
+        run_study(parts, len(paths), inv_pairs, classes, g0, weights, args.study)
+        if args.study_only:
+            return 0
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     descs = [describe(r, lmax) for r in base]
     t_describe = time.perf_counter() - t0
+    cpu_describe = time.process_time() - cpu0
     failed = [i for i, d in enumerate(descs) if d is None]
     ours = distance_matrix(descs)
     d2 = sb.l1_distances(np.stack([r["d2"] for r in base]))
@@ -378,7 +760,8 @@ def main(argv=None) -> int:
         print(f"  {paths[i]} ({classes[i]}, genus {genus[i]}): {base[i]['error']}")
     t_map = sum(r.get("seconds", 0.0) for r in recs)
     print(f"\nTime: map+resample {t_compute:.0f} s wall ({t_map:.0f} s CPU-sum incl. cached "
-          f"records' original times), describe {t_describe:.1f} s; cache "
+          f"records' original times), describe {t_describe:.1f} s wall, {cpu_describe:.1f} s CPU "
+          f"({cpu_describe / max(len(base) - len(failed), 1):.2f} s CPU per model); cache "
           f"{'off' if cache_dir is None else cache_dir}")
 
     if args.json is not None:

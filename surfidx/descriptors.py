@@ -82,6 +82,7 @@ from ._validate import as_array
 from .icosphere import icosphere, vertex_count
 from .mesh import cotangent_laplacian, vertex_area_shares
 from .klt import KLT
+from .search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
            "DEFAULT_LMAX",
@@ -89,7 +90,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 
 DEFAULT_LMAX = 24
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
-DESCRIPTOR_VERSION = 4
+DESCRIPTOR_VERSION = 5
 
 SHELLS = 8
 SHELL_LMAX = 8
@@ -103,13 +104,18 @@ RADIAL_RMAX = 3.0
 SPECTRAL_K = 30
 SPECTRAL_LEVEL = 6
 SHAPE_LEVEL = 6
+LAYERS_LMAX = 24
+LAYERS_GRID_LMAX = 24
+LAYERS_PER_EIGENVALUE = False
 SEED = 0
+#: Names of the parts of the ``shape`` vector, in order.
+SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "layers")
 #: Median distance between different models of each unscaled shape part (shells, D2, radial,
 #: spectral) on the retrieval benchmark's genus-0 set (measured with descriptor version 3; the
 #: spectral one with version 4's level-6 spectrum, 1.928 at level 5).
-SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989)
+SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 1.0)
 #: Relative weight of each shape part (its median distance becomes 1.15 × the weight).
-SHAPE_PART_WEIGHTS = (1.0, 0.5, 0.5, 2.0)
+SHAPE_PART_WEIGHTS = (1.0, 0.5, 0.5, 2.0, 1.0)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
 
 
@@ -153,12 +159,18 @@ def _ico_to_dh(level: int, lmax: int) -> sp.csr_matrix:
     return sp.csr_matrix((bary.ravel(), (rows, tri[idx].ravel())), shape=(len(q), ico.n_vertices))
 
 
-def _degree_energies(layers: np.ndarray, level: int, lmax: int) -> np.ndarray:
-    """(k, lmax+1) per-degree energies (pyshtools, 4π norm) of grid layers (n_grid, k)."""
+def _degree_energies(layers: np.ndarray, level: int, lmax: int, *,
+                     grid_lmax: int | None = None) -> np.ndarray:
+    """(k, lmax+1) per-degree energies (pyshtools, 4π norm) of grid layers (n_grid, k).
+
+    The layers are interpolated onto the Driscoll–Healy grid of degree ``grid_lmax`` (default
+    ``lmax``; a larger grid samples the layers more densely) and expanded up to degree ``lmax``.
+    """
     import pyshtools as pysh
 
-    n = 2 * (lmax + 1)
-    dh = (_ico_to_dh(level, lmax) @ layers).reshape(n, 2 * n, -1)
+    grid_lmax = lmax if grid_lmax is None else max(int(grid_lmax), lmax)
+    n = 2 * (grid_lmax + 1)
+    dh = (_ico_to_dh(level, grid_lmax) @ layers).reshape(n, 2 * n, -1)
     out = np.empty((layers.shape[1], lmax + 1))
     for j in range(layers.shape[1]):
         cilm = pysh.expand.SHExpandDH(np.ascontiguousarray(dh[:, :, j]), norm=1, sampling=2,
@@ -192,26 +204,35 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     out = np.zeros((SHELLS, SHELL_LMAX + 1))
     for l in range(SHELL_LMAX + 1):
         for m in range(l + 1):
-            c = np.bincount(shell, weights=w * np.cos(m * phi) * sph_harm_y(l, m, theta, 0.0).real,
-                            minlength=SHELLS)
+            wy = w * sph_harm_y(l, m, theta, 0.0).real
+            c = np.bincount(shell, weights=wy * np.cos(m * phi), minlength=SHELLS)
             c2 = c ** 2
             if m:
-                c = np.bincount(shell, weights=w * np.sin(m * phi)
-                                * sph_harm_y(l, m, theta, 0.0).real, minlength=SHELLS)
+                c = np.bincount(shell, weights=wy * np.sin(m * phi), minlength=SHELLS)
                 c2 = 2.0 * (c2 + c ** 2)
             out[:, l] += c2
     damp = np.exp(-np.arange(SHELL_LMAX + 1) * np.arange(1, SHELL_LMAX + 2) / (4 * SHELL_KAPPA))
     return np.sqrt(out) * damp
 
 
-def _shape_vector(x: np.ndarray, level: int) -> np.ndarray:
-    """The ``shape`` descriptor of grid positions (n_grid, 3).
+def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray,
+                 shares: np.ndarray) -> dict:
+    """The unscaled parts of the ``shape`` descriptor, by name (:data:`SHAPE_PARTS`).
+
+    Parameters
+    ----------
+    x : (n_grid, 3) float64
+        Grid positions at level ``level``.
+    layers : (n_grid, 3) float64
+        The geometric KLT layers over the square root of the total geometric variance.
+    shares : (3,) float64
+        The KLT eigenvalues over their sum.
 
     The measure parts (shells, D2, radial) use the grid of level ``min(level, SHAPE_LEVEL)`` (a
-    prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms,
-    and a level-8 grid would cost 16 times as much.
+    prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms.
     """
     spectral = _log_spectrum(x, level)
+    part = {"layers": _layers_part(layers, shares, level)}
     level = min(level, SHAPE_LEVEL)
     x = x[:vertex_count(level)]
     a = _grid_areas(x, level)
@@ -221,15 +242,31 @@ def _shape_vector(x: np.ndarray, level: int) -> np.ndarray:
     y = x - w @ x
     rms = np.sqrt(w @ np.einsum("ij,ij->i", y, y))
     y = y / rms
-    shells = _shell_energies(y, w).ravel()
+    part["shells"] = _shell_energies(y, w).ravel()
     rng = np.random.default_rng(SEED)
     i = rng.choice(len(y), D2_PAIRS, p=w)
     j = rng.choice(len(y), D2_PAIRS, p=w)
     d = np.linalg.norm(y[i] - y[j], axis=1)
-    d2 = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
-    radial = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
-    s_sh, s_d2, s_rad, s_sp = SHAPE_PART_SCALES
-    return np.concatenate([s_sh * shells, s_d2 * d2, s_rad * radial, s_sp * spectral])
+    part["d2"] = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
+    part["radial"] = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
+    part["spectral"] = spectral
+    return {name: part[name] for name in SHAPE_PARTS}
+
+
+def _layers_part(layers: np.ndarray, shares: np.ndarray, level: int) -> np.ndarray:
+    """(3·(LAYERS_LMAX+1),) the *layers* part: per-degree energies ``E_jl`` of the geometric
+    KLT layers, degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid of degree
+    ``LAYERS_GRID_LMAX``, as ``sqrt(E_jl / s_j)`` with ``s_j`` the layer's eigenvalue share when
+    ``LAYERS_PER_EIGENVALUE``, else ``sqrt(E_jl)``."""
+    e = np.maximum(_degree_energies(layers, level, LAYERS_LMAX, grid_lmax=LAYERS_GRID_LMAX), 0)
+    if LAYERS_PER_EIGENVALUE:
+        e = e / np.maximum(np.asarray(shares, np.float64), TOL.degenerate_area)[:, None]
+    return np.sqrt(e).ravel()
+
+
+def _shape_vector(parts: dict) -> np.ndarray:
+    """The ``shape`` descriptor: the parts, each times its :data:`SHAPE_PART_SCALES` entry."""
+    return np.concatenate([s * parts[name] for name, s in zip(SHAPE_PARTS, SHAPE_PART_SCALES)])
 
 
 _ND_LEAF = 16   # nested dissection stops splitting at this many vertices
@@ -274,14 +311,15 @@ def _dissection_order(level: int) -> np.ndarray:
 def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
     """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator.
 
-    Cotangent stiffness and lumped (barycentric) mass on the icosphere mesh of level
+    Cotangent stiffness ``K`` and lumped (barycentric) mass ``M`` on the icosphere mesh of level
     ``min(level, SPECTRAL_LEVEL)`` at the resampled positions (a prefix of ``x``). Cotangents of
     degenerate triangles are clipped at ±``1/TOL.degenerate_angle`` and vertex masses floored, so
-    a squeezed map gives a finite spectrum. Dense solve up to 700 vertices, shift-invert Lanczos
-    beyond.
+    a squeezed map gives a finite spectrum. Dense solve up to 700 vertices; beyond, shift-invert
+    Lanczos on the standard form ``M^-½ K M^-½`` (one operator solve per Lanczos step, none with
+    ``M``) with one LU factor in the grid's nested-dissection order.
     """
     import scipy.linalg
-    from scipy.sparse.linalg import eigsh
+    from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
     lev = min(level, SPECTRAL_LEVEL)
     f = icosphere(lev).faces
@@ -304,23 +342,25 @@ def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
         lam = scipy.linalg.eigh(stiff.toarray(), np.diag(mass), eigvals_only=True,
                                 subset_by_index=(0, k))
     else:
-        # shift below 0 so that stiff - sigma*mass is positive definite (a plain LU works),
-        # factored once in the grid's nested-dissection order
-        from scipy.sparse.linalg import LinearOperator, splu
-
+        # the standard form C = M^-1/2 K M^-1/2 shifted below 0, so that K - sigma M is
+        # positive definite (a plain LU works); (C - sigma)^-1 y = M^1/2 (K - sigma M)^-1 M^1/2 y
         sigma = -0.1 * 4.0 * np.pi / total
         perm = _dissection_order(lev)
-        shifted = (stiff - sigma * sp.diags(mass)).tocsr()[perm][:, perm].tocsc()
+        shifted = (stiff + sp.diags(-sigma * mass)).tocsr()[perm][:, perm].tocsc()
         lu = splu(shifted, permc_spec="NATURAL")
+        root = np.sqrt(mass)
+        root_p = root[perm]
         inverse = np.empty_like(perm)
         inverse[perm] = np.arange(n)
 
-        def solve(r):
-            return lu.solve(np.ascontiguousarray(r.ravel()[perm]))[inverse]
+        def solve(y):
+            return root * lu.solve(root_p * y.ravel()[perm])[inverse]
 
-        lam = np.sort(eigsh(stiff, k=k + 1, M=sp.diags(mass).tocsc(), sigma=sigma, which="LM",
-                            OPinv=LinearOperator((n, n), matvec=solve, dtype=np.float64),
-                            return_eigenvectors=False))
+        # a fixed start vector: ARPACK's own random start depends on its earlier calls
+        v0 = np.random.default_rng(SEED).standard_normal(n)
+        mu = eigsh(LinearOperator((n, n), matvec=solve, dtype=np.float64), k=k + 1,
+                   which="LA", v0=v0, return_eigenvectors=False)
+        lam = np.sort(sigma + 1.0 / mu)
     lam = np.maximum(lam[1:k + 1] * total / (4.0 * np.pi), 1e-12)
     return np.log(lam / np.arange(1, k + 1))
 
@@ -361,20 +401,28 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
     if not total > 0:
         raise InputError("the geometry has zero variance; cannot normalise its scale")
     g = geo.forward(values[:, :3]) / np.sqrt(total)
+    shares = np.asarray(geo.eigenvalues) / total
     vectors = {
-        "shape": _shape_vector(values[:, :3], level),
+        "shape": _shape_vector(_shape_parts(values[:, :3], level, g, shares)),
         "layers": np.sqrt(np.maximum(_degree_energies(g, level, lmax), 0)).ravel(),
-        "spectrum": np.asarray(geo.eigenvalues) / total,
+        "spectrum": shares,
     }
     if values.shape[1] == 6:
-        col = values[:, 3:] / 255.0
-        ck = KLT.fit(col, sample_weights=area)
-        c = ck.forward(col)
-        mean_col = (area @ col) / area.sum()
-        vectors["texture"] = np.concatenate(
-            [np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(), mean_col])
+        vectors["texture"] = _texture_vector(values[:, 3:], level, lmax)
     vectors = {k: np.asarray(v, np.float32) for k, v in vectors.items()}
     return DescriptorSet(vectors, descriptor_params(lmax=lmax))
+
+
+def _texture_vector(colors: np.ndarray, level: int, lmax: int) -> np.ndarray:
+    """(3·(lmax+1) + 3,) the ``texture`` descriptor of grid colours (n_grid, 3) in 0..255: sqrt
+    per-degree energies of the colour KLT layers (units /255, sphere-area weights), then the
+    area-weighted mean colour /255."""
+    area = icosphere(level).vertex_areas()
+    col = colors / 255.0
+    c = KLT.fit(col, sample_weights=area).forward(col)
+    mean_col = (area @ col) / area.sum()
+    return np.concatenate([np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(),
+                           mean_col])
 
 
 def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
@@ -394,34 +442,42 @@ def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
                       "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
 
 
-def descriptor_distance(a: dict, b: dict, *, shape_weight: float = 0.7) -> float:
-    """Distance between two models' descriptor dicts.
+def descriptor_distance(a: dict, b: dict, *, shape_weight: float = DEFAULT_SHAPE_WEIGHT) -> float:
+    """Distance between two models' descriptor dicts: :func:`surfidx.search.weighted_l2` (the
+    default search distance) for one pair.
 
     ``d = w·‖Δshape‖ + (1 − w)·‖Δtexture‖`` with ``w = shape_weight``; when either model lacks
     colour the texture term is dropped and ``d = ‖Δshape‖``. The KLT spectrum is part of the shape
-    term (appended to the shape vector).
+    term (appended to the shape vector), whose parts are weighted already
+    (:data:`SHAPE_PART_WEIGHTS`).
 
     Parameters
     ----------
     a, b : dict of str -> (d,) float32
     shape_weight : float
-        In [0, 1].
+        In [0, 1] (default :data:`surfidx.search.DEFAULT_SHAPE_WEIGHT`).
 
     Returns
     -------
     float
+
+    Raises
+    ------
+    InputError
+        ``shape_weight`` outside [0, 1], a missing ``shape`` vector, or vectors of different
+        dimensions (another descriptor version or settings).
     """
-    if not (0.0 <= shape_weight <= 1.0):
-        raise InputError(f"shape_weight must lie in [0, 1], got {shape_weight!r}")
+    w = check_shape_weight(shape_weight)
     for d in (a, b):
         if "shape" not in d:
             raise InputError("a descriptor set lacks its 'shape' vector")
-    sa = np.concatenate([a["shape"], a.get("spectrum", [])]).astype(np.float64)
-    sb = np.concatenate([b["shape"], b.get("spectrum", [])]).astype(np.float64)
-    if sa.shape != sb.shape:
-        raise InputError("descriptor dimensions differ (different descriptor version or settings?); recompute them")
-    ds = float(np.linalg.norm(sa - sb))
-    if "texture" in a and "texture" in b:
-        dt = float(np.linalg.norm(a["texture"].astype(np.float64) - b["texture"]))
-        return shape_weight * ds + (1.0 - shape_weight) * dt
-    return ds
+    for kind in ("shape", "spectrum", "texture"):
+        na, nb = (np.size(d[kind]) if kind in d else None for d in (a, b))
+        if kind != "texture" and na != nb or kind == "texture" and None not in (na, nb) \
+                and na != nb:
+            raise InputError(f"descriptor dimensions differ ({kind!r}: {na} and {nb} values; "
+                             "different descriptor version or settings?); recompute them")
+    stored = {k: np.asarray(b[k], np.float64).reshape(1, -1) for k in DEFAULT_KINDS if k in b}
+    present = {k: np.ones(1, bool) for k in stored}
+    query = {k: np.asarray(a[k], np.float64) for k in DEFAULT_KINDS if k in a}
+    return float(weighted_l2(query, stored, present, shape_weight=w)[0])

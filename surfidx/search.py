@@ -15,19 +15,23 @@ Two paths, one answer:
 
 Distance
 --------
-The default, :func:`weighted_l2`, is the vectorised form of
-:func:`surfidx.descriptors.descriptor_distance`: with the shape weight ``w`` in [0, 1]
-(default :data:`DEFAULT_SHAPE_WEIGHT` = 0.7)::
+One definition, :func:`weighted_l2` (vectorised over the stored models);
+:func:`surfidx.descriptors.descriptor_distance` is its one-pair form and the approximate path
+re-ranks with it. With the shape weight ``w`` in [0, 1] (default :data:`DEFAULT_SHAPE_WEIGHT`
+= 0.7)::
 
     d = w * ||Δshape|| + (1 - w) * ||Δtexture||   query and model both coloured
     d = ||Δshape||                                otherwise
 
 where the shape vector is ``"shape"`` with the KLT ``"spectrum"`` appended (when both carry one)
-and ``Δ`` is the difference between query and stored vector. The texture term counts only when the
-query and the stored model both have colour (both carry a ``"texture"`` descriptor and the model's
-``has_color`` is set); a pair without it is compared by shape alone, at full weight, so ``w = 1``
-is pure shape distance for every pair. Any function with the signature of :func:`weighted_l2` can
-be passed as ``distance=`` instead.
+and ``Δ`` is the difference between query and stored vector. The ``"shape"`` vector holds its
+parts already weighted (shells, D2, radial, Laplace–Beltrami spectrum and the spherical-harmonic
+energies of the geometric KLT layers; :data:`surfidx.descriptors.SHAPE_PART_WEIGHTS`), so its
+plain L2 distance is the weighted sum of squares of the parts' distances. The texture term
+counts only when the query and the stored model both have colour (both carry a ``"texture"``
+descriptor and the model's ``has_color`` is set); a pair without it is compared by shape alone,
+at full weight, so ``w = 1`` is pure shape distance for every pair. Any function with the
+signature of :func:`weighted_l2` can be passed as ``distance=`` instead.
 """
 
 from __future__ import annotations
@@ -41,14 +45,32 @@ from ._validate import as_array, check_positive_int
 #: here so that importing this module does not import the index library).
 DEFAULT_FACTOR = 8
 
-__all__ = ["SearchIndex", "search", "weighted_l2", "DEFAULT_SHAPE_WEIGHT", "DEFAULT_KINDS",
-           "DEFAULT_FACTOR"]
+__all__ = ["SearchIndex", "search", "weighted_l2", "check_shape_weight", "DEFAULT_SHAPE_WEIGHT",
+           "DEFAULT_KINDS", "DEFAULT_FACTOR"]
 
-#: Default ``w``, as in ``surfidx.descriptors.descriptor_distance``.
+#: Default ``w``: the weight of the shape term beside the texture term (one constant for the
+#: library, :func:`surfidx.descriptors.descriptor_distance` and the CLI).
 DEFAULT_SHAPE_WEIGHT = 0.7
 
 #: Descriptor kinds a :class:`SearchIndex` loads by default.
 DEFAULT_KINDS = ("shape", "spectrum", "texture")
+
+
+def check_shape_weight(shape_weight) -> float:
+    """``shape_weight`` as a float in [0, 1].
+
+    Raises
+    ------
+    InputError
+        Outside [0, 1] (or not a number).
+    """
+    try:
+        w = float(shape_weight)
+    except (TypeError, ValueError):
+        w = float("nan")
+    if not 0.0 <= w <= 1.0:
+        raise InputError(f"shape_weight must be in [0, 1], got {shape_weight!r}")
+    return w
 
 
 def weighted_l2(query, stored, present, *,
@@ -77,13 +99,18 @@ def weighted_l2(query, stored, present, *,
     sq = _sq(stored["shape"], query["shape"])
     if "spectrum" in query and "spectrum" in stored:
         sq = sq + np.where(present["spectrum"], _sq(stored["spectrum"], query["spectrum"]), 0.0)
-    d = np.sqrt(sq)
+    dt = None
     if "texture" in query and "texture" in stored and shape_weight < 1.0:
-        both = present["texture"]
-        if both.any():
-            dt = np.sqrt(_sq(stored["texture"], query["texture"]))
-            d = np.where(both, shape_weight * d + (1.0 - shape_weight) * dt, d)
-    return d
+        dt = np.sqrt(_sq(stored["texture"], query["texture"]))
+    return _combine(np.sqrt(sq), dt, present.get("texture"), shape_weight)
+
+
+def _combine(ds, dt, coloured, w) -> np.ndarray:
+    """The rule of :func:`weighted_l2` from the shape distances ``ds`` (m,), the texture
+    distances ``dt`` (m,) or None (no texture term) and which rows are ``coloured`` (m,) bool."""
+    if dt is None or w >= 1.0 or coloured is None or not coloured.any():
+        return ds
+    return np.where(coloured, w * ds + (1.0 - w) * dt, ds)
 
 
 def _sq(matrix, vec) -> np.ndarray:
@@ -216,9 +243,7 @@ class SearchIndex:
             or a distance function returning the wrong shape.
         """
         k = check_positive_int(k, "k")
-        w = float(shape_weight)
-        if not 0.0 <= w <= 1.0:
-            raise InputError(f"shape_weight must be in [0, 1], got {shape_weight!r}")
+        w = check_shape_weight(shape_weight)
         if self.approximate and distance is None:
             return self._query_ann(descriptors, k, w, exclude)
         q = {}
@@ -329,12 +354,11 @@ class SearchIndex:
         s = sq("shape")
         if "spectrum" in q and "spectrum" in self.stored:
             s = s + np.where(self.present["spectrum"], sq("spectrum"), 0.0)
-        d = np.sqrt(np.maximum(s, 0.0))
+        dt = None
         if ("texture" in q and "texture" in self.stored and w < 1.0
                 and self.present["texture"].any()):
             dt = np.sqrt(np.maximum(sq("texture"), 0.0))
-            d = np.where(self.present["texture"], w * d + (1.0 - w) * dt, d)
-        return d
+        return _combine(np.sqrt(np.maximum(s, 0.0)), dt, self.present.get("texture"), w)
 
 
 def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_WEIGHT,
@@ -357,5 +381,5 @@ def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_
     ids : (k,) int64
     distances : (k,) float64
     """
-    return SearchIndex(db, exact=exact).query(descriptors, k=k, shape_weight=shape_weight, distance=distance,
-                                 exclude=exclude)
+    return SearchIndex(db, exact=exact).query(descriptors, k=k, shape_weight=shape_weight,
+                                              distance=distance, exclude=exclude)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.descriptors import describe_grid, descriptor_distance
+from surfidx.descriptors import DESCRIPTOR_VERSION, describe_grid, descriptor_distance
 from surfidx.icosphere import icosphere
 
 
@@ -27,7 +27,7 @@ def test_object_rotation_translation_scale_invariance():
         np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
     assert set(a.vectors) == {"shape", "layers", "texture", "spectrum"}
     assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
-    assert a.params["version"] == 4 and a.params["shape"]["shells"] == 8
+    assert a.params["version"] == DESCRIPTOR_VERSION == 5 and a.params["shape"]["shells"] == 8
     assert a.params["shape"]["spectral_k"] == 30
     # a reflection too, and the descriptor does see a different shape
     c = describe_grid(np.c_[0.3 * s * [1, -1, 1] - 5, col], 5)
@@ -38,18 +38,24 @@ def test_object_rotation_translation_scale_invariance():
 
 def test_shape_measures_the_surface_not_the_sphere_sampling():
     """The same surface sampled through a different (non-uniform) sphere map: the area-weighted
-    shape descriptor barely moves, unlike the per-layer sphere energies (``layers``)."""
+    measure parts of the shape descriptor barely move, unlike the per-layer sphere energies (the
+    ``layers`` kind and the shape vector's layers part, the parameterisation's view)."""
+    from surfidx.descriptors import LAYERS_LMAX, SHAPE_PARTS
+
     v = icosphere(6).vertices
     u = v * [1.0, 1.0, 2.5]
     u /= np.linalg.norm(u, axis=1, keepdims=True)  # crowds the grid samples toward the equator
     a = describe_grid(_shape(v), 6).vectors
     b = describe_grid(_shape(u), 6).vectors
     other = describe_grid(_shape(v) * [1.0, 1.0, 1.6], 6).vectors
-    d_same = np.linalg.norm(a["shape"] - b["shape"])
-    d_other = np.linalg.norm(a["shape"] - other["shape"])
+    n_layers = 3 * (LAYERS_LMAX + 1)
+    measure = slice(0, a["shape"].size - n_layers)    # the layers part comes last
+    d_same = np.linalg.norm(a["shape"][measure] - b["shape"][measure])
+    d_other = np.linalg.norm(a["shape"][measure] - other["shape"][measure])
     assert d_same < 0.1 * d_other
-    rel = lambda k, x, y: np.linalg.norm(x[k] - y[k]) / np.linalg.norm(x[k])  # noqa: E731
-    assert rel("shape", a, b) < 0.5 * rel("layers", a, b)
+    rel = lambda x, y: np.linalg.norm(x - y) / np.linalg.norm(x)  # noqa: E731
+    assert rel(a["shape"][measure], b["shape"][measure]) < 0.5 * rel(a["layers"], b["layers"])
+    assert SHAPE_PARTS[-1] == "layers"
 
 
 def test_sphere_rotation_invariance():
@@ -72,7 +78,7 @@ def test_distance_weights_and_errors():
     assert descriptor_distance(a, b, shape_weight=0.0) > 0.5
     g = {k: x for k, x in a.items() if k != "texture"}
     assert descriptor_distance(g, b) == pytest.approx(0.0, abs=1e-6)  # texture dropped
-    with pytest.raises(InputError, match="shape_weight must lie in"):
+    with pytest.raises(InputError, match=r"shape_weight must be in \[0, 1\]"):
         descriptor_distance(a, b, shape_weight=2)
     with pytest.raises(InputError, match="lacks its 'shape' vector"):
         descriptor_distance({}, b)
@@ -179,3 +185,68 @@ def test_cotangent_laplacian_identities():
     want = float(np.sum(area * np.einsum("ij,ij->i", tangential, tangential)))
     x = p @ g
     assert float(x @ (lap @ x)) == pytest.approx(want, rel=1e-10)
+
+
+def test_shape_vector_is_the_weighted_parts():
+    """``shape`` is the parts side by side, each times its scale, the layers part last: the
+    per-degree energies of the geometric KLT layers (:func:`_layers_part`)."""
+    from surfidx import descriptors as D
+    from surfidx.klt import KLT
+
+    v = icosphere(5).vertices
+    x = _shape(v)
+    geo = KLT.fit(x, sample_weights=icosphere(5).vertex_areas())
+    total = float(np.sum(geo.eigenvalues))
+    g = geo.forward(x) / np.sqrt(total)
+    shares = np.asarray(geo.eigenvalues) / total
+    parts = D._shape_parts(x, 5, g, shares)
+    assert tuple(parts) == D.SHAPE_PARTS
+    assert parts["layers"].size == 3 * (D.LAYERS_LMAX + 1)
+    np.testing.assert_allclose(parts["layers"], D._layers_part(g, shares, 5))
+    want = np.concatenate([s * parts[k] for k, s in zip(D.SHAPE_PARTS, D.SHAPE_PART_SCALES)])
+    got = describe_grid(x, 5).vectors["shape"]
+    np.testing.assert_allclose(got, want.astype(np.float32), rtol=1e-5, atol=1e-6)
+    assert len(D.SHAPE_PART_SCALES) == len(D.SHAPE_PARTS) == len(D.SHAPE_PART_MEDIANS)
+
+
+def test_degree_energies_on_a_finer_grid():
+    """A degree-2 function: its energy sits at degree 2, the same on the DH grid of its lmax and
+    on a finer one."""
+    from surfidx.descriptors import _degree_energies
+
+    v = icosphere(5).vertices
+    f = (v[:, 0] * v[:, 1])[:, None]           # a degree-2 harmonic
+    a = _degree_energies(f, 5, 8)[0]
+    b = _degree_energies(f, 5, 8, grid_lmax=32)[0]
+    assert a.shape == b.shape == (9,)
+    assert a[2] > 100 * (a.sum() - a[2]) and b[2] > 100 * (b.sum() - b[2])
+    assert b[2] == pytest.approx(a[2], rel=0.02)
+
+
+def test_descriptor_distance_is_the_search_distance():
+    """descriptor_distance is weighted_l2 for one pair, with search's default shape weight."""
+    import inspect
+
+    from surfidx import search
+
+    rng = np.random.default_rng(3)
+    a = {"shape": rng.random(20), "spectrum": rng.random(3), "texture": rng.random(6)}
+    b = {"shape": rng.random(20), "spectrum": rng.random(3), "texture": rng.random(6)}
+    assert (inspect.signature(descriptor_distance).parameters["shape_weight"].default
+            == search.DEFAULT_SHAPE_WEIGHT)
+    for w in (0.0, 0.4, search.DEFAULT_SHAPE_WEIGHT, 1.0):
+        want = search.weighted_l2(a, {k: v[None] for k, v in b.items()},
+                                  {k: np.ones(1, bool) for k in b}, shape_weight=w)[0]
+        ds = np.sqrt(np.sum((a["shape"] - b["shape"]) ** 2)
+                     + np.sum((a["spectrum"] - b["spectrum"]) ** 2))
+        dt = np.linalg.norm(a["texture"] - b["texture"])
+        assert descriptor_distance(a, b, shape_weight=w) == pytest.approx(want, rel=1e-12)
+        assert want == pytest.approx(w * ds + (1 - w) * dt, rel=1e-12)
+    no_colour = {k: v for k, v in b.items() if k != "texture"}
+    assert descriptor_distance(a, no_colour) == pytest.approx(ds, rel=1e-12)
+    with pytest.raises(InputError, match="descriptor dimensions differ \\('spectrum'"):
+        descriptor_distance(a, {"shape": b["shape"]})
+    with pytest.raises(InputError, match="descriptor dimensions differ \\('texture'"):
+        descriptor_distance(a, dict(b, texture=b["texture"][:3]))
+    with pytest.raises(InputError, match=r"shape_weight must be in \[0, 1\], got 'x'"):
+        descriptor_distance(a, b, shape_weight="x")
