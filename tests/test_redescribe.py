@@ -135,3 +135,29 @@ def test_redescribe_stops_on_a_database_that_cannot_be_written(encoded, tmp_path
     monkeypatch.setattr(db, "set_descriptors", full)
     with pytest.raises(DatabaseError, match="the disk is full"):
         redescribe(db)
+
+
+def test_queries_refuse_the_previous_descriptor_version_until_redescribed(encoded, tmp_path):
+    """Vectors of the previous descriptor version, even of the same dimensions, are never ranked
+    beside this version's: the search refuses the mix, ``redescribe`` updates the old ones."""
+    from surfidx.descriptors import DESCRIPTOR_VERSION
+    from surfidx.search import SearchIndex
+
+    (_, s0, n0), (_, s1, n1) = encoded
+    with Database(tmp_path / "v.db") as db:
+        old = _model(0, s0, n0)
+        d = describe_stream(s0)
+        old.descriptors = d.vectors                       # today's dimensions ...
+        old.params = {"descriptors": dict(d.params, version=DESCRIPTOR_VERSION - 1)}
+        old_id = db.add(old)                              # ... under the previous version
+        new = _model(1, s1, n1)
+        d1 = describe_stream(s1)
+        new.descriptors, new.params = d1.vectors, {"descriptors": d1.params}
+        new_id = db.add(new)
+        with pytest.raises(DatabaseError, match="run `surfidx redescribe`"):
+            SearchIndex(db, exact=True).query(d1.vectors, k=2)
+        out = redescribe(db)
+        assert out == {"redescribed": 1, "current": 1, "failed": {}}
+        ids, dist = SearchIndex(db, exact=True).query(d1.vectors, k=2)
+        assert ids.tolist() == [new_id, old_id] and dist[0] == pytest.approx(0.0, abs=1e-6)
+        assert db.get_model(old_id)["params"]["descriptors"]["version"] == DESCRIPTOR_VERSION
