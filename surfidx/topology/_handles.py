@@ -151,8 +151,10 @@ def cut_shortest_handle(V: np.ndarray, F: np.ndarray, options):
                        length * options.rim_penalty, length)
     weights = np.where(cone_edge, 10.0 * scale, weights)
     weights = np.maximum(weights, 1e-12 * scale)   # dijkstra ignores zero-length edges
-    free = np.flatnonzero(~rim)
-    root = int(free[0]) if len(free) else 0
+    used = np.zeros(nc, bool)
+    used[F.ravel()] = True
+    free = np.flatnonzero(~rim[:n] & used[:n])
+    root = int(free[0]) if len(free) else int(np.flatnonzero(used)[0])
     near = np.full(nc, np.inf)
     best, gens = None, 0
     for _ in range(options.handle_roots):
@@ -160,7 +162,7 @@ def cut_shortest_handle(V: np.ndarray, F: np.ndarray, options):
         if found is not None and (best is None or found[0] < best[0]):
             best = found
         near = np.minimum(near, dist)
-        score = np.where(np.arange(nc) < n, near, -np.inf)
+        score = np.where((np.arange(nc) < n) & used & np.isfinite(near), near, -np.inf)
         root = int(np.argmax(score))
     cycle = best[1]
     k = len(cycle)

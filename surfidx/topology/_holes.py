@@ -3,8 +3,8 @@
 1. **Triangulate** each boundary loop. Loops of at most ``options.dp_max_loop`` vertices: the
    O(n³) dynamic programme of Barequet & Sharir as weighted by Liepa, lexicographically smallest
    (largest dihedral angle between neighbouring triangles, including the rim faces; total area).
-   Longer loops (a fragment's outline of thousands of vertices): O(n log n) ear clipping that
-   always cuts the rim vertex of smallest interior angle (measured about the vertex's normal).
+   Longer loops (a fragment's outline of thousands of vertices) are first split recursively
+   by short chords across half the loop into pieces of at most that many (O(n log n)).
    Chords that are edges of the mesh already are never used (they would make an edge of three
    faces).
 2. **Refine**: longest-edge bisection of the patch's interior edges (never a rim edge: the scan's
@@ -14,12 +14,13 @@
 3. **Flip** interior patch edges to Delaunay (opposite angles summing to more than π), for
    ``options.flip_rounds`` rounds, never creating an edge the mesh has.
 4. **Fair**: the new vertices solve the uniform bi-Laplacian system ``(L²) x = 0`` with every
-   scan vertex fixed, so the patch continues the surrounding surface with matching tangents.
+   scan vertex fixed, so the patch continues the surrounding surface with matching tangents;
+   steps 3 and 4 run twice. A patch that folds nonetheless (two neighbouring patch faces whose
+   normals disagree: a flat disk's outline, which the continuation overshoots) takes the
+   membrane solution ``L x = 0`` instead.
 """
 
 from __future__ import annotations
-
-import heapq  # noqa: F401  (numba compiles heapq calls in _ear_clip)
 
 import numba
 import numpy as np
@@ -29,6 +30,7 @@ from scipy.sparse.linalg import spsolve
 __all__ = ["fill_holes"]
 
 _ANGLE_TIE = 1e-9   # dihedral angles closer than this (radians) are compared by area
+_SLIVER = 1e-6      # a triangle of area below this times its longest edge squared is degenerate
 _VERTEX_AREA = 0.17  # patch area per new vertex, in units of the target edge squared (measured
                      # on frag_115's 1418-vertex outline: bisection leaves edges of T/2..T)
 
@@ -73,6 +75,10 @@ def _dp_triangulate(P, rim_n, forbidden):
                     continue
                 t, area = _unit_normal(P[i], P[k], P[m])
                 ang = max(wa[i, m], wa[m, k])
+                e2 = max(((P[k] - P[i]) ** 2).sum(), ((P[m] - P[i]) ** 2).sum(),
+                         ((P[k] - P[m]) ** 2).sum())
+                if area <= _SLIVER * e2:
+                    ang = max(ang, np.pi)          # collinear corners: only when unavoidable
                 nb1 = rim_n[i] if m == i + 1 else nrm[i, m]
                 nb2 = rim_n[m] if k == m + 1 else nrm[m, k]
                 ang = max(ang, max(_angle(t, nb1), _angle(t, nb2)))
@@ -102,72 +108,6 @@ def _dp_triangulate(P, rim_n, forbidden):
         stack[top, 0], stack[top, 1] = i, m
         stack[top + 1, 0], stack[top + 1, 1] = m, k
         top += 2
-    return tris[:t]
-
-
-@numba.njit(cache=True)
-def _interior_angle(P, N, p, i, q):
-    e1 = P[p] - P[i]
-    e2 = P[q] - P[i]
-    c = np.cross(e1, e2)
-    s = c[0] * N[i, 0] + c[1] * N[i, 1] + c[2] * N[i, 2]
-    d = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2]
-    a = np.arctan2(s, d)
-    if a < 0:
-        a += 2 * np.pi
-    return a
-
-
-@numba.njit(cache=True)
-def _ear_clip(P, N, loop, edge_keys, nv):
-    """Smallest-angle ear clipping of the loop ``P`` (vertex normals ``N``): O(n log n)."""
-    n = len(P)
-    prv = np.empty(n, np.int64)
-    nxt = np.empty(n, np.int64)
-    for i in range(n):
-        prv[i] = (i - 1) % n
-        nxt[i] = (i + 1) % n
-    version = np.zeros(n, np.int64)
-    alive = np.ones(n, np.bool_)
-    heap = [(0.0, np.int64(0), np.int64(0))]
-    heap.pop()
-    for i in range(n):
-        heapq.heappush(heap, (_interior_angle(P, N, prv[i], i, nxt[i]), np.int64(i), np.int64(0)))
-    tris = np.empty((max(n - 2, 0), 3), np.int64)
-    t = 0
-    left = n
-    stalls = 0
-    while left > 3 and len(heap) > 0:
-        ang, i, ver = heapq.heappop(heap)
-        if not alive[i] or ver != version[i]:
-            continue
-        p, q = prv[i], nxt[i]
-        a, b = loop[p], loop[q]
-        key = min(a, b) * nv + max(a, b)
-        j = np.searchsorted(edge_keys, key)
-        if j < len(edge_keys) and edge_keys[j] == key and stalls < left:
-            # the chord is an edge of the mesh: try this ear again after the others
-            version[i] += 1
-            heapq.heappush(heap, (ang + 2 * np.pi, i, version[i]))
-            stalls += 1
-            continue
-        stalls = 0
-        tris[t, 0], tris[t, 1], tris[t, 2] = p, q, i
-        t += 1
-        alive[i] = False
-        nxt[p] = q
-        prv[q] = p
-        left -= 1
-        for v in (p, q):
-            version[v] += 1
-            heapq.heappush(heap, (_interior_angle(P, N, prv[v], v, nxt[v]), v, version[v]))
-    # the last triangle
-    for i in range(n):
-        if alive[i]:
-            p, q = prv[i], nxt[i]
-            tris[t, 0], tris[t, 1], tris[t, 2] = p, q, i
-            t += 1
-            break
     return tris[:t]
 
 
@@ -269,34 +209,72 @@ def _rim_normals(V, F, loop, n):
     return nr / np.maximum(np.linalg.norm(nr, axis=1), 1e-300)[:, None]
 
 
-def _vertex_normals(V, F, n):
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    acc = np.zeros((n, 3))
-    for k in range(3):
-        np.add.at(acc, F[:, k], fn)
-    return acc / np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
+def _forbidden(loop, n, edge_keys):
+    """(k, k) bool: chords of ``loop`` that are edges of the mesh already (not its own edges)."""
+    k = len(loop)
+    lo, hi = np.minimum.outer(loop, loop), np.maximum.outer(loop, loop)
+    keys = lo * np.int64(n) + hi
+    pos = np.clip(np.searchsorted(edge_keys, keys), 0, len(edge_keys) - 1)
+    forbidden = edge_keys[pos] == keys
+    idx = np.arange(k)
+    forbidden[idx[:-1], idx[1:]] = False
+    forbidden[0, k - 1] = False
+    return forbidden
 
 
-def _triangulate(V, F, loop, n, edge_keys, vnormals, options):
-    """Loop-local triangles ``(t, 3)`` wound as the patch (opposite to the rim's half-edges)."""
+def _dp(P, loop, rim_n, n, edge_keys):
+    k = len(loop)
+    tris = _dp_triangulate(P, rim_n, _forbidden(loop, n, edge_keys))
+    if len(tris) != k - 2:   # every triangulation needs an existing chord: allow them
+        tris = _dp_triangulate(P, rim_n, np.zeros((k, k), np.bool_))
+    return tris
+
+
+def _triangulate(V, F, loop, n, edge_keys, options):
+    """Loop-local triangles ``(t, 3)`` wound as the patch (opposite to the rim's half-edges).
+
+    A loop longer than ``options.dp_max_loop`` is first split, recursively, by the shortest
+    chord between vertices half the (sub-)loop apart that is not an edge of the mesh, into
+    pieces the dynamic programme takes: O(n log n) chord searches and O(n) programme cost for
+    a fixed piece size, and balanced pieces (no fan of slivers). Chords take the loop's mean rim
+    normal in the programme's dihedral angles.
+    """
     k = len(loop)
     if k == 3:
         return np.array([[0, 2, 1]], np.int64)
-    P = V[loop]
+    rim_n = _rim_normals(V, F, loop, n)
     if k <= options.dp_max_loop:
-        rim_n = _rim_normals(V, F, loop, n)
-        a, b = np.minimum.outer(loop, loop), np.maximum.outer(loop, loop)
-        keys = a * np.int64(n) + b
+        return _dp(V[loop], loop, rim_n, n, edge_keys)
+    mean_n = rim_n.sum(axis=0)
+    mean_n /= max(np.linalg.norm(mean_n), 1e-300)
+    out = []
+    stack = [(np.arange(k), rim_n)]
+    while stack:
+        idx, nrm = stack.pop()
+        m = len(idx)
+        if m <= max(options.dp_max_loop, 3):
+            if m == 3:
+                out.append(idx[[0, 2, 1]][None, :])
+            else:
+                out.append(idx[_dp(V[loop[idx]], loop[idx], nrm, n, edge_keys)])
+            continue
+        half = m // 2
+        i = np.arange(m)
+        j = (i + half) % m
+        a, b = loop[idx[i]], loop[idx[j]]
+        length = np.linalg.norm(V[a] - V[b], axis=1)
+        keys = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
         pos = np.clip(np.searchsorted(edge_keys, keys), 0, len(edge_keys) - 1)
-        forbidden = edge_keys[pos] == keys
-        idx = np.arange(k)
-        forbidden[idx[:-1], idx[1:]] = False
-        forbidden[0, k - 1] = False
-        tris = _dp_triangulate(P, rim_n, forbidden)
-        if len(tris) != k - 2:   # every triangulation needs an existing chord: allow them
-            tris = _dp_triangulate(P, rim_n, np.zeros((k, k), np.bool_))
-        return tris
-    return _ear_clip(P, vnormals[loop], loop.astype(np.int64), edge_keys, np.int64(n))
+        length = np.where(edge_keys[pos] == keys, np.inf, length)
+        s = int(np.argmin(length))       # first of the shortest: deterministic
+        t = (s + half) % m
+        run1 = (s + np.arange((t - s) % m + 1)) % m       # s .. t
+        run2 = (t + np.arange((s - t) % m + 1)) % m       # t .. s
+        n1 = np.vstack([nrm[run1[:-1]], mean_n])          # its closing edge t -> s is the chord
+        n2 = np.vstack([nrm[run2[:-1]], mean_n])
+        stack.append((idx[run2], n2))
+        stack.append((idx[run1], n1))
+    return np.vstack(out)
 
 
 def _refine(V, patch, hole_of, target, limit_rounds):
@@ -360,8 +338,23 @@ def _refine(V, patch, hole_of, target, limit_rounds):
     return allv, faces, hole
 
 
-def _fair(V, F, free):
-    """Positions of the ``free`` vertices solving the uniform bi-Laplacian with the rest fixed."""
+def _folded_holes(V, F, m_real, hole, count):
+    """(count,) bool: patches with two neighbouring patch faces whose normals disagree."""
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1), 1e-300)[:, None]
+    twin = _twins(F, len(V))
+    face = np.repeat(np.arange(len(F)), 3)
+    other = twin // 3
+    both = (face >= m_real) & (other >= m_real)
+    bad = both & (np.einsum("ij,ij->i", fn[face], fn[other]) <= 0)
+    out = np.zeros(count, bool)
+    out[hole[face[bad] - m_real]] = True
+    return out
+
+
+def _fair(V, F, free, order=2):
+    """Positions of the ``free`` vertices solving the uniform bi-Laplacian (``order`` 2) or
+    Laplacian (1) with the rest fixed."""
     n = len(V)
     if not free.any():
         return V
@@ -371,7 +364,7 @@ def _fair(V, F, free):
     L = (sp.diags(np.asarray(A.sum(axis=1)).ravel()) - A).tocsr()
     U = np.flatnonzero(free)
     K = np.flatnonzero(~free)
-    M = (L[U, :] @ L).tocsc()
+    M = (L[U, :] @ L).tocsc() if order == 2 else L[U, :].tocsc()
     rhs = -(M[:, K] @ V[K])
     x = spsolve(M[:, U].tocsc(), rhs)
     out = V.copy()
@@ -406,11 +399,10 @@ def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options):
     a = F.ravel()
     b = np.roll(F, -1, axis=1).ravel()
     edge_keys = np.unique(np.minimum(a, b) * np.int64(n) + np.maximum(a, b))
-    vnormals = _vertex_normals(V, F, n)
     patches, holes, targets = [], [], []
     for h, loop in enumerate(loops):
         loop = np.asarray(loop, np.int64)
-        tri = _triangulate(V, F, loop, n, edge_keys, vnormals, options)
+        tri = _triangulate(V, F, loop, n, edge_keys, options)
         faces = loop[tri]
         patches.append(faces)
         holes.append(np.full(len(faces), h, np.int64))
@@ -435,12 +427,25 @@ def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options):
     allv, patch, hole = _refine(V, patch, hole, target, rounds)
     nv = len(allv)
     every = np.ascontiguousarray(np.vstack([F, patch]), dtype=np.int64)
-    if options.flip_rounds:
-        flippable = np.zeros(len(every), bool)
-        flippable[len(F):] = True
-        _flip_rounds(allv, every, _twins(every, nv), flippable, options.flip_rounds)
-    patch = every[len(F):]
     free = np.zeros(nv, bool)
     free[n:] = True
-    allv = _fair(allv, every, free)
+    flippable = np.zeros(len(every), bool)
+    flippable[len(F):] = True
+    # flips on the flat refinement, fairing, then flips and fairing once more on the faired
+    # patch (Liepa alternates the two: the first fairing turns slivers of a flat fan into
+    # folds that the second round of flips removes)
+    for _ in range(2):
+        if options.flip_rounds:
+            _flip_rounds(allv, every, _twins(every, nv), flippable, options.flip_rounds)
+        allv = _fair(allv, every, free)
+    patch = every[len(F):]
+    folded = _folded_holes(allv, every, len(F), hole, len(loops))
+    if folded.any():
+        # a bi-Laplacian patch can overshoot and fold where the rim has nothing to continue (a
+        # flat disk's outline: the patch would continue the disk beyond its rim and come back);
+        # those patches take the membrane (Laplacian) solution, a convex combination of the rim
+        redo = np.zeros(nv, bool)
+        redo[patch[folded[hole]].ravel()] = True
+        redo &= free
+        allv = _fair(allv, every, redo, order=1)
     return allv, patch, hole

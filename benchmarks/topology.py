@@ -1,0 +1,127 @@
+"""Topology repair benchmark: what each real model is, what the repair adds, whether it maps.
+
+For the five real models of issue 24 (``../shared/data/models``: the Stanford bunny with its
+holes, the pinched cow, the genus-1 rocker arm, the genus-3 YCB scissors, the open ten-piece
+RGB-D fragment ``frag_115``) and the genus > 0 models of ``../shared/data/retrieval``
+(``meta.csv``), prints one row per model:
+
+* before: holes, pinched vertices, genus (of the largest piece), pieces;
+* added: holes filled, handles cut, pinched vertices split, virtual share of the area, parts
+  kept and dropped (:func:`surfidx.topology.split_parts`);
+* whether every closed part maps with :func:`surfidx.sphere.parameterize` (as the surfels
+  ``TriangleMesh(v, f).to_surfels()`` with mesh faces), the fold count of the maps;
+* CPU time (``time.process_time``) of the repair (analysis + split + close) beside the map's,
+  and their ratio (the target: repair at most 10 % of a model's ingest, which the map bounds
+  from below).
+
+``--no-map`` leaves the maps out (repair figures only); ``--models a.obj,b.ply`` chooses the
+models (paths under ``../shared/data/models`` or ``../shared/data/retrieval``);
+``--no-retrieval`` leaves the retrieval models out; ``--mask`` adds the size of the virtual
+mask coded per grid vertex (:mod:`surfidx.topology._mask`) at the map's grid level.
+
+Run: ``python benchmarks/topology.py [--no-map] [--no-retrieval] [--models ...] [--mask]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+import surfidx
+from surfidx.mesh import TriangleMesh
+from surfidx.topology import analyse, close_surface, split_parts
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+MODELS = ["stanford-bunny.obj", "cow.obj", "rocker-arm.obj",
+          "ycb_scissors/textured_simple_reoriented.obj", "frag_115.ply"]
+
+
+def retrieval_models() -> list:
+    """The genus > 0 models of the retrieval collection (``meta.csv``)."""
+    with open(DATA / "retrieval" / "meta.csv") as fh:
+        return [f"retrieval/{r['path']}" for r in csv.DictReader(fh) if int(r["genus"]) > 0]
+
+
+def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
+    mesh = surfidx.read_mesh(path)
+    t = time.process_time()
+    before = analyse(mesh.vertices, mesh.faces)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        parts = split_parts(mesh.vertices, mesh.faces)
+    closed = [close_surface(p.vertices, p.faces) for p in parts.parts]
+    t_repair = time.process_time() - t
+    area = sum(float(TriangleMesh(c.vertices, c.faces).face_areas().sum()) for c in closed)
+    varea = sum(float(TriangleMesh(c.vertices, c.faces).face_areas()[c.virtual_faces].sum())
+                for c in closed)
+    row = dict(
+        model=path.parent.name if path.parent.name.startswith("ycb") else path.stem,
+        V=before.vertices, holes=before.holes, pinched=before.pinched_vertices,
+        genus=before.genus[0], pieces=before.parts,
+        filled=sum(c.report.holes_filled for c in closed),
+        cut=sum(c.report.handles_cut for c in closed),
+        split=sum(c.report.pinched_vertices for c in closed),
+        virtual_v=sum(c.report.virtual_vertices for c in closed),
+        virtual_area=varea / area if area > 0 else 0.0,
+        parts=len(closed), dropped=parts.dropped, t_repair=t_repair)
+    if do_map:
+        from surfidx.sphere import parameterize
+        ok, folds, t_map, mask_bytes, grid = True, 0, 0.0, 0, 0
+        for c in closed:
+            t = time.process_time()
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    s = TriangleMesh(c.vertices, c.faces).to_surfels()
+                    m = parameterize(s, stress=False)
+                folds += m.folded
+                if do_mask:
+                    from surfidx.topology._mask import grid_mask_bytes
+                    nb, ng = grid_mask_bytes(s, m, c)
+                    mask_bytes += nb
+                    grid += ng
+            except surfidx.SurfidxError as exc:
+                ok = False
+                row["error"] = str(exc)[:60]
+            t_map += time.process_time() - t
+        row.update(maps="yes" if ok else "NO", folds=folds, t_map=t_map,
+                   ratio=t_repair / t_map if t_map > 0 else float("nan"))
+        if do_mask:
+            row.update(mask_bytes=mask_bytes, grid=grid)
+    return row
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", default=",".join(MODELS))
+    ap.add_argument("--no-map", action="store_true")
+    ap.add_argument("--no-retrieval", action="store_true")
+    ap.add_argument("--mask", action="store_true")
+    args = ap.parse_args(argv)
+    names = [m for m in args.models.split(",") if m]
+    paths = [DATA / "models" / m if not m.startswith("retrieval/") else DATA / m for m in names]
+    if not args.no_retrieval:
+        paths += [DATA / m for m in retrieval_models()]
+    cols = ["model", "V", "holes", "pinched", "genus", "pieces", "filled", "cut", "split",
+            "virtual_v", "virtual_area", "parts", "dropped", "t_repair"]
+    if not args.no_map:
+        cols += ["maps", "folds", "t_map", "ratio"]
+        if args.mask:
+            cols += ["grid", "mask_bytes"]
+    print(" | ".join(cols))
+    for p in paths:
+        row = run(p, do_map=not args.no_map, do_mask=args.mask)
+        cells = []
+        for c in cols:
+            v = row.get(c, "")
+            cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
+        print(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
+
+
+if __name__ == "__main__":
+    main()
