@@ -40,6 +40,9 @@ All stages use intrinsic quantities only (lengths, angles, areas, connectivity; 
 index), and stop on counts of steps or rounds, never on the clock: the map depends on the input
 and :class:`MapOptions` only, and a rotated input gives the same points up to a rotation.
 Quality figures are in :mod:`.quality`; geometry on the unit sphere in :mod:`surfidx.spherical`.
+
+:func:`parameterize` and its :class:`SphericalMap` live in :mod:`._map`, the method names and
+:class:`MapOptions` in :mod:`.options`; this package exports them all, the stages' on first use.
 """
 
 from __future__ import annotations
