@@ -88,7 +88,8 @@ def test_the_graph_sees_the_imports():
     """The graph finds module-level, relative, aliased and function-level imports."""
     graph = _graph()
     assert "surfidx.spherical" in graph["surfidx.resample"]           # module level, relative
-    assert "surfidx.sphere" in graph["surfidx.codec"]                 # inside a function
+    assert "surfidx.sphere" in graph["surfidx.codec"]                 # aliased
+    assert "surfidx.codec" in graph["surfidx.pipeline"]               # inside a function
     assert "surfidx.sphere.options" in graph["surfidx.sphere._tutte"]
     assert "surfidx.sphere" in graph["surfidx.cli._sphere"]
 
