@@ -30,8 +30,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 import surfidx
 from surfidx.mesh import TriangleMesh
 from surfidx.topology import analyse, close_surface, split_parts
@@ -71,7 +69,7 @@ def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
         parts=len(closed), dropped=parts.dropped, t_repair=t_repair)
     if do_map:
         from surfidx.sphere import parameterize
-        ok, folds, t_map, mask_bytes, grid = True, 0, 0.0, 0, 0
+        ok, folds, t_map, mask_bytes, grid, bits = True, 0, 0.0, 0, 0, 0
         for c in closed:
             t = time.process_time()
             try:
@@ -85,6 +83,7 @@ def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
                     nb, ng = grid_mask_bytes(s, m, c)
                     mask_bytes += nb
                     grid += ng
+                    bits += 2 * len(s)        # the stream at 2 bits/surfel
             except surfidx.SurfidxError as exc:
                 ok = False
                 row["error"] = str(exc)[:60]
@@ -92,7 +91,8 @@ def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
         row.update(maps="yes" if ok else "NO", folds=folds, t_map=t_map,
                    ratio=t_repair / t_map if t_map > 0 else float("nan"))
         if do_mask:
-            row.update(mask_bytes=mask_bytes, grid=grid)
+            row.update(mask_bytes=mask_bytes, grid=grid,
+                       mask_share_2bps=8 * mask_bytes / bits if bits else float("nan"))
     return row
 
 
@@ -112,7 +112,7 @@ def main(argv=None) -> None:
     if not args.no_map:
         cols += ["maps", "folds", "t_map", "ratio"]
         if args.mask:
-            cols += ["grid", "mask_bytes"]
+            cols += ["grid", "mask_bytes", "mask_share_2bps"]
     print(" | ".join(cols))
     for p in paths:
         row = run(p, do_map=not args.no_map, do_mask=args.mask)

@@ -10,8 +10,6 @@ import warnings
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from conftest import icosphere_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_mesh
@@ -106,8 +104,7 @@ def moebius(n=24):
     f = []
     for i in range(n):
         a, b, c, d = i, n + i, (i + 1) % n, n + (i + 1) % n
-        if i == n - 1:
-            c, d = d - 0, c   # the half twist: the last quad joins top to bottom
+        if i == n - 1:        # the half twist: the last quad joins top to bottom
             c, d = n, 0
         f += [[a, b, d], [a, d, c]]
     return v, np.array(f)
@@ -189,7 +186,8 @@ def same(a: ClosedSurface, b: ClosedSurface) -> bool:
     arrays = ("vertices", "faces", "virtual_vertices", "virtual_faces", "vertex_origin",
               "face_origin", "flipped", "patch")
     return all(getattr(a, k).tobytes() == getattr(b, k).tobytes() for k in arrays) and \
-        all(x.vertices.tobytes() == y.vertices.tobytes() and x.copies.tobytes() == y.copies.tobytes()
+        all(x.vertices.tobytes() == y.vertices.tobytes()
+            and x.copies.tobytes() == y.copies.tobytes()
             for x, y in zip(a.cuts, b.cuts)) and a.report == b.report
 
 
@@ -404,9 +402,9 @@ def test_bowtie_edge_flap_is_split_off_and_dropped():
 
 def test_pieces_split_tiny_ones_dropped():
     pieces, off = [], 0
-    for k, (make, shift) in enumerate([(lambda: icosphere_mesh(3), 0), (lambda: icosphere_mesh(2), 3),
-                                       (lambda: sphere_with_holes([0]), 6),
-                                       (lambda: tetrahedron(), 9), (lambda: tetrahedron(), 12)]):
+    for make, shift in [(lambda: icosphere_mesh(3), 0), (lambda: icosphere_mesh(2), 3),
+                        (lambda: sphere_with_holes([0]), 6), (lambda: tetrahedron(), 9),
+                        (lambda: tetrahedron(), 12)]:
         v, f = make()
         pieces.append((v + [shift, 0, 0], f + off))
         off += len(v)
@@ -512,7 +510,7 @@ def test_real_models(models, name, holes, pinched, genus, pieces):
 
 
 @pytest.mark.slow
-def test_closed_rocker_arm_maps(models):
+def test_closed_cow_maps(models):
     from surfidx.sphere import parameterize
     mesh = read_mesh(models / "cow.obj")
     _, (cs,) = _close_all(mesh)
@@ -520,3 +518,34 @@ def test_closed_rocker_arm_maps(models):
         warnings.simplefilter("ignore")
         m = parameterize(TriangleMesh(cs.vertices, cs.faces).to_surfels(), stress=False)
     assert m.folded == 0
+
+
+# ---------------------------------------------------------------------------- virtual mask
+
+
+def test_mask_round_trip_and_size():
+    from surfidx.icosphere import Icosphere
+    from surfidx.topology._mask import decode_mask, encode_mask
+    rng = np.random.default_rng(0)
+    noise = rng.random(642) < 0.3
+    assert np.array_equal(decode_mask(encode_mask(noise, 3), 3), noise)
+    g = Icosphere(6)
+    cap = (g.vertices[:, 2] > 0.7) | (g.vertices[:, 0] > 0.95)
+    data = encode_mask(cap, 6)
+    assert np.array_equal(decode_mask(data, 6), cap)
+    assert len(data) < 120                    # two caps on 40,962 grid vertices
+    assert len(encode_mask(np.zeros(len(g.vertices), bool), 6)) <= 8
+    assert encode_mask(cap.astype(int), 6) == data
+
+
+def test_mask_errors():
+    from surfidx import BitstreamError
+    from surfidx.topology._mask import decode_mask, encode_mask
+    with pytest.raises(InputError, match="one entry per vertex of the level-2 grid \\(162\\)"):
+        encode_mask(np.zeros(100, bool), 2)
+    with pytest.raises(InputError, match="bits must be 0 or 1"):
+        encode_mask(np.full(162, 2), 2)
+    with pytest.raises(InputError, match="level must be at most"):
+        decode_mask(b"", 99)
+    with pytest.raises(BitstreamError, match="mask starts with an impossible code value"):
+        decode_mask(b"\xff\xff\xff\xff", 2)

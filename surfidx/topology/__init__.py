@@ -15,8 +15,9 @@ pieces. This package analyses a mesh and repairs it in steps, one module each:
 
 The scan itself is not changed: its vertices come first and keep their positions, its faces come
 first, in their order, only renumbered where a vertex was duplicated (split or cut) and reversed
-where the winding was inconsistent. Merging the vertices of equal :attr:`ClosedSurface.vertex_origin`
-and dropping the virtual faces gives the input back (pinches and handles included).
+where the winding was inconsistent. Merging the vertices of equal
+:attr:`ClosedSurface.vertex_origin` and dropping the virtual faces gives the input back (pinches
+and handles included).
 """
 
 from __future__ import annotations
@@ -336,7 +337,7 @@ def analyse(vertices, faces, *, options: RepairOptions = RepairOptions()) -> Top
     vpart = np.full(nn, -1, np.int64)
     vpart[split.ravel()] = np.repeat(plab, 3)
     pv = np.bincount(vpart[vpart >= 0], minlength=parts)
-    he_edge, edges, _ = edge_table(split, nn)
+    _, edges, _ = edge_table(split, nn)
     pe = np.bincount(vpart[edges[:, 0]], minlength=parts)
     pf = np.bincount(plab, minlength=parts)
     loop_part = np.zeros(len(sizes), np.int64)
@@ -346,15 +347,9 @@ def analyse(vertices, faces, *, options: RepairOptions = RepairOptions()) -> Top
     chi = pv - pe + pf
     genus = (2 - chi - pb) // 2
     if not orientable:
-        # faces of a non-orientable piece meet their own flip: mark those pieces with -1
-        he_edge2, _, count2 = edge_table(split, nn)
-        bad = np.zeros(parts, bool)
-        for p in range(parts):
-            sub = split[plab == p]
-            if orientation(sub, nn) is None:
-                bad[p] = True
+        # a non-orientable piece (its faces meet their own flip) has genus -1
+        bad = np.array([orientation(split[plab == p], nn) is None for p in range(parts)])
         genus = np.where(bad, -1, genus)
-        del he_edge2, count2
     order = np.lexsort((np.arange(parts), -pv))
     threshold = drop_threshold(int(pv.sum()), options)
     dropped = int(sum(1 for i, p in enumerate(order) if i > 0 and pv[p] < threshold))
