@@ -483,3 +483,12 @@ def test_cli_queries_stay_exact_while_models_are_removed_and_redescribed(at_thre
     with Database(path, readonly=True) as db:
         assert json.loads((ann.index_dir(path) / "manifest.json").read_text())["state"] \
             == db.index_state()
+
+
+def test_cli_query_defaults_come_from_the_library():
+    from surfidx.cli import cli
+    from surfidx.search import DEFAULT_SHAPE_WEIGHT
+
+    params = {p.name: p for p in cli.commands["query"].params}
+    assert params["shape_weight"].default == DEFAULT_SHAPE_WEIGHT
+    assert f"{ann.DEFAULT_THRESHOLD:,}" in params["exact"].help

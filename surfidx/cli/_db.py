@@ -17,6 +17,8 @@ from pathlib import Path
 import click
 
 from .._errors import DatabaseError, InputError, SurfidxError
+from ..ann import DEFAULT_THRESHOLD
+from ..search import DEFAULT_SHAPE_WEIGHT
 from ._group import cli
 from ._common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
                       output_format_option, plain)
@@ -162,7 +164,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
 @_db_option
 @click.option("-k", "k", type=click.IntRange(min=1), default=10, show_default=True,
               help="Number of results.")
-@click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=0.7, show_default=True,
+@click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=DEFAULT_SHAPE_WEIGHT,
+              show_default=True,
               help="Weight w of shape against texture distance (1 = shape only).")
 @click.option("--sheet", type=click.Path(dir_okay=False),
               help="Also draw the query and its results side by side into this PNG.")
@@ -170,8 +173,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
               help="Keep the query model itself among the results when it is stored.")
 @click.option("--exact", is_flag=True,
               help="Scan every stored model instead of using the approximate index (which "
-                   "is used from 20,000 stored models on; its results are re-ranked by the "
-                   "exact distance).")
+                   f"is used from {DEFAULT_THRESHOLD:,} stored models on; its results are "
+                   "re-ranked by the exact distance).")
 @outside_textures_option
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
