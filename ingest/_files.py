@@ -154,13 +154,22 @@ def hash_files(path, *, texture=None) -> str:
     return h.hexdigest()
 
 
+def _texture_lines(path: Path):
+    """The lines of an OBJ that can say whether it names a texture, decoded: every ``mtllib``
+    and the first ``vt`` (one is enough to know there are texture coordinates)."""
+    vt = False
+    for line in _lines_of_regular(path):
+        if line.startswith(b"mtllib ") or (not vt and line.startswith(b"vt ")):
+            vt = vt or line.startswith(b"vt ")
+            yield line.decode("utf-8", "replace")
+
+
 def _obj_needs_texture(path: Path) -> bool:
     """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``
     image, parsed as :func:`surfidx.io.read_mesh` parses them."""
     from surfidx.io import _mtl_texture_name, _obj_statements
 
-    lines = (line.decode("utf-8", "replace") for line in _lines_of_regular(path))
-    st = _obj_statements(lines, keys=("vt", "mtllib"))
+    st = _obj_statements(_texture_lines(path), keys=("vt", "mtllib"))
     if not st["vt"]:
         return False
     for lib in st["mtllib"]:
