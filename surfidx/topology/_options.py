@@ -21,9 +21,11 @@ class RepairOptions:
         ... or with fewer than this share of all used vertices (0.01: under 1 %).
     dp_max_loop : int
         Holes with at most this many rim vertices are triangulated by the O(n³) dynamic programme
-        (Liepa 2003: lexicographic (largest dihedral angle, area)); longer rims by O(n log n)
-        smallest-angle ear clipping. The default 300 keeps the programme under about a
-        second for the largest such loop (measured: ``benchmarks/topology.py``).
+        (Liepa 2003: lexicographic (largest dihedral angle, area)); longer rims are first split
+        by short chords into pieces of at most this many (O(n log n)). Measured CPU time of the
+        programme on one loop: 0.04 s at 300 vertices, 0.31 s at 600, 1.6 s at 1000, 3.9 s at
+        1418 (frag_115's outline), so the default keeps each piece at a few hundredths of a
+        second.
     refine_ratio : float
         Patch edges longer than this many times the hole's mean rim edge length are bisected.
     patch_vertex_factor : float
