@@ -66,9 +66,9 @@ STAGES = (
     ("surfidx.sphere._repair", "repair", "map.repair"),
     ("surfidx.sphere._foldrepair", "repair_folds", "map.repair"),
     ("surfidx.sphere._circlepattern", "lower_folds", "map.realise"),
-    ("surfidx.sphere.quality", "count_folds", "map.quality"),
-    ("surfidx.sphere.quality", "area_distortion", "map.quality"),
-    ("surfidx.sphere.quality", "sparse_sampling", "map.quality"),
+    ("surfidx.sphere.quality", "_count_folds", "map.quality"),
+    ("surfidx.sphere.quality", "_area_distortion", "map.quality"),
+    ("surfidx.sphere.quality", "_sparse_sampling", "map.quality"),
     ("surfidx.resample", "resample", "resample"),
     ("surfidx.klt", "KLT.fit", "klt"),
     ("surfidx.wavelets", "forward", "wavelets"),
@@ -110,7 +110,7 @@ def _instrument():
     import surfidx
     import surfidx.pipeline  # noqa: F401  (everything the ingest path imports)
     for name in ("codec", "descriptors", "render", "metrics", "graph", "geodesics", "sphere",
-                 "resample", "klt", "wavelets", "density", "io"):
+                 "sphere._map", "resample", "klt", "wavelets", "density", "io"):
         importlib.import_module(f"surfidx.{name}")
     modules = [m for n, m in list(sys.modules.items())
                if m is not None and (n == "surfidx" or n.startswith("surfidx."))]
