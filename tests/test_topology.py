@@ -328,6 +328,9 @@ def test_torus_cut_is_a_meridian():
     # the shortest non-separating cycle goes round the tube (16 vertices, about 2 pi r)
     assert len(cs.cuts[0].vertices) == 16
     assert cs.report.cut_lengths[0] < 2 * np.pi * 0.7 * 1.1
+    # its two lids are membranes across the tube: flat, square to the tube's wall at the rim
+    rim, inner = rim_agreement(cs)
+    assert np.abs(rim).max() < 0.3 and inner.min() > 0.9
 
 
 def test_handle_and_holes_together():

@@ -484,7 +484,12 @@ def close_surface(vertices, faces, *, options: RepairOptions = RepairOptions()) 
             origin_all = np.concatenate([origin_all, origin_all[extra]])
     n_real = len(V)
     loops = boundary_loops(f, n_real)
-    allv, patch, hole = fill_holes(V, f, loops, options)
+    on_cut = np.zeros(n_real, bool)
+    for cut in cuts:
+        on_cut[cut.vertices] = True
+        on_cut[cut.copies] = True
+    lids = np.array([bool(on_cut[lp].all()) for lp in loops], bool)
+    allv, patch, hole = fill_holes(V, f, loops, options, membrane=lids)
     nv, m_real = len(allv), len(f)
     faces_out = np.vstack([f, patch]).astype(np.int64)
     virtual_v = np.zeros(nv, bool)

@@ -17,7 +17,8 @@
    scan vertex fixed, so the patch continues the surrounding surface with matching tangents;
    steps 3 and 4 run twice. A patch that folds nonetheless (two neighbouring patch faces whose
    normals disagree: a flat disk's outline, which the continuation overshoots) or has
-   degenerate faces takes the membrane solution ``L x = 0`` instead when that has fewer.
+   degenerate faces takes the membrane solution ``L x = 0`` instead when that has fewer. The
+   two lids of a handle cut take the membrane from the start (a flat lid across the tube).
 """
 
 from __future__ import annotations
@@ -393,7 +394,7 @@ def _fair(V, F, free, order=2):
     return out
 
 
-def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options):
+def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options, *, membrane=None):
     """Fair patches over the boundary loops of an oriented manifold mesh.
 
     Parameters
@@ -404,6 +405,10 @@ def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options):
     loops : list of (k,) int64
         The boundary loops (:func:`~._analyse.boundary_loops`).
     options : RepairOptions
+    membrane : (len(loops),) bool, optional
+        Loops capped by the membrane (Laplacian) solution from the start: the two sides of a
+        handle cut, where the surface ends in a tube whose bi-Laplacian continuation would fold
+        the cap back along the tube's wall; the membrane spans the cut like a flat lid.
 
     Returns
     -------
@@ -460,7 +465,13 @@ def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options):
             _flip_rounds(allv, every, _twins(every, nv), flippable, options.flip_rounds)
         allv = _fair(allv, every, free)
     patch = every[len(F):]
+    if membrane is not None and np.any(membrane):
+        lid = np.zeros(nv, bool)
+        lid[patch[np.asarray(membrane, bool)[hole]].ravel()] = True
+        allv = _fair(allv, every, lid & free, order=1)
     bad = _bad_faces(allv, every, len(F), hole, len(loops))
+    if membrane is not None:
+        bad[np.asarray(membrane, bool)] = 0
     if bad.any():
         # a bi-Laplacian patch can overshoot and fold where the rim has nothing to continue (a
         # flat disk's outline: the patch would continue the disk beyond its rim and come back);
