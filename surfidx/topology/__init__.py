@@ -124,7 +124,8 @@ class RepairReport:
     holes_filled : int
         Holes of the input capped (cut sides not counted).
     hole_sizes : tuple of int
-        Rim vertices of each filled hole (input holes, then the two sides of each cut).
+        Rim vertices of each patch (input holes and the two sides of each cut), in the order
+        of :attr:`ClosedSurface.patch` (loops ordered by their smallest vertex).
     handles_cut : int
     cut_lengths : tuple of float
         Length of each cut cycle, in model units.
