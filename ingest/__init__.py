@@ -1,7 +1,7 @@
 """Bulk ingestion of model files into a surfidx database (``surfidx ingest``).
 
 >>> import ingest                                                         # doctest: +SKIP
->>> summary = ingest.run(["scans/"], db="surfidx.db", workers=4, bits_per_surfel=8.0)
+>>> summary = ingest.run(["scans/"], db="surfidx.db", bits_per_surfel=8.0)  # workers: cores
 >>> print(summary)                                                        # doctest: +SKIP
 run 1: stored 41, skipped 0, failed 1 in 312.4 s
 
@@ -14,10 +14,11 @@ flow, executors, the single writer) and :mod:`ingest._dask` (the dask.distribute
 
 from ._dask import DaskExecutor
 from ._files import NotRegularFile, discover, find_texture, hash_files
-from ._run import IngestSummary, ProcessPool, exit_with_parent, run, serial
-from ._tasks import (Outcome, Task, error_message, make_tasks, process_task,
+from ._run import IngestSummary, ProcessPool, default_workers, exit_with_parent, run, serial
+from ._tasks import (Outcome, Task, accepts_progress, error_message, make_tasks, process_task,
                      resolve_processor)
 
 __all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
            "process_task", "resolve_processor", "serial", "ProcessPool", "DaskExecutor",
-           "error_message", "hash_files", "NotRegularFile", "exit_with_parent"]
+           "error_message", "hash_files", "NotRegularFile", "exit_with_parent",
+           "default_workers", "accepts_progress"]

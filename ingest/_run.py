@@ -30,6 +30,12 @@ File names are text as the OS gives them (``os.fsdecode``); a name whose bytes a
 processed like any other and stored and reported through :func:`surfidx.database.escape_name`
 (undecodable bytes as ``\\xHH``). Worker processes end when the process that started them dies
 (even by SIGKILL, as the OOM killer sends it): see :class:`ProcessPool`.
+
+Progress: the bar moves within a model. A processor that takes ``progress=`` (as
+:func:`surfidx.pipeline.process_model` does) reports its stages (:mod:`surfidx.progress`); in
+this process they advance the bar directly, from :class:`ProcessPool` workers they come through
+a ``multiprocessing`` manager's queue that this process drains as results and heartbeats arrive
+(a worker that dies loses only its own events). On a Dask cluster the bar moves per model.
 """
 
 from __future__ import annotations
@@ -49,9 +55,11 @@ from surfidx._errors import InputError, SurfidxError
 from surfidx._validate import check_positive_int
 
 from ._files import discover
-from ._tasks import Outcome, error_message, make_tasks, process_task, resolve_processor
+from ._tasks import (Outcome, accepts_progress, error_message, make_tasks, process_task,
+                     resolve_processor)
 
-__all__ = ["run", "IngestSummary", "serial", "ProcessPool", "exit_with_parent"]
+__all__ = ["run", "IngestSummary", "serial", "ProcessPool", "exit_with_parent",
+           "default_workers"]
 
 
 # ---------------------------------------------------------------------- executors
@@ -112,6 +120,69 @@ def _alive(pid: int) -> bool:
     except OSError:  # pragma: no cover - exists, not ours
         return True
     return True
+
+
+def default_workers() -> int:
+    """The default worker count of an ingest: the cores this process may run on
+    (``len(os.sched_getaffinity(0))`` where the OS has it, else ``os.cpu_count()``; at least 1)."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):       # pragma: no cover - macOS, Windows
+        n = os.cpu_count() or 1
+    return max(int(n), 1)
+
+
+class _StageQueue:
+    """The stage events of models processed in worker processes: a ``multiprocessing``
+    manager's queue (its server process ends with this one, :func:`exit_with_parent`); workers
+    put ``(path, stage, done, total)`` through :class:`_StageSender`, this process drains it.
+
+    A worker killed at any moment leaves the queue usable (each put is one request to the
+    server); a server that is gone makes puts and drains do nothing."""
+
+    def __init__(self, mp_context=None):
+        import multiprocessing
+        from multiprocessing.managers import SyncManager
+
+        self.manager = SyncManager(ctx=mp_context or multiprocessing.get_context())
+        self.manager.start(_worker_init, (os.getpid(),))
+        self.queue = self.manager.Queue()
+
+    def sender(self):
+        return _StageSender(self.queue)
+
+    def drain(self, on_event) -> None:
+        """Call ``on_event(path, stage, done, total)`` for every event queued now."""
+        import queue as _queue
+
+        while True:
+            try:
+                event = self.queue.get_nowait()
+            except _queue.Empty:
+                return
+            except Exception:   # pragma: no cover - the server is gone: no more events
+                return
+            on_event(*event)
+
+    def close(self) -> None:
+        try:
+            self.manager.shutdown()
+        except Exception:  # pragma: no cover - already gone
+            pass
+
+
+class _StageSender:
+    """Picklable ``sender(path, stage, done, total)`` of a worker: one put on the queue (a
+    failed put is dropped: progress never fails a model)."""
+
+    def __init__(self, queue):
+        self.queue = queue
+
+    def __call__(self, path, stage, done, total):
+        try:
+            self.queue.put((path, stage, int(done), int(total)))
+        except Exception:  # pragma: no cover - the parent's manager is gone
+            pass
 
 
 def serial(fn, tasks):
@@ -266,7 +337,7 @@ class IngestSummary:
         return (f"run {self.run_id}: stored {self.stored}, skipped {self.skipped}, "
                 f"failed {self.failed} in {self.seconds:.1f} s")
 
-def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=None,
+def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, processor=None,
         progress: bool = True, executor=None, batch: int = 8,
         flush_seconds: float = 2.0, scheduler=None, retries: int = 2, name: str | None = None,
         tags=(), allow_outside_textures: bool = False) -> IngestSummary:
@@ -278,9 +349,11 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         Model files and folders (see :func:`discover`).
     db : surfidx.database.Database or str or os.PathLike
         An open database, or the path of one (created when missing).
-    workers : int
-        Worker processes; ``1`` processes in this process. With ``scheduler="local"`` the
-        LocalCluster's workers; ignored with a running cluster (its workers are used).
+    workers : int, optional
+        Worker processes; ``1`` processes in this process. Default: as many as the machine's
+        cores (:func:`default_workers`), or 1 when the processor cannot be sent to worker
+        processes (not picklable). With ``scheduler="local"`` the LocalCluster's workers;
+        ignored with a running cluster (its workers are used).
     bits_per_surfel : float
         Coding rate passed to the processor.
     processor : callable, optional
@@ -288,7 +361,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
         ``surfidx.pipeline.process_model``. With ``workers > 1`` it must be picklable (a
         module-level function).
     progress : bool
-        Show a tqdm progress bar (rate, ETA) on stderr.
+        Show a tqdm progress bar (rate, ETA) on stderr; it moves within a model when the
+        processor takes ``progress=`` (see the module notes).
     executor : callable, optional
         ``executor(fn, tasks)`` yielding ``fn(task)`` per task as they complete (and optionally
         ``None`` as a heartbeat while waiting); default
@@ -338,7 +412,8 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     """
     from surfidx.database import Database
 
-    workers = check_positive_int(workers, "workers")
+    defaulted = workers is None
+    workers = default_workers() if defaulted else check_positive_int(workers, "workers")
     batch = check_positive_int(batch, "batch")
     bits_per_surfel = float(bits_per_surfel)
     if not bits_per_surfel > 0:
@@ -351,7 +426,13 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
     if scheduler is not None and executor is not None:
         raise InputError("give either executor or scheduler, not both")
     if scheduler is None and executor is None and workers > 1:
-        _check_picklable(processor)
+        if defaulted:
+            try:
+                _check_picklable(processor)
+            except InputError:
+                workers = 1                 # a closure or lambda runs in this process
+        else:
+            _check_picklable(processor)
     with contextlib.ExitStack() as stack:
         if scheduler is not None:
             from ._dask import DaskExecutor
@@ -366,6 +447,34 @@ def run(paths, *, db, workers: int = 1, bits_per_surfel: float = 8.0, processor=
                        executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
                        tags=[tags] if isinstance(tags, str) else list(tags),
                        allow_outside_textures=allow_outside_textures)
+
+
+class _BarMoves:
+    """The progress bar's position: finished models plus the finished share of each running
+    one (:func:`surfidx.progress.stage_fraction` of its latest stage event)."""
+
+    def __init__(self):
+        self.bar = None
+        self.finished = 0
+        self.running = {}
+
+    def _move(self):
+        target = self.finished + sum(self.running.values())
+        if self.bar is not None and target > self.bar.n:
+            self.bar.update(target - self.bar.n)
+
+    def event(self, path, stage, done, total):
+        from surfidx.progress import stage_fraction
+
+        f = stage_fraction(stage, done, total)
+        if f > self.running.get(path, 0.0):
+            self.running[path] = f
+            self._move()
+
+    def done(self, path):
+        self.running.pop(path, None)
+        self.finished += 1
+        self._move()
 
 
 def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, executor, batch,
@@ -431,7 +540,10 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
         last_flush = time.monotonic()
 
     bar = None
+    stage_queue = None
+    moved = _BarMoves()
     status = "failed"
+    stack = contextlib.ExitStack()
     try:
         known = []
         tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip,
@@ -440,18 +552,34 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
             with db.transaction():
                 db.tag(db.ids_of_hashes(known), tags)
         flush()
-        fn = functools.partial(process_task, processor=processor,
-                               bits_per_surfel=bits_per_surfel,
-                               allow_outside_textures=allow_outside_textures)
         if executor is None:
             executor = serial if workers == 1 else ProcessPool(workers)
+        sender = None
         if progress and tasks:
             from tqdm import tqdm
 
-            bar = tqdm(total=len(tasks), unit="model", desc="ingest", dynamic_ncols=True)
+            bar = tqdm(total=len(tasks), unit="model", desc="ingest", dynamic_ncols=True,
+                       bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} [{elapsed}<{remaining}"
+                                  "{postfix}]")
+            if accepts_progress(processor):
+                if executor is serial:
+                    sender = moved.event
+                elif isinstance(executor, ProcessPool):
+                    try:
+                        stage_queue = stack.enter_context(
+                            contextlib.closing(_StageQueue(executor.mp_context)))
+                        sender = stage_queue.sender()
+                    except Exception:  # pragma: no cover - no manager: the bar moves per model
+                        stage_queue = None
+        moved.bar = bar
+        fn = functools.partial(process_task, processor=processor,
+                               bits_per_surfel=bits_per_surfel,
+                               allow_outside_textures=allow_outside_textures, stages=sender)
         results = executor(fn, tasks)
         try:
             for outcome in results:
+                if stage_queue is not None:
+                    stage_queue.drain(moved.event)
                 if outcome is None:                         # executor heartbeat
                     if buffer and time.monotonic() - last_flush >= flush_seconds:
                         flush()
@@ -461,7 +589,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
                 else:
                     buffer.append(outcome)
                 if bar is not None:
-                    bar.update(1)
+                    moved.done(outcome.task.path)
                     bar.set_postfix(stored=summary.stored + len(buffer), failed=summary.failed,
                                     refresh=False)
                 if len(buffer) >= batch or time.monotonic() - last_flush >= flush_seconds:
@@ -480,6 +608,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
             pass
         raise
     finally:
+        stack.close()
         if bar is not None:
             bar.close()
         summary.status = status

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import stat
 import time
@@ -16,7 +17,8 @@ from surfidx._errors import SurfidxError
 
 from ._files import NotRegularFile, find_texture, hash_files, not_regular
 
-__all__ = ["Task", "Outcome", "error_message", "resolve_processor", "process_task", "make_tasks"]
+__all__ = ["Task", "Outcome", "error_message", "resolve_processor", "process_task", "make_tasks",
+           "accepts_progress"]
 
 
 # ---------------------------------------------------------------------- tasks and outcomes
@@ -76,18 +78,34 @@ def resolve_processor(processor=None):
     return process_model
 
 
+def accepts_progress(processor) -> bool:
+    """Whether ``processor`` names a ``progress`` parameter (as
+    :func:`surfidx.pipeline.process_model` does): only such a processor is given one."""
+    import inspect
+
+    try:
+        return "progress" in inspect.signature(processor).parameters
+    except (TypeError, ValueError):
+        return False
+
+
 def process_task(task: Task, *, processor, bits_per_surfel: float,
-                 allow_outside_textures: bool = False) -> Outcome:
+                 allow_outside_textures: bool = False, stages=None) -> Outcome:
     """Run the processor on one task, catching its errors (the per-model function of every
     executor; picklable when ``processor`` is a module-level function).
 
     ``processor(path, bits_per_surfel=B, texture=T)`` must return a
     ``surfidx.pipeline.ProcessedModel``; its ``content_hash`` is set to the task's so that a re-run
     recognises the model. With ``allow_outside_textures`` the processor also gets
-    ``allow_outside_textures=True``. ``KeyboardInterrupt`` and ``SystemExit`` propagate.
+    ``allow_outside_textures=True``. With ``stages``, a callable ``stages(path, stage, done,
+    total)``, a processor that takes ``progress=`` (:func:`accepts_progress`) gets one that
+    reports its stage events with the task's path. ``KeyboardInterrupt`` and ``SystemExit``
+    propagate.
     """
     t0 = time.perf_counter()
     extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+    if stages is not None and accepts_progress(processor):
+        extra["progress"] = functools.partial(stages, task.path)
     try:
         model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture,
                           **extra)

@@ -113,6 +113,10 @@ class Encoder:
         Weight coefficients by the input's surfel density on the sphere (:mod:`surfidx.density`);
         default: when :func:`surfidx.density.weighting_gain` reaches
         :data:`surfidx.density.MIN_GAIN_DB`.
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries of
+        the set-up: the map's (:func:`surfidx.sphere.parameterize`), ``"resample"``,
+        ``"transform"``. It changes nothing in the result.
 
     Attributes
     ----------
@@ -137,7 +141,8 @@ class Encoder:
     def __init__(self, surfels: SurfelSet, *, level: int | None = None, color: bool | None = None,
                  method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None,
                  tangent_weight: float | None = TANGENT_WEIGHT,
-                 density_weighting: bool | None = None):
+                 density_weighting: bool | None = None, progress=None):
+        from .progress import report
         from .sphere import parameterize
 
         if not isinstance(surfels, SurfelSet):
@@ -163,15 +168,17 @@ class Encoder:
         t = {}
         t0 = time.perf_counter()
         if sphere_map is None:
-            sphere_map = parameterize(surfels, method=method, stress=False)
+            sphere_map = parameterize(surfels, method=method, stress=False, progress=progress)
         self.sphere_map = sphere_map
         t["map"] = time.perf_counter() - t0
         self.level = sphere_map.grid_level if level is None else level
         t0 = time.perf_counter()
+        report(progress, "resample", 0, 1)
         grid = resample(surfels, sphere_map.points, self.level, color=self.color)
         self.grid = grid
         t["resample"] = time.perf_counter() - t0
         t0 = time.perf_counter()
+        report(progress, "transform", 0, 1)
         k = self.grid.shape[1]
         diag = surfels.diagonal
         weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
@@ -224,6 +231,7 @@ class Encoder:
         self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
             else 0
         t["transform"] = time.perf_counter() - t0
+        report(progress, "transform", 1, 1)
         self.setup_seconds = t
 
     def header_bytes(self) -> int:
@@ -233,13 +241,15 @@ class Encoder:
             anchors=len(self.anchors),
             field_bytes=len(self.weight_field) if self.weight_field else None)
 
-    def encode(self, bits_per_surfel: float) -> bytes:
+    def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
         """Encode at a rate.
 
         Parameters
         ----------
         bits_per_surfel : float
             Target rate; the file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+        progress : callable, optional
+            ``progress("code", done, 1)`` as the coding starts and ends (:mod:`surfidx.progress`).
 
         Returns
         -------
@@ -257,6 +267,8 @@ class Encoder:
             lowest = 8.0 * smallest / self.n_surfels
             raise InputError(f"{bits_per_surfel} bits/surfel cannot hold the header; the lowest "
                              f"rate for this model is {lowest:.3g} bits/surfel")
+        if progress is not None:
+            progress("code", 0, 1)
         ico = icosphere(self.level)
         stream, zh = zerotree.encode(self.coeffs, ico.tree_parent, ico.children_indptr,
                                      ico.children_indices, step=self.step, final_plane=0,
@@ -271,7 +283,10 @@ class Encoder:
             coder=zerotree.pack_header(zh), map_method=self.map_method,
             tangent_weight=self.tangent_weight, weight_field=self.weight_field,
             anchors=self.anchors)
-        return container.pack(header, stream)
+        out = container.pack(header, stream)
+        if progress is not None:
+            progress("code", 1, 1)
+        return out
 
 
 def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = None,

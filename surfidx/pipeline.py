@@ -1,18 +1,21 @@
 """The per-model work unit shared by the CLI, bulk ingestion (process pool) and the distributed
-executor: read → map to the sphere → encode → describe → thumbnail, as one picklable result."""
+executor: read → map to the sphere → encode → describe → thumbnail, as one picklable result
+(:func:`process_model`); and the query's share of it, read → map → resample → describe
+(:func:`describe_model`), whose descriptors are those an ingest stores."""
 
 from __future__ import annotations
 
 import hashlib
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .database import ProcessedModel
 
-__all__ = ["ProcessedModel", "content_hash", "process_model", "describe_stream", "redescribe",
-           "output_level"]
+__all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
+           "describe_stream", "redescribe", "output_level"]
 
 
 def content_hash(path, *, texture=None) -> str:
@@ -43,10 +46,36 @@ def _png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def _identity(path, surfels, texture, name):
+    """The name, source and content hash of a model (a file's, or one in memory)."""
+    from .io import model_hash
+
+    if not isinstance(path, (str, os.PathLike)):
+        label = name or getattr(path, "name", None) or surfels.name or "model"
+        return str(label), "<memory>", model_hash(surfels)
+    return (str(name or Path(path).stem), str(Path(path).resolve()),
+            content_hash(path, texture=texture))
+
+
+def _timed(timings, stage, progress, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, its wall time in ``timings[stage]``, ``stage`` reported to
+    ``progress`` as it starts and ends."""
+    import time
+
+    from .progress import report
+
+    report(progress, stage, 0, 1)
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    timings[stage] = time.perf_counter() - t0
+    report(progress, stage, 1, 1)
+    return out
+
+
 def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: int | None = None,
                   level: int | None = None, method: str = "tutte", thumbnail_size: int = 192,
                   lmax: int | None = None, allow_outside_textures: bool = False,
-                  name: str | None = None) -> ProcessedModel:
+                  name: str | None = None, progress=None) -> ProcessedModel:
     """Read, map, encode, evaluate, describe and draw one model.
 
     Parameters
@@ -76,6 +105,11 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     name : str, optional
         The model's name (default: the file stem, or the in-memory model's name, else
         ``"model"``).
+    progress : callable, optional
+        ``progress(stage, done, total)`` at each stage boundary (:mod:`surfidx.progress`):
+        ``read``, the map's (``map`` per level, ``repair``, ``figures``), ``resample``,
+        ``transform``, ``code``, ``decode``, ``evaluate``, ``describe``, ``thumbnail``, in this
+        order. It changes nothing in the result.
 
     Returns
     -------
@@ -92,37 +126,27 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
 
     from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
-    from .io import model_hash, read_surfels
+    from .io import read_surfels
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
     from .render import render
     from .resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     timings = {}
-    t0 = time.perf_counter()
-    in_memory = not isinstance(path, (str, os.PathLike))
-    surfels = read_surfels(path, texture=texture, samples=samples,
-                           allow_outside_textures=allow_outside_textures)
-    timings["read"] = time.perf_counter() - t0
-    enc = Encoder(surfels, level=level, method=method)
+    surfels = _timed(timings, "read", progress, read_surfels, path, texture=texture,
+                     samples=samples, allow_outside_textures=allow_outside_textures)
+    enc = Encoder(surfels, level=level, method=method, progress=progress)
     timings.update(enc.setup_seconds)
     t0 = time.perf_counter()
-    stream = enc.encode(bits_per_surfel)
+    stream = enc.encode(bits_per_surfel, progress=progress)
     timings["encode"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    decoded = decode(stream)
-    timings["decode"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    q = evaluate(surfels, decoded)
+    decoded = _timed(timings, "decode", progress, decode, stream)
+    q = _timed(timings, "evaluate", progress, evaluate, surfels, decoded)
     quality = {k: q[k] for k in ("psnr_d1", "psnr_d2", "psnr_y")}
-    timings["evaluate"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    desc = describe_grid(enc.grid, enc.level, lmax=DEFAULT_LMAX if lmax is None else lmax)
-    timings["describe"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    thumb = _png_bytes(render(decoded, width=thumbnail_size, height=thumbnail_size,
-                              view="principal"))
-    timings["thumbnail"] = time.perf_counter() - t0
+    desc = _timed(timings, "describe", progress, describe_grid, enc.grid, enc.level,
+                  lmax=DEFAULT_LMAX if lmax is None else lmax)
+    thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
+        render(decoded, width=thumbnail_size, height=thumbnail_size, view="principal")))
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
               "color_weight": COLOR_WEIGHT, "samples": samples,
@@ -132,17 +156,109 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
               "texture": None if texture is None else str(texture),
               "folded": int(enc.sphere_map.folded),
               "descriptors": desc.params}
-    if in_memory:
-        label = name or getattr(path, "name", None) or surfels.name or "model"
-        source, digest = "<memory>", model_hash(surfels)
-    else:
-        label = name or Path(path).stem
-        source, digest = str(Path(path).resolve()), content_hash(path, texture=texture)
+    label, source, digest = _identity(path, surfels, texture, name)
     return ProcessedModel(
         name=str(label), source=source, content_hash=digest, n_surfels=len(surfels),
         has_color=surfels.has_color, bbox=surfels.bounds, stream=stream,
         format_version=CODEC_VERSION, rate=8.0 * len(stream) / len(surfels), quality=quality,
         descriptors=desc.vectors, thumbnail=thumb, params=params, timings=timings)
+
+
+@dataclass
+class DescribedModel:
+    """What a query needs of a model that is not stored (:func:`describe_model`).
+
+    Attributes
+    ----------
+    name, source, content_hash : str
+        As :class:`ProcessedModel`'s (the hash finds the model when it is stored).
+    n_surfels : int
+    has_color : bool
+    descriptors : surfidx.descriptors.DescriptorSet
+        The vectors and conventions an ingest of the model stores.
+    grid_level : int
+    thumbnail : bytes or None
+        PNG of the input surfels (not of a decoded stream), when asked for.
+    timings : dict of str -> float
+        Wall seconds per stage (figures only).
+    """
+
+    name: str
+    source: str
+    content_hash: str
+    n_surfels: int
+    has_color: bool
+    descriptors: object
+    grid_level: int
+    thumbnail: bytes | None = None
+    timings: dict = field(default_factory=dict)
+
+
+def describe_model(path, *, texture=None, samples: int | None = None, level: int | None = None,
+                   method: str = "tutte", lmax: int | None = None,
+                   allow_outside_textures: bool = False, name: str | None = None,
+                   thumbnail_size: int | None = None, progress=None) -> DescribedModel:
+    """Read, map, resample and describe one model: what a query by example computes, nothing
+    else (no coding, decoding, quality figures).
+
+    It maps and resamples as :func:`process_model` does (the map without the stress figure, the
+    grid at the encoder's level: ``level``, else the map's ``grid_level``; colour when the
+    surfels have it), so with the same arguments its descriptors are bit-equal to
+    ``process_model(...).descriptors``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, or a model in memory
+        As for :func:`process_model`.
+    texture, samples, level, method, lmax, allow_outside_textures, name
+        As for :func:`process_model`.
+    thumbnail_size : int, optional
+        Also draw a thumbnail of the input surfels this many pixels wide and high.
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
+        (``map`` per level, ``repair``, ``figures``), ``resample``, ``describe`` and, with a
+        thumbnail, ``thumbnail``.
+
+    Returns
+    -------
+    DescribedModel
+
+    Raises
+    ------
+    SurfidxError
+        Unreadable file, a surface that cannot be mapped, a bad method.
+    """
+    import time
+
+    from ._errors import InputError
+    from .descriptors import DEFAULT_LMAX, describe_grid
+    from .io import read_surfels
+    from .render import render
+    from .resample import resample
+    from .sphere import METHODS, parameterize
+
+    if method not in METHODS:
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    timings = {}
+    surfels = _timed(timings, "read", progress, read_surfels, path, texture=texture,
+                     samples=samples, allow_outside_textures=allow_outside_textures)
+    t0 = time.perf_counter()
+    sphere_map = parameterize(surfels, method=method, stress=False, progress=progress)
+    timings["map"] = time.perf_counter() - t0
+    grid_level = sphere_map.grid_level if level is None else level
+    grid = _timed(timings, "resample", progress, resample, surfels, sphere_map.points,
+                  grid_level, color=surfels.has_color)
+    desc = _timed(timings, "describe", progress, describe_grid, grid, grid_level,
+                  lmax=DEFAULT_LMAX if lmax is None else lmax)
+    thumb = None
+    if thumbnail_size is not None:
+        thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
+            render(surfels, width=thumbnail_size, height=thumbnail_size, view="principal")))
+    label, source, digest = _identity(path, surfels, texture, name)
+    return DescribedModel(name=label, source=source, content_hash=digest,
+                          n_surfels=len(surfels), has_color=surfels.has_color,
+                          descriptors=desc, grid_level=int(grid_level), thumbnail=thumb,
+                          timings=timings)
 
 
 def output_level(stream: bytes, *, path=None) -> int | None:

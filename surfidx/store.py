@@ -5,7 +5,7 @@
 ``list_models``).
 
 >>> db = surfidx.Database.open("shapes.db")                             # doctest: +SKIP
->>> db.ingest(["scans/"], workers=4)                                     # doctest: +SKIP
+>>> db.ingest(["scans/"])                  # as many workers as cores                                     # doctest: +SKIP
 >>> db.query("bunny", k=5)                                               # doctest: +SKIP
 >>> db.export("bunny", "bunny.glb", bits_per_surfel=2)                   # doctest: +SKIP
 
@@ -15,6 +15,7 @@ imports the other's callers.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from pathlib import Path
@@ -26,12 +27,32 @@ from .database import Database as _Store, is_storage_failure
 
 __all__ = ["Database"]
 
+_THUMBNAIL_SIZE = 192      # of a query example's thumbnail (as process_model's default)
+
+
+def _describer(describer=None):
+    """``describer``, or :func:`surfidx.pipeline.describe_model` when None (imported now).
+
+    Raises
+    ------
+    SurfidxError
+        ``surfidx.pipeline.describe_model`` is not available.
+    """
+    if describer is not None:
+        return describer
+    try:
+        from .pipeline import describe_model
+    except ImportError as exc:
+        raise SurfidxError(f"the model describer surfidx.pipeline.describe_model is not "
+                           f"available ({exc})") from exc
+    return describe_model
+
 
 class Database(_Store):
     """A surfidx model database with the one-call API (see the module notes); opened as
     :class:`surfidx.database.Database` is (``Database.open(path)``, ``readonly=``...)."""
 
-    def ingest(self, models, *, workers: int = 1, bits_per_surfel: float = 8.0, name=None,
+    def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float = 8.0, name=None,
                tags=(), processor=None, progress: bool = False,
                allow_outside_textures: bool = False, **options):
         """Process and store models: files, folders (recursively) or models in memory.
@@ -42,8 +63,9 @@ class Database(_Store):
             Files and folders as for ``surfidx ingest`` (:func:`ingest.run`: resumable, skipping
             what is stored), and models in memory (a ``SurfelSet``, ``(vertices, faces[,
             colours])``, a ``trimesh.Trimesh``: :func:`surfidx.io.as_surfels`), processed here.
-        workers : int
-            Worker processes for the files.
+        workers : int, optional
+            Worker processes for the files (default: as many as the machine's cores,
+            :func:`ingest.run`).
         bits_per_surfel : float
             Full rate of the stored streams.
         name : str, optional
@@ -121,10 +143,17 @@ class Database(_Store):
             raise InputError("give at least one model file, folder or model to ingest")
         return summary
 
-    def _example(self, model, *, processor=None, texture=None,
-                 allow_outside_textures: bool = False) -> dict:
+    def _example(self, model, *, processor=None, describer=None, texture=None,
+                 allow_outside_textures: bool = False, thumbnail: bool = True,
+                 progress=None) -> dict:
         """The query example: ``{"id", "name", "descriptors", "thumbnail", "has_color"}``
-        (``id`` is the stored model's, or None)."""
+        (``id`` is the stored model's, or None).
+
+        A file or a model in memory is described by ``processor`` when one is given (a whole
+        ingest's work, :func:`surfidx.pipeline.process_model`'s signature), else by
+        ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
+        describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
+        ``progress`` goes to the describer (:mod:`surfidx.progress`)."""
         import ingest as _ingest
 
         ref = model
@@ -147,37 +176,45 @@ class Database(_Store):
             return {"id": rec["id"], "name": rec["name"], "has_color": rec["has_color"],
                     "descriptors": self.get_descriptors(rec["id"]),
                     "thumbnail": self.get_thumbnail(rec["id"])}
-        proc = _ingest.resolve_processor(processor)
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+        if processor is not None:
+            proc = functools.partial(processor, bits_per_surfel=8.0)
+        else:
+            proc = functools.partial(_describer(describer),
+                                     thumbnail_size=_THUMBNAIL_SIZE if thumbnail else None,
+                                     **({"progress": progress} if progress is not None else {}))
         try:
             if isinstance(ref, os.PathLike):
                 if not Path(ref).is_file():
                     raise InputError("no such model file", path=ref)
                 tex = texture if texture is not None else _ingest.find_texture(ref)
-                processed = proc(str(ref), bits_per_surfel=8.0, texture=tex, **extra)
+                processed = proc(str(ref), texture=tex, **extra)
             else:
-                processed = proc(ref, bits_per_surfel=8.0, **extra)
+                processed = proc(ref, **extra)
         except SurfidxError as exc:
             if exc.path is None and isinstance(ref, os.PathLike):
                 raise type(exc)(exc.reason, path=ref) from exc
             raise
         row = self.conn.execute("SELECT id FROM models WHERE content_hash = ?",
                                 (str(processed.content_hash),)).fetchone()
+        vectors = processed.descriptors
+        vectors = getattr(vectors, "vectors", vectors)       # a DescriptorSet, or a dict
         return {"id": None if row is None else int(row[0]), "name": processed.name,
-                "has_color": processed.has_color, "descriptors": dict(processed.descriptors),
+                "has_color": processed.has_color, "descriptors": dict(vectors),
                 "thumbnail": processed.thumbnail}
 
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
-              include_self: bool = False, processor=None, texture=None,
-              allow_outside_textures: bool = False, exact: bool = False,
+              include_self: bool = False, processor=None, describer=None, texture=None,
+              allow_outside_textures: bool = False, exact: bool = False, progress=None,
               _example: dict | None = None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.search.SearchIndex`).
 
         Parameters
         ----------
         model : int, str, os.PathLike or model in memory
-            A stored model's id (``12`` or ``"id:12"``) or name, a model file (processed as an
-            ingest would, not stored), or a model in memory.
+            A stored model's id (``12`` or ``"id:12"``) or name, a model file or a model in
+            memory (mapped, resampled and described as an ingest would, by
+            :func:`surfidx.pipeline.describe_model`; nothing is coded or stored).
         k : int
             Number of results.
         shape_weight : float, optional
@@ -186,8 +223,16 @@ class Database(_Store):
         include_self : bool
             Keep the query model itself among the results when it is stored (by default it is
             left out).
-        processor, texture, allow_outside_textures
+        processor : callable, optional
+            Describe a file or model in memory by this ingest processor's whole work instead
+            (a ``ProcessedModel``, as for :meth:`ingest`).
+        describer : callable, optional
+            Instead of :func:`surfidx.pipeline.describe_model` (same signature).
+        texture, allow_outside_textures
             For a file or a model in memory (as for :meth:`ingest`).
+        progress : callable, optional
+            ``progress(stage, done, total)`` while a file or model in memory is described
+            (:mod:`surfidx.progress`).
         exact : bool
             Scan every stored model, never the approximate index (:mod:`surfidx.ann`, used from
             :data:`surfidx.ann.DEFAULT_THRESHOLD` models on).
@@ -207,8 +252,8 @@ class Database(_Store):
         from .search import DEFAULT_SHAPE_WEIGHT, SearchIndex
 
         ex = _example if _example is not None else self._example(
-            model, processor=processor, texture=texture,
-            allow_outside_textures=allow_outside_textures)
+            model, processor=processor, describer=describer, texture=texture,
+            allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress)
         descriptors = dict(ex["descriptors"])
         if not ex["has_color"]:
             descriptors.pop("texture", None)

@@ -30,7 +30,12 @@ trimesh = pytest.importorskip("trimesh")
 
 
 def invoke(args, obj=OBJ):
-    return CliRunner().invoke(cli, [str(a) for a in args], obj=obj)
+    """Run the CLI; an ``ingest`` without ``--workers`` gets ``--workers 1`` (ids in file
+    order; the default worker count is tested in test_ingest.py)."""
+    args = [str(a) for a in args]
+    if args[:1] == ["ingest"] and not {"-j", "--workers"} & set(args):
+        args += ["--workers", "1"]
+    return CliRunner().invoke(cli, args, obj=obj)
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +47,7 @@ def real(tmp_path_factory):
     col = np.clip((v + 1) * 127.5, 0, 255).astype(np.uint8)
     trimesh.Trimesh(v, f, vertex_colors=col, process=False).export(root / "ball.glb")
     with surfidx.Database.open(root / "r.db") as db:
-        summary = db.ingest(root / "ball.glb", tags=["demo"])
+        summary = db.ingest(root / "ball.glb", tags=["demo"], workers=1)
         assert (summary.stored, summary.failed) == (1, 0), summary.errors
     return root, root / "r.db"
 
@@ -118,7 +123,7 @@ def test_query_by_name_leaves_itself_out(real, tmp_path):
 def test_api_with_stub_processor(tmp_path):
     root = make_tree(tmp_path / "data", 3, extra={"bad.ply": "FAIL"})
     with surfidx.Database.open(tmp_path / "s.db") as db:
-        s = db.ingest([root], processor=fake_processor, tags=["scan", "x"])
+        s = db.ingest([root], processor=fake_processor, tags=["scan", "x"], workers=1)
         assert (s.stored, s.failed) == (3, 1)
         assert db.tags() == {"scan": 3, "x": 3}
         assert [m["name"] for m in db.list_models(name_like="m%")] == ["m0", "m2", "m1"]
@@ -138,10 +143,10 @@ def test_api_with_stub_processor(tmp_path):
             db.remove()
         assert db.conn.execute("SELECT count(*) FROM tags").fetchone()[0] == 2   # m1's
         with pytest.raises(InputError, match="name= names one model; 2 were given"):
-            db.ingest([root, root], name="x", processor=fake_processor)
+            db.ingest([root, root], name="x", processor=fake_processor, workers=1)
         with pytest.raises(InputError, match="a name names one model"):
-            db.ingest([root], name="x", processor=fake_processor)
-        one = db.ingest(root / "m0.ply", name="zero", processor=fake_processor)
+            db.ingest([root], name="x", processor=fake_processor, workers=1)
+        one = db.ingest(root / "m0.ply", name="zero", processor=fake_processor, workers=1)
         assert db.get_model(one.ids[0])["name"] == "zero"
 
 
@@ -195,7 +200,7 @@ def test_closed_pipe_is_quiet(tmp_path):
 def test_deleting_with_foreign_keys_off_leaves_no_orphans(tmp_path):
     root = make_tree(tmp_path / "data", 2)
     with surfidx.Database.open(tmp_path / "s.db") as db:
-        db.ingest([root], processor=fake_processor, tags=["t"])
+        db.ingest([root], processor=fake_processor, tags=["t"], workers=1)
     conn = sqlite3.connect(tmp_path / "s.db")                     # foreign keys off
     assert conn.execute("PRAGMA foreign_keys").fetchone()[0] == 0
     conn.execute("DELETE FROM models WHERE id = 1")
@@ -257,8 +262,8 @@ def test_ingest_again_with_tags_tags_the_stored_models(tmp_path):
     """A re-run with ``tags`` stores nothing new but tags the models it finds stored."""
     root = make_tree(tmp_path / "data", 2)
     with surfidx.Database.open(tmp_path / "t.db") as db:
-        db.ingest([root], processor=fake_processor)
+        db.ingest([root], processor=fake_processor, workers=1)
         assert db.tags() == {}
-        s = db.ingest([root], processor=fake_processor, tags=["archive"])
+        s = db.ingest([root], processor=fake_processor, tags=["archive"], workers=1)
         assert (s.stored, s.skipped) == (0, 2)
         assert db.tags() == {"archive": 2}

@@ -36,7 +36,12 @@ OBJ = {"processor": fake_processor, "decoder": fake_decode}
 
 
 def invoke(args, obj=OBJ):
-    return CliRunner().invoke(cli, [str(a) for a in args], obj=obj)
+    """Run the CLI; an ``ingest`` without ``--workers`` gets ``--workers 1`` (ids in file
+    order; the default worker count is tested in test_ingest.py)."""
+    args = [str(a) for a in args]
+    if args[:1] == ["ingest"] and not {"-j", "--workers"} & set(args):
+        args += ["--workers", "1"]
+    return CliRunner().invoke(cli, args, obj=obj)
 
 
 @pytest.fixture
@@ -221,8 +226,11 @@ def test_missing_processor_and_decoder(filled, tmp_path, monkeypatch):
     import surfidx.pipeline as pipeline
 
     root, db = filled
+    monkeypatch.delattr(pipeline, "describe_model", raising=False)
+    r = invoke(["query", root / "m0.ply", "--db", db], obj={})    # a file query describes
+    assert r.exit_code == 1 and "describe_model is not available" in r.output
     monkeypatch.delattr(pipeline, "process_model", raising=False)
-    r = invoke(["query", root / "m0.ply", "--db", db], obj={})
+    r = invoke(["ingest", root, "--db", db, "--no-progress"], obj={})
     assert r.exit_code == 1 and "process_model is not available" in r.output
     monkeypatch.setitem(__import__("sys").modules, "surfidx.codec", None)
     r = invoke(["get", "1", "--db", db, "-o", tmp_path / "x.ply"], obj={})

@@ -139,13 +139,15 @@ def test_texture_bytes_change_the_hash(tmp_path, monkeypatch):
     (tmp_path / "cow.obj").write_text("v 0 0 0\nvt 0 0\nf 1/1 1/1 1/1\n")
     (tmp_path / "cow.png").write_bytes(tiny_png(1))
     db = tmp_path / "t.db"
-    s1 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False)
+    s1 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False,
+                    workers=1)
     assert s1.stored == 1
     with Database(db) as d:
         m = d.get_model("cow")
         assert m["has_color"] and m["params"]["texture"] == str(tmp_path / "cow.png")
     (tmp_path / "cow.png").write_bytes(tiny_png(2))                  # new texture: new model
-    s2 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False)
+    s2 = ingest.run([tmp_path / "cow.obj"], db=db, processor=fake_processor, progress=False,
+                    workers=1)
     assert (s2.stored, s2.skipped) == (1, 0)
 
 
@@ -154,7 +156,7 @@ def test_ingest_folder_counts_failures_and_rerun(tmp_path):
     root = make_tree(tmp_path / "data", 6, extra={"bad.ply": "FAIL", "boom.obj": "BOOM",
                                                    "zdup.ply": "model 0\n"})
     db = tmp_path / "s.db"
-    s = ingest.run([root], db=db, processor=fake_processor, progress=False, batch=3)
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False, batch=3, workers=1)
     # zdup.ply has m0.ply's bytes: skipped as a duplicate within the run
     assert (s.stored, s.skipped, s.failed, s.status) == (6, 1, 2, "finished")
     errors = dict(s.errors)
@@ -167,7 +169,7 @@ def test_ingest_folder_counts_failures_and_rerun(tmp_path):
                                                                                   "finished")
         assert {e["path"]: e["error"] for e in d.errors(run["id"])} == errors
         assert sorted(s.ids) == [m["id"] for m in d.list_models()]
-    again = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    again = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert (again.stored, again.skipped, again.failed) == (0, 7, 2)
     assert count_rows(db)["models"] == 6
 
@@ -180,8 +182,9 @@ def test_stored_model_hash_is_the_task_hash(tmp_path):
 
     (tmp_path / "a.ply").write_text("model a")
     db = tmp_path / "h.db"
-    ingest.run([tmp_path], db=db, processor=other_hash, progress=False)
-    assert ingest.run([tmp_path], db=db, processor=other_hash, progress=False).skipped == 1
+    ingest.run([tmp_path], db=db, processor=other_hash, progress=False, workers=1)
+    assert ingest.run([tmp_path], db=db, processor=other_hash, progress=False,
+                      workers=1).skipped == 1
 
 
 def test_parallel_workers_and_crash(tmp_path):
@@ -231,7 +234,7 @@ def test_keyboard_interrupt_then_resume(tmp_path):
     root = make_tree(tmp_path / "data", 6, extra={"m2z.off": "INTERRUPT"})
     db = tmp_path / "i.db"
     with pytest.raises(KeyboardInterrupt):
-        ingest.run([root], db=db, processor=fake_processor, progress=False, batch=100)
+        ingest.run([root], db=db, processor=fake_processor, progress=False, batch=100, workers=1)
     with Database(db) as d:
         run = d.last_run()
         assert run["status"] == "interrupted"
@@ -240,7 +243,7 @@ def test_keyboard_interrupt_then_resume(tmp_path):
     rows = count_rows(db)
     assert rows["models"] == rows["assets"] == rows["thumbnails"] == 2
     (root / "m2z.off").write_text("model fixed")
-    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert (s.stored, s.skipped, s.failed) == (5, 2, 0)
     with Database(db) as d:
         names = [m["name"] for m in d.list_models()]
@@ -252,7 +255,7 @@ import sys
 sys.path.insert(0, {tests!r})
 import ingest, test_ingest
 ingest.run([{root!r}], db={db!r}, processor=test_ingest.fake_processor, progress=False,
-           batch=1)
+           batch=1, workers=1)
 """
 
 
@@ -286,7 +289,7 @@ def test_sigkill_mid_run_then_resume(tmp_path, monkeypatch):
     with Database(db) as d:
         assert d.last_run()["status"] == "running"           # killed: never finished
     monkeypatch.setattr(time, "sleep", lambda seconds: None)     # the re-run need not be slow
-    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert s.skipped == rows["models"] and s.stored == 12 - rows["models"] and s.failed == 0
     with Database(db) as d:
         names = [m["name"] for m in d.list_models()]
@@ -296,7 +299,7 @@ def test_sigkill_mid_run_then_resume(tmp_path, monkeypatch):
 def test_progress_bar_goes_to_stderr(tmp_path, capsys):
     make_tree(tmp_path / "data", 2)
     ingest.run([tmp_path / "data"], db=tmp_path / "b.db", processor=fake_processor,
-               progress=True)
+               progress=True, workers=1)
     out, err = capsys.readouterr()
     assert out == "" and "ingest" in err and "2/2" in err
 
@@ -339,7 +342,8 @@ def test_error_message():
 def test_unreadable_file_is_recorded(tmp_path):
     (tmp_path / "ok.ply").write_text("model ok")
     (tmp_path / "dangling.ply").symlink_to(tmp_path / "gone.ply")     # listed, cannot be read
-    s = ingest.run([tmp_path], db=tmp_path / "u.db", processor=fake_processor, progress=False)
+    s = ingest.run([tmp_path], db=tmp_path / "u.db", processor=fake_processor, progress=False,
+                   workers=1)
     assert (s.stored, s.failed) == (1, 1)
     assert s.errors == [(str(tmp_path / "dangling.ply"),
                          "cannot read (No such file or directory)")]
@@ -478,7 +482,7 @@ def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
     good = _bytes_name(root, b"caf\xe9.ply", b"model cafe")
     bad = _bytes_name(root, b"bad\xff\\x.ply", b"FAIL")
     db = tmp_path / "n.db"
-    s = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    s = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert (s.stored, s.failed, s.status) == (1, 1, "finished")
     # the path as stored (lossless), the message with the byte escaped (backslashes kept)
     assert s.errors == [(escape_name(bad), f"{storable_text(bad)}: deliberately unusable model")]
@@ -491,7 +495,7 @@ def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
         err, = d.errors()
         assert err["path"] == escape_name(bad)
         assert d.last_run()["status"] == "finished"
-    again = ingest.run([root], db=db, processor=fake_processor, progress=False)
+    again = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert (again.stored, again.skipped, again.failed, again.status) == (0, 1, 1, "finished")
 
 
@@ -633,7 +637,8 @@ def test_find_texture_reads_the_mtl_as_io_does(tmp_path):
 def test_run_records_a_single_path_given_as_text(tmp_path):
     """``paths`` may be one path as text: the run record holds it whole."""
     root = make_tree(tmp_path / "data", 2)
-    s = ingest.run(str(root), db=tmp_path / "s.db", processor=fake_processor, progress=False)
+    s = ingest.run(str(root), db=tmp_path / "s.db", processor=fake_processor, progress=False,
+                   workers=1)
     assert s.stored == 2
     with Database(tmp_path / "s.db") as d:
         assert d.last_run()["paths"] == [str(root)]

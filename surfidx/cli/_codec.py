@@ -6,7 +6,7 @@ import click
 
 from ..sphere import METHODS
 from ._common import (command_errors, echo_json, input_options, output_format_option, plain,
-                      read_input)
+                      progress_options, reading, stage_progress)
 from ._group import cli
 
 
@@ -29,22 +29,26 @@ from ._group import cli
               help="Weight coefficients by the input's surfel density on the sphere (default: "
                    "when the estimated gain is at least 1 dB).")
 @input_options
+@progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, as_json):
+           density_weighting, texture, samples, quiet, verbose, as_json):
     """Encode a model into an embedded .sfz bitstream."""
     from ..codec import TANGENT_WEIGHT, Encoder
     from ..io import write_atomic
+    from ..progress import report
 
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
     tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
-    s = read_input(input, texture, samples)
-    enc = Encoder(s, level=level, color=False if no_color else None, method=method,
-                  tangent_weight=tw, density_weighting=density_weighting)
-    data = enc.encode(bits)
-    write_atomic(output, lambda tmp: tmp.write_bytes(data))
+    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+        s = reading(progress, input, texture, samples)
+        enc = Encoder(s, level=level, color=False if no_color else None, method=method,
+                      tangent_weight=tw, density_weighting=density_weighting, progress=progress)
+        data = enc.encode(bits, progress=progress)
+        report(progress, "write", 0, 1)
+        write_atomic(output, lambda tmp: tmp.write_bytes(data))
     out = {"output": str(output), "surfels": len(s), "bytes": len(data),
            "bits_per_surfel": 8.0 * len(data) / len(s), "level": enc.level, "color": enc.color,
            "folded": enc.sphere_map.folded, "tangent_weight": enc.tangent_weight,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import re
@@ -15,7 +16,8 @@ import numpy as np
 from .._errors import SurfidxError
 
 __all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
-           "outside_textures_option", "output_format_option"]
+           "outside_textures_option", "output_format_option", "progress_options",
+           "stage_progress", "reading"]
 
 #: The arguments that name the file a command reads, for errors found after reading.
 _INPUT_ARGS = ("input", "example", "reference")
@@ -164,3 +166,61 @@ def read_input(path, texture=None, samples=None, allow_outside=None):
 
     allow = allow_outside_textures() if allow_outside is None else bool(allow_outside)
     return read_surfels(path, texture=texture, samples=samples, allow_outside_textures=allow)
+
+
+def progress_options(func):
+    """``--quiet`` and ``--verbose``: the stage display on stderr (:func:`stage_progress`)."""
+    func = click.option("-v", "--verbose", is_flag=True,
+                        help="Print the wall and CPU time of each stage on stderr.")(func)
+    return click.option("-q", "--quiet", is_flag=True,
+                        help="Show no stage progress on stderr (shown when stderr is a "
+                             "terminal).")(func)
+
+
+def _stderr_is_terminal(stream) -> bool:
+    """Whether ``stream`` is a terminal; the click context object's ``"terminal"`` key, when
+    set, says so instead (``cli.main(args, obj={"terminal": True})``, for tests and embedding
+    applications)."""
+    ctx = click.get_current_context(silent=True)
+    obj = ctx.find_root().obj if ctx is not None else None
+    if isinstance(obj, dict) and "terminal" in obj:
+        return bool(obj["terminal"])
+    isatty = getattr(stream, "isatty", None)
+    return bool(isatty is not None and isatty())
+
+
+@contextlib.contextmanager
+def stage_progress(*, quiet: bool, verbose: bool):
+    """The progress callback of a command (a :class:`surfidx.progress.StageLog` on stderr), or
+    None: the running stage on one line when stderr is a terminal and not ``quiet``; the
+    per-stage times when the command ends, with ``verbose``.
+
+    Raises
+    ------
+    click.UsageError
+        Both ``quiet`` and ``verbose``.
+    """
+    from ..progress import StageLog
+
+    if quiet and verbose:
+        raise click.UsageError("--quiet and --verbose exclude each other")
+    stream = click.get_text_stream("stderr")
+    live = not quiet and _stderr_is_terminal(stream)
+    if not (live or verbose):
+        yield None
+        return
+    log = StageLog(stream, live=live, verbose=verbose)
+    try:
+        yield log
+    finally:
+        log.close()
+
+
+def reading(progress, path, texture=None, samples=None):
+    """:func:`read_input`, reported to ``progress`` as the ``read`` stage."""
+    from ..progress import report
+
+    report(progress, "read", 0, 1)
+    surfels = read_input(path, texture, samples)
+    report(progress, "read", 1, 1)
+    return surfels

@@ -5,7 +5,8 @@
 The model processor (``surfidx.pipeline.process_model``) and the stream decoder
 (``surfidx.codec.decode``) are imported when a command needs them; tests (and embedding
 applications) inject others through the click context object:
-``cli.main(args, obj={"processor": fn, "decoder": fn})``.
+``cli.main(args, obj={"processor": fn, "decoder": fn})`` (and ``"describer"``, the query's
+:func:`surfidx.pipeline.describe_model`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from ..ann import DEFAULT_THRESHOLD
 from ..search import DEFAULT_SHAPE_WEIGHT
 from ._group import cli
 from ._common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
-                      output_format_option, plain)
+                      output_format_option, plain, progress_options, stage_progress)
 
 __all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
            "parse_model_ref", "rm", "rename", "tag", "untag"]
@@ -98,8 +99,9 @@ def _table(rows, columns):
 @cli.command("ingest")
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
 @_db_option
-@click.option("-j", "--workers", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Worker processes (of the local pool, or of --scheduler local).")
+@click.option("-j", "--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes (of the local pool, or of --scheduler local); default: "
+                   "as many as the machine's cores.")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run the per-model work on a Dask cluster: tcp://HOST:PORT of a running "
                    "`dask scheduler`, or 'local' to start one with --workers worker processes "
@@ -176,22 +178,28 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
                    f"is used from {DEFAULT_THRESHOLD:,} stored models on; its results are "
                    "re-ranked by the exact distance).")
 @outside_textures_option
+@progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def query(example, db_path, k, shape_weight, sheet, include_self, exact, as_json):
+def query(example, db_path, k, shape_weight, sheet, include_self, exact, quiet, verbose, as_json):
     """Find the stored models most similar to EXAMPLE.
 
-    EXAMPLE is a model file (processed like an ingest, not stored), a stored model's NAME, or
-    id:N. The query model itself is left out of the results when it is stored (--include-self
-    keeps it). Distance: w*|shape difference| + (1-w)*|texture difference| when both have
-    colour, else the shape difference alone (shape: the shape descriptor with the KLT spectrum
-    appended).
+    EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
+    or stored), a stored model's NAME, or id:N. The query model itself is left out of the
+    results when it is stored (--include-self keeps it). Distance: w*|shape difference| +
+    (1-w)*|texture difference| when both have colour, else the shape difference alone (shape:
+    the shape descriptor with the KLT spectrum appended). A model file's stages are shown on
+    stderr when it is a terminal (--quiet: never; --verbose: their times).
     """
-    with _open(db_path) as db:
-        # the processor (and its imports) only for a model file, not for id:N or a name
-        ex = db._example(example, processor=lambda *a, **kw: _processor()(*a, **kw),
-                         allow_outside_textures=allow_outside_textures())
+    with _open(db_path) as db, stage_progress(quiet=quiet, verbose=verbose) as progress:
+        # a model file is described by surfidx.pipeline.describe_model (imported then), or
+        # by the processor or describer the context object injects
+        ex = db._example(example, processor=_injected("processor"),
+                         describer=_injected("describer"), thumbnail=bool(sheet),
+                         progress=progress, allow_outside_textures=allow_outside_textures())
         label, qthumb = ex["name"], ex["thumbnail"]
+        if progress is not None:
+            progress("search", 0, 1)
         rows = db.query(example, k=k, shape_weight=shape_weight, include_self=include_self,
                         exact=exact, _example=ex)
         if sheet:

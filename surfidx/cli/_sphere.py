@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from ..sphere import METHODS
-from ._common import command_errors, echo_json, input_options, read_input
+from ._common import command_errors, echo_json, input_options, progress_options, reading, \
+    stage_progress
 from ._group import cli
 
 
@@ -17,17 +18,21 @@ from ._group import cli
               help="tutte: fold-free Tutte map with area balancing; mds: original spherical MDS.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Landmark seed.")
 @input_options
+@progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
-def parameterize(input, output, method, seed, texture, samples, as_json):
+def parameterize(input, output, method, seed, texture, samples, quiet, verbose, as_json):
     """Map a closed genus-0 model onto the unit sphere."""
     from ..io import write_ply
+    from ..progress import report
     from ..sphere import parameterize as run
 
-    s = read_input(input, texture, samples)
-    m = run(s, method=method, seed=seed)
-    write_ply(s, output, extra={"sx": m.points[:, 0], "sy": m.points[:, 1],
-                                "sz": m.points[:, 2]})
+    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+        s = reading(progress, input, texture, samples)
+        m = run(s, method=method, seed=seed, progress=progress)
+        report(progress, "write", 0, 1)
+        write_ply(s, output, extra={"sx": m.points[:, 0], "sy": m.points[:, 1],
+                                    "sz": m.points[:, 2]})
     fig = {"file": str(input), "output": str(output), **m.figures()}
     if as_json:
         echo_json(fig)
@@ -47,22 +52,27 @@ def parameterize(input, output, method, seed, texture, samples, as_json):
 @click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True)
 @click.option("--mesh", "as_mesh", is_flag=True, help="Write the grid triangle mesh.")
 @input_options
+@progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def resample(input, output, level, method, as_mesh, texture, samples, as_json):
+def resample(input, output, level, method, as_mesh, texture, samples, quiet, verbose, as_json):
     """Map a model to the sphere and write its uncompressed icosahedral-grid reconstruction."""
     from ..io import write_ply
+    from ..progress import report
     from ..sphere import parameterize as run
     from ..resample import grid_to_mesh, grid_to_surfels, resample as resample_grid
 
-    s = read_input(input, texture, samples)
-    m = run(s, method=method, stress=False)
-    lev = m.grid_level if level is None else level
-    vals = resample_grid(s, m.points, lev)
-    g = grid_to_surfels(vals, name=s.name)
-    if as_mesh:
-        g = grid_to_mesh(vals, name=s.name).to_surfels()
-    write_ply(g, output)
+    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+        s = reading(progress, input, texture, samples)
+        m = run(s, method=method, stress=False, progress=progress)
+        lev = m.grid_level if level is None else level
+        report(progress, "resample", 0, 1)
+        vals = resample_grid(s, m.points, lev)
+        g = grid_to_surfels(vals, name=s.name)
+        if as_mesh:
+            g = grid_to_mesh(vals, name=s.name).to_surfels()
+        report(progress, "write", 0, 1)
+        write_ply(g, output)
     out = {"file": str(input), "output": str(output), "level": lev, "grid_vertices": len(vals),
            "mesh": as_mesh, "folded": m.folded, "fold_fraction": m.fold_fraction}
     if as_json:

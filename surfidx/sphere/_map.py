@@ -14,6 +14,7 @@ import numpy as np
 from .._errors import InputError, TopologyError
 from .._validate import check_positive_int
 from ..icosphere import choose_level
+from ..progress import report
 from ..spherical import hull_triangles, map_points
 from ..surfels import SurfelSet
 from ._cloud import cloud_map
@@ -138,7 +139,7 @@ def _route_stage(figures: dict, fallback: bool) -> Stage:
 def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
                  landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
                  balance: bool = True, stress: bool = True,
-                 options: MapOptions | None = None) -> SphericalMap:
+                 options: MapOptions | None = None, progress=None) -> SphericalMap:
     """Map surfels to the unit sphere.
 
     Parameters
@@ -166,6 +167,10 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         Compute the landmark stress figure (geodesics from ``landmarks`` sources).
     options : MapOptions, optional
         Switches and tuning of the stages (default: ``MapOptions()``).
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries:
+        ``"map"`` (for a mesh, once per level of the multilevel map as it is done, coarsest
+        first), ``"repair"``, ``"figures"``. It changes nothing in the map.
 
     Returns
     -------
@@ -193,17 +198,21 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
     elif not isinstance(options, MapOptions):
         raise InputError(f"options must be a MapOptions, got {type(options).__name__}")
     t0 = time.perf_counter()
+    report(progress, "map", 0, 1)
     lm = dist = None
     fallback = False
     route = dict(iterations=iterations, gamma=float(gamma), balance=bool(balance))
     if method == "tutte" and has_faces(surfels):
         f = oriented_faces(surfels)
-        pts, figures, fallback = mesh_map(surfels, faces=f, options=options, **route)
+        pts, figures, fallback = mesh_map(surfels, faces=f, options=options, progress=progress,
+                                          **route)
         stages = [_route_stage(figures, fallback)]
+        report(progress, "repair", 0, 1)
         pts, repaired = repair(pts, surfels, options=options, mesh=f)
     elif method == "tutte":
         pts, figures, fallback, proxy = cloud_map(surfels, options=options, **route)
         stages = [Stage.of("proxy", proxy), _route_stage(figures, fallback)]
+        report(progress, "repair", 0, 1)
         pts, repaired = repair(pts, surfels, options=options)
     else:
         if has_faces(surfels):
@@ -213,6 +222,7 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         stages, repaired = [Stage.of("mds", figures)], []
     stages += [Stage.of(name, figs) for name, figs in repaired]
     seconds = time.perf_counter() - t0
+    report(progress, "figures", 0, 1)
     tri = hull_triangles(pts)
     on_sphere = map_points(surfels, pts)      # checked once for the three figures
     folded, total = _count_folds(surfels, tri)
@@ -232,4 +242,5 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         if lm is None:
             lm, dist = geodesics(surfels, min(landmarks, len(surfels)), seed)
         st = landmark_stress(pts, lm, dist)
+    report(progress, "figures", 1, 1)
     return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse)

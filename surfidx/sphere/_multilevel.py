@@ -34,19 +34,21 @@ class Untangled(Exception):
     hierarchy, or falls back)."""
 
 
-def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, **route):
+def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=None, **route):
     """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, or the
     single-level map when every hierarchy fails.
 
     Returns the map, its figures and whether it fell back. ``route`` holds ``iterations``,
-    ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`)."""
+    ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`); ``progress`` (a callback,
+    :mod:`surfidx.progress`) gets ``("map", k, levels)`` as each level of a hierarchy is done,
+    coarsest first."""
     f = oriented_faces(surfels) if faces is None else faces
     large = len(surfels) > options.large_level
     steps = options.final_steps_large if large else options.final_steps
     for tries, coarse in enumerate(options.coarse_ladder):
         try:
             x, info = multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
-                                     options=options, **route)
+                                     options=options, progress=progress, **route)
         except Untangled:
             continue
         return x, dict(info, coarse=coarse, retries=tries), False
@@ -56,11 +58,13 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, **route):
 
 
 def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
-                   balance: bool, coarse: int, steps: int, faces=None):
+                   balance: bool, coarse: int, steps: int, faces=None, progress=None,
+                   _depth: int = 0):
     """Decimate by ``options.level_ratio``, map the coarser mesh (recursively, down to
     ``coarse`` vertices, which :func:`surfidx.sphere._tutte.tutte_map` maps), carry the map to
     every vertex, untangle what folded on the way and balance for at most ``steps`` steps
-    (``options.level_steps`` on the coarser levels).
+    (``options.level_steps`` on the coarser levels). ``progress``: as for :func:`mesh_map`
+    (``_depth`` counts the finer levels above this one, so the coarsest knows the total).
 
     Raises
     ------
@@ -74,6 +78,8 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
     if h is None or len(h.vertices) >= n:
         x, info = tutte_map(surfels, options=options, iterations=iterations, gamma=gamma,
                             balance=balance)
+        if progress is not None:
+            progress("map", 1, _depth + 1)
         return x, dict(info, levels=1, base_vertices=n)
     kept = h.vertices
     index = np.full(n, -1, dtype=np.int64)
@@ -81,7 +87,7 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
     small = SurfelSet(p[kept], surfels.normals[kept], surfels.radii[kept], faces=index[h.faces])
     xc, info = multilevel_map(small, faces=small.faces, options=options, iterations=iterations,
                               gamma=gamma, balance=balance, coarse=coarse,
-                              steps=options.level_steps)
+                              steps=options.level_steps, progress=progress, _depth=_depth + 1)
     x = np.zeros((n, 3))
     x[kept] = xc
     x = h.prolong(x, p, unit=True)
@@ -97,6 +103,8 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
                            patience=options.loose_patience if large else options.strict_patience)
     x = centre(x, vertex_areas(f, areas3(p, f), n), f, iterations=options.centre_iterations)
     neg = int(np.count_nonzero(orientation(x, f) <= 0))
+    if progress is not None:
+        progress("map", info["levels"] + 1, info["levels"] + 1 + _depth)
     return x, {"mesh_folds": neg, "levels": info["levels"] + 1,
                "base_vertices": info["base_vertices"],
                "untangle_rounds": uinfo["rounds"] + info.get("untangle_rounds", 0),
