@@ -558,9 +558,6 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
         if progress and tasks:
             from tqdm import tqdm
 
-            bar = tqdm(total=len(tasks), unit="model", desc="ingest", dynamic_ncols=True,
-                       bar_format="{l_bar}{bar}| {n:.1f}/{total_fmt} [{elapsed}<{remaining}"
-                                  "{postfix}]")
             if accepts_progress(processor):
                 if executor is serial:
                     sender = moved.event
@@ -571,6 +568,11 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
                         sender = stage_queue.sender()
                     except Exception:  # pragma: no cover - no manager: the bar moves per model
                         stage_queue = None
+            # with stage events the bar counts tenths of a model
+            fmt = None if sender is None else ("{l_bar}{bar}| {n:.1f}/{total_fmt} "
+                                               "[{elapsed}<{remaining}{postfix}]")
+            bar = tqdm(total=len(tasks), unit="model", desc="ingest", dynamic_ncols=True,
+                       bar_format=fmt)
         moved.bar = bar
         fn = functools.partial(process_task, processor=processor,
                                bits_per_surfel=bits_per_surfel,
