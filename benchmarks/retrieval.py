@@ -208,7 +208,7 @@ def study_parts(rec):
     total = float(np.sum(geo.eigenvalues))
     g = geo.forward(x) / np.sqrt(total)
     shares = np.asarray(geo.eigenvalues) / total
-    parts = D._shape_parts(x, level, g, shares)
+    parts = D._shape_parts(x, level, g)
     parts["spectral_l5"] = D._log_spectrum(x, min(level, 5))
     return {"parts": parts, "shares": shares,
             "energies": {G: np.maximum(D._degree_energies(g, level, G), 0.0)
@@ -591,7 +591,11 @@ def main(argv=None) -> int:
     ap.add_argument("--texture-json", type=Path, default=None, metavar="OUT.json")
     ap.add_argument("--texture-only", action="store_true", help="only the texture table")
     ap.add_argument("--cached-only", action="store_true",
-                    help="leave out the models and copies whose maps are not cached yet")
+                    help="leave out the models whose maps are not cached yet (and their copies; "
+                         "the copies of the others are computed when missing)")
+    ap.add_argument("--copy-max-seconds", type=float, default=None,
+                    help="with --cached-only: compute missing copies only of the models whose "
+                         "cached map took at most this many seconds")
     ap.add_argument("--study-only", action="store_true", help="with --study: skip the main "
                     "tables (the descriptors are computed once for the study)")
     args = ap.parse_args(argv)
@@ -641,8 +645,14 @@ def main(argv=None) -> int:
         have = [j["cache_file"] is not None and Path(j["cache_file"]).exists() for j in jobs]
         keep = [i for i in range(len(paths)) if have[i]]
         new_of = {old: new for new, old in enumerate(keep)}
+        def quick(i):
+            if args.copy_max_seconds is None:
+                return True
+            with np.load(jobs[i]["cache_file"], allow_pickle=False) as z:
+                return json.loads(str(z["meta"]))["seconds"] <= args.copy_max_seconds
+
         copies_kept = [(new_of[i], jobs[len(paths) + k]) for k, i in enumerate(inv_models)
-                       if i in new_of and have[len(paths) + k]]
+                       if i in new_of and (have[len(paths) + k] or quick(i))]
         jobs = [jobs[i] for i in keep] + [j for _, j in copies_kept]
         paths = [paths[i] for i in keep]
         classes, genus, g0 = classes[keep], genus[keep], g0[keep]

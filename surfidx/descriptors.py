@@ -15,10 +15,12 @@ Invariance, by construction:
 
 Descriptor vectors (float32), by kind:
 
-``shape``  — the retrieval shape descriptor (version 4), four parts concatenated, part ``k``
-           scaled by ``SHAPE_PART_WEIGHTS[k] · 1.15 / SHAPE_PART_MEDIANS[k]`` (the medians are each
-           part's median distance between different models of the retrieval benchmark's genus-0
-           set, so a part of weight 1 has median distance 1.15):
+``shape``  — the retrieval shape descriptor (version 5), five parts concatenated
+           (:data:`SHAPE_PARTS`), part ``k`` scaled by
+           ``SHAPE_PART_WEIGHTS[k] · 1.15 / SHAPE_PART_MEDIANS[k]`` (the medians are each part's
+           median distance between different models of the retrieval benchmark's genus-0 set, so
+           a part of weight 1 has median distance 1.15), so that the plain L2 distance of two
+           shape vectors is ``sqrt(Σ_k (scale_k · d_k)²)`` over the parts' own distances:
 
            * *shells* (``SHELLS·(SHELL_LMAX+1)``): the grid surface's area measure split into
              ``SHELLS`` concentric shells (radius relative to the area-weighted RMS radius, up to
@@ -35,37 +37,37 @@ Descriptor vectors (float32), by kind:
              eigenvalues of the cotangent Laplacian (lumped mass) of the grid mesh at level
              ``min(level, SPECTRAL_LEVEL)``, as ``log(λ_i · A / (4π i))`` with ``A`` the surface
              area (Weyl's law makes the values O(1) and the part scale invariant). Intrinsic, so
-             unchanged by bending: the part that tells articulated classes apart.
-             ``SPECTRAL_LEVEL`` is 6 since version 4: at level 5 (10,242 vertices) a thin limb
-             was resolved by only a few grid rows, so its low eigenvalues followed the sphere map,
-             and a resampled copy of a human lay 5.4 % of the median inter-model distance from
-             the original (3.5 % in another run); at level 6 the 19 invariance copies lie at
-             most 2.9 % away (median 0.94 %, was 1.08 %) with the same retrieval figures. It
-             costs 2.2 s per model instead of 0.35 s.
-
-           Weights (shells, D2, radial, spectral) = (1, 0.5, 0.5, 2), chosen on
-           ``benchmarks/retrieval.py`` where a wide plateau of weights gives the same figures
-           (genus-0 mAP 0.68–0.69); without the spectral part the shape parts alone give NN 0.66,
-           mAP 0.51, and the spectral part alone NN 0.76, mAP 0.66.
+             unchanged by bending: the part that tells articulated classes apart;
+           * *layers* (``3·(LAYERS_LMAX+1)``): the spherical-harmonic energies of the three
+             geometric KLT layers as functions on the sphere, ``sqrt(E_jl)`` per layer ``j`` and
+             degree ``l``, degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid
+             of degree ``LAYERS_GRID_LMAX``: the parameterisation's view of the shape, where the
+             other parts see the surface as a measure or an intrinsic metric.
 
            Area weights are the 3D areas of the grid mesh (the icosphere's triangles at the
-           resampled positions), so the parts measure the surface, not the sphere map: limbs the map
-           squeezes keep their surface share. Shells, D2 and radial use the grid of level
-           ``min(level, SHAPE_LEVEL)`` (a prefix of the grid: 40,962 samples; describing a level-8
-           grid took 1.1 s instead of 6.5 s with version 3, with the same retrieval figures).
-           Square roots make the L2 distance a Hellinger one.
-``layers`` (3·(lmax+1),) — sqrt of per-degree energies (pyshtools) of the three geometric KLT
-           layers as functions on the sphere (version 1's ``shape``). Stored, not used by the
-           default distance: with the current sphere map it ranks near chance (see
-           ``benchmarks/retrieval.py``).
+           resampled positions), so shells, D2 and radial measure the surface, not the sphere
+           map: limbs the map squeezes keep their surface share. They use the grid of level
+           ``min(level, SHAPE_LEVEL)`` (a prefix of the grid). Square roots make the L2 distance
+           a Hellinger one. The weights are chosen on ``benchmarks/retrieval.py --study``, on a
+           plateau of weights that give the same figures (the README gives them).
+``layers`` (3·(lmax+1),) — ``sqrt`` of the per-degree energies (pyshtools) of the three geometric
+           KLT layers up to the ``lmax`` argument (the raw vector of the shape vector's layers
+           part, kept for other distances).
 ``texture`` (3·(lmax+1) + 3,) — the same for the colour KLT layers (colour units /255) followed by
-           the mean colour /255; absent without colour;
+           the mean colour /255; absent without colour. An orthogonal map of colour space (a turn
+           about the grey axis) leaves the colour layers' energies unchanged: such a recolouring
+           is seen through the mean colour;
 ``spectrum`` (3,) — the normalised geometric KLT eigenvalues (sum 1).
 
 Invariance of ``shape``: rotation and reflection by per-degree energies of a point measure (exact,
-computed with complex spherical harmonics at the points), by distances and by the intrinsic
-spectrum; translation by the area centroid; scale by the RMS radius, the mean pair distance and
-the area; the sphere map only through which surface points the grid samples.
+computed with complex spherical harmonics at the points), by distances, by the intrinsic
+spectrum and by the per-degree energies of the KLT layers; translation by the area centroid and
+the KLT mean; scale by the RMS radius, the mean pair distance, the area and the total variance;
+the sphere map through which surface points the grid samples and, for the layers part, through
+where the map puts them.
+
+The distance of two descriptor sets is :func:`descriptor_distance`, the one-pair form of the
+search distance :func:`surfidx.search.weighted_l2`.
 """
 
 from __future__ import annotations
@@ -103,17 +105,18 @@ RADIAL_BINS = 32
 RADIAL_RMAX = 3.0
 SPECTRAL_K = 30
 SPECTRAL_LEVEL = 6
+#: Relative accuracy of the Lanczos Ritz pairs (ARPACK ``tol``): the eigenvalues come out
+#: to about its square.
+SPECTRAL_TOL = 1e-8
 SHAPE_LEVEL = 6
-LAYERS_LMAX = 24
+LAYERS_LMAX = 12
 LAYERS_GRID_LMAX = 24
-LAYERS_PER_EIGENVALUE = False
 SEED = 0
 #: Names of the parts of the ``shape`` vector, in order.
 SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "layers")
 #: Median distance between different models of each unscaled shape part (shells, D2, radial,
-#: spectral) on the retrieval benchmark's genus-0 set (measured with descriptor version 3; the
-#: spectral one with version 4's level-6 spectrum, 1.928 at level 5).
-SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 1.0)
+#: spectral, layers) on the retrieval benchmark's genus-0 set.
+SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 0.3359)
 #: Relative weight of each shape part (its median distance becomes 1.15 × the weight).
 SHAPE_PART_WEIGHTS = (1.0, 0.5, 0.5, 2.0, 1.0)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
@@ -126,7 +129,7 @@ class DescriptorSet:
     Attributes
     ----------
     vectors : dict of str -> (d,) float32
-        By kind: ``shape``, ``spectrum`` and, with colour, ``texture``.
+        By kind: ``shape``, ``layers``, ``spectrum`` and, with colour, ``texture``.
     params : dict
         The conventions that make two descriptors comparable: ``lmax``, ``normalization``,
         ``version`` (the grid level is not one: energies at a degree do not depend on it).
@@ -215,8 +218,7 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(out) * damp
 
 
-def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray,
-                 shares: np.ndarray) -> dict:
+def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     """The unscaled parts of the ``shape`` descriptor, by name (:data:`SHAPE_PARTS`).
 
     Parameters
@@ -225,14 +227,12 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray,
         Grid positions at level ``level``.
     layers : (n_grid, 3) float64
         The geometric KLT layers over the square root of the total geometric variance.
-    shares : (3,) float64
-        The KLT eigenvalues over their sum.
 
     The measure parts (shells, D2, radial) use the grid of level ``min(level, SHAPE_LEVEL)`` (a
     prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms.
     """
     spectral = _log_spectrum(x, level)
-    part = {"layers": _layers_part(layers, shares, level)}
+    part = {"layers": _layers_part(layers, level)}
     level = min(level, SHAPE_LEVEL)
     x = x[:vertex_count(level)]
     a = _grid_areas(x, level)
@@ -253,15 +253,12 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray,
     return {name: part[name] for name in SHAPE_PARTS}
 
 
-def _layers_part(layers: np.ndarray, shares: np.ndarray, level: int) -> np.ndarray:
-    """(3·(LAYERS_LMAX+1),) the *layers* part: per-degree energies ``E_jl`` of the geometric
-    KLT layers, degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid of degree
-    ``LAYERS_GRID_LMAX``, as ``sqrt(E_jl / s_j)`` with ``s_j`` the layer's eigenvalue share when
-    ``LAYERS_PER_EIGENVALUE``, else ``sqrt(E_jl)``."""
-    e = np.maximum(_degree_energies(layers, level, LAYERS_LMAX, grid_lmax=LAYERS_GRID_LMAX), 0)
-    if LAYERS_PER_EIGENVALUE:
-        e = e / np.maximum(np.asarray(shares, np.float64), TOL.degenerate_area)[:, None]
-    return np.sqrt(e).ravel()
+def _layers_part(layers: np.ndarray, level: int) -> np.ndarray:
+    """(3·(LAYERS_LMAX+1),) the *layers* part: ``sqrt(E_jl)``, the per-degree energies of the
+    geometric KLT layers (n_grid, 3), degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid of
+    degree ``LAYERS_GRID_LMAX``."""
+    e = _degree_energies(layers, level, LAYERS_LMAX, grid_lmax=LAYERS_GRID_LMAX)
+    return np.sqrt(np.maximum(e, 0)).ravel()
 
 
 def _shape_vector(parts: dict) -> np.ndarray:
@@ -359,7 +356,7 @@ def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
         # a fixed start vector: ARPACK's own random start depends on its earlier calls
         v0 = np.random.default_rng(SEED).standard_normal(n)
         mu = eigsh(LinearOperator((n, n), matvec=solve, dtype=np.float64), k=k + 1,
-                   which="LA", v0=v0, return_eigenvectors=False)
+                   which="LA", v0=v0, tol=SPECTRAL_TOL, return_eigenvectors=False)
         lam = np.sort(sigma + 1.0 / mu)
     lam = np.maximum(lam[1:k + 1] * total / (4.0 * np.pi), 1e-12)
     return np.log(lam / np.arange(1, k + 1))
@@ -401,11 +398,10 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
     if not total > 0:
         raise InputError("the geometry has zero variance; cannot normalise its scale")
     g = geo.forward(values[:, :3]) / np.sqrt(total)
-    shares = np.asarray(geo.eigenvalues) / total
     vectors = {
-        "shape": _shape_vector(_shape_parts(values[:, :3], level, g, shares)),
+        "shape": _shape_vector(_shape_parts(values[:, :3], level, g)),
         "layers": np.sqrt(np.maximum(_degree_energies(g, level, lmax), 0)).ravel(),
-        "spectrum": shares,
+        "spectrum": np.asarray(geo.eigenvalues) / total,
     }
     if values.shape[1] == 6:
         vectors["texture"] = _texture_vector(values[:, 3:], level, lmax)
@@ -437,7 +433,9 @@ def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
                       "shell_kappa": SHELL_KAPPA, "d2_bins": D2_BINS, "d2_rmax": D2_RMAX,
                       "d2_pairs": D2_PAIRS, "radial_bins": RADIAL_BINS,
                       "radial_rmax": RADIAL_RMAX, "spectral_k": SPECTRAL_K,
-                      "spectral_level": SPECTRAL_LEVEL, "shape_level": SHAPE_LEVEL,
+                      "spectral_level": SPECTRAL_LEVEL, "spectral_tol": SPECTRAL_TOL,
+                      "shape_level": SHAPE_LEVEL, "layers_lmax": LAYERS_LMAX,
+                      "layers_grid_lmax": LAYERS_GRID_LMAX,
                       "seed": SEED,
                       "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
 

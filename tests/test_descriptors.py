@@ -198,11 +198,10 @@ def test_shape_vector_is_the_weighted_parts():
     geo = KLT.fit(x, sample_weights=icosphere(5).vertex_areas())
     total = float(np.sum(geo.eigenvalues))
     g = geo.forward(x) / np.sqrt(total)
-    shares = np.asarray(geo.eigenvalues) / total
-    parts = D._shape_parts(x, 5, g, shares)
+    parts = D._shape_parts(x, 5, g)
     assert tuple(parts) == D.SHAPE_PARTS
     assert parts["layers"].size == 3 * (D.LAYERS_LMAX + 1)
-    np.testing.assert_allclose(parts["layers"], D._layers_part(g, shares, 5))
+    np.testing.assert_allclose(parts["layers"], D._layers_part(g, 5))
     want = np.concatenate([s * parts[k] for k, s in zip(D.SHAPE_PARTS, D.SHAPE_PART_SCALES)])
     got = describe_grid(x, 5).vectors["shape"]
     np.testing.assert_allclose(got, want.astype(np.float32), rtol=1e-5, atol=1e-6)
