@@ -70,7 +70,7 @@ DEFAULT_THRESHOLD = 20_000
 DEFAULT_FACTOR = 8
 
 #: HNSW search expansion (``ef``), raised to the candidate count when that is larger.
-DEFAULT_EXPANSION = 128
+DEFAULT_EXPANSION = 64
 
 #: Manifest format version (an index of another format is rebuilt).
 FORMAT = 2
