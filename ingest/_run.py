@@ -457,6 +457,7 @@ class _BarMoves:
         self.bar = None
         self.finished = 0
         self.running = {}
+        self.closed = set()             # late events of a finished model move nothing
 
     def _move(self):
         target = self.finished + sum(self.running.values())
@@ -467,12 +468,13 @@ class _BarMoves:
         from surfidx.progress import stage_fraction
 
         f = stage_fraction(stage, done, total)
-        if f > self.running.get(path, 0.0):
+        if path not in self.closed and f > self.running.get(path, 0.0):
             self.running[path] = f
             self._move()
 
     def done(self, path):
         self.running.pop(path, None)
+        self.closed.add(path)
         self.finished += 1
         self._move()
 
