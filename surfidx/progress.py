@@ -82,6 +82,7 @@ class StageLog:
         self._stage = None
         self._t0 = (0.0, 0.0)
         self._shown = 0
+        self._text = None
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         if stage != self._stage:
@@ -95,6 +96,9 @@ class StageLog:
             self._show(label + "\u2026")
 
     def _show(self, text: str) -> None:
+        if text == self._text:
+            return
+        self._text = text
         pad = max(self._shown - len(text), 0)
         self.stream.write("\r" + text + " " * pad + ("\r" + text if pad else ""))
         self.stream.flush()
@@ -116,6 +120,7 @@ class StageLog:
             self.stream.write("\r" + " " * self._shown + "\r")
             self.stream.flush()
             self._shown = 0
+            self._text = None
         if self.verbose and self.seconds:
             for stage, (wall, cpu) in self.seconds.items():
                 self.stream.write(f"{stage:10s} {wall:8.2f} s wall {cpu:8.2f} s CPU\n")
