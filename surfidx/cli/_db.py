@@ -131,6 +131,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     package and read access to the paths); this process alone writes the database.
     Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ and PTS files; a folder
     with none is an error. The exit status is 1 when any file failed (what could be stored is).
+    Without --workers, as many worker processes run as the machine has cores; the progress bar
+    moves within each model as its stages finish (per model with --scheduler).
     """
     import ingest
 
