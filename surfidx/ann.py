@@ -239,7 +239,10 @@ class AnnIndex:
         self._set(graphs, rows, manifest, digests)
 
     def _set(self, graphs, rows, manifest, digests):
-        self._ix = graphs                       # graph name -> usearch.Index
+        self._ix = dict(graphs)                 # graph name -> usearch.Index (loaded ones)
+        self._lazy = {}                         # graph name -> file, memory-mapped on first use
+        if isinstance(graphs, _Files):
+            self._ix, self._lazy = {}, dict(graphs)
         self._rows = rows                       # kind -> (ids (n,) int64, rows (n, d) float32)
         self.manifest = manifest
         self.kinds = tuple(manifest["kinds"])
@@ -250,7 +253,29 @@ class AnnIndex:
 
     @property
     def count(self) -> int:
+        g = self.manifest.get("graphs", {})
+        if "shape" in self._lazy and "shape" in g:
+            return int(g["shape"]["count"])
         return int(len(self._ix["shape"])) if "shape" in self._ix else 0
+
+    def _graph(self, name):
+        """The graph ``name`` (memory-mapped on first use: opening a view reads the node
+        offsets of the whole graph), or None; a damaged file is rebuilt."""
+        if name in self._ix or name not in self._lazy:
+            return self._ix.get(name)
+        path = self._lazy[name]
+        f = self.manifest["graphs"][name]
+        try:
+            got = _usearch().restore(str(path), view=True)
+            if got is None or len(got) != f["count"] or got.ndim != f["ndim"]:
+                raise OSError(f"index file {path} does not match its manifest")
+        except (OSError, ValueError, RuntimeError):
+            new = build(self._db, kinds=self.kinds, write=self._write)
+            self.__dict__.update(new.__dict__)
+            return self._ix.get(name)
+        self._lazy.pop(name)
+        self._ix[name] = got
+        return got
 
     # ---------------------------------------------------------------- consistency
     def refresh(self) -> bool:
@@ -269,7 +294,7 @@ class AnnIndex:
             self._marks = marks
             return False
         new = open_index(self._db, kinds=self.kinds, write=self._write)
-        self._set(new._ix, new._rows, new.manifest, new._digests)
+        self.__dict__.update(new.__dict__)
         return True
 
     # ---------------------------------------------------------------- queries
@@ -281,7 +306,7 @@ class AnnIndex:
         -------
         (<= n,) int64
         """
-        ix = self._ix.get(graph)
+        ix = self._graph(graph)
         if ix is None or len(ix) == 0 or n < 1:
             return np.zeros(0, np.int64)
         v = np.ascontiguousarray(vector, np.float32)
@@ -539,10 +564,19 @@ def build(db, *, kinds=None, write: bool = True) -> AnnIndex:
     return index
 
 
+class _Files(dict):
+    """Graph name -> file of graphs not opened yet (see :meth:`AnnIndex._graph`)."""
+
+
 def _load(d: Path, man, *, view: bool):
     Index = _usearch()
     ix = {}
     for name, f in man["graphs"].items():
+        if view:
+            if not (d / f["file"]).is_file():
+                raise OSError(f"index file {d / f['file']} is missing")
+            ix[name] = d / f["file"]
+            continue
         p = d / f["file"]
         got = Index.restore(str(p), view=view)
         if got is None or len(got) != f["count"] or got.ndim != f["ndim"]:
@@ -556,7 +590,7 @@ def _load(d: Path, man, *, view: bool):
                 or kid.dtype != np.int64 or mat.dtype != np.float32:
             raise OSError(f"row files of {kind!r} in {d} do not match their manifest")
         rows[kind] = (kid, mat)
-    return ix, rows
+    return (_Files(ix) if view else ix), rows
 
 
 def _load_digests(d: Path, man):

@@ -492,3 +492,15 @@ def test_cli_query_defaults_come_from_the_library():
     params = {p.name: p for p in cli.commands["query"].params}
     assert params["shape_weight"].default == DEFAULT_SHAPE_WEIGHT
     assert f"{ann.DEFAULT_THRESHOLD:,}" in params["exact"].help
+
+
+def test_graphs_are_opened_when_a_query_needs_them(big):
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        ann.open_index(db, kinds=DEFAULT_KINDS)
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)
+        assert index._ix == {} and index.count == 1500
+        ann_query(index, query_of(shape, tex, 0, colour=False), k=3)
+        assert set(index._ix) == {"shape"}
+        ann_query(index, query_of(shape, tex, 0, colour=True), k=3)
+        assert set(index._ix) == {"shape", "texture"}
