@@ -1112,8 +1112,9 @@ class Database:
 
         try:
             from . import ann
+            from .search import DEFAULT_KINDS
 
-            ann.update(self)
+            ann.update(self, kinds=DEFAULT_KINDS)
         except (ImportError, OSError, RuntimeError, SurfidxError, sqlite3.Error) as exc:
             warnings.warn(f"{self.path}: the approximate index was not updated ({exc}); the "
                           "next query rebuilds it", RuntimeWarning, stacklevel=3)

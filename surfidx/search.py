@@ -168,12 +168,12 @@ class SearchIndex:
         self._ann = None
         self._loaded = False
         self.approximate = False
-        if not exact and kinds == DEFAULT_KINDS:
+        if not exact:
             from . import ann
 
             limit = ann.DEFAULT_THRESHOLD if threshold is None else int(threshold)
             if db.count() >= max(limit, 1):
-                self._ann = ann.open_index(db)
+                self._ann = ann.open_index(db, kinds=kinds)
                 self.approximate = True
                 return
         self._load()
@@ -244,8 +244,9 @@ class SearchIndex:
         """
         k = check_positive_int(k, "k")
         w = check_shape_weight(shape_weight)
-        if self.approximate and distance is None:
-            return self._query_ann(descriptors, k, w, exclude)
+        if self.approximate:
+            return self._ann.query(descriptors, distance=distance or weighted_l2, k=k,
+                                   shape_weight=w, exclude=exclude, factor=self.factor)
         q = {}
         for kind, vec in descriptors.items():
             if kind not in self.stored:
@@ -298,43 +299,6 @@ class SearchIndex:
         order = cand[np.lexsort((self.ids[cand], d[cand]))][:kk]
         order = order[np.isfinite(d[order])]
         return self.ids[order].copy(), d[order]
-
-    def _query_ann(self, descriptors, k, w, exclude):
-        """Candidates from the approximate index, ranked by the exact :func:`weighted_l2` on
-        their rows as stored now."""
-        dims = self._ann.dims
-        q = {}
-        for kind, vec in descriptors.items():
-            if kind not in self.kinds or (kind != "shape" and not dims.get(kind)):
-                continue                                  # stored by no model: ignored
-            v = as_array(vec, f"query descriptor {kind!r}", dtype=np.float32, shape=(None,))
-            if self._ann.count and v.size != dims[kind]:
-                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
-                                 f"ones have {dims[kind]}; use the same descriptor settings "
-                                 "(after an upgrade: `surfidx redescribe` updates the stored "
-                                 "ones)")
-            q[kind] = v
-        if "shape" not in q:
-            raise InputError("the query has no 'shape' descriptor")
-        excl = np.zeros(0, np.int64) if exclude is None else np.unique(
-            np.asarray(list(exclude), np.int64))
-        n = self.factor * (k + excl.size)
-        spec = q.get("spectrum", np.zeros(dims.get("spectrum", 0), np.float32))
-        cand = [self._ann.candidates("shape", np.concatenate([q["shape"], spec]), n)]
-        if "texture" in q and w < 1.0:
-            cand.append(self._ann.candidates("texture", q["texture"], n))
-        cand = np.setdiff1d(np.concatenate(cand), excl)
-        ids, stored, present = self._db.descriptor_rows(cand, self.kinds)
-        if ids.size == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.float64)
-        for kind, v in q.items():
-            if kind in stored and stored[kind].shape[1] != v.size and present[kind].any():
-                raise InputError(f"query descriptor {kind!r} has {v.size} values but the stored "
-                                 f"ones have {stored[kind].shape[1]}; run `surfidx redescribe`")
-        q = {kd: v for kd, v in q.items() if kd in stored and stored[kd].shape[1] == v.size}
-        d = weighted_l2(q, stored, present, shape_weight=w)
-        order = np.lexsort((ids, d))[:k]
-        return ids[order].copy(), d[order]
 
     def _sqnorms(self, kind):
         if kind not in self._norms:

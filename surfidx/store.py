@@ -154,8 +154,6 @@ class Database(_Store):
         ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
         describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
         ``progress`` goes to the describer (:mod:`surfidx.progress`)."""
-        import ingest as _ingest
-
         ref = model
         if isinstance(model, str):
             text = model.strip()
@@ -176,6 +174,8 @@ class Database(_Store):
             return {"id": rec["id"], "name": rec["name"], "has_color": rec["has_color"],
                     "descriptors": self.get_descriptors(rec["id"]),
                     "thumbnail": self.get_thumbnail(rec["id"])}
+        import ingest as _ingest    # a model file or one in memory: not for a stored model
+
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
         if processor is not None:
             proc = functools.partial(processor, bits_per_surfel=8.0)
