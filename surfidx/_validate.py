@@ -3,11 +3,13 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._errors import InputError
 
-__all__ = ["as_array", "check_positive_int"]
+__all__ = ["as_array", "check_positive_int", "check_option_fields"]
 
 
 def as_array(value, name: str, *, dtype=np.float64, shape=None, finite: bool = True,
@@ -77,3 +79,28 @@ def check_positive_int(value, name: str, *, minimum: int = 1) -> int:
     if value < minimum:
         raise InputError(f"{name} must be at least {minimum}, got {value}")
     return int(value)
+
+
+_FIELD_CHECKS = {
+    "bool": (lambda v: isinstance(v, bool), "True or False"),
+    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
+            "an integer >= 0"),
+    "float": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
+              and math.isfinite(v), "a finite number >= 0"),
+}
+"""Per annotated field type of an options dataclass: the test of a value and what the message
+asks for."""
+
+
+def check_option_fields(options) -> None:
+    """Raise :class:`InputError` unless every ``bool``, ``int`` and ``float`` field of the frozen
+    options dataclass ``options`` holds a value of its type (numbers >= 0, finite); other fields
+    are the class's own to check."""
+    from dataclasses import fields
+
+    for f in fields(options):
+        value = getattr(options, f.name)
+        check = _FIELD_CHECKS.get(f.type)
+        if check is not None and not check[0](value):
+            raise InputError(f"{type(options).__name__}.{f.name} must be {check[1]}, "
+                             f"got {value!r}")

@@ -454,11 +454,11 @@ def test_errors_name_the_problem():
 
 
 @pytest.mark.parametrize("kwargs,match", [
-    ({"min_part_vertices": -1}, "min_part_vertices must be a non-negative integer"),
-    ({"flip_rounds": 1.5}, "flip_rounds must be a non-negative integer"),
+    ({"min_part_vertices": -1}, "RepairOptions.min_part_vertices must be an integer >= 0"),
+    ({"flip_rounds": 1.5}, "RepairOptions.flip_rounds must be an integer >= 0"),
     ({"dp_max_loop": 2}, "dp_max_loop must be at least 3"),
     ({"handle_roots": 0}, "handle_roots must be at least 1"),
-    ({"refine_ratio": float("nan")}, "refine_ratio must be a finite non-negative number"),
+    ({"refine_ratio": float("nan")}, "RepairOptions.refine_ratio must be a finite number >= 0"),
     ({"min_part_share": 1.0}, "min_part_share must be below 1"),
     ({"refine_ratio": 0.1}, "refine_ratio must be at least 0.5"),
     ({"rim_penalty": 0.5}, "rim_penalty must be at least 1"),

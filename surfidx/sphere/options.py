@@ -8,9 +8,10 @@ depends on its input and these options only.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from .._errors import InputError
+from .._validate import check_option_fields
 
 __all__ = ["MapOptions", "DEFAULT_OPTIONS", "METHODS", "STAGES"]
 
@@ -23,14 +24,6 @@ STAGES = ("multilevel", "single_level", "proxy", "repair", "realise", "mds")
 
 _INF = math.inf
 
-_FIELD_CHECKS = {
-    "bool": (lambda v: isinstance(v, bool), "True or False"),
-    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 0,
-            "an integer >= 0"),
-    "float": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0
-              and math.isfinite(v), "a finite number >= 0"),
-}
-"""Per field type of :class:`MapOptions`: the test of a value and what the message asks for."""
 
 
 @dataclass(frozen=True)
@@ -156,11 +149,7 @@ class MapOptions:
     mds_placement_steps: int = 50
 
     def __post_init__(self):
-        for f in fields(self):
-            value = getattr(self, f.name)
-            check = _FIELD_CHECKS.get(f.type)
-            if check is not None and not check[0](value):
-                raise InputError(f"MapOptions.{f.name} must be {check[1]}, got {value!r}")
+        check_option_fields(self)
         if self.level_ratio < 2:
             raise InputError(f"MapOptions.level_ratio must be at least 2, got {self.level_ratio}")
         ladder = self.coarse_ladder

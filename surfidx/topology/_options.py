@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .._errors import InputError
+from .._validate import check_option_fields
 
 __all__ = ["RepairOptions"]
 
@@ -55,24 +56,13 @@ class RepairOptions:
     rim_penalty: float = 4.0
 
     def __post_init__(self):
-        for name in ("min_part_vertices", "dp_max_loop", "patch_vertex_floor", "flip_rounds",
-                     "handle_roots"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise InputError(f"RepairOptions.{name} must be a non-negative integer, got "
-                                 f"{value!r}")
+        check_option_fields(self)
         if self.dp_max_loop < 3:
             raise InputError(f"RepairOptions.dp_max_loop must be at least 3, got "
                              f"{self.dp_max_loop}")
         if self.handle_roots < 1:
             raise InputError("RepairOptions.handle_roots must be at least 1, got "
                              f"{self.handle_roots}")
-        for name in ("min_part_share", "refine_ratio", "patch_vertex_factor", "rim_penalty"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0 \
-                    or value != value or value == float("inf"):
-                raise InputError(f"RepairOptions.{name} must be a finite non-negative number, "
-                                 f"got {value!r}")
         if self.min_part_share >= 1:
             raise InputError(f"RepairOptions.min_part_share must be below 1, got "
                              f"{self.min_part_share}")
