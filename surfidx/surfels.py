@@ -29,17 +29,29 @@ class SurfelSet:
         mesh's ``i``-th used vertex). Kept for topology checks; most algorithms ignore it.
     name : str, optional
         A label (usually the source file's name).
+    patch : (n,) int32, optional
+        Virtual patch of each surfel: -1 for the scan's own surfels, ``p >= 0`` for surfels that
+        topology repair (:func:`surfidx.topology.close_surface`) added to cap boundary loop
+        ``p``. ``None``: every surfel is real. The codec codes the virtual region as a mask so
+        decoding can drop it again.
+    patch_cut : (P,) int32, optional
+        For each patch ``p`` (``P = patch.max() + 1``), the handle cut it closes (cuts numbered
+        from 0; both sides of cut ``k`` carry ``k``) or -1 for a hole of the input. Defaults to
+        all -1 when ``patch`` is given.
 
     Raises
     ------
     InputError
         On NaN or infinite values, mismatched lengths, non-unit normals, non-positive radii,
-        colours outside 0..255 or faces indexing missing surfels.
+        colours outside 0..255, faces indexing missing surfels, or patch labels that are not
+        -1 or a patch index (``patch_cut`` of the wrong length, or pairing other than two
+        patches per cut).
     """
 
-    __slots__ = ("positions", "normals", "radii", "colors", "faces", "name")
+    __slots__ = ("positions", "normals", "radii", "colors", "faces", "name", "patch", "patch_cut")
 
-    def __init__(self, positions, normals, radii, colors=None, *, faces=None, name=None):
+    def __init__(self, positions, normals, radii, colors=None, *, faces=None, name=None,
+                 patch=None, patch_cut=None):
         positions = as_array(positions, "positions", shape=(None, 3))
         n = len(positions)
         normals = as_array(normals, "normals", shape=(n, 3))
@@ -77,6 +89,7 @@ class SurfelSet:
         self.colors = colors
         self.faces = faces
         self.name = name
+        self.patch, self.patch_cut = _check_patches(patch, patch_cut, n)
 
     # ------------------------------------------------------------------ basic properties
     def __len__(self) -> int:
@@ -85,6 +98,13 @@ class SurfelSet:
     def __repr__(self) -> str:
         col = "rgb" if self.has_color else "no colour"
         return f"SurfelSet({len(self)} surfels, {col}, name={self.name!r})"
+
+    @property
+    def virtual(self) -> np.ndarray:
+        """(n,) bool: surfels of virtual patches (all False when :attr:`patch` is None)."""
+        if self.patch is None:
+            return np.zeros(len(self), bool)
+        return self.patch >= 0
 
     @property
     def has_color(self) -> bool:
@@ -114,7 +134,9 @@ class SurfelSet:
         """
         idx = np.asarray(index)
         return SurfelSet(self.positions[idx], self.normals[idx], self.radii[idx],
-                         None if self.colors is None else self.colors[idx], name=self.name)
+                         None if self.colors is None else self.colors[idx], name=self.name,
+                         patch=None if self.patch is None else self.patch[idx],
+                         patch_cut=self.patch_cut)
 
     def transformed(self, rotation=None, translation=None, scale: float = 1.0) -> "SurfelSet":
         """Apply ``x -> scale * R x + t``; normals rotate, radii scale.
@@ -134,9 +156,34 @@ class SurfelSet:
         if not (np.isfinite(scale) and scale > 0):
             raise InputError(f"scale must be a positive number, got {scale!r}")
         return SurfelSet(scale * self.positions @ R.T + t, self.normals @ R.T, scale * self.radii,
-                         self.colors, faces=self.faces, name=self.name)
+                         self.colors, faces=self.faces, name=self.name, patch=self.patch,
+                         patch_cut=self.patch_cut)
 
     def without_color(self) -> "SurfelSet":
         """The same surfels with the colours dropped."""
         return SurfelSet(self.positions, self.normals, self.radii, None, faces=self.faces,
-                         name=self.name)
+                         name=self.name, patch=self.patch, patch_cut=self.patch_cut)
+
+
+def _check_patches(patch, patch_cut, n):
+    """Validated ``(patch, patch_cut)`` of :class:`SurfelSet` (int32 arrays or ``(None, None)``)."""
+    if patch is None:
+        if patch_cut is not None and len(np.asarray(patch_cut)):
+            raise InputError("patch_cut was given without patch; pass the per-surfel patch labels")
+        return None, None
+    patch = as_array(patch, "patch", dtype=np.int64, shape=(n,))
+    if patch.size and patch.min() < -1:
+        raise InputError(f"patch labels must be -1 (a real surfel) or a patch index >= 0, got "
+                         f"{int(patch.min())}")
+    count = int(patch.max()) + 1 if patch.size else 0
+    if patch_cut is None:
+        patch_cut = np.full(count, -1, np.int64)
+    patch_cut = as_array(patch_cut, "patch_cut", dtype=np.int64, shape=(None,))
+    if len(patch_cut) < count:
+        raise InputError(f"patch_cut has {len(patch_cut)} entries but the surfels name {count} "
+                         "patches; give the cut (or -1) of every patch")
+    cuts = patch_cut[patch_cut >= 0]
+    per_cut = np.bincount(cuts) if cuts.size else np.zeros(0, np.int64)
+    if np.any((per_cut != 0) & (per_cut != 2)):
+        raise InputError("patch_cut must name every cut on exactly two patches (its two sides)")
+    return patch.astype(np.int32), patch_cut.astype(np.int32)
