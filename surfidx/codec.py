@@ -24,6 +24,16 @@ Two weightings fit the coder's uniform thresholds to point-to-plane distortion o
 * **density weights** (:mod:`surfidx.density`): coefficients where the map squeezes many input
   surfels into little of the sphere count more; the field is stored in the header, and used only
   when its estimated gain is worth its bytes.
+
+Topology. Surfels with virtual patches (:attr:`surfidx.SurfelSet.patch`, added by
+:func:`surfidx.topology.close_surface` to close holes and handle cuts) are coded as the closed
+surface plus a mask of the grid vertices that sample a virtual patch and a table saying, per
+connected virtual region, whether it closes a hole or one side of a cut (format version 4; both
+in the header, counted against the rate and never truncated). :func:`decode` drops the virtual
+region again and zips each cut's two boundary loops together
+(:mod:`surfidx.topology._restore`), so the decoded mesh has the input's holes and genus. A model
+of several pieces is one file of several part streams (:class:`PartsEncoder`); a rate is split
+across the parts in proportion to their input surfels (:func:`surfidx.container.split_budget`).
 """
 
 from __future__ import annotations
@@ -39,13 +49,14 @@ from ._errors import BitstreamError, InputError
 from ._validate import check_positive_int
 from .icosphere import MAX_LEVEL, icosphere, vertex_count
 from .klt import KLT
-from .resample import resample
+from .resample import grid_patches, locate_surfels, resample
 from .sphere import METHODS as MAP_METHODS
 from .surfels import SurfelSet
 
 __all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
-           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header"]
+           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
+           "encode_parts", "decode_parts", "stream_summary"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 COLOR_WEIGHT = 0.02
@@ -117,6 +128,10 @@ class Encoder:
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries of
         the set-up: the map's (:func:`surfidx.sphere.parameterize`), ``"resample"``,
         ``"transform"``. It changes nothing in the result.
+    face_patch : (m,) int, optional
+        Patch of each of ``surfels.faces`` (-1: the scan's), for virtual faces whose corners are
+        all scan vertices (:func:`surfidx.resample.grid_patches`; default: a face is virtual
+        when a corner is). ``surfidx.topology._restore.closed_surfels`` gives it.
 
     Attributes
     ----------
@@ -135,13 +150,19 @@ class Encoder:
         The stored anchor bit plane of each level's local frames (empty without frames).
     density_gain : float
         :func:`surfidx.density.weighting_gain` of the field, in dB (computed either way).
+    mask : bytes
+        The coded virtual-region mask (empty: no virtual patch; the stream is version 3).
+    regions : tuple of int
+        Region-table codes (:func:`surfidx.container.region_code`) of the mask's regions.
+    virtual_share : float
+        Share of the grid's vertices in the mask.
     setup_seconds : dict of str -> float
     """
 
     def __init__(self, surfels: SurfelSet, *, level: int | None = None, color: bool | None = None,
                  method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None,
                  tangent_weight: float | None = TANGENT_WEIGHT,
-                 density_weighting: bool | None = None, progress=None):
+                 density_weighting: bool | None = None, progress=None, face_patch=None):
         from .progress import report
         from .sphere import parameterize
 
@@ -174,8 +195,13 @@ class Encoder:
         self.level = sphere_map.grid_level if level is None else level
         t0 = time.perf_counter()
         report(progress, "resample", 0, 1)
-        grid = resample(surfels, sphere_map.points, self.level, color=self.color)
+        location = locate_surfels(surfels, sphere_map.points, self.level)
+        grid = resample(surfels, sphere_map.points, self.level, color=self.color,
+                        location=location)
         self.grid = grid
+        self.mask, self.regions, self.virtual_share = b"", (), 0.0
+        if surfels.patch is not None:
+            self._code_mask(surfels, sphere_map.points, location, face_patch)
         t["resample"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         report(progress, "transform", 0, 1)
@@ -234,12 +260,50 @@ class Encoder:
         report(progress, "transform", 1, 1)
         self.setup_seconds = t
 
+    def _code_mask(self, surfels, sphere_points, location, face_patch):
+        """The virtual-region mask and region table (:mod:`surfidx.topology._restore`)."""
+        from scipy.spatial import cKDTree
+
+        from .topology._mask import encode_mask
+        from .topology._restore import mask_regions
+
+        patches = grid_patches(surfels, sphere_points, self.level, face_patch=face_patch,
+                               location=location)
+        P = len(surfels.patch_cut)
+        anchors = np.full(P, -1, np.int64)
+        missing = np.setdiff1d(np.arange(P), patches)
+        if len(missing):   # a patch below the grid's spacing still gets its grid vertex
+            pts = np.asarray(sphere_points, np.float64)
+            fp = None if face_patch is None else np.asarray(face_patch, np.int64)
+            where = {}
+            for p in missing:
+                own = np.flatnonzero(surfels.patch == p)
+                if len(own):
+                    where[int(p)] = pts[own[0]]
+                elif fp is not None and (fp == p).any():
+                    c = pts[surfels.faces[np.flatnonzero(fp == p)[0]]].mean(axis=0)
+                    where[int(p)] = c / max(np.linalg.norm(c), 1e-300)
+            if where:
+                _, near = cKDTree(icosphere(self.level).vertices).query(
+                    np.array(list(where.values())))
+                anchors[list(where)] = near
+        bits, codes = mask_regions(patches, self.level, surfels.patch_cut, anchors=anchors)
+        if bits.any():
+            self.mask = encode_mask(bits, self.level)
+            self.regions = codes
+            self.virtual_share = float(bits.mean())
+
     def header_bytes(self) -> int:
-        """Bytes of the container header for this model."""
+        """Bytes of the container header for this model (the virtual-region mask included)."""
         return container.header_size(
             self.coeffs.shape[1], zerotree.HEADER_SIZE, frames=self.tangent_weight is not None,
             anchors=len(self.anchors),
-            field_bytes=len(self.weight_field) if self.weight_field else None)
+            field_bytes=len(self.weight_field) if self.weight_field else None,
+            mask_bytes=len(self.mask) if self.mask else None, regions=len(self.regions))
+
+    def lowest_bytes(self) -> int:
+        """The smallest file this model's container can be."""
+        return max(self.header_bytes() + 4, container.min_file_bytes(self.level))
 
     def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
         """Encode at a rate.
@@ -261,12 +325,18 @@ class Encoder:
         InputError
             When the rate cannot even hold the header and a minimal stream.
         """
-        budget = max_file_bytes(bits_per_surfel, self.n_surfels) - self.header_bytes()
-        smallest = max(self.header_bytes() + 4, container.min_file_bytes(self.level))
+        return self.encode_bytes(max_file_bytes(bits_per_surfel, self.n_surfels),
+                                 progress=progress, rate=bits_per_surfel)
+
+    def encode_bytes(self, max_bytes: int, *, progress=None, rate=None) -> bytes:
+        """Encode into a file of at most ``max_bytes`` bytes (see :meth:`encode`)."""
+        budget = int(max_bytes) - self.header_bytes()
+        smallest = self.lowest_bytes()
         if budget < smallest - self.header_bytes():
             lowest = 8.0 * smallest / self.n_surfels
-            raise InputError(f"{bits_per_surfel} bits/surfel cannot hold the header; the lowest "
-                             f"rate for this model is {lowest:.3g} bits/surfel")
+            asked = f"{rate} bits/surfel" if rate is not None else f"{max_bytes} bytes"
+            raise InputError(f"{asked} cannot hold the header; the lowest rate for this model "
+                             f"is {lowest:.3g} bits/surfel ({smallest} bytes)")
         if progress is not None:
             progress("code", 0, 1)
         ico = icosphere(self.level)
@@ -282,7 +352,7 @@ class Encoder:
             mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
             coder=zerotree.pack_header(zh), map_method=self.map_method,
             tangent_weight=self.tangent_weight, weight_field=self.weight_field,
-            anchors=self.anchors)
+            anchors=self.anchors, mask=self.mask, regions=self.regions)
         out = container.pack(header, stream)
         if progress is not None:
             progress("code", 1, 1)
@@ -292,11 +362,108 @@ class Encoder:
 def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = None,
            color: bool | None = None, method: str = "tutte",
            tangent_weight: float | None = TANGENT_WEIGHT,
-           density_weighting: bool | None = None) -> bytes:
+           density_weighting: bool | None = None, face_patch=None) -> bytes:
     """One-call encoding (see :class:`Encoder`)."""
     return Encoder(surfels, level=level, color=color, method=method,
-                   tangent_weight=tangent_weight,
-                   density_weighting=density_weighting).encode(bits_per_surfel)
+                   tangent_weight=tangent_weight, density_weighting=density_weighting,
+                   face_patch=face_patch).encode(bits_per_surfel)
+
+
+class PartsEncoder:
+    """Several parts (the pieces of one model) coded as one multi-part file.
+
+    Expensive set-up once (one :class:`Encoder` per part), then :meth:`encode` at any rate.
+
+    Parameters
+    ----------
+    parts : sequence of SurfelSet
+        One closed genus-0 surface per part (virtual patches allowed), at least one.
+    level : int, optional
+        Grid level of every part (default: each part's map's).
+    color : bool, optional
+        Code colour (default: when every part has it).
+    method : {"tutte", "mds"}
+    progress : callable, optional
+        Passed to each part's :class:`Encoder`.
+    face_patches : sequence, optional
+        Each part's ``face_patch`` (:class:`Encoder`), or None.
+    **options
+        Further :class:`Encoder` options (``tangent_weight``, ``density_weighting``,
+        ``color_weight``).
+
+    Attributes
+    ----------
+    encoders : list of Encoder
+    n_surfels : int
+        Input surfels of all parts: the rate denominator.
+
+    Notes
+    -----
+    A file of one part is exactly that part's :meth:`Encoder.encode`. With several, the bytes a
+    rate allows, less the outer header, are split in proportion to the parts' input surfels
+    (:func:`surfidx.container.split_budget`), and :func:`surfidx.container.truncate` splits a
+    lower rate the same way, so every part of a truncated file is a prefix of its stream.
+    """
+
+    def __init__(self, parts, *, level: int | None = None, color: bool | None = None,
+                 method: str = "tutte", progress=None, face_patches=None, **options):
+        parts = list(parts)
+        if not parts:
+            raise InputError("PartsEncoder needs at least one part")
+        if len(parts) > container.MAX_PARTS:
+            raise InputError(f"a file holds at most {container.MAX_PARTS} parts, got "
+                             f"{len(parts)}; drop the tiny pieces (surfidx.topology.split_parts)")
+        if not all(isinstance(p, SurfelSet) for p in parts):
+            raise InputError("parts must be SurfelSets")
+        if color is None:
+            color = all(p.has_color for p in parts)
+        fps = [None] * len(parts) if face_patches is None else list(face_patches)
+        if len(fps) != len(parts):
+            raise InputError(f"face_patches has {len(fps)} entries for {len(parts)} parts")
+        self.encoders = [Encoder(p, level=level, color=color, method=method, progress=progress,
+                                 face_patch=fp, **options) for p, fp in zip(parts, fps)]
+        self.n_surfels = sum(e.n_surfels for e in self.encoders)
+
+    def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
+        """Encode all parts at a rate over their total input surfels.
+
+        Parameters
+        ----------
+        bits_per_surfel : float
+            The whole file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+
+        Returns
+        -------
+        bytes
+
+        Raises
+        ------
+        InputError
+            When a part's share of the rate cannot hold its header.
+        """
+        max_bytes = max_file_bytes(bits_per_surfel, self.n_surfels)
+        if len(self.encoders) == 1:
+            return self.encoders[0].encode(bits_per_surfel, progress=progress)
+        budgets = container.split_budget(max_bytes, [e.n_surfels for e in self.encoders])
+        out = []
+        for i, (e, b) in enumerate(zip(self.encoders, budgets)):
+            if b < e.lowest_bytes():
+                need = 8.0 * (e.lowest_bytes() * self.n_surfels / e.n_surfels
+                              + container.parts_overhead(len(self.encoders))) / self.n_surfels
+                raise InputError(f"{bits_per_surfel} bits/surfel leaves part {i} "
+                                 f"({e.n_surfels} surfels) {b} bytes, below its smallest "
+                                 f"container ({e.lowest_bytes()} bytes); use at least "
+                                 f"{need:.3g} bits/surfel")
+            out.append(e.encode_bytes(b, progress=progress))
+        return container.pack_parts(out)
+
+
+def encode_parts(parts, *, bits_per_surfel: float, level: int | None = None,
+                 color: bool | None = None, method: str = "tutte", progress=None,
+                 **options) -> bytes:
+    """One-call multi-part encoding (see :class:`PartsEncoder`)."""
+    return PartsEncoder(parts, level=level, color=color, method=method, progress=progress,
+                        **options).encode(bits_per_surfel)
 
 
 def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,
@@ -443,52 +610,204 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.n
 
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
-           level: int | None = None, max_surfels: int = MAX_SURFELS, path=None):
+           level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
+           keep_virtual: bool = False):
     """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
 
     Parameters
     ----------
     data : bytes
+        A ``.sfz`` container (one part or several).
     bits_per_surfel : float, optional
-        Serve the embedded stream at this lower rate.
+        Serve the embedded stream at this lower rate (of a multi-part file: over all its parts'
+        input surfels, split as :func:`surfidx.container.truncate` does).
     mesh : bool
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
     level : int, optional
         Return the decoded surface on the grid of this level (0 … the stream's level; default:
         the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
         ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
-        vertices per input surfel, see :func:`surfidx.icosphere.choose_level`).
+        vertices per input surfel, see :func:`surfidx.icosphere.choose_level`). A part whose
+        grid is coarser than ``level`` is decoded at its own.
     max_surfels : int
-        Refuse, before decoding, to return more surfels than this (default :data:`MAX_SURFELS`);
-        a coarser ``level`` returns fewer.
+        Refuse, before decoding, to return more surfels than this (default :data:`MAX_SURFELS`;
+        all parts together); a coarser ``level`` returns fewer.
     path : str, optional
+    keep_virtual : bool
+        Return the closed surface as coded. By default a stream with a virtual-region mask
+        decodes to the real surface only: the grid faces over each virtual region are dropped
+        and each handle cut's two boundary loops zipped together again
+        (:mod:`surfidx.topology._restore`), so the mesh has the input's holes and genus;
+        surfels keep the grid vertices of the kept faces (with the faces).
 
     Returns
     -------
     SurfelSet or TriangleMesh
+        All parts of a multi-part file together (concatenated in part order).
 
     Raises
     ------
     InputError
         A level outside 0 … the stream's level, or more than ``max_surfels`` surfels.
     BitstreamError
-        See :func:`decode_grid`.
+        See :func:`decode_grid`; a damaged virtual-region mask or region table.
     """
-    from .resample import grid_to_mesh, grid_to_surfels
+    parts = decode_parts(data, bits_per_surfel=bits_per_surfel, mesh=mesh, level=level,
+                         max_surfels=max_surfels, path=path, keep_virtual=keep_virtual)
+    if len(parts) == 1:
+        return parts[0]
+    return _concatenate(parts, mesh=mesh, name=Path(path).stem if path else None)
 
-    header, stream = container.unpack(data, path=path)
-    checked = check_header(header, path=path)
-    if level is not None:
-        if not (isinstance(level, (int, np.integer)) and not isinstance(level, bool)
-                and 0 <= level <= header.level):
-            raise InputError(f"level must be an integer from 0 to the stream's grid level "
-                             f"{header.level}, got {level!r}")
-    out_level = header.level if level is None else int(level)
-    _check_surfels(out_level, header.level, max_surfels, path)
-    values = _decode_values(data, header, stream, bits_per_surfel, path, checked)
-    values = values[:vertex_count(out_level)]
+
+def _concatenate(parts, *, mesh, name):
+    from .mesh import TriangleMesh
+
+    if mesh:
+        verts = [p.vertices for p in parts]
+        off = np.cumsum([0] + [len(v) for v in verts[:-1]])
+        faces = np.vstack([p.faces + o for p, o in zip(parts, off)])
+        cols = [p.vertex_colors for p in parts]
+        col = np.vstack(cols) if all(c is not None for c in cols) else None
+        return TriangleMesh(np.vstack(verts), faces, vertex_colors=col, name=name)
+    off = np.cumsum([0] + [len(p) for p in parts[:-1]])
+    cols = [p.colors for p in parts]
+    faces = [None if p.faces is None else p.faces + o for p, o in zip(parts, off)]
+    return SurfelSet(np.vstack([p.positions for p in parts]),
+                     np.vstack([p.normals for p in parts]),
+                     np.concatenate([p.radii for p in parts]),
+                     np.vstack(cols) if all(c is not None for c in cols) else None,
+                     faces=np.vstack(faces) if all(f is not None for f in faces) else None,
+                     name=name)
+
+
+def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
+                 level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
+                 keep_virtual: bool = False) -> list:
+    """Decode every part of a container on its own (see :func:`decode`).
+
+    Returns
+    -------
+    list of SurfelSet or TriangleMesh
+        One per part (a single-part file gives a list of one).
+    """
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    unpacked = [container.unpack(b, path=path) for b in blobs]
+    if bits_per_surfel is not None and len(blobs) > 1:
+        total = sum(h.n_surfels for h, _ in unpacked)
+        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
+        blobs = container.unpack_parts(data, path=path)
+        unpacked = [container.unpack(b, path=path) for b in blobs]
+        bits_per_surfel = None
+    checked = [check_header(h, path=path) for h, _ in unpacked]
+    if level is not None and not (isinstance(level, (int, np.integer))
+                                  and not isinstance(level, bool)
+                                  and 0 <= level <= max(h.level for h, _ in unpacked)):
+        raise InputError(f"level must be an integer from 0 to the stream's grid level "
+                         f"{max(h.level for h, _ in unpacked)}, got {level!r}")
+    levels = [h.level if level is None else min(int(level), h.level) for h, _ in unpacked]
+    limit = check_positive_int(max_surfels, "max_surfels")
+    if len(blobs) == 1:
+        _check_surfels(levels[0], unpacked[0][0].level, limit, path)
+    elif sum(vertex_count(lv) for lv in levels) > limit:
+        raise InputError(f"the {len(blobs)} parts decode to "
+                         f"{sum(vertex_count(lv) for lv in levels):,} surfels, more than "
+                         f"max_surfels = {limit:,}; decode at a coarser level or raise "
+                         "max_surfels", path=path)
     name = Path(path).stem if path else None
-    return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
+    out = []
+    for blob, (header, stream), chk, lv in zip(blobs, unpacked, checked, levels):
+        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk)
+        out.append(_model(values, header, lv, mesh=mesh, keep_virtual=keep_virtual, name=name,
+                          path=path))
+    return out
+
+
+def _regions(header, out_level, path):
+    """The virtual regions of a stream at the output level (:mod:`surfidx.topology._restore`)."""
+    from .topology._mask import decode_mask
+    from .topology._restore import check_regions, grid_regions, regions_at
+
+    try:
+        bits = decode_mask(header.mask, header.level)
+    except BitstreamError as exc:
+        raise BitstreamError(exc.reason, path=path) from None
+    count, region = grid_regions(bits, header.level)
+    check_regions(header.regions, count, path=path)
+    return regions_at(region, header.regions, header.level, out_level)
+
+
+def _model(values, header, out_level, *, mesh, keep_virtual, name, path):
+    from .mesh import TriangleMesh
+    from .resample import grid_to_mesh, grid_to_surfels
+    from .topology._restore import restore
+
+    values = values[:vertex_count(out_level)]
+    if not header.mask or keep_virtual:
+        return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
+    region, codes = _regions(header, out_level, path)
+    r = restore(values[:, :3], out_level, region, codes)
+    if mesh:
+        col = None if values.shape[1] < 6 else np.clip(
+            np.round(values[r.vertices, 3:6]), 0, 255).astype(np.uint8)
+        return TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
+    s = grid_to_surfels(values, name=name)
+    v = r.vertices
+    return SurfelSet(s.positions[v], s.normals[v], s.radii[v],
+                     None if s.colors is None else s.colors[v], faces=r.faces, name=name)
+
+
+def stream_summary(data: bytes, *, path=None) -> dict:
+    """What a file holds, without decoding its streams (the masks are decoded: cheap).
+
+    Parameters
+    ----------
+    data : bytes
+    path : str, optional
+
+    Returns
+    -------
+    dict
+        ``version`` (of the file: 4 for a multi-part file or a part with a mask, else the
+        part's), ``bytes``, ``parts``, ``surfels`` (all parts), and per part (lists in part
+        order): ``part_surfels``, ``part_bytes``, ``levels``, ``holes`` and ``cuts`` (virtual
+        regions closing a hole, handle cuts by their two sides), ``mask_bytes`` (the mask section
+        with its region table), ``virtual_share`` (share of the grid's vertices in the mask);
+        and ``mask_share``: all mask sections' bytes over the file's.
+
+    Raises
+    ------
+    BitstreamError
+        As :func:`surfidx.container.unpack_parts` and :func:`surfidx.container.unpack`.
+    """
+    from .topology._mask import decode_mask
+
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    out = {"version": data[4] if len(data) > 4 else None, "bytes": len(data),
+           "parts": len(blobs), "part_surfels": [], "part_bytes": [], "levels": [], "holes": [],
+           "cuts": [], "mask_bytes": [], "virtual_share": []}
+    for b in blobs:
+        h, _ = container.unpack(b, path=path)
+        out["part_surfels"].append(h.n_surfels)
+        out["part_bytes"].append(len(b))
+        out["levels"].append(h.level)
+        codes = [container.region_cut(c) for c in h.regions]
+        out["holes"].append(sum(1 for k, _ in codes if k < 0))
+        out["cuts"].append(len({k for k, _ in codes if k >= 0}))
+        out["mask_bytes"].append(6 + len(h.mask) + 2 * len(h.regions) if h.mask else 0)
+        share = 0.0
+        if h.mask:
+            if h.level > MAX_LEVEL:
+                raise BitstreamError(f"grid level {h.level} is out of range", path=path)
+            try:
+                share = float(decode_mask(h.mask, h.level).mean())
+            except BitstreamError as exc:
+                raise BitstreamError(exc.reason, path=path) from None
+        out["virtual_share"].append(share)
+    out["surfels"] = sum(out["part_surfels"])
+    out["mask_share"] = sum(out["mask_bytes"]) / max(len(data), 1)
+    return out
 
 
 def read_sfz(path) -> bytes:

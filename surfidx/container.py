@@ -17,19 +17,51 @@ from ._errors import BitstreamError, InputError
 from .icosphere import vertex_count
 
 __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
-           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE"]
+           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE",
+           "pack_parts", "unpack_parts", "is_multipart", "split_budget", "parts_overhead",
+           "MAX_PARTS", "MAX_REGIONS", "REGION_HOLE", "region_code", "region_cut",
+           "part_surfels"]
 
 MAGIC = b"\x89SFZ"
-FORMAT_VERSION = 3
-"""Version 3 (this one): optional local-frame tangent weight and density-weight field after the
-coder header (flag bits 2 and 3). Version 2 (still read): the same without them. Version 1 stored
-the basis and one weight per layer as float32 (132 bytes more with colour)."""
-READ_VERSIONS = (2, 3)
+FORMAT_VERSION = 4
+"""Version 4 (this one): version 3 plus an optional virtual-region mask and region table after
+the density-weight field (flag bit 4), and multi-part files (several part containers in one,
+flag bit 7 of a short outer header). A file without either is written as version 3, byte for
+byte (closed genus-0 single-part models keep their streams). Version 3: optional local-frame
+tangent weight and density-weight field after the coder header (flag bits 2 and 3). Version 2
+(still read): the same without them. Version 1 stored the basis and one weight per layer as
+float32 (132 bytes more with colour)."""
+READ_VERSIONS = (2, 3, 4)
 
 FLAG_COLOR = 1
 FLAG_LIFTED = 2
 FLAG_FRAMES = 4
 FLAG_WEIGHTED = 8
+FLAG_MASK = 16
+FLAG_PARTS = 128
+
+MAX_PARTS = 4096
+"""Most parts a multi-part file may hold (each part is a complete container of at least 70
+bytes)."""
+
+MAX_REGIONS = 0xFFFF
+"""Most regions a virtual-region table may list."""
+
+REGION_HOLE = 0
+"""Region code of a hole of the input; side ``s`` (0 or 1) of handle cut ``k`` is
+``1 + 2k + s`` (:func:`region_code`)."""
+
+_PARTS_FIXED = struct.Struct("<4sBBH")   # magic, version, flags (FLAG_PARTS), part count
+
+
+def region_code(cut: int, side: int = 0) -> int:
+    """Region-table code of a hole (``cut = -1``) or of side ``side`` of handle cut ``cut``."""
+    return REGION_HOLE if cut < 0 else 1 + 2 * int(cut) + int(side)
+
+
+def region_cut(code: int) -> tuple[int, int]:
+    """``(cut, side)`` of a region code; ``(-1, 0)`` for a hole."""
+    return (-1, 0) if code == REGION_HOLE else ((int(code) - 1) // 2, (int(code) - 1) % 2)
 
 # magic, version, flags, level, layers, n_surfels, map method, reserved, coder header length
 _FIXED = struct.Struct("<4sBBBBIBBH")
@@ -91,6 +123,12 @@ class Header:
     anchors : tuple of int
         With local frames: the bit plane of each level's frame anchor
         (:func:`surfidx.wavelets.forward_anchored`), one per grid level, non-increasing.
+    mask : bytes
+        The virtual-region mask (:func:`surfidx.topology._mask.encode_mask` of one bit per grid
+        vertex); empty: the model has no virtual patch (and the file is version 3).
+    regions : tuple of int
+        With a mask: the code of each connected virtual region of the grid mask, regions in the
+        order of their smallest grid vertex (:func:`region_code`: a hole, or a side of a cut).
     """
 
     n_surfels: int
@@ -106,6 +144,8 @@ class Header:
     tangent_weight: float | None = None
     weight_field: bytes = b""
     anchors: tuple = ()
+    mask: bytes = b""
+    regions: tuple = ()
     extra: dict = field(default_factory=dict)
 
     @property
@@ -118,7 +158,8 @@ def _n_weights(k: int) -> int:
 
 
 def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors: int = 0,
-                field_bytes: int | None = None) -> int:
+                field_bytes: int | None = None, mask_bytes: int | None = None,
+                regions: int = 0) -> int:
     """Bytes of a container's header.
 
     Parameters
@@ -134,9 +175,15 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors:
         Number of anchor planes (the grid level).
     field_bytes : int, optional
         Size of a stored density-weight field (plus its 2-byte length); None: no field.
+    mask_bytes : int, optional
+        Size of a stored virtual-region mask (plus its 4-byte length, the 2-byte region count
+        and 2 bytes per region); None: no mask.
+    regions : int
+        Entries of the region table.
     """
     k = layers
     extra = (5 + anchors if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
+    extra += 0 if mask_bytes is None else 6 + mask_bytes + 2 * regions
     return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
 
 
@@ -220,7 +267,20 @@ def pack(header: Header, stream: bytes) -> bytes:
             raise InputError("density-weight field longer than 65535 bytes")
         flags |= FLAG_WEIGHTED
         extra += struct.pack("<H", len(header.weight_field)) + bytes(header.weight_field)
-    body = _FIXED.pack(MAGIC, FORMAT_VERSION, flags, header.level, k, header.n_surfels,
+    version = 3
+    if header.mask:
+        regions = [int(r) for r in header.regions]
+        if not regions or len(regions) > MAX_REGIONS or any(not 0 <= r <= 0xFFFF
+                                                            for r in regions):
+            raise InputError(f"a virtual-region mask needs a region table of 1..{MAX_REGIONS} "
+                             f"codes in 0..65535, got {len(regions)} codes")
+        if len(header.mask) >= 2 ** 32:
+            raise InputError("virtual-region mask longer than 2^32 - 1 bytes")
+        flags |= FLAG_MASK
+        version = 4
+        extra += (struct.pack("<I", len(header.mask)) + bytes(header.mask)
+                  + struct.pack(f"<H{len(regions)}H", len(regions), *regions))
+    body = _FIXED.pack(MAGIC, version, flags, header.level, k, header.n_surfels,
                        header.map_method, 0, len(header.coder))
     body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder) + extra
     body += struct.pack("<I", len(stream))
@@ -269,15 +329,17 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
             raise BitstreamError(f"truncated header ({len(data)} bytes)", path=path)
         raise BitstreamError("not a surfidx .sfz file (too short)", path=path)
     magic, version, flags, level, k, n, method, _, clen = _FIXED.unpack_from(data, 0)
-    if magic != MAGIC:
-        raise BitstreamError("not a surfidx .sfz file (bad magic number)", path=path)
-    if version not in READ_VERSIONS:
-        raise BitstreamError(f"unsupported format version {version} (this surfidx reads "
-                             f"versions {', '.join(map(str, READ_VERSIONS))}); upgrade surfidx",
-                             path=path)
+    _check_magic_version(magic, version, path)
+    if version >= 4 and flags & FLAG_PARTS:
+        raise BitstreamError(f"a multi-part file ({struct.unpack_from('<H', data, 6)[0]} parts): "
+                             "read it with surfidx.container.unpack_parts or "
+                             "surfidx.codec.decode", path=path)
     if k not in (3, 6):
         raise BitstreamError(f"corrupt header (layer count {k}, expected 3 or 6)", path=path)
-    if version < 3 and flags & (FLAG_FRAMES | FLAG_WEIGHTED):
+    known = {2: FLAG_COLOR | FLAG_LIFTED, 3: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES
+             | FLAG_WEIGHTED}.get(version, FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
+                                  | FLAG_MASK)
+    if version < 4 and flags & (FLAG_FRAMES | FLAG_WEIGHTED | FLAG_MASK) & ~known:
         raise BitstreamError(f"corrupt header (flags {flags:#04x} unknown to version {version})",
                              path=path)
     nw = _n_weights(k)
@@ -289,10 +351,19 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
             n_anchors = data[coder_end + 4]
         tail_off += 5 + n_anchors
     field_len = 0
+    field_off = tail_off + 2
     if flags & FLAG_WEIGHTED:
         if len(data) >= tail_off + 2:
             field_len = struct.unpack_from("<H", data, tail_off)[0]
         tail_off += 2 + field_len
+    mask_off = mask_len = n_regions = 0
+    if flags & FLAG_MASK:
+        if len(data) >= tail_off + 4:
+            mask_len = struct.unpack_from("<I", data, tail_off)[0]
+        mask_off = tail_off + 4
+        if len(data) >= mask_off + mask_len + 2:
+            n_regions = struct.unpack_from("<H", data, mask_off + mask_len)[0]
+        tail_off = mask_off + mask_len + 2 + 2 * n_regions
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
@@ -303,10 +374,13 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     s_len, hcrc, scrc = _TAIL.unpack_from(data, tail_off)
     if zlib.crc32(data[:tail_off + 4]) != hcrc:
         raise BitstreamError("header checksum mismatch: the file is damaged", path=path)
-    if flags & ~(FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED):
+    if flags & ~known:
         raise BitstreamError(f"corrupt header (unknown flags {flags:#04x})", path=path)
     if flags & FLAG_WEIGHTED and field_len == 0:
         raise BitstreamError("corrupt header (empty density-weight field)", path=path)
+    if flags & FLAG_MASK and (mask_len == 0 or n_regions == 0):
+        raise BitstreamError(f"corrupt header (virtual-region mask of {mask_len} bytes with "
+                             f"{n_regions} regions; both must be > 0)", path=path)
     if k not in (3, 6) or (k == 6) != bool(flags & FLAG_COLOR) or level > 12:
         raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
                              path=path)
@@ -341,11 +415,16 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         anchors = tuple(int(a) for a in data[coder_end + 5:coder_end + 5 + n_anchors])
         if any(a > MAX_PLANE for a in anchors):
             raise BitstreamError(f"corrupt header (frame anchors {list(anchors)})", path=path)
+    mask, regions = b"", ()
+    if flags & FLAG_MASK:
+        mask = bytes(data[mask_off:mask_off + mask_len])
+        regions = struct.unpack_from(f"<{n_regions}H", data, mask_off + mask_len + 2)
     header = Header(
+        mask=mask, regions=tuple(int(r) for r in regions),
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
         mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
         map_method=method, version=version, tangent_weight=tangent_weight, anchors=anchors,
-        weight_field=bytes(data[tail_off - field_len:tail_off]) if field_len else b"")
+        weight_field=bytes(data[field_off:field_off + field_len]) if field_len else b"")
     return header, stream
 
 
@@ -369,6 +448,19 @@ def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
     InputError
         When the budget does not even hold the header.
     """
+    if is_multipart(data):
+        parts = unpack_parts(data, path=path)
+        total = sum(len(p) for p in parts) + parts_overhead(len(parts))
+        if max_bytes >= total:
+            return bytes(data)
+        budgets = split_budget(max_bytes, [part_surfels(p, path=path) for p in parts])
+        cut = []
+        for i, (p, b) in enumerate(zip(parts, budgets)):
+            try:
+                cut.append(truncate(p, b, path=path))
+            except InputError as exc:
+                raise InputError(f"part {i} of {len(parts)}: {exc.reason}", path=path) from None
+        return pack_parts(cut)
     header, stream = unpack(data, path=path)
     hsize = len(data) - len(stream)
     if max_bytes < max(hsize, min_file_bytes(header.level)):
@@ -378,3 +470,137 @@ def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
     if max_bytes >= len(data):
         return bytes(data)
     return pack(header, stream[: max_bytes - hsize])
+
+
+def _check_magic_version(magic, version, path):
+    if magic != MAGIC:
+        raise BitstreamError("not a surfidx .sfz file (bad magic number)", path=path)
+    if version not in READ_VERSIONS:
+        raise BitstreamError(f"unsupported format version {version} (this surfidx reads "
+                             f"versions {', '.join(map(str, READ_VERSIONS))}); upgrade surfidx",
+                             path=path)
+
+
+def is_multipart(data: bytes) -> bool:
+    """Whether ``data`` starts like a multi-part container (version 4, flag bit 7)."""
+    return len(data) >= 6 and bytes(data[:4]) == MAGIC and data[4] >= 4 and bool(
+        data[5] & FLAG_PARTS)
+
+
+def parts_overhead(parts: int) -> int:
+    """Bytes of a multi-part file's outer header: 8 fixed, 4 per part length, a 4-byte CRC."""
+    return _PARTS_FIXED.size + 4 * parts + 4
+
+
+def split_budget(max_bytes: int, n_surfels) -> list:
+    """Bytes of each part of a multi-part file of at most ``max_bytes`` bytes.
+
+    The bytes left after the outer header (:func:`parts_overhead`) are split in proportion to
+    the parts' input surfels: part ``i`` gets ``floor(rest · n_i / N)`` bytes, and the bytes
+    this rounding leaves go one each to the first parts. Encoder and :func:`truncate` split
+    alike, so a lower rate of a multi-part file is a prefix of each part's stream.
+
+    Parameters
+    ----------
+    max_bytes : int
+    n_surfels : sequence of int
+        Input surfels of each part (all > 0).
+
+    Returns
+    -------
+    list of int
+    """
+    n = [int(x) for x in n_surfels]
+    total = sum(n)
+    rest = max(int(max_bytes) - parts_overhead(len(n)), 0)
+    out = [rest * x // total for x in n]
+    for i in range(rest - sum(out)):
+        out[i % len(n)] += 1
+    return out
+
+
+def pack_parts(parts) -> bytes:
+    """Several complete part containers in one multi-part file (format version 4).
+
+    Parameters
+    ----------
+    parts : sequence of bytes
+        At least two complete single-part containers.
+
+    Returns
+    -------
+    bytes
+        Magic, version 4, flags ``FLAG_PARTS``, u16 part count ``P``, ``P`` u32 part lengths,
+        the CRC-32 of those bytes, then the parts.
+
+    Raises
+    ------
+    InputError
+        Fewer than two or more than :data:`MAX_PARTS` parts.
+    """
+    parts = [bytes(p) for p in parts]
+    if not 2 <= len(parts) <= MAX_PARTS:
+        raise InputError(f"a multi-part file holds 2..{MAX_PARTS} parts, got {len(parts)}; "
+                         "a single part is a plain container")
+    head = _PARTS_FIXED.pack(MAGIC, 4, FLAG_PARTS, len(parts))
+    head += struct.pack(f"<{len(parts)}I", *(len(p) for p in parts))
+    return head + struct.pack("<I", zlib.crc32(head)) + b"".join(parts)
+
+
+def unpack_parts(data: bytes, *, path=None) -> list:
+    """The part containers of a file: the parts of a multi-part file, or ``[data]``.
+
+    Only the outer header is checked here (the parts are checked when they are unpacked).
+
+    Parameters
+    ----------
+    data : bytes
+    path : str, optional
+
+    Returns
+    -------
+    list of bytes
+
+    Raises
+    ------
+    BitstreamError
+        Naming ``path``: a part count outside 2 … :data:`MAX_PARTS` or more than the file can
+        hold, a damaged outer header, part lengths that do not add up to the file.
+    """
+    data = bytes(data)
+    if not is_multipart(data):
+        return [data]
+    if len(data) < _PARTS_FIXED.size:
+        raise BitstreamError(f"truncated multi-part header ({len(data)} bytes)", path=path)
+    magic, version, flags, count = _PARTS_FIXED.unpack_from(data, 0)
+    _check_magic_version(magic, version, path)
+    if flags != FLAG_PARTS:
+        raise BitstreamError(f"corrupt multi-part header (flags {flags:#04x}, expected "
+                             f"{FLAG_PARTS:#04x})", path=path)
+    # every part is a container of at least the smallest header: bound the count by the file
+    smallest = _FIXED.size + _TAIL.size
+    if not 2 <= count <= MAX_PARTS or parts_overhead(count) + count * smallest > len(data):
+        raise BitstreamError(f"corrupt multi-part header ({count} parts in a file of "
+                             f"{len(data)} bytes; expected 2..{MAX_PARTS} parts of at least "
+                             f"{smallest} bytes each)", path=path)
+    end = parts_overhead(count)
+    lengths = struct.unpack_from(f"<{count}I", data, _PARTS_FIXED.size)
+    crc = struct.unpack_from("<I", data, end - 4)[0]
+    if zlib.crc32(data[:end - 4]) != crc:
+        raise BitstreamError("multi-part header checksum mismatch: the file is damaged",
+                             path=path)
+    if end + sum(lengths) != len(data):
+        what = "truncated" if end + sum(lengths) > len(data) else "unexpected bytes after"
+        raise BitstreamError(f"multi-part file {what} its parts ({len(data)} bytes, the parts "
+                             f"claim {end + sum(lengths)}); to lower the rate, truncate the "
+                             "complete file with surfidx", path=path)
+    out, off = [], end
+    for ln in lengths:
+        out.append(data[off:off + ln])
+        off += ln
+    return out
+
+
+def part_surfels(part: bytes, *, path=None) -> int:
+    """Input surfels of one part container (its header's ``n_surfels``), checked."""
+    return unpack(part, path=path)[0].n_surfels

@@ -47,7 +47,7 @@ from .spherical import hull_triangles, map_points, triangle_areas
 from .surfels import SurfelSet
 
 __all__ = ["PHONG_ALPHA", "PHONG_SHARPNESS", "locate", "locate_grid", "map_triangles", "resample",
-           "grid_to_surfels", "grid_to_mesh", "layer_names"]
+           "grid_to_surfels", "grid_to_mesh", "layer_names", "locate_surfels", "grid_patches"]
 
 PHONG_ALPHA = 0.9
 """Blend of the Phong-tessellation lift in :func:`resample` (0: linear, 1: full projection)."""
@@ -377,8 +377,93 @@ def map_triangles(surfels: SurfelSet, sphere_points) -> np.ndarray:
     return hull_triangles(pts)
 
 
+def locate_surfels(surfels: SurfelSet, sphere_points, level: int):
+    """Where :func:`resample` finds each grid vertex: its triangle and barycentric coordinates.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+    sphere_points : (n, 3) float64
+    level : int
+
+    Returns
+    -------
+    triangles : (m, 3) int64
+        :func:`map_triangles` of the surfels.
+    index : (10·4^level + 2,) int64
+        Triangle of each grid vertex.
+    bary : (10·4^level + 2, 3) float64
+    own : bool
+        Whether ``triangles`` are the surfels' own faces (without those repeating a corner).
+    """
+    pts = map_points(surfels, sphere_points)
+    tri = map_triangles(surfels, pts)
+    own = surfels.faces is not None and tri is not None and _own_faces(surfels.faces, tri)
+    tri, idx, bary = locate_grid(pts, icosphere(level), triangles=tri)
+    return tri, idx, bary, own
+
+
+def _own_faces(faces, tri) -> bool:
+    f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
+              & (faces[:, 0] != faces[:, 2])]
+    return f.shape == tri.shape and bool(np.array_equal(f, tri))
+
+
+def grid_patches(surfels: SurfelSet, sphere_points, level: int, *, face_patch=None,
+                 location=None) -> np.ndarray:
+    """The virtual patch each grid vertex samples (-1: the scan's own surface).
+
+    A grid vertex lies in the triangle :func:`resample` interpolates it in
+    (:func:`locate_surfels`); it is virtual when that triangle is: a face of the surfels'
+    own triangulation carries ``face_patch`` (default: the largest patch of its corners, so a
+    face with a virtual corner is virtual), a triangle of the hull the largest patch of its
+    corners.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        With :attr:`~surfidx.SurfelSet.patch` (None: nothing is virtual).
+    sphere_points : (n, 3) float64
+    level : int
+    face_patch : (m,) int, optional
+        Patch of each of ``surfels.faces`` (-1 real): marks virtual faces whose three corners
+        are all scan vertices (a small hole's patch, an ear of a patch along its rim), which the
+        corner labels cannot tell from the scan's faces.
+    location : tuple, optional
+        :func:`locate_surfels`'s result, when computed already.
+
+    Returns
+    -------
+    (10·4^level + 2,) int32
+
+    Raises
+    ------
+    InputError
+        When ``face_patch`` does not have one entry per face or names no patch of the surfels.
+    """
+    n_grid = vertex_count(level)
+    if surfels.patch is None:
+        return np.full(n_grid, -1, np.int32)
+    tri, idx, _, own = locate_surfels(surfels, sphere_points, level) if location is None \
+        else location
+    corner = surfels.patch[tri].max(axis=1).astype(np.int64)
+    if face_patch is not None:
+        fp = as_array(face_patch, "face_patch", dtype=np.int64,
+                      shape=(0 if surfels.faces is None else len(surfels.faces),))
+        count = len(surfels.patch_cut)
+        if fp.size and (fp.min() < -1 or fp.max() >= count):
+            raise InputError(f"face_patch must hold -1 or a patch index below {count}, got "
+                             f"{int(fp.min())}..{int(fp.max())}")
+        if own:
+            f = surfels.faces
+            keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+            corner = np.maximum(corner, fp[keep])
+    return corner[idx].astype(np.int32)
+
+
 def resample(surfels: SurfelSet, sphere_points, level: int, *, color: bool | None = None,
-             phong: float = PHONG_ALPHA, sharpness: float = PHONG_SHARPNESS) -> np.ndarray:
+             phong: float = PHONG_ALPHA, sharpness: float = PHONG_SHARPNESS,
+             location=None) -> np.ndarray:
     """The surfel layers at the vertices of the level-``level`` icosahedral grid.
 
     Parameters
@@ -394,6 +479,8 @@ def resample(surfels: SurfelSet, sphere_points, level: int, *, color: bool | Non
         Phong-tessellation blend in [0, 1] (module notes); 0 interpolates positions linearly.
     sharpness : float
         Exponent ``s >= 1`` of the lift's corner weights (module notes); 1 is plain Phong.
+    location : tuple, optional
+        :func:`locate_surfels` of these surfels and level, when computed already.
 
     Returns
     -------
@@ -417,7 +504,10 @@ def resample(surfels: SurfelSet, sphere_points, level: int, *, color: bool | Non
     if not sharp >= 1.0 or not np.isfinite(sharp):
         raise InputError(f"sharpness must be a finite number >= 1 (1: plain Phong), "
                          f"got {sharpness!r}")
-    tri, idx, bary = locate_grid(pts, icosphere(level), triangles=map_triangles(surfels, pts))
+    if location is None:
+        tri, idx, bary = locate_grid(pts, icosphere(level), triangles=map_triangles(surfels, pts))
+    else:
+        tri, idx, bary = location[:3]
     corners = tri[idx]
     v = surfels.positions[corners]                               # (q, 3, 3)
     nrm = surfels.normals[corners]

@@ -1,0 +1,535 @@
+"""The codec's side of topology repair: the virtual region on the grid, and dropping it again.
+
+Encoder side: the grid vertices that sample a virtual patch (:func:`surfidx.resample.grid_patches`)
+become the mask of :mod:`._mask`; its connected regions (through grid edges, ordered by their
+smallest grid vertex) each get a code (:func:`surfidx.container.region_code`: a hole of the
+input, or a side of a handle cut) in the container's region table. :func:`mask_regions` makes
+each patch one region: a patch the grid misses gets the grid vertex nearest one of its surfels, a
+patch the grid splits is joined along shortest grid paths.
+
+Decoder side (:func:`restore`): the grid faces over each region are dropped as one clean disk, and
+the two boundary loops of each cut are zipped together again, so that the decoded mesh has the
+input's boundary loops and genus:
+
+1. a face is dropped with a region when at least two of its corners are in it;
+2. repeated until nothing changes: each region keeps only its largest edge-connected piece of
+   faces (a region left without a face takes the star of its smallest vertex); pieces of the
+   kept surface cut off from its largest piece join the region around them; a vertex where the
+   kept surface is pinched (more than two of its boundary edges) gives its whole star to the
+   region holding most of it;
+3. the kept surface's boundary loops are assigned to regions by the dropped faces beside them;
+   the loops of the two sides of cut ``k`` (one loop each) are matched by arc length at the best
+   cyclic offset and the strip between them triangulated (one triangle per loop edge, advancing
+   along whichever loop's next vertex comes first). The second loop is walked against its own
+   boundary direction: the only direction in which the strip's faces are wound consistently with
+   both sides (the surface stays orientable).
+
+At a coarser output level the regions are those of the coarse grid's prefix of the mask, labelled
+from the regions of the stream's level; a region with no coarse vertex takes the coarse ancestor
+of its smallest vertex (first edge parents), so every hole and cut side survives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from .._errors import BitstreamError, InputError
+from ..icosphere import icosphere, vertex_count
+
+__all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surfels",
+           "RestoredMesh", "check_regions", "zip_loops"]
+
+_MAX_ROUNDS = 64   # clean-up rounds of the dropped regions (each round only grows them)
+
+
+def _grid_graph(level: int):
+    g = icosphere(level)
+    n = g.n_vertices
+    ptr, nb = np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices)
+    rows = np.repeat(np.arange(n), np.diff(ptr))
+    return sp.csr_matrix((np.ones(len(nb), np.int8), (rows, nb)), shape=(n, n))
+
+
+def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
+    """Connected regions of the set grid vertices, numbered by their smallest vertex.
+
+    Parameters
+    ----------
+    bits : (10·4^level + 2,) bool
+    level : int
+
+    Returns
+    -------
+    count : int
+    region : (n,) int64
+        Region of each grid vertex, -1 where the bit is not set.
+    """
+    bits = np.asarray(bits, bool)
+    region = np.full(len(bits), -1, np.int64)
+    on = np.flatnonzero(bits)
+    if not len(on):
+        return 0, region
+    g = _grid_graph(level)[on][:, on]
+    count, lab = connected_components(g, directed=False)
+    first = np.full(count, len(bits), np.int64)
+    np.minimum.at(first, lab, on)
+    rank = np.empty(count, np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(count)
+    region[on] = rank[lab]
+    return count, region
+
+
+def mask_regions(patches, level: int, patch_cut, *, anchors=None):
+    """The mask bits and region table of the grid's patch labels.
+
+    Parameters
+    ----------
+    patches : (n,) int
+        Patch each grid vertex samples (-1 real; :func:`surfidx.resample.grid_patches`).
+    level : int
+    patch_cut : (P,) int
+        Cut of each patch (-1: a hole), as :attr:`surfidx.SurfelSet.patch_cut`.
+    anchors : (P,) int, optional
+        A grid vertex for each patch (-1: none), made virtual when the patch has no grid
+        vertex (a patch smaller than the grid's spacing).
+
+    Returns
+    -------
+    bits : (n,) bool
+    codes : tuple of int
+        :func:`surfidx.container.region_code` of each region (regions by smallest vertex).
+    """
+    from ..container import region_code
+
+    lab = np.array(patches, np.int64)
+    cut = np.asarray(patch_cut, np.int64)
+    P = len(cut)
+    if anchors is not None:
+        for p in range(P):
+            a = int(anchors[p])
+            if a >= 0 and not (lab == p).any() and lab[a] < 0:
+                lab[a] = p
+    graph = None
+    for p in range(P):   # a patch the grid splits is joined along shortest grid paths
+        while True:
+            on = lab == p
+            count, region = grid_regions(on, level)
+            if count <= 1:
+                break
+            graph = _grid_graph(level).astype(np.float64) if graph is None else graph
+            # through vertices of no other patch only: weight 1 into free vertices
+            free = (lab < 0) | on
+            w = graph.multiply(free[None, :].astype(np.float64)).tocsr()
+            w.eliminate_zeros()
+            src = np.flatnonzero(region == 0)
+            dist, pred, _ = dijkstra(w, indices=src, min_only=True, return_predecessors=True)
+            others = np.flatnonzero(region > 0)
+            reach = others[np.isfinite(dist[others])]
+            if not len(reach):
+                break
+            v = int(reach[np.argmin(dist[reach])])
+            while v >= 0 and region[v] != 0:
+                lab[v] = p
+                v = int(pred[v])
+    bits = lab >= 0
+    count, region = grid_regions(bits, level)
+    codes = []
+    for r in range(count):
+        ps = lab[region == r]
+        p = int(np.bincount(ps).argmax())
+        k = int(cut[p])
+        if k < 0:
+            codes.append(region_code(-1))
+        else:   # side 0: the cut's patch of smaller index
+            sides = np.flatnonzero(cut == k)
+            s = int(p != sides[0])
+            codes.append(region_code(k, s))
+    return bits, tuple(codes)
+
+
+def check_regions(codes, count: int, *, path=None) -> None:
+    """Refuse a region table that does not fit the decoded mask (:class:`BitstreamError`)."""
+    from ..container import region_cut
+
+    if len(codes) != count:
+        raise BitstreamError(f"bad region table: it lists {len(codes)} regions, the decoded "
+                             f"virtual-region mask has {count}; the file is damaged", path=path)
+    for c in codes:
+        k, _ = region_cut(c)
+        if k >= len(codes):
+            raise BitstreamError(f"bad region table: region code {c} names cut {k} in a table "
+                                 f"of {len(codes)} regions; the file is damaged", path=path)
+
+
+def regions_at(region, codes, level: int, out_level: int):
+    """The regions of the level-``out_level`` prefix of a level-``level`` mask.
+
+    Parameters
+    ----------
+    region : (10·4^level + 2,) int64
+        :func:`grid_regions` of the stream's mask.
+    codes : sequence of int
+        Code of each region.
+    level, out_level : int
+
+    Returns
+    -------
+    region : (10·4^out_level + 2,) int64
+    codes : tuple of int
+    """
+    if out_level == level:
+        return region, tuple(codes)
+    n_out = vertex_count(out_level)
+    fine = icosphere(level)
+    parents = np.asarray(fine.edge_parents)
+    lab = np.array(region[:n_out], np.int64)
+    for r in range(len(codes)):
+        if (lab == r).any():
+            continue
+        v = int(np.flatnonzero(region == r).min())
+        while v >= n_out:
+            v = int(parents[v, 0])
+        if lab[v] < 0:
+            lab[v] = r
+    count, coarse = grid_regions(lab >= 0, out_level)
+    out = []
+    for c in range(count):
+        out.append(codes[int(lab[coarse == c].min())])
+    return coarse, tuple(out)
+
+
+# --------------------------------------------------------------------------- decoder side
+def _face_adjacency(faces, n):
+    """Across each face edge (corner j's opposite edge): the neighbouring face (-1: none)."""
+    m = len(faces)
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]]).astype(np.int64)
+    key, twin = a * n + b, b * n + a
+    order = np.argsort(key)
+    pos = np.minimum(np.searchsorted(key[order], twin), len(key) - 1)
+    ok = key[order][pos] == twin
+    nbr = np.full(3 * m, -1, np.int64)
+    nbr[ok] = order[pos[ok]] % m
+    return nbr.reshape(3, m).T
+
+
+def _components(mask, nbr):
+    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count."""
+    idx = np.flatnonzero(mask)
+    lab = np.full(len(mask), -1, np.int64)
+    if not len(idx):
+        return lab, 0
+    pos = np.full(len(mask), -1, np.int64)
+    pos[idx] = np.arange(len(idx))
+    rows = np.repeat(np.arange(len(idx)), 3)
+    cols = pos[np.maximum(nbr[idx].ravel(), 0)]
+    ok = (nbr[idx].ravel() >= 0) & (cols >= 0)
+    g = sp.coo_matrix((np.ones(int(ok.sum())), (rows[ok], cols[ok])),
+                      shape=(len(idx), len(idx)))
+    count, c = connected_components(g, directed=False)
+    lab[idx] = c
+    return lab, count
+
+
+def _largest(lab, count):
+    sizes = np.bincount(lab[lab >= 0], minlength=count)
+    return int(np.argmax(sizes))   # ties: the component of the smallest face (labels in order)
+
+
+def _face_regions(faces, region):
+    r = region[faces]
+    out = np.full(len(faces), -1, np.int64)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        same = (r[:, i] == r[:, j]) & (r[:, i] >= 0) & (out < 0)
+        out[same] = r[same, i]
+    many = ((r >= 0).sum(axis=1) >= 2) & (out < 0)     # corners in different regions
+    out[many] = np.where(r[many] >= 0, r[many], np.iinfo(np.int64).max).min(axis=1)
+    return out
+
+
+def _clean(faces, n, region, n_regions):
+    """Per-face region (-1 kept) after the clean-up rounds of the module docs."""
+    label = _face_regions(faces, region)
+    nbr = _face_adjacency(faces, n)
+    first_vertex = np.full(n_regions, n, np.int64)
+    on = region >= 0
+    np.minimum.at(first_vertex, region[on], np.flatnonzero(on))
+    vf_rows = np.repeat(np.arange(len(faces)), 3)
+    star = sp.csr_matrix((np.ones(3 * len(faces), bool), (faces.ravel(), vf_rows)),
+                         shape=(n, len(faces)))
+    for _ in range(_MAX_ROUNDS):
+        before = label.copy()
+        for r in range(n_regions):
+            mine = label == r
+            if mine.any():
+                lab, count = _components(mine, nbr)
+                if count > 1:
+                    big = _largest(lab, count)
+                    label[mine & (lab != big)] = -1
+            else:
+                s = star[first_vertex[r]].indices
+                label[s[label[s] < 0]] = r
+        kept = label < 0
+        lab, count = _components(kept, nbr)
+        if count > 1:
+            big = _largest(lab, count)
+            for c in range(count):
+                if c == big:
+                    continue
+                isl = np.flatnonzero(lab == c)
+                around = label[nbr[isl].ravel()]
+                around = around[around >= 0]
+                if len(around):
+                    label[isl] = np.bincount(around).argmax()
+        # pinched vertices of the kept surface: more than two boundary edges
+        kept = label < 0
+        kf = np.flatnonzero(kept)
+        edge_free = (nbr[kf] < 0) | ~kept[np.maximum(nbr[kf], 0)]
+        # boundary edge opposite corner j: vertices (j+1, j+2)
+        ends = np.stack([faces[kf][:, [1, 2, 0]], faces[kf][:, [2, 0, 1]]], axis=2)
+        bverts = ends[edge_free].ravel()
+        deg = np.bincount(bverts, minlength=n)
+        for v in np.flatnonzero(deg > 2):
+            s = star[v].indices
+            held = label[s][label[s] >= 0]
+            if len(held):
+                label[s] = np.bincount(held).argmax()
+        if np.array_equal(before, label):
+            break
+    return label
+
+
+def _boundary_loops(faces, n):
+    """Directed boundary loops (vertex lists following the faces' winding) of a manifold mesh
+    without pinches, and for each loop the faces' half-edges ``(u, v)`` it uses."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    key = e[:, 0] * n + e[:, 1]
+    twin = e[:, 1] * n + e[:, 0]
+    b = e[~np.isin(key, twin)]
+    nxt = np.full(n, -1, np.int64)
+    nxt[b[:, 0]] = b[:, 1]
+    seen = np.zeros(n, bool)
+    loops = []
+    for start in b[:, 0]:
+        if seen[start]:
+            continue
+        loop = []
+        v = int(start)
+        while not seen[v] and v >= 0:
+            seen[v] = True
+            loop.append(v)
+            v = int(nxt[v])
+        loops.append(np.array(loop, np.int64))
+    return loops
+
+
+def _arc(P):
+    seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
+    total = seg.sum()
+    s = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    return (s / total if total > 0 else np.arange(len(P)) / len(P)), total
+
+
+def zip_loops(positions, a, b, *, samples: int = 64):
+    """Triangles joining loop ``a`` (in its boundary direction) to loop ``b`` (its boundary
+    direction too; walked backwards), matched by arc length at the best cyclic offset.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    a, b : (m,) and (k,) int64
+        Vertex loops as the faces' winding gives them (:func:`_boundary_loops`).
+    samples : int
+        Arc-length samples the offset is chosen on.
+
+    Returns
+    -------
+    (m + k, 3) int64
+    """
+    b = b[::-1]
+    sa, _ = _arc(positions[a])
+    sb, _ = _arc(positions[b])
+    u = (np.arange(samples) + 0.5) / samples
+    A = np.stack([np.interp(u, sa, positions[a][:, d], period=1.0) for d in range(3)], axis=1)
+    # B sampled from each possible start vertex j: parameter sb[j] + u
+    t = (sb[None, :] + u[:, None]) % 1.0
+    cost = np.zeros(len(b))
+    for d in range(3):
+        Bd = np.interp(t.ravel(), sb, positions[b][:, d], period=1.0).reshape(t.shape)
+        cost += ((Bd - A[:, d][:, None]) ** 2).sum(axis=0)
+    j0 = int(np.argmin(cost))
+    b = np.roll(b, -j0)
+    tb = (sb - sb[j0]) % 1.0
+    tb = np.roll(tb, -j0)
+    m, k = len(a), len(b)
+    out = []
+    i = j = 0
+    while i < m or j < k:
+        na = sa[i + 1] if i + 1 < m else 1.0
+        nb = tb[j + 1] if j + 1 < k else 1.0
+        if j == k or (i < m and na <= nb):
+            out.append((a[(i + 1) % m], a[i], b[j % k]))
+            i += 1
+        else:
+            out.append((b[j], b[(j + 1) % k], a[i % m]))
+            j += 1
+    return np.array(out, np.int64)
+
+
+class RestoredMesh:
+    """The real surface of a decoded grid.
+
+    Attributes
+    ----------
+    vertices : (v,) int64
+        The grid vertices it keeps (indices into the grid).
+    faces : (f, 3) int64
+        Its faces, indexing ``vertices`` (kept grid faces, then the cuts' strips).
+    zipped : int
+        Cuts whose two loops were zipped together.
+    unzipped : int
+        Cuts that could not be (not one loop on each side); they stay two holes.
+    """
+
+    def __init__(self, vertices, faces, zipped, unzipped):
+        self.vertices, self.faces, self.zipped, self.unzipped = vertices, faces, zipped, unzipped
+
+
+def restore(positions, level: int, region, codes) -> RestoredMesh:
+    """Drop the virtual regions of a decoded grid surface and zip the cuts (module docs).
+
+    Parameters
+    ----------
+    positions : (10·4^level + 2, 3) float64
+        Decoded grid positions.
+    level : int
+    region : (n,) int64
+        Region of each grid vertex (-1 real): :func:`regions_at`.
+    codes : sequence of int
+        Region codes (:func:`surfidx.container.region_code`).
+
+    Returns
+    -------
+    RestoredMesh
+    """
+    from ..container import region_cut
+
+    g = icosphere(level)
+    faces = np.asarray(g.faces, np.int64)
+    n = g.n_vertices
+    label = _clean(faces, n, np.asarray(region, np.int64), len(codes))
+    kept = faces[label < 0]
+    strips = []
+    zipped = unzipped = 0
+    if len(kept):
+        loops = _boundary_loops(kept, n)
+        # the dropped face across each directed boundary edge (u, v): the face holding (v, u)
+        he = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        he_key = he[:, 0] * n + he[:, 1]
+        he_lab = np.tile(label, 3)
+        order = np.argsort(he_key)
+        sorted_key = he_key[order]
+        by_side = {}
+        for lp in loops:
+            q = np.roll(lp, -1) * n + lp
+            pos = np.minimum(np.searchsorted(sorted_key, q), len(sorted_key) - 1)
+            labs = he_lab[order][pos][sorted_key[pos] == q]
+            labs = labs[labs >= 0]
+            if not len(labs):
+                continue
+            r = int(np.bincount(labs).argmax())
+            k, s = region_cut(codes[r])
+            if k >= 0:
+                by_side.setdefault(k, {}).setdefault(s, []).append(lp)
+        for k in sorted(by_side):
+            sides = by_side[k]
+            if len(sides.get(0, ())) == 1 and len(sides.get(1, ())) == 1 and not np.intersect1d(
+                    sides[0][0], sides[1][0]).size:
+                strips.append(zip_loops(positions, sides[0][0], sides[1][0]))
+                zipped += 1
+            else:
+                unzipped += 1
+        missing = {region_cut(c)[0] for c in codes if region_cut(c)[0] >= 0} - set(by_side)
+        unzipped += len(missing)
+    allf = np.vstack([kept] + strips) if strips else kept
+    used = np.unique(allf)
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return RestoredMesh(used, remap[allf], zipped, unzipped)
+
+
+# --------------------------------------------------------------------------- closed surfaces
+def closed_surfels(closed, *, colors=None, name=None):
+    """The surfels of a :class:`surfidx.topology.ClosedSurface`, with its patches, for the codec.
+
+    One surfel per used vertex, in order (:meth:`surfidx.TriangleMesh.to_surfels` without
+    bisection): the
+    virtual vertices carry the patch of a virtual face around them, and ``patch_cut`` names the
+    cut each patch closes (a patch whose rim lies on cut ``k``'s vertices or their copies).
+
+    Parameters
+    ----------
+    closed : ClosedSurface
+    colors : (n, 3) uint8, optional
+        Colours of ``closed.vertices``.
+    name : str, optional
+
+    Returns
+    -------
+    surfels : SurfelSet
+    face_patch : (m,) int64
+        Patch of each of ``surfels.faces`` (for :class:`surfidx.codec.Encoder`'s
+        ``face_patch``), -1 for the scan's faces.
+
+    """
+    import warnings
+
+    from ..mesh import TriangleMesh
+    from ..surfels import SurfelSet
+
+    V, F = closed.vertices, closed.faces
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = TriangleMesh(V, F, vertex_colors=colors, name=name).to_surfels(max_edge_ratio=None)
+    used = np.unique(F)          # the surfels are the used vertices, in order
+    n = len(V)
+    fp = np.asarray(closed.patch, np.int64)
+    vpatch = np.full(n, -1, np.int64)
+    virt = np.flatnonzero(fp >= 0)
+    for j in range(3):
+        vpatch[F[virt, j]] = np.maximum(vpatch[F[virt, j]], fp[virt])
+    vpatch[~closed.virtual_vertices] = -1
+    P = int(fp.max()) + 1 if len(virt) else 0
+    patch_cut = np.full(P, -1, np.int64)
+    for k, cut in enumerate(closed.cuts):
+        on = np.zeros(n, bool)
+        on[cut.vertices] = True
+        on[cut.copies] = True
+        for p in range(P):
+            rim = np.unique(F[fp == p])
+            rim = rim[~closed.virtual_vertices[rim]]
+            if len(rim) and on[rim].all():
+                patch_cut[p] = k
+    vpatch = vpatch[used]
+    # the surfels' faces are the mesh's non-degenerate ones: match them by corners
+    sf = s.faces
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    F = remap[F]
+    n = len(used)
+    key_all = np.sort(F, axis=1) @ np.array([n * n, n, 1], np.int64)
+    key_s = np.sort(sf, axis=1) @ np.array([n * n, n, 1], np.int64)
+    order = np.argsort(key_all)
+    pos = np.minimum(np.searchsorted(key_all[order], key_s), len(F) - 1)
+    face_patch = np.where(key_all[order][pos] == key_s, fp[order][pos], -1)
+    if P == 0:
+        vp, pc = None, None
+    else:
+        vp, pc = vpatch, patch_cut
+        if (vpatch < 0).all():   # no virtual vertex (tiny holes): label via faces only
+            vp = vpatch
+    out = SurfelSet(s.positions, s.normals, s.radii, s.colors, faces=sf, name=name,
+                    patch=vp, patch_cut=pc)
+    return out, face_patch
