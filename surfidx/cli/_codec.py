@@ -34,30 +34,55 @@ from ._group import cli
 @command_errors
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
            density_weighting, texture, samples, quiet, verbose, as_json):
-    """Encode a model into an embedded .sfz bitstream."""
-    from ..codec import TANGENT_WEIGHT, Encoder
+    """Encode a model into an embedded .sfz bitstream.
+
+    A mesh that is not one closed genus-0 piece is repaired first (holes capped, handles cut,
+    pinches split, tiny pieces dropped: surfidx.topology); the virtual patches are coded as a
+    mask, so decoding gives back the open (or genus-g) surface, and each piece is one part of
+    the file."""
+    from ..codec import TANGENT_WEIGHT, PartsEncoder, stream_summary
     from ..io import write_atomic
     from ..progress import report
+    from ..topology._restore import repair_parts
 
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
     tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
     with stage_progress(quiet=quiet, verbose=verbose) as progress:
         s = reading(progress, input, texture, samples)
-        enc = Encoder(s, level=level, color=False if no_color else None, method=method,
-                      tangent_weight=tw, density_weighting=density_weighting, progress=progress)
-        data = enc.encode(bits, progress=progress)
+        report(progress, "repair", 0, 1)
+        parts, fps, dropped = repair_parts(s)
+        report(progress, "repair", 1, 1)
+        pe = PartsEncoder(parts, level=level, color=False if no_color else None, method=method,
+                          tangent_weight=tw, density_weighting=density_weighting,
+                          progress=progress, face_patches=fps)
+        data = pe.encode(bits, progress=progress)
         report(progress, "write", 0, 1)
         write_atomic(output, lambda tmp: tmp.write_bytes(data))
-    out = {"output": str(output), "surfels": len(s), "bytes": len(data),
-           "bits_per_surfel": 8.0 * len(data) / len(s), "level": enc.level, "color": enc.color,
-           "folded": enc.sphere_map.folded, "tangent_weight": enc.tangent_weight,
-           "density_weighted": bool(enc.weight_field), "seconds": enc.setup_seconds}
+    summary = stream_summary(data)
+    enc = pe.encoders[0]
+    n = pe.n_surfels
+    out = {"output": str(output), "surfels": n, "bytes": len(data),
+           "bits_per_surfel": 8.0 * len(data) / n,
+           "level": enc.level if len(parts) == 1 else [e.level for e in pe.encoders],
+           "color": enc.color, "folded": sum(e.sphere_map.folded for e in pe.encoders),
+           "tangent_weight": enc.tangent_weight,
+           "density_weighted": any(bool(e.weight_field) for e in pe.encoders),
+           "seconds": enc.setup_seconds if len(parts) == 1 else
+           [e.setup_seconds for e in pe.encoders],
+           "parts": len(parts), "dropped_parts": dropped, "holes": sum(summary["holes"]),
+           "cuts": sum(summary["cuts"]), "mask_bytes": sum(summary["mask_bytes"]),
+           "mask_share": summary["mask_share"]}
     if as_json:
         echo_json(out)
     else:
+        lv = enc.level if len(parts) == 1 else "/".join(str(e.level) for e in pe.encoders)
+        extra = ""
+        if len(parts) > 1 or out["mask_bytes"]:
+            extra = (f"; {len(parts)} part{'s' if len(parts) > 1 else ''}, {out['holes']} "
+                     f"holes, {out['cuts']} cuts, mask {out['mask_bytes']} bytes")
         click.echo(f"{output}: {len(data)} bytes, {out['bits_per_surfel']:.3f} bits/surfel "
-                   f"({len(s)} surfels, grid level {enc.level}{', colour' if enc.color else ''})")
+                   f"({n} surfels, grid level {lv}{', colour' if enc.color else ''}{extra})")
 
 
 #: Help of the options shared by ``decode`` and ``get``.
@@ -95,13 +120,16 @@ def output_summary(out: dict) -> str:
                    "surfels for PLY).")
 @click.option("--level", type=int, default=None, help=LEVEL_HELP)
 @click.option("--max-surfels", type=click.IntRange(min=1), default=None, help=MAX_SURFELS_HELP)
+@click.option("--keep-virtual", is_flag=True,
+              help="Keep the virtual patches topology repair added (the closed surface as "
+                   "coded); by default they are dropped and handle cuts zipped again.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def decode(input, output, fmt, bits, mesh, level, max_surfels, as_json):
+def decode(input, output, fmt, bits, mesh, level, max_surfels, keep_virtual, as_json):
     """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
     lower rate as a .sfz."""
     from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
-    from ..container import truncate, unpack
+    from ..container import part_surfels, truncate, unpack_parts
     from ..io import output_format, write_atomic, write_model
     from ..pipeline import output_level
 
@@ -109,16 +137,16 @@ def decode(input, output, fmt, bits, mesh, level, max_surfels, as_json):
     data = read_sfz(input)
     out = {"input": str(input), "output": str(output), "format": fmt, "bits_per_surfel": bits}
     if fmt == "sfz":
-        header, _ = unpack(data, path=input)
-        cut = data if bits is None else truncate(data, max_file_bytes(bits, header.n_surfels),
-                                                 path=input)
+        n = sum(part_surfels(p, path=input) for p in unpack_parts(data, path=input))
+        cut = data if bits is None else truncate(data, max_file_bytes(bits, n), path=input)
         write_atomic(output, lambda tmp: tmp.write_bytes(cut))
         out["bytes"] = len(cut)
     else:
         level = output_level(data, path=input) if level is None else level
         as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
         model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
-                        max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
+                        max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
+                        keep_virtual=keep_virtual)
         write_model(model, output, format=fmt)
         out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
                     "faces": len(model.faces) if as_mesh else None})

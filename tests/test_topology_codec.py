@@ -1,0 +1,406 @@
+"""The codec's topology: virtual-region masks (format version 4), the real surface decoded with
+the input's holes and genus, multi-part files, damaged masks and part tables, the CLI."""
+
+import json
+import struct
+import warnings
+import zlib
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from surfidx import BitstreamError, InputError, SurfelSet, TriangleMesh
+from surfidx import container
+from surfidx.cli import cli
+from surfidx.codec import (Encoder, PartsEncoder, decode, decode_grid, decode_parts, encode_parts,
+                           max_file_bytes, stream_summary)
+from surfidx.topology import analyse, close_surface
+from surfidx.topology._restore import (closed_surfels, grid_regions, mask_regions, regions_at,
+                                       zip_loops)
+
+
+def _sphere_with_holes(centres, level=4):
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(level)
+    f = f[~np.isin(f, centres).any(axis=1)]
+    used = np.unique(f)                     # no unused vertex (the CLI would warn)
+    remap = np.full(len(v), -1)
+    remap[used] = np.arange(len(used))
+    return v[used] * [1.0, 0.9, 1.1], remap[f]
+
+
+def _torus(R=2.0, r=0.7, nu=64, nv=24):
+    u = 2 * np.pi * np.arange(nu) / nu
+    w = 2 * np.pi * np.arange(nv) / nv
+    U, W = np.meshgrid(u, w, indexing="ij")
+    v = np.stack([(R + r * np.cos(W)) * np.cos(U), (R + r * np.cos(W)) * np.sin(U),
+                  r * np.sin(W)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+
+    def idx(a, b):
+        return (a % nu) * nv + (b % nv)
+    f = np.concatenate([np.stack([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)], 1),
+                        np.stack([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)], 1)])
+    return v, f
+
+
+def _topology(m):
+    r = analyse(m.vertices, m.faces)
+    return dict(loops=r.holes, genus=r.genus, parts=r.parts,
+                manifold=r.pinched_vertices == 0 and r.nonmanifold_edges == 0)
+
+
+def _encoder(v, f, **kw):
+    s, fp = closed_surfels(close_surface(v, f))
+    return Encoder(s, face_patch=fp, **kw)
+
+
+@pytest.fixture(scope="module")
+def holes3():
+    return _encoder(*_sphere_with_holes([0, 5, 9]), level=5)
+
+
+@pytest.fixture(scope="module")
+def torus():
+    return _encoder(*_torus(), level=5)
+
+
+@pytest.fixture(scope="module")
+def ball():
+    """A closed genus-0 part (no virtual patch)."""
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = TriangleMesh(v * 0.5 + [3.0, 0, 0], f).to_surfels()
+    return Encoder(s, level=4)
+
+
+# ----------------------------------------------------------------------------- encoder side
+def test_mask_is_in_the_header_and_counted(holes3):
+    assert holes3.mask and holes3.regions == (0, 0, 0)
+    assert 0 < holes3.virtual_share < 0.05
+    for rate in (1.0, 4.0):
+        data = holes3.encode(rate)
+        assert len(data) <= max_file_bytes(rate, holes3.n_surfels)
+        h, _ = container.unpack(data)
+        assert h.version == 4 and h.mask == holes3.mask and h.regions == holes3.regions
+    full = holes3.encode(4.0)
+    cut = container.truncate(full, max_file_bytes(1.0, holes3.n_surfels))
+    assert container.unpack(cut)[0].mask == holes3.mask      # the mask is kept whole
+    a, _ = decode_grid(cut)
+    b, _ = decode_grid(holes3.encode(1.0))
+    np.testing.assert_array_equal(a, b)
+
+
+def test_torus_regions_are_the_two_sides_of_its_cut(torus):
+    assert sorted(torus.regions) == [container.region_code(0, 0), container.region_code(0, 1)]
+    assert container.region_cut(container.region_code(3, 1)) == (3, 1)
+    assert container.region_cut(container.REGION_HOLE) == (-1, 0)
+
+
+def test_closed_model_has_no_mask_and_writes_version_3(ball):
+    assert ball.mask == b"" and ball.regions == ()
+    data = ball.encode(4.0)
+    assert data[4] == 3 and container.unpack(data)[0].version == 3
+    assert container.FORMAT_VERSION == 4
+
+
+def test_mask_regions_anchor_and_join_patches():
+    from surfidx.icosphere import icosphere
+
+    g = icosphere(3)
+    lab = np.full(g.n_vertices, -1)
+    a, b = 100, 400             # patch 0 split in two far apart, patch 1 on no grid vertex
+    lab[[a, b]] = 0
+    bits, codes = mask_regions(lab, 3, [-1, -1], anchors=[-1, 7])
+    count, region = grid_regions(bits, 3)
+    assert count == 2 and codes == (0, 0)
+    assert bits[7] and region[a] == region[b]
+    # a coarser prefix keeps both regions: the one on level-3 vertices takes an ancestor
+    coarse, ccodes = regions_at(region, codes, 3, 1)
+    assert len(ccodes) == 2 and coarse.max() == 1
+
+
+def test_zip_loops_is_a_consistent_strip():
+    t = 2 * np.pi * np.arange(8) / 8
+    ring = np.stack([np.cos(t), np.sin(t), np.zeros(8)], 1)
+    P = np.vstack([ring, ring[::-1] + [0, 0, 1.0]])
+    a = np.arange(8)
+    b = 8 + np.arange(8)
+    f = zip_loops(P, a, b)
+    assert len(f) == 16
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    assert len({tuple(x) for x in e.tolist()}) == len(e)     # each half-edge once: oriented
+
+
+# ----------------------------------------------------------------------------- decoder side
+@pytest.mark.parametrize("kw", [{}, {"bits_per_surfel": 1.0}, {"level": 4}, {"level": 3},
+                                {"bits_per_surfel": 2.0, "level": 4}])
+def test_sphere_with_three_holes_decodes_open(holes3, kw):
+    data = holes3.encode(4.0)
+    m = decode(data, mesh=True, **kw)
+    assert _topology(m) == dict(loops=3, genus=(0,), parts=1, manifold=True)
+    s = decode(data, **kw)
+    assert len(s) == len(m.vertices) and s.faces is not None and not s.virtual.any()
+
+
+@pytest.mark.parametrize("kw", [{}, {"bits_per_surfel": 1.0}, {"level": 4}, {"level": 3}])
+def test_torus_decodes_closed_with_genus_1(torus, kw):
+    m = decode(torus.encode(4.0), mesh=True, **kw)
+    assert _topology(m) == dict(loops=0, genus=(1,), parts=1, manifold=True)
+
+
+def test_keep_virtual_returns_the_closed_surface(holes3, torus):
+    for e in (holes3, torus):
+        m = decode(e.encode(4.0), mesh=True, keep_virtual=True)
+        assert _topology(m) == dict(loops=0, genus=(0,), parts=1, manifold=True)
+        assert len(decode(e.encode(4.0), keep_virtual=True)) == len(e.grid)
+
+
+def test_handle_and_hole_together():
+    v, f = _torus()
+    f = f[~np.isin(f, [5]).any(axis=1)]
+    e = _encoder(v, f, level=5)
+    assert sorted(e.regions) == [0, 1, 2]
+    m = decode(e.encode(4.0), mesh=True)
+    assert _topology(m) == dict(loops=1, genus=(1,), parts=1, manifold=True)
+
+
+def test_real_surface_stays_close_to_the_input(holes3):
+    from surfidx.metrics import psnr_d2
+
+    v, f = _sphere_with_holes([0, 5, 9])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = TriangleMesh(v, f).to_surfels(max_edge_ratio=None)
+    real = decode(holes3.encode(8.0))
+    closed = decode(holes3.encode(8.0), keep_virtual=True)
+    assert psnr_d2(ref, real) > 50
+    # the decoded real surface covers only the scan: no point far out over a hole
+    from scipy.spatial import cKDTree
+
+    d_real, _ = cKDTree(ref.positions).query(real.positions)
+    d_closed, _ = cKDTree(ref.positions).query(closed.positions)
+    assert d_real.max() < d_closed.max()
+
+
+# ----------------------------------------------------------------------------- several parts
+def test_parts_encoder_single_part_is_the_encoders_bytes(ball):
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = TriangleMesh(v * 0.5 + [3.0, 0, 0], f).to_surfels()
+    assert PartsEncoder([s], level=4).encode(3.0) == ball.encode(3.0)
+    assert encode_parts([s], bits_per_surfel=3.0, level=4) == ball.encode(3.0)
+
+
+@pytest.fixture(scope="module")
+def two(holes3, ball):
+    pe = PartsEncoder.__new__(PartsEncoder)    # the parts' encoders, built once above
+    pe.encoders = [holes3, ball]
+    pe.n_surfels = holes3.n_surfels + ball.n_surfels
+    return pe
+
+
+def test_multi_part_rate_split_and_truncation(two):
+    n = two.n_surfels
+    full = two.encode(4.0)
+    assert container.is_multipart(full) and full[4] == 4
+    assert len(full) <= max_file_bytes(4.0, n)
+    parts = container.unpack_parts(full)
+    budgets = container.split_budget(max_file_bytes(4.0, n), [e.n_surfels for e in two.encoders])
+    assert all(len(p) <= b for p, b in zip(parts, budgets))
+    assert sum(budgets) + container.parts_overhead(2) == max_file_bytes(4.0, n)
+    low = container.truncate(full, max_file_bytes(2.0, n))
+    assert len(low) <= max_file_bytes(2.0, n)
+    a = decode(full, bits_per_surfel=2.0, mesh=True)
+    b = decode(low, mesh=True)
+    c = decode(two.encode(2.0), mesh=True)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.vertices, c.vertices)
+
+
+def test_multi_part_decodes_to_all_parts_together(two):
+    data = two.encode(4.0)
+    ps = decode_parts(data, mesh=True)
+    assert len(ps) == 2
+    assert _topology(ps[0])["loops"] == 3 and _topology(ps[1])["loops"] == 0
+    m = decode(data, mesh=True)
+    assert len(m.vertices) == sum(len(p.vertices) for p in ps)
+    assert _topology(m) == dict(loops=3, genus=(0, 0), parts=2, manifold=True)
+    s = decode(data)
+    assert len(s) == len(m.vertices)
+    for kw in ({"level": 3}, {"bits_per_surfel": 1.5}):
+        assert _topology(decode(data, mesh=True, **kw))["loops"] == 3
+    with pytest.raises(InputError, match="parts decode to"):
+        decode(data, max_surfels=100)
+    with pytest.raises(InputError, match="level must be an integer"):
+        decode(data, level=9)
+
+
+def test_stream_summary(two, holes3, ball):
+    s = stream_summary(two.encode(4.0))
+    assert s["parts"] == 2 and s["version"] == 4
+    assert s["part_surfels"] == [holes3.n_surfels, ball.n_surfels]
+    assert s["holes"] == [3, 0] and s["cuts"] == [0, 0]
+    assert s["mask_bytes"][0] == 6 + len(holes3.mask) + 2 * 3 and s["mask_bytes"][1] == 0
+    assert 0 < s["mask_share"] < 0.2 and s["virtual_share"][0] == holes3.virtual_share
+    one = stream_summary(ball.encode(4.0))
+    assert one["parts"] == 1 and one["version"] == 3 and one["mask_share"] == 0
+
+
+def test_parts_encoder_errors(two):
+    with pytest.raises(InputError, match="at least one part"):
+        PartsEncoder([])
+    with pytest.raises(InputError, match="parts must be SurfelSets"):
+        PartsEncoder([np.zeros((3, 3))])
+    with pytest.raises(InputError, match="face_patches has 2 entries for 1 parts"):
+        PartsEncoder([SurfelSet(np.eye(3), np.eye(3), np.ones(3))], face_patches=[None, None])
+    with pytest.raises(InputError, match="leaves part 0"):
+        two.encode(0.3)
+    with pytest.raises(InputError, match="2..4096 parts"):
+        container.pack_parts([b"x"])
+
+
+# ----------------------------------------------------------------------------- damaged files
+def _rewrite(data, mask=None, regions=None):
+    """The container with its mask section replaced (checksums recomputed)."""
+    h, stream = container.unpack(data)
+    if mask is not None:
+        h.mask = mask
+    if regions is not None:
+        h.regions = regions
+    return container.pack(h, stream)
+
+
+def test_damaged_mask_or_region_table(holes3):
+    data = holes3.encode(4.0)
+    with pytest.raises(BitstreamError, match="m.sfz: bad region table: it lists 2 regions"):
+        decode(_rewrite(data, regions=(0, 0)), path="m.sfz")
+    with pytest.raises(BitstreamError, match="names cut 7"):
+        decode(_rewrite(data, regions=(0, 0, container.region_code(7))), path="m.sfz")
+    with pytest.raises(BitstreamError, match="m.sfz: .*impossible code value"):
+        decode(_rewrite(data, mask=b"\xff\xff\xff\xff" + holes3.mask), path="m.sfz")
+    bad = bytearray(data)
+    bad[80] ^= 0xFF                                        # inside the header: CRC
+    with pytest.raises(BitstreamError, match="header checksum mismatch"):
+        decode(bytes(bad))
+    with pytest.raises(InputError, match="region table of 1..65535"):
+        _rewrite(data, regions=())
+
+
+def test_mask_flag_unknown_to_version_3(holes3):
+    data = bytearray(holes3.encode(4.0))
+    data[4] = 3
+    h_end = len(data) - container.unpack(bytes(holes3.encode(4.0)))[1].__len__()
+    struct.pack_into("<I", data, h_end - 8, zlib.crc32(bytes(data[:h_end - 8])))
+    with pytest.raises(BitstreamError, match="unknown to version 3"):
+        container.unpack(bytes(data))
+
+
+def test_empty_mask_section_is_corrupt(holes3):
+    h, stream = container.unpack(holes3.encode(4.0))
+    raw = bytearray(container.pack(h, stream))
+    off = len(raw) - len(stream) - 12 - (6 + len(h.mask) + 2 * len(h.regions))
+    struct.pack_into("<I", raw, off, 0)               # mask length 0, bytes stay: recompute
+    body = bytes(raw[:off + 4]) + bytes(raw[off + 4 + len(h.mask):len(raw) - len(stream) - 8])
+    fixed = body + struct.pack("<II", zlib.crc32(body), zlib.crc32(stream)) + stream
+    with pytest.raises(BitstreamError, match="virtual-region mask of 0 bytes"):
+        container.unpack(fixed)
+
+
+def test_hostile_part_tables(two):
+    data = two.encode(4.0)
+    with pytest.raises(BitstreamError, match="multi-part file.*unpack_parts"):
+        container.unpack(data)
+
+    def outer(count, lengths, tail=b""):
+        head = struct.pack("<4sBBH", container.MAGIC, 4, container.FLAG_PARTS, count)
+        head += struct.pack(f"<{len(lengths)}I", *lengths)
+        return head + struct.pack("<I", zlib.crc32(head)) + tail
+
+    with pytest.raises(BitstreamError, match=r"x.sfz: corrupt multi-part header \(65535 parts"):
+        decode(outer(65535, [1, 2]), path="x.sfz")
+    with pytest.raises(BitstreamError, match=r"\(1 parts"):
+        decode(outer(1, [10], bytes(200)))
+    parts = container.unpack_parts(data)
+    with pytest.raises(BitstreamError, match="truncated its parts"):
+        decode(outer(2, [len(parts[0]), len(parts[1]) + 5], parts[0] + parts[1]))
+    with pytest.raises(BitstreamError, match="unexpected bytes after its parts"):
+        decode(data + b"\0")
+    bad = bytearray(data)
+    bad[9] ^= 1
+    with pytest.raises(BitstreamError, match="multi-part header checksum mismatch"):
+        decode(bytes(bad))
+    bad = bytearray(data)
+    bad[5] |= 1
+    with pytest.raises(BitstreamError, match="corrupt multi-part header \\(flags"):
+        decode(bytes(bad))
+    with pytest.raises(BitstreamError, match="truncated multi-part header"):
+        container.unpack_parts(data[:7])
+
+
+# ----------------------------------------------------------------------------- CLI
+def test_cli_encode_decode_open_and_genus_1(tmp_path):
+    from surfidx.io import read_mesh, write_model
+
+    runner = CliRunner()
+    for name, (v, f), want in [("holes", _sphere_with_holes([0, 5, 9]),
+                                dict(loops=3, genus=(0,), parts=1, manifold=True)),
+                               ("torus", _torus(), dict(loops=0, genus=(1,), parts=1,
+                                                        manifold=True))]:
+        src = tmp_path / f"{name}.obj"
+        write_model(TriangleMesh(v, f), src)
+        sfz = tmp_path / f"{name}.sfz"
+        r = runner.invoke(cli, ["encode", str(src), "-o", str(sfz), "--bits-per-surfel", "4",
+                                "--level", "5", "--json", "-q"])
+        assert r.exit_code == 0, r.output
+        out = json.loads(r.output)
+        assert out["parts"] == 1 and out["mask_bytes"] > 0
+        obj = tmp_path / f"{name}_out.obj"
+        r = runner.invoke(cli, ["decode", str(sfz), "-o", str(obj)])
+        assert r.exit_code == 0, r.output
+        assert _topology(read_mesh(obj)) == want
+        low = tmp_path / f"{name}_low.sfz"
+        r = runner.invoke(cli, ["decode", str(sfz), "-o", str(low), "--bits-per-surfel", "1"])
+        assert r.exit_code == 0, r.output
+        assert container.unpack(low.read_bytes())[0].mask
+
+
+def test_cli_two_pieces_and_damaged_file(tmp_path):
+    from conftest import icosphere_mesh
+    from surfidx.io import read_mesh, write_model
+
+    v, f = icosphere_mesh(3)
+    v2, f2 = _sphere_with_holes([0, 5, 9])
+    src = tmp_path / "two.obj"
+    write_model(TriangleMesh(np.vstack([v * 0.8 + [4.0, 0, 0], v2]),
+                             np.vstack([f, f2 + len(v)])), src)
+    sfz = tmp_path / "two.sfz"
+    runner = CliRunner()
+    r = runner.invoke(cli, ["encode", str(src), "-o", str(sfz), "--bits-per-surfel", "4",
+                            "--level", "4", "--json", "-q"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["parts"] == 2
+    obj = tmp_path / "two_out.obj"
+    r = runner.invoke(cli, ["decode", str(sfz), "-o", str(obj)])
+    assert r.exit_code == 0, r.output
+    t = _topology(read_mesh(obj))
+    assert t["parts"] == 2 and t["loops"] == 3
+    low = tmp_path / "two_low.sfz"
+    r = runner.invoke(cli, ["decode", str(sfz), "-o", str(low), "--bits-per-surfel", "2"])
+    assert r.exit_code == 0, r.output
+    assert len(low.read_bytes()) <= max_file_bytes(2.0, stream_summary(sfz.read_bytes())[
+        "surfels"])
+    bad = bytearray(sfz.read_bytes())
+    bad[6] = 0xFF
+    (tmp_path / "bad.sfz").write_bytes(bytes(bad))
+    r = runner.invoke(cli, ["decode", str(tmp_path / "bad.sfz"), "-o", str(obj)])
+    assert r.exit_code != 0 and "bad.sfz" in r.output and "multi-part" in r.output
