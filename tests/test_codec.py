@@ -52,6 +52,18 @@ def test_prefix_decoding_equals_direct_encoding(enc):
         np.testing.assert_array_equal(a, b)
 
 
+def test_closed_genus_0_streams_are_unchanged_by_version_4(enc):
+    """Format version 4 (virtual-region masks, parts) writes closed genus-0 single-part models
+    as version 3, byte for byte: the hashes of these streams before version 4 existed."""
+    import hashlib
+
+    want = {2.0: "1e73daa8270fb1ea933df2c42cd9df8c2ed4a616727f2edc677246e7861038dd",
+            4.0: "874633d95b00372779398ff1633c0d3c3e5ce511335e4a052c5c8af1f22a9c7b"}
+    for rate, digest in want.items():
+        data = enc.encode(rate)
+        assert data[4] == 3 and hashlib.sha256(data).hexdigest() == digest
+
+
 def test_high_rate_reproduces_the_grid(blob):
     e = Encoder(blob, level=4)
     values, header = decode_grid(e.encode(64.0))

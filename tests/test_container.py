@@ -25,8 +25,10 @@ def test_round_trip(color):
     assert data[:4] == MAGIC and len(data) == header_size(h.layers, len(h.coder)) + len(stream)
     h2, s2 = unpack(data)
     assert s2 == stream
+    # no virtual-region mask: written as version 3, byte for byte as before version 4
     assert (h2.n_surfels, h2.level, h2.color, h2.lifted, h2.coder, h2.map_method, h2.version) == (
-        1234, 5, color, True, b"\x07\x01abc", 2, FORMAT_VERSION)
+        1234, 5, color, True, b"\x07\x01abc", 2, 3)
+    assert FORMAT_VERSION == 4
     np.testing.assert_array_equal(h2.basis, np.float16(h.basis))
     np.testing.assert_array_equal(h2.mean, np.float32(h.mean))
     np.testing.assert_array_equal(h2.weights, np.float32(h.weights))
@@ -274,3 +276,72 @@ def test_one_plane_bound_for_anchors_and_zerotree():
 
     assert zerotree._MAX_PLANE is container.MAX_PLANE
     assert container.min_file_bytes(9) == -(-(10 * 4 ** 9 + 2) // container.GRID_PER_BYTE)
+
+
+@pytest.mark.parametrize("color", [True, False])
+def test_mask_section_round_trip(color):
+    from surfidx.container import region_code
+
+    h = _header(color)
+    h.mask, h.regions = b"\x12\x34\x56", (0, region_code(0, 0), region_code(0, 1))
+    h.tangent_weight, h.anchors = 0.5, (3, 2, 1, 1, 0)
+    stream = bytes(range(100))
+    data = pack(h, stream)
+    assert data[4] == 4 and data[5] & 16
+    assert len(data) == header_size(h.layers, len(h.coder), frames=True, anchors=5,
+                                    mask_bytes=3, regions=3) + len(stream)
+    h2, s2 = unpack(data)
+    assert (h2.version, h2.mask, h2.regions, s2) == (4, h.mask, h.regions, stream)
+    assert h2.tangent_weight == 0.5 and h2.anchors == h.anchors
+    cut = truncate(data, len(data) - 40)
+    h3, s3 = unpack(cut)
+    assert h3.mask == h.mask and h3.regions == h.regions and s3 == stream[:60]
+
+
+def test_multi_part_container():
+    from surfidx.container import (is_multipart, pack_parts, parts_overhead, split_budget,
+                                   unpack_parts)
+
+    a = pack(_header(False), bytes(range(200)))
+    h = _header(True)
+    h.n_surfels = 3 * 1234
+    b = pack(h, bytes(range(250)) * 4)
+    data = pack_parts([a, b])
+    assert is_multipart(data) and not is_multipart(a)
+    assert len(data) == parts_overhead(2) + len(a) + len(b) == 8 + 8 + 4 + len(a) + len(b)
+    assert unpack_parts(data) == [a, b] and unpack_parts(a) == [a]
+    budgets = split_budget(700, [1234, 3 * 1234])
+    assert sum(budgets) == 700 - parts_overhead(2) and budgets[1] in (3 * budgets[0],
+                                                                     3 * budgets[0] + 1,
+                                                                     3 * budgets[0] + 2)
+    cut = truncate(data, 700)
+    assert len(cut) <= 700
+    pa, pb = unpack_parts(cut)
+    assert unpack(pa)[1] == unpack(a)[1][:budgets[0] - (len(a) - 200)]
+    assert unpack(pb)[1] == unpack(b)[1][:budgets[1] - (len(b) - 1000)]
+    assert truncate(data, 10 ** 6) == data
+    with pytest.raises(InputError, match="part 0 of 2: a budget of"):
+        truncate(data, 100)
+
+
+def test_random_multi_part_garbage_never_crashes():
+    import struct
+    import zlib
+
+    from surfidx.container import FLAG_PARTS, unpack_parts
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        count = int(rng.integers(0, 70000))
+        body = rng.bytes(int(rng.integers(0, 400)))
+        head = struct.pack("<4sBBH", MAGIC, 4, FLAG_PARTS, count & 0xFFFF)
+        data = head + body
+        if rng.random() < 0.5 and 8 + 4 * (count & 0xFFFF) <= len(data):
+            n = count & 0xFFFF
+            data = data[:8 + 4 * n] + struct.pack("<I", zlib.crc32(data[:8 + 4 * n])) + data[
+                8 + 4 * n:]
+        try:
+            for p in unpack_parts(data):
+                unpack(p)
+        except BitstreamError:
+            pass
