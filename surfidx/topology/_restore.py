@@ -31,6 +31,8 @@ of its smallest vertex (first edge parents), so every hole and cut side survives
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -44,7 +46,9 @@ __all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surf
 _MAX_ROUNDS = 64   # clean-up rounds of the dropped regions (each round only grows them)
 
 
+@lru_cache(maxsize=2)
 def _grid_graph(level: int):
+    """The grid's vertex adjacency (read only: callers derive new matrices from it)."""
     g = icosphere(level)
     n = g.n_vertices
     ptr, nb = np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices)
