@@ -65,8 +65,9 @@ __all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_no
            "datasette_metadata", "ProcessedModel"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
-#: delete triggers that do not depend on the client's foreign-key setting, browsing views).
-SCHEMA_VERSION = 2
+#: delete triggers that do not depend on the client's foreign-key setting, browsing views;
+#: 3: ``model_topology``, what topology repair added to a model).
+SCHEMA_VERSION = 3
 
 #: ``PRAGMA application_id`` of a surfidx database: the bytes ``b"SFDX"``.
 APPLICATION_ID = int.from_bytes(b"SFDX", "big")
@@ -123,6 +124,11 @@ class ProcessedModel:
         version, descriptor lmax and normalisation, ...).
     timings : dict of str -> float
         Seconds per stage.
+    topology : dict or None
+        What topology repair added (:meth:`surfidx.io.Model.summary`: ``parts``,
+        ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
+        ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
+        for a model stored as it was read.
     """
 
     name: str
@@ -139,6 +145,7 @@ class ProcessedModel:
     thumbnail: bytes
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    topology: dict | None = None
 
 
 def schema_sql() -> str:
@@ -357,6 +364,42 @@ def _v1_to_v2(conn) -> None:
 
 
 _MIGRATIONS.append(_v1_to_v2)
+
+
+def _v2_to_v3(conn) -> None:
+    """Schema 2 → 3: the ``model_topology`` table, and the delete trigger of ``models`` that
+    also removes its rows (the old trigger is dropped and created as ``schema.sql`` has it)."""
+    conn.execute("DROP TRIGGER IF EXISTS models_delete_rows")
+    _create_missing(conn)
+
+
+_MIGRATIONS.append(_v2_to_v3)
+
+_TOPOLOGY_COLUMNS = ("parts", "parts_dropped", "holes_filled", "handles_cut", "pinched_vertices",
+                     "virtual_surfels", "virtual_area_share")
+
+
+def _topology_row(topology, name):
+    """The ``model_topology`` values of a record's ``topology`` dict (None: no row)."""
+    if topology is None:
+        return None
+    if not isinstance(topology, dict):
+        raise InputError(f"model {name!r}: topology must be a dict or None, got "
+                         f"{type(topology).__name__}")
+    vals = []
+    for col in _TOPOLOGY_COLUMNS:
+        v = topology.get(col, 1 if col == "parts" else 0)
+        try:
+            v = float(v) if col == "virtual_area_share" else int(v)
+        except (TypeError, ValueError):
+            raise InputError(f"model {name!r}: topology[{col!r}] must be a number, got "
+                             f"{v!r}") from None
+        ok = 0 <= v <= 1 if col == "virtual_area_share" else v >= (1 if col == "parts" else 0)
+        if not ok:
+            raise InputError(f"model {name!r}: topology[{col!r}] = {v!r} is out of range "
+                             "(parts >= 1, counts >= 0, virtual_area_share in 0..1)")
+        vals.append(v)
+    return (*vals, _to_json(topology, f"model {name!r} topology"))
 
 
 def datasette_metadata() -> dict:
@@ -773,6 +816,7 @@ class Database:
         ``source`` (OS text from file names) are stored through :func:`escape_name`.
         """
         row, asset, descs, png = self._rows_of(model)
+        topo = _topology_row(getattr(model, "topology", None), row["name"])
         with self.transaction():
             existing = self.conn.execute("SELECT id, name FROM models WHERE content_hash = ?",
                                          (row["content_hash"],)).fetchone()
@@ -802,6 +846,11 @@ class Database:
             self.conn.executemany(_INSERT_DESCRIPTOR, [(model_id, *d) for d in descs])
             self.conn.execute("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                               (model_id, png))
+            if topo is not None:
+                self.conn.execute(
+                    f"INSERT INTO model_topology (model_id, {', '.join(_TOPOLOGY_COLUMNS)}, "
+                    f"details) VALUES ({', '.join('?' * (len(_TOPOLOGY_COLUMNS) + 2))})",
+                    (model_id, *topo))
             self._descriptors_touched()
         return model_id
 
@@ -1195,8 +1244,10 @@ class Database:
         dict
             The ``models`` row (``params`` decoded, ``has_color`` bool, ``bbox`` a (2, 3) float64
             array instead of the six columns), plus ``"asset"`` (``format_version``,
-            ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``) and
-            ``"descriptors"`` (kind -> dimension).
+            ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``),
+            ``"descriptors"`` (kind -> dimension), ``"tags"`` and ``"topology"`` (what topology
+            repair added: the ``model_topology`` row with its ``details``, or None for a model
+            stored as it was read).
 
         Raises
         ------
@@ -1220,6 +1271,10 @@ class Database:
             (model_id,)).fetchall())
         rec["tags"] = [r[0] for r in conn.execute(
             "SELECT tag FROM tags WHERE model_id = ? ORDER BY tag", (model_id,))]
+        t = conn.execute(f"SELECT {', '.join(_TOPOLOGY_COLUMNS)}, details FROM model_topology "
+                         "WHERE model_id = ?", (model_id,)).fetchone()
+        rec["topology"] = None if t is None else dict(
+            json.loads(t[-1]), **dict(zip(_TOPOLOGY_COLUMNS, t[:-1])))
         return rec
 
     def get_stream(self, id_or_name) -> bytes:

@@ -96,10 +96,20 @@ class TriangleMesh:
     texture : (h, w, 3) uint8, optional
         Texture image, row 0 at the top (v = 1).
     name : str, optional
+    face_patch : (m,) int64, optional
+        Virtual patch of each face (-1: a face of the scan, ``p >= 0``: a face topology repair
+        added to cap boundary loop ``p``, :func:`surfidx.topology.close_surface`). Kept by
+        :meth:`bisected` (both halves of a face keep its label) and turned into the surfels'
+        :attr:`SurfelSet.patch` by :meth:`to_surfels`: a surfel is virtual, of patch ``p``, when
+        every face around it is of patch ``p`` (so an edge midpoint inside a patch, a chord
+        across it included, is virtual; one on the rim is real). ``None``: all faces are real.
+    patch_cut : (P,) int64, optional
+        Per patch, the handle cut it closes or -1 for a hole (:attr:`SurfelSet.patch_cut`);
+        only with ``face_patch``.
     """
 
     def __init__(self, vertices, faces, *, vertex_colors=None, uv=None, uv_faces=None,
-                 texture=None, name=None):
+                 texture=None, name=None, face_patch=None, patch_cut=None):
         self.vertices = as_array(vertices, "vertices", shape=(None, 3))
         self.faces = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
         n = len(self.vertices)
@@ -116,6 +126,19 @@ class TriangleMesh:
             raise InputError("texture-coordinate indices out of range")
         self.texture = texture
         self.name = name
+        self.face_patch = self.patch_cut = None
+        if face_patch is not None:
+            self.face_patch = as_array(face_patch, "face_patch", dtype=np.int64,
+                                       shape=(len(self.faces),))
+            if self.face_patch.size and self.face_patch.min() < -1:
+                raise InputError(f"face_patch labels must be -1 (a face of the scan) or a patch "
+                                 f"index >= 0, got {int(self.face_patch.min())}")
+            count = int(self.face_patch.max()) + 1 if self.face_patch.size else 0
+            self.patch_cut = np.full(count, -1, np.int64) if patch_cut is None else as_array(
+                patch_cut, "patch_cut", dtype=np.int64, shape=(None,))
+        elif patch_cut is not None:
+            raise InputError("patch_cut was given without face_patch; pass the per-face patch "
+                             "labels")
 
     # ------------------------------------------------------------------ geometry
     def face_normals(self, *, unit: bool = True) -> np.ndarray:
@@ -269,8 +292,10 @@ class TriangleMesh:
         nrm = vnormals[used]
         colors = self._vertex_colors()
         colors = None if colors is None else colors[used]
+        patch = self.vertex_patch()
         return SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
-                         name=self.name)
+                         name=self.name, patch=None if patch is None else patch[used],
+                         patch_cut=self.patch_cut)
 
     def nondegenerate_faces(self, areas: np.ndarray | None = None) -> np.ndarray:
         """(m,) bool: faces with three distinct corners and an area of at least
@@ -290,7 +315,9 @@ class TriangleMesh:
         """The mesh with only the faces ``keep`` selects (vertices unchanged)."""
         uv_faces = None if self.uv_faces is None else self.uv_faces[keep]
         return TriangleMesh(self.vertices, self.faces[keep], vertex_colors=self.vertex_colors,
-                            uv=self.uv, uv_faces=uv_faces, texture=self.texture, name=self.name)
+                            uv=self.uv, uv_faces=uv_faces, texture=self.texture, name=self.name,
+                            face_patch=None if self.face_patch is None else self.face_patch[keep],
+                            patch_cut=self.patch_cut)
 
     def median_edge_length(self) -> float:
         """Median length of the faces' edges (an edge shared by two faces counts twice)."""
@@ -331,6 +358,7 @@ class TriangleMesh:
         uv, uv_faces = self.uv, self.uv_faces
         if uv is None or uv_faces is None:
             uv = uv_faces = None
+        fpatch = self.face_patch
         limit = _MAX_BISECTION_GROWTH * len(verts) + 1000
         # every round adds at least one vertex (faces with a repeated corner, whose longest edge
         # is held twice by one face, could stall it: they are refused), so ``limit`` rounds bound
@@ -358,6 +386,8 @@ class TriangleMesh:
             keep = np.ones(len(faces), bool)
             keep[rows] = False
             faces = np.vstack([faces[keep], np.stack([a, mid, c], 1), np.stack([mid, b, c], 1)])
+            if fpatch is not None:      # both halves keep the face's patch
+                fpatch = np.concatenate([fpatch[keep], fpatch[rows], fpatch[rows]])
             if uv is not None:
                 ua, ub, uc = (uv_faces[rows, (k + i) % 3] for i in range(3))
                 # one new texture coordinate per split face, so seams stay seams
@@ -370,7 +400,24 @@ class TriangleMesh:
         if colors is not None:
             colors = np.clip(np.round(colors), 0, 255).astype(np.uint8)
         return TriangleMesh(verts, faces, vertex_colors=colors, uv=uv, uv_faces=uv_faces,
-                            texture=self.texture, name=self.name)
+                            texture=self.texture, name=self.name, face_patch=fpatch,
+                            patch_cut=self.patch_cut)
+
+    def vertex_patch(self) -> np.ndarray | None:
+        """(n,) int64 virtual patch of each vertex from :attr:`face_patch`, or None.
+
+        ``p`` when every face around the vertex is of patch ``p``; -1 otherwise (a vertex of a
+        scan's face, or on the seam of two patches, or of no face).
+        """
+        if self.face_patch is None:
+            return None
+        n = len(self.vertices)
+        lo = np.full(n, np.iinfo(np.int64).max, np.int64)
+        hi = np.full(n, -2, np.int64)
+        for k in range(3):
+            np.minimum.at(lo, self.faces[:, k], self.face_patch)
+            np.maximum.at(hi, self.faces[:, k], self.face_patch)
+        return np.where((lo == hi) & (lo >= 0), lo, -1)
 
     def _orientation_sign(self) -> float:
         """-1 when the mesh is closed and its winding encloses negative volume (inward), else +1.
@@ -493,7 +540,9 @@ class TriangleMesh:
             uv = np.einsum("ij,ijk->ik", b, self.uv[self.uv_faces[tri]])
             colors = np.clip(np.round(sample_texture(self.texture, uv)), 0, 255).astype(np.uint8)
         radii = spacing_radii(pos)
-        return SurfelSet(pos, nrm, radii, colors, name=self.name)
+        patch = None if self.face_patch is None else self.face_patch[tri]
+        return SurfelSet(pos, nrm, radii, colors, name=self.name, patch=patch,
+                         patch_cut=self.patch_cut)
 
 
 def _bisection_round(verts: np.ndarray, faces: np.ndarray, max_edge: float):

@@ -15,7 +15,7 @@ import numpy as np
 from .database import ProcessedModel
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
-           "describe_stream", "redescribe", "output_level"]
+           "describe_stream", "redescribe", "output_level", "combine_descriptors"]
 
 
 def content_hash(path, *, texture=None) -> str:
@@ -55,6 +55,81 @@ def _identity(path, surfels, texture, name):
         return str(label), "<memory>", model_hash(surfels)
     return (str(name or Path(path).stem), str(Path(path).resolve()),
             content_hash(path, texture=texture))
+
+
+def combine_descriptors(sets, weights):
+    """One descriptor set for a model of several parts: the parts' vectors averaged.
+
+    Each kind's vector is the mean of the parts' vectors weighted by ``weights`` (their surfel
+    counts): a large part dominates as it dominates the surface, a part of 1 % moves the vectors
+    by about 1 % of its difference. The parts' vectors are energies and distributions of
+    normalised layers (scale, position and orientation removed per part), so their mean is a
+    vector of the same kind, comparable with a one-part model's by the same distance; a kind
+    that only some parts have (``texture``: colour) is averaged over those. One part: its own set,
+    unchanged.
+
+    Parameters
+    ----------
+    sets : sequence of surfidx.descriptors.DescriptorSet
+    weights : sequence of float
+        Positive, one per set.
+
+    Returns
+    -------
+    surfidx.descriptors.DescriptorSet
+        ``params`` of the first set plus ``parts`` (the count) when there are several.
+
+    Raises
+    ------
+    InputError
+        When ``sets`` is empty, the counts differ, a weight is not positive or the sets' params
+        differ.
+    """
+    from ._errors import InputError
+    from .descriptors import DescriptorSet
+
+    sets, w = list(sets), np.asarray(weights, np.float64)
+    if not sets or len(sets) != len(w):
+        raise InputError(f"combine_descriptors needs one weight per descriptor set and at least "
+                         f"one set, got {len(sets)} sets and {len(w)} weights")
+    if not np.all(np.isfinite(w) & (w > 0)):
+        raise InputError(f"descriptor weights must be positive, got {w.tolist()}")
+    if len(sets) == 1:
+        return sets[0]
+    if any(s.params != sets[0].params for s in sets[1:]):
+        raise InputError("the parts' descriptors were made with different conventions "
+                         "(params); describe every part with the same lmax")
+    vectors = {}
+    for kind in dict.fromkeys(k for s in sets for k in s.vectors):
+        have = [(s.vectors[kind], wi) for s, wi in zip(sets, w) if kind in s.vectors]
+        ww = np.array([wi for _, wi in have])
+        v = sum(np.asarray(x, np.float64) * wi for x, wi in have) / ww.sum()
+        vectors[kind] = v.astype(np.float32)
+    return DescriptorSet(vectors=vectors, params=dict(sets[0].params, parts=len(sets)))
+
+
+def _read(timings, progress, path, texture, samples, allow_outside_textures):
+    """:func:`surfidx.io.read_model` timed as the ``read`` stage; its repair's CPU seconds in
+    ``timings["repair_cpu"]`` (the reading and the repair together, when anything was
+    repaired)."""
+    import time
+
+    from .io import read_model
+
+    cpu = time.process_time()
+    model = _timed(timings, "read", progress, read_model, path, texture=texture, samples=samples,
+                   allow_outside_textures=allow_outside_textures)
+    if model.repaired:
+        timings["read_cpu"] = time.process_time() - cpu
+    return model
+
+
+def _reference(model):
+    """The surfels a decoded model is compared with: the scan's own (virtual ones left out)."""
+    s = model.surfels
+    if s.patch is None or not s.virtual.any():
+        return s
+    return s.subset(~s.virtual)
 
 
 def _timed(timings, stage, progress, fn, *args, **kwargs):
@@ -124,29 +199,50 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     """
     import time
 
+    from ._errors import TopologyError
     from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
-    from .io import read_surfels
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
     from .render import render
     from .resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     timings = {}
-    surfels = _timed(timings, "read", progress, read_surfels, path, texture=texture,
-                     samples=samples, allow_outside_textures=allow_outside_textures)
-    enc = Encoder(surfels, level=level, method=method, progress=progress)
-    timings.update(enc.setup_seconds)
+    model = _read(timings, progress, path, texture, samples, allow_outside_textures)
+    surfels = model.surfels
     t0 = time.perf_counter()
-    stream = enc.encode(bits_per_surfel, progress=progress)
+    if len(model.parts) == 1:
+        enc = Encoder(model.parts[0], level=level, method=method, progress=progress)
+        encoders = [enc]
+        timings.update(enc.setup_seconds)
+        t0 = time.perf_counter()
+        stream = enc.encode(bits_per_surfel, progress=progress)
+    else:
+        from . import codec
+
+        if not hasattr(codec, "PartsEncoder"):
+            raise TopologyError(f"the model has {len(model.parts)} parts and this surfidx's codec "
+                                "stores one part per stream; store its largest piece, or update "
+                                "surfidx (container format v4 stores several parts)")
+        pe = codec.PartsEncoder(list(model.parts), level=level, method=method,
+                                progress=progress)
+        encoders = list(pe.encoders)
+        for e in encoders:
+            for k, v in e.setup_seconds.items():
+                timings[k] = timings.get(k, 0.0) + v
+        t0 = time.perf_counter()
+        stream = pe.encode(bits_per_surfel)
     timings["encode"] = time.perf_counter() - t0
     decoded = _timed(timings, "decode", progress, decode, stream)
-    q = _timed(timings, "evaluate", progress, evaluate, surfels, decoded)
+    q = _timed(timings, "evaluate", progress, evaluate, _reference(model), decoded)
     quality = {k: q[k] for k in ("psnr_d1", "psnr_d2", "psnr_y")}
-    desc = _timed(timings, "describe", progress, describe_grid, enc.grid, enc.level,
-                  lmax=DEFAULT_LMAX if lmax is None else lmax)
+    lm = DEFAULT_LMAX if lmax is None else lmax
+    desc = _timed(timings, "describe", progress, lambda: combine_descriptors(
+        [describe_grid(e.grid, e.level, lmax=lm) for e in encoders],
+        [len(p) for p in model.parts]))
     thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
         render(decoded, width=thumbnail_size, height=thumbnail_size, view="principal")))
+    enc = encoders[0]
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
               "color_weight": COLOR_WEIGHT, "samples": samples,
@@ -154,14 +250,17 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
               "max_edge_ratio": MAX_EDGE_RATIO if from_mesh else None,
               "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS},
               "texture": None if texture is None else str(texture),
-              "folded": int(enc.sphere_map.folded),
+              "folded": int(sum(int(e.sphere_map.folded) for e in encoders)),
               "descriptors": desc.params}
+    if len(encoders) > 1:
+        params["part_levels"] = [int(e.level) for e in encoders]
     label, source, digest = _identity(path, surfels, texture, name)
     return ProcessedModel(
         name=str(label), source=source, content_hash=digest, n_surfels=len(surfels),
         has_color=surfels.has_color, bbox=surfels.bounds, stream=stream,
         format_version=CODEC_VERSION, rate=8.0 * len(stream) / len(surfels), quality=quality,
-        descriptors=desc.vectors, thumbnail=thumb, params=params, timings=timings)
+        descriptors=desc.vectors, thumbnail=thumb, params=params, timings=timings,
+        topology=model.summary() if model.repaired else None)
 
 
 @dataclass
@@ -181,6 +280,9 @@ class DescribedModel:
         PNG of the input surfels (not of a decoded stream), when asked for.
     timings : dict of str -> float
         Wall seconds per stage (figures only).
+    topology : dict or None
+        What the topology repair added (:meth:`surfidx.io.Model.summary`); None when the model
+        was taken as it is.
     """
 
     name: str
@@ -192,6 +294,7 @@ class DescribedModel:
     grid_level: int
     thumbnail: bytes | None = None
     timings: dict = field(default_factory=dict)
+    topology: dict | None = None
 
 
 def describe_model(path, *, texture=None, samples: int | None = None, level: int | None = None,
@@ -232,7 +335,6 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
 
     from ._errors import InputError
     from .descriptors import DEFAULT_LMAX, describe_grid
-    from .io import read_surfels
     from .render import render
     from .resample import resample
     from .sphere import METHODS, parameterize
@@ -240,16 +342,23 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     if method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     timings = {}
-    surfels = _timed(timings, "read", progress, read_surfels, path, texture=texture,
-                     samples=samples, allow_outside_textures=allow_outside_textures)
-    t0 = time.perf_counter()
-    sphere_map = parameterize(surfels, method=method, stress=False, progress=progress)
-    timings["map"] = time.perf_counter() - t0
-    grid_level = sphere_map.grid_level if level is None else level
-    grid = _timed(timings, "resample", progress, resample, surfels, sphere_map.points,
-                  grid_level, color=surfels.has_color)
-    desc = _timed(timings, "describe", progress, describe_grid, grid, grid_level,
-                  lmax=DEFAULT_LMAX if lmax is None else lmax)
+    model = _read(timings, progress, path, texture, samples, allow_outside_textures)
+    surfels = model.surfels
+    lm = DEFAULT_LMAX if lmax is None else lmax
+    sets, levels = [], []
+    for part in model.parts:
+        t0 = time.perf_counter()
+        sphere_map = parameterize(part, method=method, stress=False, progress=progress)
+        timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
+        grid_level = sphere_map.grid_level if level is None else level
+        t0 = time.perf_counter()
+        grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,
+                      grid_level, color=part.has_color)
+        d = _timed(timings, "describe", progress, describe_grid, grid, grid_level, lmax=lm)
+        sets.append(d)
+        levels.append(int(grid_level))
+    desc = combine_descriptors(sets, [len(p) for p in model.parts])
+    grid_level = levels[0]
     thumb = None
     if thumbnail_size is not None:
         thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
@@ -258,7 +367,7 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     return DescribedModel(name=label, source=source, content_hash=digest,
                           n_surfels=len(surfels), has_color=surfels.has_color,
                           descriptors=desc, grid_level=int(grid_level), thumbnail=thumb,
-                          timings=timings)
+                          timings=timings, topology=model.summary() if model.repaired else None)
 
 
 def output_level(stream: bytes, *, path=None) -> int | None:

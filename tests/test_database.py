@@ -129,7 +129,7 @@ def test_built_package_finds_schema(tmp_path):
 
 def test_new_database_layout(db):
     assert db.schema_version == SCHEMA_VERSION
-    assert set(db.db.table_names()) == set(dbmod._TABLES) | {"tags"}
+    assert set(db.db.table_names()) == set(dbmod._TABLES) | {"tags", "model_topology"}
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
     meta = dict(db.conn.execute("SELECT key, value FROM meta"))
@@ -872,7 +872,7 @@ def _real_v1_database(path):
     conn = sqlite3.connect(path)
     for stmt in dbmod._statements(schema_sql()):
         code = "\n".join(ln for ln in stmt.splitlines() if not ln.strip().startswith("--"))
-        if __import__("re").search(r"\b(tags|TRIGGER|VIEW)\b", code):
+        if __import__("re").search(r"\b(tags|TRIGGER|VIEW|model_topology)\b", code):
             continue
         conn.execute(stmt.replace("CREATE UNIQUE INDEX models_name", "CREATE INDEX models_name"))
     conn.execute("INSERT INTO meta VALUES ('schema_version', '1')")
@@ -895,7 +895,7 @@ def test_real_migration_1_to_2(tmp_path):
     path = tmp_path / "v1.db"
     _real_v1_database(path)
     with Database(path) as d:
-        assert d.schema_version == 2
+        assert d.schema_version == SCHEMA_VERSION
         assert d.conn.execute("SELECT id, name FROM models ORDER BY id").fetchall() == [
             (1, "twin"), (2, "b")]
         assert d.conn.execute("SELECT model_id FROM thumbnails").fetchall() == [(1,), (2,)]

@@ -1,4 +1,4 @@
--- surfidx model database: the one source of truth of the schema (current schema version 2).
+-- surfidx model database: the one source of truth of the schema (current schema version 3).
 --
 -- surfidx.database creates a new database by executing this file in one transaction and then
 -- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION and PRAGMA application_id to
@@ -74,6 +74,23 @@ CREATE TABLE descriptors (
 );
 CREATE INDEX descriptors_kind ON descriptors (kind);
 
+-- What topology repair added before mapping (surfidx.io.read_model): one row per model that
+-- was not one closed genus-0 piece as read (holes, handles, pinched vertices, several pieces),
+-- none for a model stored as it was. virtual_area_share: virtual faces' area over the closed
+-- parts' area. details: JSON of surfidx.io.Model.summary() (genus per part, flipped faces...).
+CREATE TABLE model_topology (
+    model_id           INTEGER PRIMARY KEY REFERENCES models (id) ON DELETE CASCADE,
+    parts              INTEGER NOT NULL CHECK (parts >= 1),
+    parts_dropped      INTEGER NOT NULL DEFAULT 0 CHECK (parts_dropped >= 0),
+    holes_filled       INTEGER NOT NULL DEFAULT 0 CHECK (holes_filled >= 0),
+    handles_cut        INTEGER NOT NULL DEFAULT 0 CHECK (handles_cut >= 0),
+    pinched_vertices   INTEGER NOT NULL DEFAULT 0 CHECK (pinched_vertices >= 0),
+    virtual_surfels    INTEGER NOT NULL DEFAULT 0 CHECK (virtual_surfels >= 0),
+    virtual_area_share REAL    NOT NULL DEFAULT 0
+                       CHECK (virtual_area_share >= 0 AND virtual_area_share <= 1),
+    details            TEXT    NOT NULL DEFAULT '{}'
+);
+
 -- A PNG picture of the decoded model.
 CREATE TABLE thumbnails (
     model_id INTEGER PRIMARY KEY REFERENCES models (id) ON DELETE CASCADE,
@@ -121,6 +138,7 @@ BEGIN
     DELETE FROM descriptors WHERE model_id = OLD.id;
     DELETE FROM thumbnails WHERE model_id = OLD.id;
     DELETE FROM tags WHERE model_id = OLD.id;
+    DELETE FROM model_topology WHERE model_id = OLD.id;
 END;
 
 CREATE TRIGGER ingest_runs_delete_errors AFTER DELETE ON ingest_runs

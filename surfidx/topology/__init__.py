@@ -11,7 +11,9 @@ pieces. This package analyses a mesh and repairs it in steps, one module each:
 4. :mod:`._handles`: each handle cut along its shortest greedy homotopy generator (tree-cotree),
    until the genus is 0;
 5. :mod:`._holes`: each boundary loop (holes and both sides of every cut) capped by a fair
-   patch (Liepa 2003) of *virtual* vertices and faces.
+   patch (Liepa 2003) of *virtual* vertices and faces;
+6. :mod:`._surfels`: the closed piece as a :class:`~surfidx.TriangleMesh` with its virtual faces
+   labelled (:func:`closed_mesh`), whose surfels carry the patch labels the codec codes.
 
 The scan itself is not changed: its vertices come first and keep their positions, its faces come
 first, in their order, only renumbered where a vertex was duplicated (split or cut) and reversed
@@ -38,9 +40,10 @@ from ._holes import fill_holes
 from ._options import RepairOptions
 from ._pieces import drop_threshold, piece_faces
 from ._pinch import split_pinched
+from ._surfels import closed_mesh, patch_cuts
 
 __all__ = ["RepairOptions", "TopologyReport", "RepairReport", "CutCycle", "ClosedSurface", "Part",
-           "Parts", "analyse", "close_surface", "split_parts"]
+           "Parts", "analyse", "close_surface", "split_parts", "closed_mesh", "patch_cuts"]
 
 
 @dataclass(frozen=True)
