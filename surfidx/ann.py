@@ -48,9 +48,9 @@ Descriptors of one kind made with two conventions are refused as by
 
 from __future__ import annotations
 
+import functools
 import json
 import os
-import secrets
 from pathlib import Path
 
 import numpy as np
@@ -85,9 +85,16 @@ _COLOUR_KIND = "texture"
 #: Kinds of an index made without a search naming its kinds (:func:`update` after an ingest
 #: into a database without an index); a search of other kinds rebuilds it for its own.
 BUILD_KINDS = ("shape", "spectrum", "texture")
-#: Per-column multipliers of :func:`_digest` (fixed: digests are stored).
-_MULT = np.random.default_rng(0x5F5A).integers(1, 2 ** 63, size=1024,
-                                               dtype=np.uint64) | np.uint64(1)
+#: Columns :func:`_digest` takes at most.
+_DIGEST_WIDTH = 1024
+
+
+@functools.lru_cache(maxsize=1)
+def _multipliers() -> np.ndarray:
+    """Per-column odd multipliers of :func:`_digest` (fixed: digests are stored; made on first
+    use, so that a query, which never digests, does not import ``numpy.random``)."""
+    return np.random.default_rng(0x5F5A).integers(1, 2 ** 63, size=_DIGEST_WIDTH,
+                                                  dtype=np.uint64) | np.uint64(1)
 
 
 def index_dir(db_path) -> Path:
@@ -123,13 +130,14 @@ def _usearch():
 def _digest(*mats) -> np.ndarray:
     """A 64-bit digest per row of float32 matrices side by side (exact bytes, order-aware)."""
     words = np.hstack([np.ascontiguousarray(m, np.float32).view(np.uint32) for m in mats])
-    if words.shape[1] > _MULT.size:
+    if words.shape[1] > _DIGEST_WIDTH:
         raise InputError(f"rows of {words.shape[1]} values are too wide for the index digest "
-                         f"(at most {_MULT.size})")
+                         f"(at most {_DIGEST_WIDTH})")
+    mult = _multipliers()
     with np.errstate(over="ignore"):
         acc = np.zeros(words.shape[0], np.uint64)
         for j in range(words.shape[1]):          # column loop, vectorised over rows
-            acc = (acc ^ words[:, j].astype(np.uint64)) * _MULT[j]
+            acc = (acc ^ words[:, j].astype(np.uint64)) * mult[j]
     return acc
 
 
@@ -207,6 +215,27 @@ def _new_graph(ndim):
                       expansion_add=_EXPANSION_ADD)
 
 
+def _view(path, graph: dict, man: dict):
+    """A graph file memory-mapped for searches only.
+
+    Without key lookups: usearch otherwise hashes every key of the graph when it opens a view
+    (about 0.1 s CPU per million models, more than the rest of ``surfidx query id:N``'s work
+    on the index); a view is only searched (:func:`_catch_up` loads the graphs it changes).
+
+    Raises
+    ------
+    OSError
+        The file does not hold the graph the manifest names.
+    """
+    ix = _usearch()(ndim=int(graph["ndim"]), metric="l2sq", dtype=man.get("dtype", _DTYPE),
+                    connectivity=int(man.get("connectivity", _CONNECTIVITY)),
+                    enable_key_lookups=False)
+    ix.view(str(path))
+    if len(ix) != graph["count"] or ix.ndim != graph["ndim"]:
+        raise OSError(f"index file {path} does not match its manifest")
+    return ix
+
+
 def _marks(db) -> tuple:
     """What moves when any connection changes the database: ``PRAGMA data_version`` (commits of
     other connections) and the generation counter (this connection's changes)."""
@@ -259,16 +288,14 @@ class AnnIndex:
         return int(len(self._ix["shape"])) if "shape" in self._ix else 0
 
     def _graph(self, name):
-        """The graph ``name`` (memory-mapped on first use: opening a view reads the node
-        offsets of the whole graph), or None; a damaged file is rebuilt."""
+        """The graph ``name`` (memory-mapped on first use, see :func:`_view`), or None; a
+        damaged file is rebuilt."""
         if name in self._ix or name not in self._lazy:
             return self._ix.get(name)
         path = self._lazy[name]
         f = self.manifest["graphs"][name]
         try:
-            got = _usearch().restore(str(path), view=True)
-            if got is None or len(got) != f["count"] or got.ndim != f["ndim"]:
-                raise OSError(f"index file {path} does not match its manifest")
+            got = _view(path, f, self.manifest)
         except (OSError, ValueError, RuntimeError):
             new = build(self._db, kinds=self.kinds, write=self._write)
             self.__dict__.update(new.__dict__)
@@ -434,7 +461,7 @@ class AnnIndex:
     def _save(self, d: Path) -> bool:
         """Write the index files and then the manifest (atomically); False when the folder
         cannot be written (the index stays in memory)."""
-        token = secrets.token_hex(6)
+        token = os.urandom(6).hex()
         old = _read_manifest(d)
         written = []
 
@@ -473,12 +500,7 @@ class AnnIndex:
                              **{f"{g}_digest": v[1] for g, v in dg.items()})
             put(dname, write_digests)
             man = dict(self.manifest, graphs=graphs, rows=rows, digests=dname)
-            tmp = d / f"manifest.{token}.tmp"
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump(man, f, indent=1, sort_keys=True)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, d / "manifest.json")
+            _write_manifest(d, man, token)
             self.manifest = man
         except OSError:
             for p in written:
@@ -492,6 +514,22 @@ class AnnIndex:
                     with _quiet():
                         (d / name).unlink()
         return True
+
+
+def _write_manifest(d: Path, man: dict, token: str) -> None:
+    """Replace the manifest of folder ``d`` by ``man`` (written and synced first, then
+    ``os.replace``: a reader sees the old manifest or the new one, whole)."""
+    tmp = d / f"manifest.{token}.tmp"
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            json.dump(man, f, indent=1, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, d / "manifest.json")
+    except OSError:
+        with _quiet():
+            tmp.unlink()
+        raise
 
 
 def _positions(sorted_ids, ids) -> tuple:
@@ -635,6 +673,22 @@ def open_index(db, *, kinds=None, write: bool = True) -> AnnIndex:
     return build(db, kinds=kinds, write=write)
 
 
+def _changes(old_ids, old_digests, ids, digests) -> tuple:
+    """Models indexed but stored no more (``gone``) and stored but not indexed as they are now
+    (``changed``: new or with other rows), from ascending ids and their digests.
+
+    Returns
+    -------
+    gone : list of int
+    changed : list of int
+    """
+    gone = old_ids[~np.isin(old_ids, ids)]
+    pos, has = _positions(old_ids, ids)
+    if old_ids.size:
+        has &= old_digests[pos] == digests
+    return gone.tolist(), ids[~has].tolist()
+
+
 def _catch_up(db, d, man, state, *, write):
     """Patch a stale index to the rows stored now (or rebuild it)."""
     kinds = tuple(man["kinds"])
@@ -645,14 +699,19 @@ def _catch_up(db, d, man, state, *, write):
     plan = {}
     for graph, (ids, _, dg) in rows["graphs"].items():
         oid, odg = old.get(graph, (np.zeros(0, np.int64), np.zeros(0, np.uint64)))
-        now = dict(zip(ids.tolist(), dg.tolist()))
-        was = dict(zip(oid.tolist(), odg.tolist()))
-        gone = [i for i in was if i not in now]
-        changed = [i for i, h in now.items() if was.get(i) != h]
-        plan[graph] = (gone, changed)
+        plan[graph] = _changes(np.asarray(oid, np.int64), np.asarray(odg, np.uint64), ids, dg)
     total = max(rows["graphs"]["shape"][0].size, 1)
     if sum(len(g) + len(c) for g, c in plan.values()) > _REBUILD_SHARE * total:
         return build(db, kinds=kinds, write=write)
+    if not any(len(g) or len(c) for g, c in plan.values()):
+        # every row as indexed (e.g. a schema upgrade or a change undone): the same files
+        # under a manifest of the state now
+        man = dict(man, state=state)
+        if write:
+            with _quiet():
+                _write_manifest(d, man, os.urandom(6).hex())
+        graphs, per = _load(d, man, view=True)
+        return AnnIndex(db, graphs, per, man, None, write=write)
     ix, _ = _load(d, man, view=False)
     for graph, (src_ids, src, _) in rows["graphs"].items():
         gone, changed = plan[graph]
