@@ -329,6 +329,18 @@ def _boundary_loops(faces, n):
     return loops
 
 
+def _edge_counts(faces, n):
+    """Undirected edge keys ``min·n + max`` of ``faces`` and how many faces hold each."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    keys = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])
+    return np.unique(keys, return_counts=True)
+
+
+def _loop_keys(loop, n):
+    nxt = np.roll(loop, -1)
+    return np.minimum(loop, nxt) * n + np.maximum(loop, nxt)
+
+
 def _arc(P):
     seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
     total = seg.sum()
@@ -447,11 +459,26 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
             k, s = region_cut(codes[r])
             if k >= 0:
                 by_side.setdefault(k, {}).setdefault(s, []).append(lp)
+        edges = _edge_counts(kept, n)
+        taken = np.zeros(n, bool)
         for k in sorted(by_side):
             sides = by_side[k]
-            if len(sides.get(0, ())) == 1 and len(sides.get(1, ())) == 1 and not np.intersect1d(
-                    sides[0][0], sides[1][0]).size:
-                strips.append(zip_loops(positions, sides[0][0], sides[1][0]))
+            ok = len(sides.get(0, ())) == 1 and len(sides.get(1, ())) == 1
+            if ok:
+                a, b = sides[0][0], sides[1][0]
+                ok = not (taken[a].any() or taken[b].any() or np.intersect1d(a, b).size)
+            if ok:
+                strip = zip_loops(positions, a, b)
+                # a strip edge the mesh has already (a band one face wide between the loops)
+                # would be an edge of three faces: leave the cut open instead
+                new_edges = _edge_counts(strip, n)
+                common = np.intersect1d(new_edges[0], edges[0])
+                loop_keys = np.concatenate([_loop_keys(a, n), _loop_keys(b, n)])
+                ok = np.isin(common, loop_keys).all() and not (new_edges[1] > 2).any()
+            if ok:
+                strips.append(strip)
+                taken[a] = taken[b] = True
+                edges = _edge_counts(np.vstack([kept] + strips), n)
                 zipped += 1
             else:
                 unzipped += 1
