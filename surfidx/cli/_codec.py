@@ -6,7 +6,7 @@ import click
 
 from ..sphere import METHODS
 from ._common import (command_errors, echo_json, input_options, output_format_option, plain,
-                      progress_options, reading, stage_progress)
+                      progress_options, stage_progress)
 from ._group import cli
 
 
@@ -36,23 +36,26 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
            density_weighting, texture, samples, quiet, verbose, as_json):
     """Encode a model into an embedded .sfz bitstream.
 
-    A mesh that is not one closed genus-0 piece is repaired first (holes capped, handles cut,
-    pinches split, tiny pieces dropped: surfidx.topology); the virtual patches are coded as a
-    mask, so decoding gives back the open (or genus-g) surface, and each piece is one part of
+    A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model: holes
+    capped, handles cut, pinches split, tiny pieces dropped); the virtual patches are coded as
+    a mask, so decoding gives back the open (or genus-g) surface, and each piece is one part of
     the file."""
     from ..codec import TANGENT_WEIGHT, PartsEncoder, stream_summary
-    from ..io import write_atomic
+    from ..io import read_model, write_atomic
     from ..progress import report
-    from ..topology._restore import repair_parts
+    from ._common import allow_outside_textures
 
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
     tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
     with stage_progress(quiet=quiet, verbose=verbose) as progress:
-        s = reading(progress, input, texture, samples)
-        report(progress, "repair", 0, 1)
-        parts, fps, dropped = repair_parts(s)
-        report(progress, "repair", 1, 1)
+        report(progress, "read", 0, 1)
+        model = read_model(input, texture=texture, samples=samples,
+                           allow_outside_textures=allow_outside_textures())
+        report(progress, "read", 1, 1)
+        parts = list(model.parts)
+        fps = [model.face_patch(i) for i in range(len(parts))]
+        dropped = model.parts_dropped
         pe = PartsEncoder(parts, level=level, color=False if no_color else None, method=method,
                           tangent_weight=tw, density_weighting=density_weighting,
                           progress=progress, face_patches=fps)

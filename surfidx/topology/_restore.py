@@ -41,7 +41,7 @@ from .._errors import BitstreamError, InputError
 from ..icosphere import icosphere, vertex_count
 
 __all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surfels",
-           "repair_parts", "RestoredMesh", "check_regions", "zip_loops"]
+           "RestoredMesh", "check_regions", "zip_loops"]
 
 _MAX_ROUNDS = 64   # clean-up rounds of the dropped regions (each round only grows them)
 
@@ -578,42 +578,3 @@ def closed_surfels(closed, *, colors=None, name=None):
                     patch=vp, patch_cut=pc)
     return out, face_patch
 
-
-def repair_parts(surfels, *, options=None):
-    """A mesh's surfels as the parts :class:`surfidx.codec.PartsEncoder` codes.
-
-    A closed genus-0 single piece comes back as it is (its stream is the plain one); otherwise
-    the mesh (``surfels.faces``) is split into pieces (:func:`surfidx.topology.split_parts`,
-    tiny ones dropped with a warning) and each closed (:func:`surfidx.topology.close_surface`)
-    into :func:`closed_surfels` (colours carried).
-
-    Parameters
-    ----------
-    surfels : SurfelSet
-        With faces (from a mesh).
-    options : RepairOptions, optional
-
-    Returns
-    -------
-    parts : list of SurfelSet
-    face_patches : list of (m,) int64 or None
-    dropped : int
-        Tiny pieces dropped.
-    """
-    from . import RepairOptions, analyse, close_surface, split_parts
-
-    options = RepairOptions() if options is None else options
-    if surfels.faces is None:
-        return [surfels], [None], 0
-    report = analyse(surfels.positions, surfels.faces, options=options)
-    if report.is_sphere and report.vertices == len(surfels):
-        return [surfels], [None], 0
-    pieces = split_parts(surfels.positions, surfels.faces, options=options)
-    parts, fps = [], []
-    for piece in pieces.parts:
-        closed = close_surface(piece.vertices, piece.faces, options=options)
-        col = None if surfels.colors is None else surfels.colors[piece.vertex_index]
-        s, fp = closed_surfels(closed, colors=col, name=surfels.name)
-        parts.append(s)
-        fps.append(fp)
-    return parts, fps, pieces.dropped
