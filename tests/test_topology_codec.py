@@ -419,3 +419,32 @@ def test_too_coarse_a_grid_still_decodes_manifold():
                {"bits_per_surfel": 8.0 * (e.lowest_bytes() + 20) / e.n_surfels}):
         t = _topology(decode(data, mesh=True, **kw))
         assert t["manifold"] and t["parts"] == 1
+
+
+def test_more_new_errors(holes3):
+    from surfidx.resample import grid_patches
+
+    with pytest.raises(InputError, match="at most 4096 parts"):
+        PartsEncoder([None] * 4097)
+    data = holes3.encode(4.0)
+    with pytest.raises(BitstreamError, match="m.sfz: .*impossible code value"):
+        stream_summary(_rewrite(data, mask=b"\xff\xff\xff\xff"), path="m.sfz")
+    h, _ = container.unpack(data)
+    h.level = 10                                         # a grid finer than the codec's
+    big = container.pack(h, bytes(container.min_file_bytes(10)))
+    with pytest.raises(BitstreamError, match="grid level 10 is out of range"):
+        stream_summary(big)
+
+    class Huge(bytes):
+        def __len__(self):
+            return 2 ** 32
+
+    h, stream = container.unpack(data)
+    h.mask = Huge(b"x")
+    with pytest.raises(InputError, match="longer than 2"):
+        container.pack(h, stream)
+    s, fp = closed_surfels(close_surface(*_sphere_with_holes([0, 5, 9])))
+    pts = s.positions / np.linalg.norm(s.positions, axis=1)[:, None]
+    with pytest.raises(InputError, match="face_patch must hold -1 or a patch index below 3"):
+        grid_patches(s, pts, 2, face_patch=np.full(len(s.faces), 5))
+    assert (grid_patches(s, pts, 2, face_patch=fp) >= 0).any()
