@@ -19,7 +19,29 @@ models (paths under ``../shared/data/models`` or ``../shared/data/retrieval``);
 ``--no-retrieval`` leaves the retrieval models out; ``--mask`` adds the size of the virtual
 mask coded per grid vertex (:mod:`surfidx.topology._mask`) at the map's grid level.
 
-Run: ``python benchmarks/topology.py [--no-map] [--no-retrieval] [--models ...] [--mask]``
+``--ingest`` prints the issue's table instead, one row per model of ``--models`` (default the
+five real models), everything through the ingest path as it is:
+
+* before (:func:`surfidx.topology.analyse` of the file's mesh): holes, genus (largest piece),
+  pieces;
+* what the repair added (:func:`surfidx.io.read_model`'s :meth:`~surfidx.io.Model.summary`):
+  holes filled, handles cut, pinched vertices split, parts kept (dropped), virtual share of the
+  area;
+* CPU time (``time.process_time``) of the repair (analyse + split_parts + close_surface +
+  closed_mesh, on the file's mesh) and of the whole ingest of the model
+  (:func:`surfidx.pipeline.process_model` at ingest's 8 bits/surfel: read and repair, map,
+  resample, code, decode, evaluate, describe, thumbnail), and the repair's share of it (target
+  <= 10 %); whether the ingest succeeded;
+* the stored stream decoded at 2 and 4 bits/surfel (prefixes of the one stream,
+  :func:`surfidx.codec.decode`, virtual region dropped, cuts zipped): boundary loops, genus and
+  pieces counted independently on the decoded mesh (``topology`` of
+  ``benchmarks/topology_codec.py``: :func:`~surfidx.topology.analyse`) against the input's
+  (``same``: loops and genus equal, pieces equal to the input's less the dropped tiny ones),
+  PSNR_D2 of the decoded real surface against the input's surfels (one per used vertex, peak
+  the input's diagonal) and the mask sections' share of the stream.
+
+Run: ``python benchmarks/topology.py [--no-map] [--no-retrieval] [--models ...] [--mask]``,
+``python benchmarks/topology.py --ingest [--models ...] [--rates 2,4]``
 """
 
 from __future__ import annotations
@@ -96,13 +118,101 @@ def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
     return row
 
 
+def ingest_row(path: Path, rates) -> dict:
+    """One row of the ``--ingest`` table (see the module docstring)."""
+    import sys
+
+    from surfidx.codec import decode, max_file_bytes, stream_summary
+    from surfidx.io import read_model
+    from surfidx.metrics import psnr_d2
+    from surfidx.pipeline import process_model
+    from surfidx.topology import closed_mesh
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from topology_codec import topology
+
+    name = path.parent.name if path.parent.name.startswith("ycb") else path.stem
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mesh = surfidx.read_mesh(path)
+        ref = TriangleMesh(mesh.vertices, mesh.faces).to_surfels(max_edge_ratio=None)
+        t = time.process_time()
+        before = analyse(mesh.vertices, mesh.faces)
+        if not before.is_sphere:
+            parts = split_parts(mesh.vertices, mesh.faces)
+            colors = mesh._vertex_colors()
+            for p in parts.parts:
+                closed_mesh(close_surface(p.vertices, p.faces),
+                            colors=None if colors is None else colors[p.vertex_index])
+        t_repair = time.process_time() - t
+        summ = read_model(path).summary()
+    inp = topology(mesh.vertices, mesh.faces)
+    row = dict(model=name, V=len(ref), holes=before.holes, genus=before.genus[0],
+               pieces=before.parts, filled=summ["holes_filled"], cut=summ["handles_cut"],
+               split=summ["pinched_vertices"], parts=f"{summ['parts']} ({summ['parts_dropped']})",
+               virtual_area=summ["virtual_area_share"], t_repair=t_repair)
+    t = time.process_time()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = process_model(path, bits_per_surfel=8.0)
+    except surfidx.SurfidxError as exc:
+        row.update(ingest="NO", error=str(exc)[:80], t_ingest=time.process_time() - t)
+        return row
+    t_ingest = time.process_time() - t
+    row.update(t_ingest=t_ingest, share=100 * t_repair / t_ingest, ingest="yes")
+    n = rec.n_surfels
+    full = stream_summary(rec.stream)
+    mask_bytes = sum(full["mask_bytes"])
+    for r in rates:
+        m = decode(rec.stream, bits_per_surfel=r, mesh=True)
+        s = decode(rec.stream, bits_per_surfel=r)
+        out = topology(m.vertices, m.faces)
+        key = f"{r:g}"
+        row[f"loops@{key}"] = f"{inp['loops']}/{out['loops']}"
+        row[f"genus@{key}"] = f"{inp['genus']}/{out['genus']}"
+        row[f"pieces@{key}"] = f"{inp['pieces']}/{out['pieces']}"
+        row[f"same@{key}"] = "yes" if (out["loops"] == inp["loops"] and out["genus"] == inp["genus"]
+                                       and out["pieces"] == inp["pieces"] - summ["parts_dropped"]
+                                       ) else "NO"
+        row[f"psnr_d2@{key}"] = psnr_d2(ref, s, peak=ref.diagonal)
+        row[f"mask%@{key}"] = 100 * mask_bytes / max_file_bytes(r, n)
+    return row
+
+
+def ingest_table(paths, rates) -> None:
+    cols = ["model", "V", "holes", "genus", "pieces", "filled", "cut", "split", "parts",
+            "virtual_area", "t_repair", "t_ingest", "share", "ingest"]
+    for r in rates:
+        cols += [f"{c}@{r:g}" for c in ("loops", "genus", "pieces", "same", "psnr_d2", "mask%")]
+    print("before: holes, genus (largest piece), pieces; added: filled, cut, split, parts "
+          "(dropped), virtual share of the area; CPU s: repair, whole ingest (8 b/s), repair "
+          "share %; decoded at each rate: input/decoded loops, genus, pieces, PSNR_D2 dB, mask "
+          "share of the stream %\n", flush=True)
+    print(" | ".join(cols), flush=True)
+    for p in paths:
+        row = ingest_row(p, rates)
+        cells = []
+        for c in cols:
+            v = row.get(c, "")
+            cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
+        print(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", default=",".join(MODELS))
     ap.add_argument("--no-map", action="store_true")
     ap.add_argument("--no-retrieval", action="store_true")
     ap.add_argument("--mask", action="store_true")
+    ap.add_argument("--ingest", action="store_true", help="the issue's table (see above)")
+    ap.add_argument("--rates", default="2,4", help="decoding rates of --ingest (bits/surfel)")
     args = ap.parse_args(argv)
+    if args.ingest:
+        names = [m for m in args.models.split(",") if m]
+        ingest_table([DATA / "models" / m if not m.startswith("retrieval/") else DATA / m
+                      for m in names], [float(r) for r in args.rates.split(",")])
+        return
     names = [m for m in args.models.split(",") if m]
     paths = [DATA / "models" / m if not m.startswith("retrieval/") else DATA / m for m in names]
     if not args.no_retrieval:

@@ -1162,6 +1162,10 @@ class Model:
     areas : tuple of float
         Surface area of each part's closed mesh (0 for points and surfels).
     name : str or None
+    face_patches : tuple of ((m,) int64 or None)
+        Per part, the virtual patch of each of its surfels' faces (-1 real; the codec's
+        ``face_patch``, which tells a patch face whose three corners are scan vertices from the
+        scan's own); None for a part with nothing virtual.
     """
 
     parts: tuple
@@ -1172,6 +1176,11 @@ class Model:
     dropped_vertices: int = 0
     areas: tuple = ()
     name: str | None = None
+    face_patches: tuple = ()
+
+    def face_patch(self, i: int):
+        """Part ``i``'s face labels (:attr:`face_patches`), None when it has none."""
+        return self.face_patches[i] if i < len(self.face_patches) else None
 
     @property
     def repaired(self) -> bool:
@@ -1375,15 +1384,16 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
     def convert(m):
         with warnings.catch_warnings():
             warnings.simplefilter("default")
-            return m.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio)
+            return m.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio,
+                                return_face_patch=True)
 
     if topo.is_sphere:
-        s = convert(mesh)
+        s, _ = convert(mesh)
         return Model(parts=(s,), reports=(None,), topology=topo, kind="mesh",
                      areas=(float(mesh.face_areas().sum()),), name=name)
     colors = mesh._vertex_colors()
     pieces = split_parts(mesh.vertices, mesh.faces, options=options)
-    parts, reports, areas = [], [], []
+    parts, reports, areas, fps = [], [], [], []
     for i, part in enumerate(pieces.parts):
         try:
             closed = close_surface(part.vertices, part.faces, options=options)
@@ -1393,12 +1403,14 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
             raise type(exc)(what + exc.reason, path=path) from exc
         cm = closed_mesh(closed, colors=None if colors is None else colors[part.vertex_index],
                          name=name)
-        parts.append(convert(cm))
+        s, fp = convert(cm)
+        parts.append(s)
+        fps.append(fp)
         reports.append(closed.report)
         areas.append(float(cm.face_areas().sum()))
     return Model(parts=tuple(parts), reports=tuple(reports), topology=topo, kind="mesh",
                  parts_dropped=pieces.dropped, dropped_vertices=pieces.dropped_vertices,
-                 areas=tuple(areas), name=name)
+                 areas=tuple(areas), name=name, face_patches=tuple(fps))
 
 
 # ---------------------------------------------------------------------- models in memory

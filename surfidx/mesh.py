@@ -222,7 +222,8 @@ class TriangleMesh:
 
     # ------------------------------------------------------------------ conversion
     def to_surfels(self, *, samples: int | None = None, seed: int = 0,
-                   max_edge_ratio: float | None = MAX_EDGE_RATIO) -> SurfelSet:
+                   max_edge_ratio: float | None = MAX_EDGE_RATIO,
+                   return_face_patch: bool = False):
         """Convert to surfels.
 
         Parameters
@@ -235,13 +236,19 @@ class TriangleMesh:
         max_edge_ratio : float or None
             Per-vertex conversion first bisects triangles whose edges exceed this many times the
             median edge length (see :meth:`bisected`); ``None`` keeps the mesh as it is.
+        return_face_patch : bool
+            Also return the virtual patch of each of the surfels' faces.
 
         Returns
         -------
         SurfelSet
             Per-vertex surfels keep the mesh's vertex order with unused vertices dropped (a
             ``UserWarning`` says how many), followed by the vertices that bisection added;
-            ``faces`` then index the surfels.
+            ``faces`` then index the surfels. With :attr:`face_patch`, ``patch`` labels the
+            virtual surfels (:meth:`vertex_patch`; sampled surfels take their face's label).
+        face_patch : (m,) int64 or None
+            With ``return_face_patch``: :attr:`face_patch` of the surfels' ``faces`` (None
+            without labels or for sampled surfels, which have no faces).
 
         Raises
         ------
@@ -269,7 +276,8 @@ class TriangleMesh:
             warnings.warn(f"{int((~keep).sum())} degenerate faces (a repeated corner, zero area "
                           "or collinear corners) of "
                           f"{len(keep)} were dropped", UserWarning, stacklevel=2)
-            return mesh.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio)
+            return mesh.to_surfels(samples=samples, seed=seed, max_edge_ratio=max_edge_ratio,
+                                   return_face_patch=return_face_patch)
         if samples is None and max_edge_ratio is not None:
             if not (np.isfinite(max_edge_ratio) and max_edge_ratio > 0):
                 raise InputError(f"max_edge_ratio must be a positive number or None, got "
@@ -277,10 +285,11 @@ class TriangleMesh:
             max_edge = max_edge_ratio * self.median_edge_length()
             mesh = self.bisected(max_edge) if max_edge > 0 else self  # most edges degenerate
             if mesh is not self:
-                return mesh.to_surfels(max_edge_ratio=None)
+                return mesh.to_surfels(max_edge_ratio=None, return_face_patch=return_face_patch)
         vnormals = self._vertex_normals(areas)
         if samples is not None:
-            return self._sample(int(samples), seed, areas, vnormals)
+            out = self._sample(int(samples), seed, areas, vnormals)
+            return (out, None) if return_face_patch else out
         used = self.used_vertices()
         if len(used) < len(self.vertices):
             warnings.warn(f"{len(self.vertices) - len(used)} vertices referenced by no face were "
@@ -293,9 +302,10 @@ class TriangleMesh:
         colors = self._vertex_colors()
         colors = None if colors is None else colors[used]
         patch = self.vertex_patch()
-        return SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
-                         name=self.name, patch=None if patch is None else patch[used],
-                         patch_cut=self.patch_cut)
+        out = SurfelSet(self.vertices[used], nrm, radii, colors, faces=remap[self.faces],
+                        name=self.name, patch=None if patch is None else patch[used],
+                        patch_cut=self.patch_cut)
+        return (out, self.face_patch) if return_face_patch else out
 
     def nondegenerate_faces(self, areas: np.ndarray | None = None) -> np.ndarray:
         """(m,) bool: faces with three distinct corners and an area of at least

@@ -199,8 +199,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     """
     import time
 
-    from ._errors import TopologyError
-    from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, decode
+    from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, PartsEncoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
@@ -212,20 +211,15 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     surfels = model.surfels
     t0 = time.perf_counter()
     if len(model.parts) == 1:
-        enc = Encoder(model.parts[0], level=level, method=method, progress=progress)
+        enc = Encoder(model.parts[0], level=level, method=method, progress=progress,
+                      face_patch=model.face_patch(0))
         encoders = [enc]
         timings.update(enc.setup_seconds)
         t0 = time.perf_counter()
         stream = enc.encode(bits_per_surfel, progress=progress)
     else:
-        from . import codec
-
-        if not hasattr(codec, "PartsEncoder"):
-            raise TopologyError(f"the model has {len(model.parts)} parts and this surfidx's codec "
-                                "stores one part per stream; store its largest piece, or update "
-                                "surfidx (container format v4 stores several parts)")
-        pe = codec.PartsEncoder(list(model.parts), level=level, method=method,
-                                progress=progress)
+        pe = PartsEncoder(list(model.parts), level=level, method=method, progress=progress,
+                          face_patches=[model.face_patch(i) for i in range(len(model.parts))])
         encoders = list(pe.encoders)
         for e in encoders:
             for k, v in e.setup_seconds.items():

@@ -309,3 +309,68 @@ def test_combine_descriptors():
         combine_descriptors([a, b], [1, 0])
     with pytest.raises(InputError, match="different conventions"):
         combine_descriptors([a, DescriptorSet(b.vectors, {"lmax": 12})], [1, 1])
+
+
+# ---------------------------------------------------------------------------- CLI
+def test_cli_info_reports_what_the_repair_would_add(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from surfidx.cli import cli
+
+    v, f = torus()
+    keep = np.ones(len(f), bool)
+    keep[:2] = False                              # one hole as well
+    p = write_obj(tmp_path / "ring.obj", v, f[keep])
+    r = CliRunner().invoke(cli, ["info", str(p), "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    assert out["holes"] == 1 and out["piece_genus"] == [1] and out["pieces"] == 1
+    assert out["repair_handles_cut"] == 1 and out["repair_holes_filled"] == 1
+    assert out["repair_patches"] == 3 and not out["stored_as_read"] and out["storable"]
+    r = CliRunner().invoke(cli, ["info", str(p)])
+    assert "repair_handles_cut     1" in r.output
+    vm, fm = moebius(40)
+    p = write_obj(tmp_path / "strip.obj", vm, fm)
+    out = json.loads(CliRunner().invoke(cli, ["info", str(p), "--json"]).output)
+    assert out["orientable"] is False and out["storable"] is False
+
+
+def test_cli_show_prints_the_topology_record(tmp_path, torus_processed):
+    from click.testing import CliRunner
+
+    from surfidx.cli import cli
+    from surfidx.database import Database
+
+    path = tmp_path / "t.db"
+    with Database(path) as db:
+        db.add(torus_processed)
+    r = CliRunner().invoke(cli, ["show", "ring", "--db", str(path)])
+    assert r.exit_code == 0, r.output
+    line = [ln for ln in r.output.splitlines() if ln.startswith("topology")][0]
+    assert "1 part;" in line and "handles cut 1" in line and "% of the area" in line
+
+
+def test_cli_info_of_a_stream_shows_its_parts_and_mask(tmp_path, torus_processed):
+    import json
+
+    from click.testing import CliRunner
+
+    from surfidx.cli import cli
+
+    sfz = tmp_path / "ring.sfz"
+    sfz.write_bytes(torus_processed.stream)
+    out = json.loads(CliRunner().invoke(cli, ["info", str(sfz), "--json"]).output)
+    assert out["parts"] == 1 and out["cuts"] == 1 and out["holes"] == 0
+    assert 0 < out["mask_share"] < 1 and 0 < out["virtual_share"] < 1
+    assert out["input_surfels"] == torus_processed.n_surfels
+
+
+def test_topology_line():
+    from surfidx.cli._db import topology_line
+
+    assert topology_line(None).startswith("stored as read")
+    t = topology_line({"parts": 2, "parts_dropped": 3, "holes_filled": 4,
+                       "virtual_area_share": 0.25, "virtual_surfels": 9})
+    assert t.startswith("2 parts (3 tiny dropped); holes filled 4") and "25.00 %" in t

@@ -346,11 +346,26 @@ def show(model, db_path, as_json):
         click.echo(f"{key:16s} {_fmt(asset.get(key), '.4g')}")
     kinds = ", ".join(f"{k} ({d})" for k, d in rec["descriptors"].items()) or "-"
     click.echo(f"{'descriptors':16s} {plain(kinds)}")
+    click.echo(f"{'topology':16s} {plain(topology_line(rec.get('topology')))}")
     if run is not None:
         click.echo(f"{'last run':16s} {run['id']} {run['status']}: stored {run['stored']}, "
                    f"skipped {run['skipped']}, failed {run['failed']}")
         for e in run_errors:
             click.echo(plain(f"  failed {e['path']}: {e['error']}"))
+
+
+def topology_line(topology) -> str:
+    """What topology repair added to a model, in one line (``stored as read`` when nothing)."""
+    if not topology:
+        return "stored as read (one closed genus-0 piece)"
+    t = topology
+    parts = f"{t.get('parts', 1)} part{'s' if t.get('parts', 1) != 1 else ''}"
+    if t.get("parts_dropped"):
+        parts += f" ({t['parts_dropped']} tiny dropped)"
+    return (f"{parts}; holes filled {t.get('holes_filled', 0)}, handles cut "
+            f"{t.get('handles_cut', 0)}, pinched vertices split {t.get('pinched_vertices', 0)}; "
+            f"virtual {100 * float(t.get('virtual_area_share', 0.0)):.2f} % of the area "
+            f"({t.get('virtual_surfels', 0)} surfels)")
 
 
 def echo_params(params) -> str:
