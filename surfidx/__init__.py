@@ -37,7 +37,8 @@ _LAZY = {"GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
          "TriangleMesh": "mesh", "evaluate": "metrics", "hausdorff": "metrics",
          "psnr_d1": "metrics", "psnr_d2": "metrics", "psnr_luma": "metrics",
          "points_to_surfels": "pointcloud", "SurfelSet": "surfels",
-         "as_surfels": "io", "write_model": "io",
+         "as_surfels": "io", "write_model": "io", "read_model": "io", "Model": "io",
+         "join_surfels": "io",
          "Database": "store", "SearchIndex": "search"}
 __all__ += [n for n in _LAZY if n not in __all__]
 

@@ -90,6 +90,10 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
     Returns
     -------
     SurfelSet
+        The scan as it is: an open, pinched, genus > 0 or several-piece mesh gives the surfels
+        of the mesh as read, nothing added and nothing dropped (what rendering, metrics and
+        geodesics want). Storing, encoding and querying read through :func:`read_model`, which
+        repairs such a mesh into closed genus-0 parts; its :attr:`Model.surfels` joins them.
 
     Raises
     ------

@@ -159,7 +159,12 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
         Any file :func:`surfidx.read_surfels` reads, or a model in memory
         (:func:`surfidx.io.as_surfels`: a ``SurfelSet``, ``(vertices, faces[, colours])``, a
         ``trimesh.Trimesh``...): its source is then ``"<memory>"`` and its content hash that of
-        its surfels (:func:`surfidx.io.model_hash`).
+        its surfels (:func:`surfidx.io.model_hash`). It is read by :func:`surfidx.io.read_model`:
+        a closed genus-0 mesh as it is (the stream and descriptors of a plain read), any other
+        mesh repaired into closed genus-0 parts whose virtual patches the stream codes as a mask
+        (one part per piece, tiny pieces dropped with a warning); the descriptors describe the
+        closed surface, all parts together (:func:`combine_descriptors`), the quality figures
+        compare the decoded real surface with the scan's own surfels.
     bits_per_surfel : float
         Full rate of the stored asset (lower rates are served by truncation).
     texture : str or os.PathLike, optional
@@ -190,12 +195,16 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     -------
     ProcessedModel
         Its thumbnail looks along the model's smallest principal axis
-        (:func:`surfidx.render.principal_basis`).
+        (:func:`surfidx.render.principal_basis`); ``topology`` says what the repair added (None
+        for a model stored as read); ``n_surfels`` counts every coded surfel, virtual included
+        (the rate's denominator).
 
     Raises
     ------
     SurfidxError
-        Unreadable file, a surface that cannot be mapped, or a rate below the header's size.
+        Unreadable file, a surface that cannot be stored (no triangle, a non-orientable piece:
+        :class:`~surfidx.TopologyError` naming the file), a surface that cannot be mapped, or a
+        rate below the header's size.
     """
     import time
 
@@ -298,10 +307,11 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     """Read, map, resample and describe one model: what a query by example computes, nothing
     else (no coding, decoding, quality figures).
 
-    It maps and resamples as :func:`process_model` does (the map without the stress figure, the
-    grid at the encoder's level: ``level``, else the map's ``grid_level``; colour when the
-    surfels have it), so with the same arguments its descriptors are bit-equal to
-    ``process_model(...).descriptors``.
+    It reads (:func:`surfidx.io.read_model`, repairing as ingest does), maps and resamples as
+    :func:`process_model` does (the map without the stress figure, the grid at the encoder's
+    level: ``level``, else the map's ``grid_level``; colour when the surfels have it; each part
+    on its own, combined by :func:`combine_descriptors`), so with the same arguments its
+    descriptors are bit-equal to ``process_model(...).descriptors``.
 
     Parameters
     ----------

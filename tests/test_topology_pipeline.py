@@ -374,3 +374,20 @@ def test_topology_line():
     t = topology_line({"parts": 2, "parts_dropped": 3, "holes_filled": 4,
                        "virtual_area_share": 0.25, "virtual_surfels": 9})
     assert t.startswith("2 parts (3 tiny dropped); holes filled 4") and "25.00 %" in t
+
+
+def test_ingest_records_an_unstorable_file_and_goes_on(tmp_path):
+    import ingest
+    from surfidx.database import Database
+
+    vm, fm = moebius(40)
+    write_obj(tmp_path / "strip.obj", vm, fm)
+    write_obj(tmp_path / "flat.obj", np.eye(3), np.array([[0, 0, 1], [1, 2, 2]]))
+    s = ingest.run([tmp_path], db=tmp_path / "u.db", progress=False, workers=1)
+    assert (s.stored, s.failed) == (0, 2)
+    errors = dict(s.errors)
+    assert "non-orientable" in errors[str(tmp_path / "strip.obj")]
+    assert "zero surface area" in errors[str(tmp_path / "flat.obj")] or \
+        "no triangle" in errors[str(tmp_path / "flat.obj")]
+    with Database(tmp_path / "u.db") as d:
+        assert len(d.errors()) == 2
