@@ -379,7 +379,90 @@ def recall_and_times(fn, qs, truth):
             "rec_color": float(np.mean(rec[True]))}
 
 
-def end_to_end(gen, m, qs, *, k, tmp, factors):
+def cli_times(path, ids, *, k):
+    """``surfidx query id:N`` in fresh processes (interpreter start, imports, opening SQLite and
+    the index, the search, the table): wall seconds and the child's CPU seconds (user + sys)
+    per call. The first call is left out (it may page the index files in)."""
+    import resource
+    import subprocess
+    import sys
+
+    wall, cpu = [], []
+    for j, i in enumerate([ids[0], *ids]):
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "surfidx", "query", f"id:{int(i)}",
+                               "--db", str(path), "-k", str(k)], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.PIPE, text=True)
+        if done.returncode:
+            print(f"surfidx query id:{int(i)} failed: {done.stderr.strip()}", flush=True)
+            return {"wall50": float("nan"), "cpu50": float("nan"), "cpu_max": float("nan")}
+        t1 = time.perf_counter()
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if j:
+            wall.append(t1 - t0)
+            cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
+    return {"wall50": float(np.median(wall)), "cpu50": float(np.median(cpu)),
+            "cpu_max": float(np.max(cpu))}
+
+
+def changes(gen, path, *, k, n_changed, n_queries):
+    """Remove ``n_changed`` models and redescribe as many (new rows of other sub-classes), then
+    compare queries through the index (which the writer's close brings up to date) with the
+    exact scan: the removed models' old descriptors and the redescribed models' new ones as
+    queries, shape-only and coloured."""
+    from surfidx import ann
+
+    rng = np.random.default_rng(7)
+    with Database(path, readonly=True) as db:
+        m = db.count()
+    picked = rng.choice(np.arange(1, m + 1), 2 * n_changed, replace=False)
+    gone, redo = picked[:n_changed], picked[n_changed:]
+    new, _ = gen.rows(n_changed, color_fraction=1.0)
+    with Database(path) as db:
+        old_q = [{kd: v for kd, v in db.get_descriptors(int(i)).items() if kd in DEFAULT_KINDS}
+                 for i in gone[:n_queries]]
+        color = db.color_mask(redo)
+        db.remove(*[int(i) for i in gone])
+        for j, i in enumerate(redo):
+            vec = {kd: new[kd][j] for kd in new if kd != COLOUR or color[j]}
+            db.set_descriptors(int(i), vec, {})
+        t0 = time.process_time()
+        db.close()                                  # ann.update: the index catches up
+        t_update = time.process_time() - t0
+    redo_q = [{kd: new[kd][j] for kd in DEFAULT_KINDS if kd in new and (kd != COLOUR or color[j])}
+              for j in range(min(n_queries, n_changed))]
+    out = {"update": t_update, "same": 0, "queries": 0, "removed_found": 0, "max_dist_diff": 0.0,
+           "self_first": 0}
+    with Database(path, readonly=True) as db:
+        approx = SearchIndex(db, threshold=0)
+        assert approx.approximate
+        exact = SearchIndex(db, exact=True)
+        removed = set(gone.tolist())
+        for j, q in enumerate(old_q + redo_q):
+            for qq in (q, {kd: v for kd, v in q.items() if kd != COLOUR}):
+                a_ids, a_d = approx.query(qq, k=k)
+                e_ids, e_d = exact.query(qq, k=k)
+                out["queries"] += 1
+                out["same"] += int(np.array_equal(a_ids, e_ids))
+                out["removed_found"] += len(removed & set(a_ids.tolist()))
+                # every distance returned is the exact one of the rows stored now
+                pos = np.searchsorted(exact.ids, a_ids)
+                ex = weighted_l2({kd: np.asarray(v, np.float32) for kd, v in qq.items()},
+                                 {kd: s[pos] for kd, s in exact.stored.items()},
+                                 {kd: p[pos] for kd, p in exact.present.items()},
+                                 shape_weight=DEFAULT_SHAPE_WEIGHT)
+                out["max_dist_diff"] = max(out["max_dist_diff"],
+                                           float(np.max(np.abs(ex - a_d), initial=0.0)))
+                if j >= len(old_q):
+                    out["self_first"] += int(a_ids.size > 0 and a_ids[0] == redo[j - len(old_q)])
+        state_ok = ann.open_index(db, kinds=DEFAULT_KINDS).state == db.index_state()
+    out["state_ok"] = state_ok
+    out["n_redo_queries"] = 2 * len(redo_q)
+    return out
+
+
+def end_to_end(gen, m, qs, *, k, tmp, factors, expansions=(None,)):
     from surfidx import ann
 
     path = Path(tmp) / f"bench{m}.db"
@@ -421,10 +504,13 @@ def end_to_end(gen, m, qs, *, k, tmp, factors):
         index = ann.open_index(db, kinds=DEFAULT_KINDS)       # memory-maps the files
         out["open"] = time.process_time() - t0
         out["runs"] = {}
-        for f in factors:
-            out["runs"][f] = recall_and_times(
-                lambda q: index.query(q, distance=weighted_l2, k=k,
-                                      shape_weight=DEFAULT_SHAPE_WEIGHT, factor=f)[0], qs, truth)
+        for e in expansions:
+            ef = ann.DEFAULT_EXPANSION if e is None else e
+            for f in factors:
+                out["runs"][f"f{f}/e{ef}"] = recall_and_times(
+                    lambda q: index.query(q, distance=weighted_l2, k=k,
+                                          shape_weight=DEFAULT_SHAPE_WEIGHT, factor=f,
+                                          expansion=ef)[0], qs, truth)
         out["mem_open"] = rss_mb() - r0
         approx = SearchIndex(db, threshold=0)
         assert approx.approximate
@@ -446,6 +532,15 @@ def main() -> None:
                                                   "usearch-f16"])
     ap.add_argument("--factors", type=int, nargs="+", default=[2, 4, 8])
     ap.add_argument("--ef", type=int, default=64, help="Search expansion (compare mode).")
+    ap.add_argument("--expansions", type=int, nargs="+", default=None,
+                    help="Search expansions of the AnnIndex.query rows (default: "
+                         "surfidx.ann.DEFAULT_EXPANSION).")
+    ap.add_argument("--cli", type=int, default=0,
+                    help="Also time this many `surfidx query id:N` processes per size (from "
+                         "the threshold on).")
+    ap.add_argument("--changes", type=int, default=0,
+                    help="Then remove and redescribe this many models of the largest size and "
+                         "compare index queries with the exact scan.")
     ap.add_argument("--ef-add", type=int, default=128, help="Build expansion (compare mode).")
     ap.add_argument("--tmp", default=None,
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
@@ -472,25 +567,48 @@ def main() -> None:
                     libs=[make[n]() for n in args.libs])
         return
     print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
-          "it stands (factor 8, rows read from SQLite), 'fN' = AnnIndex.query with N*k "
-          "candidates per graph re-ranked on the row copies", flush=True)
+          "it stands (surfidx.ann defaults), 'fN/eE' = AnnIndex.query with N*k candidates "
+          "per graph (search expansion E) re-ranked on the row copies", flush=True)
     print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
-          f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>6} {'p50':>6} "
+          f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>9} {'p50':>6} "
           f"{'p99':>6} {'rec sh':>6} {'rec col':>7}")
     with (tempfile.TemporaryDirectory() if args.tmp is None
           else contextlib.nullcontext(args.tmp)) as tmp:
         for m in args.sizes:
             gen = Generator(real, m)
             qs = queries(gen, args.queries)
-            r = end_to_end(gen, m, qs, k=args.k, tmp=tmp, factors=args.factors)
+            r = end_to_end(gen, m, qs, k=args.k, tmp=tmp, factors=args.factors,
+                           expansions=args.expansions or (None,))
             head = (f"{m:>8} {r['db_mb']:>6.0f} {r['exact50']:>9.2f} {r['exact99']:>6.2f} "
                     f"{r['mem_exact']:>5.0f} | {r['build']:>7.1f} {r['mem_build']:>5.0f} "
                     f"{r['size']:>7.0f} {r['open'] * 1e3:>7.1f} {r['mem_open']:>5.0f} |")
-            lines = [(f"f{f}", x) for f, x in r["runs"].items()] + [("search", r["search"])]
+            lines = list(r["runs"].items()) + [("search", r["search"])]
             for j, (name, x) in enumerate(lines):
-                print(f"{head if j == 0 else ' ' * len(head)} {name:>6} {x['p50']:>6.2f} "
+                print(f"{head if j == 0 else ' ' * len(head)} {name:>9} {x['p50']:>6.2f} "
                       f"{x['p99']:>6.2f} {x['rec_shape']:>6.3f} {x['rec_color']:>7.3f}",
                       flush=True)
+            path = Path(tmp) / f"bench{m}.db"
+            from surfidx import ann
+            if args.cli and m >= ann.DEFAULT_THRESHOLD:
+                ids = np.random.default_rng(3).choice(np.arange(1, m + 1), args.cli,
+                                                      replace=False)
+                c = cli_times(path, ids, k=args.k)
+                print(f"{m:>8} surfidx query id:N, {args.cli} processes: wall p50 "
+                      f"{c['wall50']:.3f} s, CPU (user+sys) p50 {c['cpu50']:.3f} s, max "
+                      f"{c['cpu_max']:.3f} s", flush=True)
+        if args.changes:
+            m = args.sizes[-1]
+            gen = Generator(real, m, seed=1)
+            c = changes(gen, Path(tmp) / f"bench{m}.db", k=args.k, n_changed=args.changes,
+                        n_queries=min(args.changes, 50))
+            print(f"{m:>8} after removing {args.changes} and redescribing {args.changes} "
+                  f"models: index update {c['update']:.1f} s CPU; {c['queries']} queries "
+                  f"(removed models' old rows and redescribed models' new rows, each coloured "
+                  f"and shape-only): {c['same']} equal to the exact scan, removed models "
+                  f"returned {c['removed_found']}, largest distance difference "
+                  f"{c['max_dist_diff']:.2g}, redescribed model first "
+                  f"{c['self_first']}/{c['n_redo_queries']}, manifest current {c['state_ok']}",
+                  flush=True)
 
 
 if __name__ == "__main__":

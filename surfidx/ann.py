@@ -622,8 +622,12 @@ def _load(d: Path, man, *, view: bool):
         ix[name] = got
     rows = {}
     for kind, r in man["rows"].items():
-        kid = np.load(d / r["ids"], mmap_mode="r" if view else None, allow_pickle=False)
-        mat = np.load(d / r["rows"], mmap_mode="r" if view else None, allow_pickle=False)
+        # plain ndarrays over the mapped pages: indexing an np.memmap costs ~75 us a call in
+        # its Python __getitem__, a dozen calls per query
+        kid = np.asarray(np.load(d / r["ids"], mmap_mode="r" if view else None,
+                                 allow_pickle=False))
+        mat = np.asarray(np.load(d / r["rows"], mmap_mode="r" if view else None,
+                                 allow_pickle=False))
         if kid.shape != (r["count"],) or mat.shape != (r["count"], r["dim"]) \
                 or kid.dtype != np.int64 or mat.dtype != np.float32:
             raise OSError(f"row files of {kind!r} in {d} do not match their manifest")
