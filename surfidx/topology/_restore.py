@@ -253,16 +253,33 @@ def _face_regions(faces, region):
     return out
 
 
-def _clean(faces, n, region, n_regions):
+@lru_cache(maxsize=2)
+def _grid_faces(level: int):
+    """The grid's faces, their adjacency (:func:`_face_adjacency`) and each vertex's faces
+    (a vertex-by-face CSR matrix); read only."""
+    g = icosphere(level)
+    faces = np.asarray(g.faces, np.int64)
+    n = g.n_vertices
+    rows = np.repeat(np.arange(len(faces)), 3)
+    star = sp.csr_matrix((np.ones(3 * len(faces), bool), (faces.ravel(), rows)),
+                         shape=(n, len(faces)))
+    # the grid is closed: the i-th smallest half-edge key is the twin of the i-th smallest twin
+    m = len(faces)
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    nbr = np.empty(3 * m, np.int64)
+    nbr[np.argsort(b * n + a, kind="stable")] = np.argsort(a * n + b, kind="stable") % m
+    return faces, nbr.reshape(3, m).T.copy(), star
+
+
+def _clean(level, region, n_regions):
     """Per-face region (-1 kept) after the clean-up rounds of the module docs."""
+    faces, nbr, star = _grid_faces(level)
+    n = star.shape[0]
     label = _face_regions(faces, region)
-    nbr = _face_adjacency(faces, n)
     first_vertex = np.full(n_regions, n, np.int64)
     on = region >= 0
     np.minimum.at(first_vertex, region[on], np.flatnonzero(on))
-    vf_rows = np.repeat(np.arange(len(faces)), 3)
-    star = sp.csr_matrix((np.ones(3 * len(faces), bool), (faces.ravel(), vf_rows)),
-                         shape=(n, len(faces)))
     for _ in range(_MAX_ROUNDS):
         before = label.copy()
         for r in range(n_regions):
@@ -305,35 +322,42 @@ def _clean(faces, n, region, n_regions):
     return label
 
 
-def _boundary_loops(faces, n):
-    """Directed boundary loops (vertex lists following the faces' winding) of a manifold mesh
-    without pinches, and for each loop the faces' half-edges ``(u, v)`` it uses."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    key = e[:, 0] * n + e[:, 1]
-    twin = e[:, 1] * n + e[:, 0]
-    b = e[~np.isin(key, twin)]
+def _boundary_loops(faces, nbr, label):
+    """Directed boundary loops of the kept faces (``label < 0``) of a grid without pinches:
+    vertex lists following the faces' winding, and each loop's edges' dropped neighbours'
+    labels."""
+    n = int(faces.max()) + 1
+    kf = np.flatnonzero(label < 0)
+    across = nbr[kf]
+    free = label[across] >= 0
+    f_idx, corner = np.nonzero(free)
+    u = faces[kf[f_idx], (corner + 1) % 3]
+    v = faces[kf[f_idx], (corner + 2) % 3]
+    lab = label[across[f_idx, corner]]
     nxt = np.full(n, -1, np.int64)
-    nxt[b[:, 0]] = b[:, 1]
+    nxt[u] = v
+    elab = np.full(n, -1, np.int64)
+    elab[u] = lab
     seen = np.zeros(n, bool)
     loops = []
-    for start in b[:, 0]:
+    for start in u:
         if seen[start]:
             continue
         loop = []
-        v = int(start)
-        while not seen[v] and v >= 0:
-            seen[v] = True
-            loop.append(v)
-            v = int(nxt[v])
-        loops.append(np.array(loop, np.int64))
+        w = int(start)
+        while w >= 0 and not seen[w]:
+            seen[w] = True
+            loop.append(w)
+            w = int(nxt[w])
+        loop = np.array(loop, np.int64)
+        loops.append((loop, elab[loop]))
     return loops
 
 
-def _edge_counts(faces, n):
-    """Undirected edge keys ``min·n + max`` of ``faces`` and how many faces hold each."""
+def _edge_keys(faces, n):
+    """Distinct undirected edge keys ``min·n + max`` of ``faces``."""
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
-    keys = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])
-    return np.unique(keys, return_counts=True)
+    return np.unique(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
 
 
 def _loop_keys(loop, n):
@@ -432,26 +456,15 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
     """
     from ..container import region_cut
 
-    g = icosphere(level)
-    faces = np.asarray(g.faces, np.int64)
-    n = g.n_vertices
-    label = _clean(faces, n, np.asarray(region, np.int64), len(codes))
+    faces, nbr, star = _grid_faces(level)
+    n = star.shape[0]
+    label = _clean(level, np.asarray(region, np.int64), len(codes))
     kept = faces[label < 0]
     strips = []
     zipped = unzipped = 0
     if len(kept):
-        loops = _boundary_loops(kept, n)
-        # the dropped face across each directed boundary edge (u, v): the face holding (v, u)
-        he = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-        he_key = he[:, 0] * n + he[:, 1]
-        he_lab = np.tile(label, 3)
-        order = np.argsort(he_key)
-        sorted_key = he_key[order]
         by_side = {}
-        for lp in loops:
-            q = np.roll(lp, -1) * n + lp
-            pos = np.minimum(np.searchsorted(sorted_key, q), len(sorted_key) - 1)
-            labs = he_lab[order][pos][sorted_key[pos] == q]
+        for lp, labs in _boundary_loops(faces, nbr, label):
             labs = labs[labs >= 0]
             if not len(labs):
                 continue
@@ -459,8 +472,8 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
             k, s = region_cut(codes[r])
             if k >= 0:
                 by_side.setdefault(k, {}).setdefault(s, []).append(lp)
-        edges = _edge_counts(kept, n)
         taken = np.zeros(n, bool)
+        strip_keys = np.zeros(0, np.int64)
         for k in sorted(by_side):
             sides = by_side[k]
             ok = len(sides.get(0, ())) == 1 and len(sides.get(1, ())) == 1
@@ -469,16 +482,20 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
                 ok = not (taken[a].any() or taken[b].any() or np.intersect1d(a, b).size)
             if ok:
                 strip = zip_loops(positions, a, b)
-                # a strip edge the mesh has already (a band one face wide between the loops)
-                # would be an edge of three faces: leave the cut open instead
-                new_edges = _edge_counts(strip, n)
-                common = np.intersect1d(new_edges[0], edges[0])
-                loop_keys = np.concatenate([_loop_keys(a, n), _loop_keys(b, n)])
-                ok = np.isin(common, loop_keys).all() and not (new_edges[1] > 2).any()
+                # a strip edge the kept mesh (or an earlier strip) has already, e.g. across a
+                # band one face wide between the loops, would be an edge of three faces: the
+                # cut stays open instead. Only kept faces at the loops' vertices can hold one.
+                near = np.unique(star[np.concatenate([a, b])].indices)
+                near = near[label[near] < 0]
+                inner = _edge_keys(strip, n)
+                inner = np.setdiff1d(inner, np.concatenate([_loop_keys(a, n),
+                                                            _loop_keys(b, n)]))
+                have = np.concatenate([_edge_keys(faces[near], n), strip_keys])
+                ok = not np.isin(inner, have).any()
             if ok:
                 strips.append(strip)
+                strip_keys = np.concatenate([strip_keys, inner])
                 taken[a] = taken[b] = True
-                edges = _edge_counts(np.vstack([kept] + strips), n)
                 zipped += 1
             else:
                 unzipped += 1
