@@ -92,7 +92,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 
 DEFAULT_LMAX = 24
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
-DESCRIPTOR_VERSION = 5
+DESCRIPTOR_VERSION = 6
 
 SHELLS = 8
 SHELL_LMAX = 8
@@ -104,7 +104,7 @@ D2_PAIRS = 1 << 20
 RADIAL_BINS = 32
 RADIAL_RMAX = 3.0
 SPECTRAL_K = 30
-SPECTRAL_LEVEL = 6
+SPECTRAL_LEVEL = 5
 #: Relative accuracy of the Lanczos Ritz pairs (ARPACK ``tol``): the eigenvalues come out
 #: to about its square.
 SPECTRAL_TOL = 1e-8
