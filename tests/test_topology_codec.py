@@ -448,3 +448,12 @@ def test_more_new_errors(holes3):
     with pytest.raises(InputError, match="face_patch must hold -1 or a patch index below 3"):
         grid_patches(s, pts, 2, face_patch=np.full(len(s.faces), 5))
     assert (grid_patches(s, pts, 2, face_patch=fp) >= 0).any()
+
+
+def test_cli_bad_region_table_names_the_file(tmp_path, holes3):
+    bad = tmp_path / "regions.sfz"
+    bad.write_bytes(_rewrite(holes3.encode(4.0), regions=(0, 0)))
+    r = CliRunner().invoke(cli, ["decode", str(bad), "-o", str(tmp_path / "o.obj")])
+    assert r.exit_code != 0
+    assert "regions.sfz" in r.output and "bad region table" in r.output
+    assert "Traceback" not in r.output
