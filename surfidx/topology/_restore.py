@@ -515,7 +515,7 @@ def closed_surfels(closed, *, colors=None, name=None):
     One surfel per used vertex, in order (:meth:`surfidx.TriangleMesh.to_surfels` without
     bisection): the
     virtual vertices carry the patch of a virtual face around them, and ``patch_cut`` names the
-    cut each patch closes (a patch whose rim lies on cut ``k``'s vertices or their copies).
+    cut each patch closes (:func:`surfidx.topology.patch_cuts`).
 
     Parameters
     ----------
@@ -537,6 +537,7 @@ def closed_surfels(closed, *, colors=None, name=None):
 
     from ..mesh import TriangleMesh
     from ..surfels import SurfelSet
+    from ._surfels import patch_cuts
 
     V, F = closed.vertices, closed.faces
     if colors is not None:
@@ -563,16 +564,7 @@ def closed_surfels(closed, *, colors=None, name=None):
         vpatch[F[virt, j]] = np.maximum(vpatch[F[virt, j]], fp[virt])
     vpatch[~closed.virtual_vertices] = -1
     P = int(fp.max()) + 1 if len(virt) else 0
-    patch_cut = np.full(P, -1, np.int64)
-    for k, cut in enumerate(closed.cuts):
-        on = np.zeros(n, bool)
-        on[cut.vertices] = True
-        on[cut.copies] = True
-        for p in range(P):
-            rim = np.unique(F[fp == p])
-            rim = rim[~closed.virtual_vertices[rim]]
-            if len(rim) and on[rim].all():
-                patch_cut[p] = k
+    patch_cut = patch_cuts(closed)
     vpatch = vpatch[used]
     # the surfels' faces are the mesh's non-degenerate ones: match them by corners
     sf = s.faces
@@ -585,12 +577,8 @@ def closed_surfels(closed, *, colors=None, name=None):
     order = np.argsort(key_all)
     pos = np.minimum(np.searchsorted(key_all[order], key_s), len(F) - 1)
     face_patch = np.where(key_all[order][pos] == key_s, fp[order][pos], -1)
-    if P == 0:
-        vp, pc = None, None
-    else:
-        vp, pc = vpatch, patch_cut
-        if (vpatch < 0).all():   # no virtual vertex (tiny holes): label via faces only
-            vp = vpatch
+    # a patch without virtual vertex (a tiny hole's) is known by face_patch only
+    vp, pc = (None, None) if P == 0 else (vpatch, patch_cut)
     out = SurfelSet(s.positions, s.normals, s.radii, s.colors, faces=sf, name=name,
                     patch=vp, patch_cut=pc)
     return out, face_patch
