@@ -321,7 +321,8 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     Raises
     ------
     BitstreamError
-        Foreign file (bad magic), unknown version, truncated header or stream, checksum mismatch.
+        Foreign file (bad magic), unknown version, truncated header or stream, checksum mismatch,
+        an empty mask section; a multi-part file (read its parts with :func:`unpack_parts`).
     """
     data = bytes(data)
     if len(data) < _FIXED.size:
@@ -430,6 +431,9 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
 
 def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
     """Cut a container's embedded stream so that the whole file is at most ``max_bytes``.
+
+    A multi-part file is cut part by part, the budget split as :func:`split_budget` says (the
+    split the encoder used), so each part keeps a prefix of its stream.
 
     Parameters
     ----------
