@@ -116,7 +116,7 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
             if a >= 0 and not (lab == p).any() and lab[a] < 0:
                 lab[a] = p
     graph = None
-    for p in range(P):   # a patch the grid splits is joined along shortest grid paths
+    for p in _split_patches(lab, level):   # joined along shortest grid paths
         while True:
             on = lab == p
             count, region = grid_regions(on, level)
@@ -151,6 +151,22 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
             s = int(p != sides[0])
             codes.append(region_code(k, s))
     return bits, tuple(codes)
+
+
+def _split_patches(lab, level: int) -> np.ndarray:
+    """Patches whose grid vertices form more than one component (through edges of the grid
+    whose two ends sample the same patch), in increasing order."""
+    on = np.flatnonzero(lab >= 0)
+    if not len(on):
+        return np.zeros(0, np.int64)
+    g = _grid_graph(level)[on][:, on].tocoo()
+    same = lab[on][g.row] == lab[on][g.col]
+    sub = sp.coo_matrix((np.ones(int(same.sum())), (g.row[same], g.col[same])),
+                        shape=(len(on), len(on)))
+    _, comp = connected_components(sub, directed=False)
+    pairs = np.unique(np.stack([lab[on], comp], axis=1), axis=0)
+    count = np.bincount(pairs[:, 0])
+    return np.flatnonzero(count > 1)
 
 
 def check_regions(codes, count: int, *, path=None) -> None:
