@@ -161,6 +161,58 @@ def test_stale_index_is_patched_after_a_crashed_writer(big):
             == db.index_state()
 
 
+def test_state_change_without_row_changes_rewrites_only_the_manifest(big):
+    """A new state whose rows all match their digests (here a bare generation bump, as a schema
+    upgrade or an undone change): the same files under a manifest of the state now."""
+    path, shape, tex, _ = big
+    d = ann.index_dir(path)
+    with Database(path, readonly=True) as db:
+        before = SearchIndex(db, threshold=0).query(query_of(shape, tex, 7, colour=True), k=5)
+    man = json.loads((d / "manifest.json").read_text())
+    stamps = {f: (d / f).stat().st_mtime_ns for f in ann._files(man)}
+    with Database(path) as db:
+        db.descriptors_changed()
+        db._index_dirty = False                # the next reader catches up
+    with Database(path, readonly=True) as db:
+        assert man["state"] != db.index_state()
+        after = SearchIndex(db, threshold=0).query(query_of(shape, tex, 7, colour=True), k=5)
+        now = json.loads((d / "manifest.json").read_text())
+        assert now["state"] == db.index_state()
+    assert {k: v for k, v in now.items() if k != "state"} == \
+        {k: v for k, v in man.items() if k != "state"}
+    assert {f: (d / f).stat().st_mtime_ns for f in ann._files(now)} == stamps
+    assert sorted(p.name for p in d.iterdir()) == sorted([*stamps, "manifest.json"])
+    np.testing.assert_array_equal(before[0], after[0])
+    np.testing.assert_array_equal(before[1], after[1])
+
+
+def test_changes_lists_gone_and_changed_models():
+    gone, changed = ann._changes(np.array([1, 2, 3, 5], np.int64),
+                                 np.array([10, 20, 30, 50], np.uint64),
+                                 np.array([2, 3, 4, 5], np.int64),
+                                 np.array([20, 31, 40, 50], np.uint64))
+    assert gone == [1] and changed == [3, 4]
+    gone, changed = ann._changes(np.zeros(0, np.int64), np.zeros(0, np.uint64),
+                                 np.array([7], np.int64), np.array([1], np.uint64))
+    assert gone == [] and changed == [7]
+
+
+def test_views_search_without_key_lookups(big):
+    """Graphs opened for queries are usearch views without the key hash table (opening one
+    hashes nothing); their searches give the keys the loaded graphs give."""
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        ann.open_index(db)
+        index = ann.open_index(db)
+        view = index._graph("shape")
+        loaded, _ = ann._load(ann.index_dir(path), index.manifest, view=False)
+        v = np.concatenate([shape[3, :DIM], shape[3, DIM:]])
+        for n in (1, 10, 40):
+            np.testing.assert_array_equal(index.candidates("shape", v, n),
+                                          np.asarray(loaded["shape"].search(v, n).keys))
+        assert len(view) == len(loaded["shape"]) == 1500
+
+
 def test_crash_between_index_write_and_replace_keeps_a_working_index(big, monkeypatch):
     path, shape, tex, _ = big
     with Database(path, readonly=True) as db:
@@ -442,9 +494,13 @@ def test_cli_query_by_id_imports_no_heavy_module(at_threshold):
             f"cli.main(['query', 'id:12', '--db', {str(path)!r}, '-k', '3', '--json'], "
             "standalone_mode=False)\n"
             "heavy = {'numba', 'scipy', 'trimesh', 'pyshtools', 'sqlite_utils'}\n"
-            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & heavy)))\n")
+            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & heavy)))\n"
+            "print(json.dumps(sorted(m for m in sys.modules if m.startswith('surfidx.cli.'))))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True).stdout.strip().splitlines()
+    assert json.loads(out[-1]) == ["surfidx.cli._common", "surfidx.cli._db",
+                                   "surfidx.cli._group"]      # no other command module
+    out.pop()
     assert json.loads(out[-1]) == []
     assert len(json.loads("\n".join(out[:-1]))["results"]) == 3
 
@@ -489,7 +545,7 @@ def test_cli_query_defaults_come_from_the_library():
     from surfidx.cli import cli
     from surfidx.search import DEFAULT_SHAPE_WEIGHT
 
-    params = {p.name: p for p in cli.commands["query"].params}
+    params = {p.name: p for p in cli.get_command(None, "query").params}
     assert params["shape_weight"].default == DEFAULT_SHAPE_WEIGHT
     assert f"{ann.DEFAULT_THRESHOLD:,}" in params["exact"].help
 
@@ -504,3 +560,22 @@ def test_graphs_are_opened_when_a_query_needs_them(big):
         assert set(index._ix) == {"shape"}
         ann_query(index, query_of(shape, tex, 0, colour=True), k=3)
         assert set(index._ix) == {"shape", "texture"}
+
+
+def test_cli_commands_are_imported_when_asked_for():
+    """Every command is found by name through the group (its module imported then), the
+    module map names each command's module, and listing the commands finds them all."""
+    import click
+
+    from surfidx.cli import COMMAND_MODULES, cli, load_all
+
+    for name, module in COMMAND_MODULES.items():
+        cmd = cli.get_command(None, name)
+        assert cmd is not None and cmd.callback.__module__ == f"surfidx.cli.{module}", name
+    load_all()
+    assert set(cli.commands) == set(COMMAND_MODULES)
+    with click.Context(cli) as ctx:
+        assert cli.list_commands(ctx) == sorted(COMMAND_MODULES)
+        assert cli.get_command(ctx, "no-such-command") is None
+    res = CliRunner().invoke(cli, ["no-such-command"])
+    assert res.exit_code == 2 and "No such command" in res.output

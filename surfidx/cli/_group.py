@@ -2,18 +2,64 @@
 
 It lives apart from ``cli/__init__.py`` so that the package imports the command modules and the
 command modules import the group, with no import going back (no cycle).
+
+The group imports a command's module when the command is asked for by name
+(:meth:`LazyGroup.get_command`): ``surfidx query id:N`` imports ``cli/_db.py`` and not the
+codec, sphere or render commands (and their imports). Listing the commands (``surfidx --help``)
+imports them all. ``cli.commands`` holds the commands imported so far; use
+``cli.get_command(ctx, name)`` or :meth:`LazyGroup.load_all` for any of them.
 """
 
 from __future__ import annotations
+
+import importlib
 
 import click
 
 from .. import __version__
 
-__all__ = ["cli"]
+__all__ = ["cli", "LazyGroup"]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class LazyGroup(click.Group):
+    """A click group whose commands are imported on demand.
+
+    Attributes
+    ----------
+    modules : dict of str -> str
+        Command name -> the module that registers it (set by ``surfidx.cli``).
+    loader : callable or None
+        Imports every command module (set by ``surfidx.cli``); run for a name that
+        :attr:`modules` does not know, so that a command missing there is still found.
+    """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.modules = {}
+        self.loader = None
+
+    def load_all(self) -> None:
+        """Import every command module (all commands in :attr:`commands`)."""
+        for module in sorted(set(self.modules.values())):
+            importlib.import_module(module)
+        if self.loader is not None:
+            self.loader()
+
+    def get_command(self, ctx, cmd_name):
+        if cmd_name not in self.commands:
+            module = self.modules.get(cmd_name)
+            if module is not None:
+                importlib.import_module(module)
+            if cmd_name not in self.commands:
+                self.load_all()
+        return super().get_command(ctx, cmd_name)
+
+    def list_commands(self, ctx):
+        self.load_all()
+        return super().list_commands(ctx)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="surfidx")
 def cli():
     """surfidx: a database for textured 3D scans (surfels, spherical wavelets, SQLite)."""
