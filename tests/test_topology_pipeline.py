@@ -391,3 +391,19 @@ def test_ingest_records_an_unstorable_file_and_goes_on(tmp_path):
         "no triangle" in errors[str(tmp_path / "flat.obj")]
     with Database(tmp_path / "u.db") as d:
         assert len(d.errors()) == 2
+
+
+def test_cli_query_of_an_unstorable_file_is_one_line(tmp_path):
+    from click.testing import CliRunner
+
+    from surfidx.cli import cli
+    from surfidx.database import Database
+
+    vm, fm = moebius(40)
+    p = write_obj(tmp_path / "strip.obj", vm, fm)
+    with Database(tmp_path / "q.db"):
+        pass
+    r = CliRunner().invoke(cli, ["query", str(p), "--db", str(tmp_path / "q.db")])
+    assert r.exit_code != 0
+    assert "Traceback" not in r.output and "strip.obj" in r.output
+    assert "non-orientable" in r.output
