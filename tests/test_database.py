@@ -905,3 +905,41 @@ def test_real_migration_1_to_2(tmp_path):
         fresh = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
             "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
     assert migrated == fresh
+
+
+def test_real_migration_2_to_3(tmp_path):
+    """A schema-2 database (no model_topology, the old delete trigger) opens as schema 3 with
+    the schema a new database has; its models are kept and have no topology record."""
+    import re as _re
+
+    path = tmp_path / "v2.db"
+    with Database(path):
+        pass
+    conn = sqlite3.connect(path)
+    conn.execute("DROP TABLE model_topology")
+    conn.execute("DROP TRIGGER models_delete_rows")
+    conn.execute("CREATE TRIGGER models_delete_rows AFTER DELETE ON models BEGIN "
+                 "DELETE FROM assets WHERE model_id = OLD.id; "
+                 "DELETE FROM descriptors WHERE model_id = OLD.id; "
+                 "DELETE FROM thumbnails WHERE model_id = OLD.id; "
+                 "DELETE FROM tags WHERE model_id = OLD.id; END")
+    conn.execute("INSERT INTO models (name, source, content_hash, n_surfels, has_color, "
+                 "bbox_min_x, bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, "
+                 "ingested_at) VALUES ('old', '/a/old.obj', 'h', 3, 0, 0, 0, 0, 1, 1, 1, 'then')")
+    conn.execute("UPDATE meta SET value = '2' WHERE key = 'schema_version'")
+    conn.execute("PRAGMA user_version = 2")
+    conn.commit()
+    conn.close()
+    with Database(path) as d:
+        assert d.schema_version == SCHEMA_VERSION == 3
+        assert d.get_model("old")["topology"] is None
+        d.conn.execute("INSERT INTO model_topology (model_id, parts) VALUES (1, 1)")
+        d.conn.execute("PRAGMA foreign_keys = OFF")
+        d.conn.execute("DELETE FROM models WHERE id = 1")        # the trigger removes the row
+        assert d.conn.execute("SELECT count(*) FROM model_topology").fetchone()[0] == 0
+        migrated = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
+            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+    with Database(tmp_path / "new.db") as d:
+        fresh = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
+            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+    assert migrated == fresh
