@@ -168,11 +168,13 @@ class SearchIndex:
         self._ann = None
         self._loaded = False
         self.approximate = False
+        self._limit = None
         if not exact:
             from . import ann
 
             limit = ann.DEFAULT_THRESHOLD if threshold is None else int(threshold)
-            if db.count() >= max(limit, 1):
+            self._limit = max(limit, 1)
+            if db.count() >= self._limit:
                 self._ann = ann.open_index(db, kinds=kinds)
                 self.approximate = True
                 return
@@ -205,6 +207,21 @@ class SearchIndex:
                 has &= color
             self.stored[kind] = full
             self.present[kind] = has
+
+    def still_approximate(self) -> bool:
+        """Whether this index, set up on the approximate path, still is the right one after
+        the database changed: it catches up with the stored rows (:meth:`AnnIndex.refresh`)
+        and the model count is still at the threshold or above. False on the exact path (its
+        matrices are not followed: set up a new index after changes).
+
+        Returns
+        -------
+        bool
+        """
+        if not self.approximate:
+            return False
+        self._ann.refresh()
+        return int(self._ann.state["models"]) >= self._limit
 
     def __len__(self):
         if self.approximate and not self._loaded:

@@ -261,7 +261,7 @@ class Database(_Store):
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
         drop = None if include_self else ex["id"]
-        ids, dist = SearchIndex(self, exact=exact).query(
+        ids, dist = self._search_index(SearchIndex, exact=exact).query(
             descriptors, k=k + (drop is not None),
             shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
         rows = []
@@ -272,6 +272,19 @@ class Database(_Store):
                                     (i,)).fetchone()
             rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
         return rows
+
+    def _search_index(self, make, *, exact: bool):
+        """The search of :meth:`query`: an index on the approximate path is kept for the next
+        query (opening its graphs costs ~0.1 s per million models; it follows changes of the
+        database itself, :meth:`SearchIndex.still_approximate`); the exact scan is set up per
+        query (its matrices are not followed)."""
+        kept = self.__dict__.get("_kept_search")
+        if not exact and kept is not None and kept.still_approximate():
+            return kept
+        index = make(self, exact=exact)
+        if not exact:
+            self.__dict__["_kept_search"] = index if index.approximate else None
+        return index
 
     def get_sfz(self, model, *, bits_per_surfel: float | None = None) -> bytes:
         """A stored model's stream as a ``.sfz`` file, truncated to ``bits_per_surfel`` (over

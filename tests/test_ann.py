@@ -579,3 +579,37 @@ def test_cli_commands_are_imported_when_asked_for():
         assert cli.get_command(ctx, "no-such-command") is None
     res = CliRunner().invoke(cli, ["no-such-command"])
     assert res.exit_code == 2 and "No such command" in res.output
+
+
+def test_database_query_keeps_its_index_and_follows_changes(at_threshold, tmp_path):
+    """``surfidx.Database.query`` keeps the approximate search between queries (its graphs
+    are opened once) and it follows the database's own changes: a removed model is gone, a
+    redescribed one is found by its new rows, every answer as the exact scan's."""
+    import shutil
+
+    from surfidx.store import Database as Store
+
+    src, shape, tex, color = at_threshold
+    path = tmp_path / "thr.db"
+    shutil.copy(src, path)
+    shutil.copytree(ann.index_dir(src), ann.index_dir(path))
+    with Store(path) as db:
+        s2, t2, c2 = rows(1, seed=5)
+        fill(db, s2, t2, c2, start=ann.DEFAULT_THRESHOLD + 1)   # one above: after a removal
+        first = db.query("id:40", k=5)                           # still at the threshold
+        kept = db._kept_search
+        assert kept is not None and kept.approximate
+        assert db.query("id:40", k=5) == first == db.query("id:40", k=5, exact=True)
+        assert db._kept_search is kept
+        db.remove(first[0]["id"])
+        got = db.query("id:40", k=5)
+        assert first[0]["id"] not in [r["id"] for r in got]
+        assert got == db.query("id:40", k=5, exact=True)
+        db.set_descriptors(41, db.get_descriptors(40), {})
+        got = db.query("id:40", k=5)
+        assert got[0]["id"] == 41 and got[0]["distance"] == 0.0
+        assert got == db.query("id:40", k=5, exact=True)
+        assert db._kept_search is kept
+        db.remove(42)                              # below the threshold: the exact scan
+        assert db.query("id:40", k=5) == db.query("id:40", k=5, exact=True)
+        assert db._kept_search is None
