@@ -638,7 +638,9 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         decodes to the real surface only: the grid faces over each virtual region are dropped
         and each handle cut's two boundary loops zipped together again
         (:mod:`surfidx.topology._restore`), so the mesh has the input's holes and genus;
-        surfels keep the grid vertices of the kept faces (with the faces).
+        surfels keep the grid vertices of the kept faces (with the faces). At a coarser
+        ``level`` the topology stays as long as the virtual regions stay apart on that grid
+        (on the smallest grids, a few dozen vertices, nearby holes merge).
 
     Returns
     -------
