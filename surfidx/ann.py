@@ -640,7 +640,7 @@ def _load_digests(d: Path, man):
         return {g: (z[f"{g}_ids"], z[f"{g}_digest"]) for g in man["graphs"]}
 
 
-def open_index(db, *, kinds=None, write: bool = True) -> AnnIndex:
+def open_index(db, *, kinds=None, write: bool = True, state: dict | None = None) -> AnnIndex:
     """The index of a database, current with its rows: memory-mapped from :func:`index_dir`,
     patched or rebuilt when it is stale, missing or of other kinds (see the module notes).
 
@@ -653,13 +653,15 @@ def open_index(db, *, kinds=None, write: bool = True) -> AnnIndex:
         :data:`BUILD_KINDS`).
     write : bool
         Write a patched or rebuilt index back (when the folder can be written).
+    state : dict, optional
+        ``db.index_state()`` as the caller just read it (it counts the models: read once).
 
     Returns
     -------
     AnnIndex
     """
     d = index_dir(db.path)
-    state = db.index_state()
+    state = db.index_state() if state is None else state
     for _ in range(2):                          # a writer may replace the files meanwhile
         man = _read_manifest(d)
         if kinds is None:

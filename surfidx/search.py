@@ -174,8 +174,9 @@ class SearchIndex:
 
             limit = ann.DEFAULT_THRESHOLD if threshold is None else int(threshold)
             self._limit = max(limit, 1)
-            if db.count() >= self._limit:
-                self._ann = ann.open_index(db, kinds=kinds)
+            state = db.index_state()                # the model count, and what the index needs
+            if state["models"] >= self._limit:
+                self._ann = ann.open_index(db, kinds=kinds, state=state)
                 self.approximate = True
                 return
         self._load()
