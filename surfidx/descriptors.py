@@ -305,11 +305,11 @@ def _dissection_order(level: int) -> np.ndarray:
     return perm
 
 
-def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
+def _log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
     """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator.
 
     Cotangent stiffness ``K`` and lumped (barycentric) mass ``M`` on the icosphere mesh of level
-    ``min(level, SPECTRAL_LEVEL)`` at the resampled positions (a prefix of ``x``). Cotangents of
+    ``min(level, max_level)`` at the resampled positions (a prefix of ``x``). Cotangents of
     degenerate triangles are clipped at ±``1/TOL.degenerate_angle`` and vertex masses floored, so
     a squeezed map gives a finite spectrum. Dense solve up to 700 vertices; beyond, shift-invert
     Lanczos on the standard form ``M^-½ K M^-½`` (one operator solve per Lanczos step, none with
@@ -318,7 +318,7 @@ def _log_spectrum(x: np.ndarray, level: int) -> np.ndarray:
     import scipy.linalg
     from scipy.sparse.linalg import LinearOperator, eigsh, splu
 
-    lev = min(level, SPECTRAL_LEVEL)
+    lev = min(level, max_level)
     f = icosphere(lev).faces
     n = vertex_count(lev)
     v = x[:n][f]
