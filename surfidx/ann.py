@@ -67,7 +67,7 @@ __all__ = ["AnnIndex", "open_index", "build", "update", "index_dir", "index_size
 DEFAULT_THRESHOLD = 20_000
 
 #: Candidates per result: ``factor * k`` models per graph are ranked by the exact distance.
-DEFAULT_FACTOR = 8
+DEFAULT_FACTOR = 4
 
 #: HNSW search expansion (``ef``), raised to the candidate count when that is larger.
 DEFAULT_EXPANSION = 64

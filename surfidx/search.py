@@ -5,13 +5,14 @@ Two paths, one answer:
 * exact scan (below :data:`surfidx.ann.DEFAULT_THRESHOLD` stored models, or ``exact=True``): the
   stored vectors are read once into dense float32 matrices (built from
   :meth:`surfidx.database.Database.descriptor_matrix`) and every query is one vectorised scan
-  followed by ``np.argpartition`` for the top ``k``: about 13 ms for 10 000 models and 130 ms for
-  100 000 on one core (``benchmarks/query_latency.py``);
-* approximate index (from the threshold on): an HNSW index beside the database
-  (:mod:`surfidx.ann`) gives ``factor * k`` candidates by the shape vector (and as many by
-  texture for a coloured query), whose rows are read from SQLite by id and ranked by the exact
-  distance below: under 1 ms per query at 100 000 and 1 000 000 models, recall@10 >= 0.99
-  against the exact scan.
+  followed by ``np.argpartition`` for the top ``k``;
+* approximate index (from the threshold on): HNSW graphs beside the database
+  (:mod:`surfidx.ann`) give ``factor * k`` candidates by the shape vector (and as many by
+  texture for a coloured query), ranked by the exact distance below on the index's float32 copies
+  of the stored rows, so every distance returned is the exact one.
+
+``benchmarks/query_latency.py`` prints both paths' latency and the index's recall@10 against the
+scan at 10 000, 100 000 and 1 000 000 models (figures in the README).
 
 Distance
 --------
@@ -43,7 +44,7 @@ from ._validate import as_array, check_positive_int
 
 #: Candidates per result of the approximate path (as :data:`surfidx.ann.DEFAULT_FACTOR`; kept
 #: here so that importing this module does not import the index library).
-DEFAULT_FACTOR = 8
+DEFAULT_FACTOR = 4
 
 __all__ = ["SearchIndex", "search", "weighted_l2", "check_shape_weight", "DEFAULT_SHAPE_WEIGHT",
            "DEFAULT_KINDS", "DEFAULT_FACTOR"]
