@@ -60,6 +60,23 @@ def icosphere_mesh(level: int = 3):
     return v, f
 
 
+def torus_mesh(R=2.0, r=0.7, nu=40, nv=16):
+    """A closed genus-1 triangle mesh (vertices, faces): ``nu x nv`` quads around radii R, r."""
+    u = 2 * np.pi * np.arange(nu) / nu
+    w = 2 * np.pi * np.arange(nv) / nv
+    U, W = np.meshgrid(u, w, indexing="ij")
+    v = np.stack([(R + r * np.cos(W)) * np.cos(U), (R + r * np.cos(W)) * np.sin(U),
+                  r * np.sin(W)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+
+    def idx(a, b):
+        return (a % nu) * nv + (b % nv)
+    f = np.concatenate([np.stack([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)], 1),
+                        np.stack([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)], 1)])
+    return v, f
+
+
 def tube_mesh(k=8, m=60, h=0.8):
     """(vertices, faces) of a long closed tube: ``m`` rings of ``k`` vertices ``h`` apart, closed
     by a pole at each end."""

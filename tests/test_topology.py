@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from conftest import icosphere_mesh
+from conftest import icosphere_mesh, torus_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_mesh
 from surfidx.topology import (ClosedSurface, RepairOptions, analyse, close_surface,
                               split_parts)
@@ -30,22 +30,6 @@ def capped_sphere(z=0.4, level=4):
     """An icosphere without its cap above ``z``: one large hole."""
     v, f = icosphere_mesh(level)
     return v, f[~(v[f][:, :, 2] > z).any(axis=1)]
-
-
-def torus(R=2.0, r=0.7, nu=40, nv=16):
-    u = 2 * np.pi * np.arange(nu) / nu
-    w = 2 * np.pi * np.arange(nv) / nv
-    U, W = np.meshgrid(u, w, indexing="ij")
-    v = np.stack([(R + r * np.cos(W)) * np.cos(U), (R + r * np.cos(W)) * np.sin(U),
-                  r * np.sin(W)], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    i, j = i.ravel(), j.ravel()
-
-    def idx(a, b):
-        return (a % nu) * nv + (b % nv)
-    f = np.concatenate([np.stack([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)], 1),
-                        np.stack([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)], 1)])
-    return v, f
 
 
 def voxel_plate(width, holes):
@@ -199,7 +183,7 @@ def test_analyse_counts_holes_genus_pieces_pinches():
     r = analyse(v, f)
     assert (r.holes, r.hole_sizes, r.genus, r.parts, r.closed) == (3, (5, 5, 5), (0,), 1, False)
     assert not r.is_sphere and r.patches == 3
-    v, f = torus()
+    v, f = torus_mesh()
     r = analyse(v, f)
     assert (r.holes, r.genus, r.handles, r.closed, r.euler) == (0, (1,), 1, True, 0)
     assert r.patches == 2
@@ -302,7 +286,7 @@ def test_inconsistent_winding_is_flipped():
 # ---------------------------------------------------------------------------- handles
 
 
-@pytest.mark.parametrize("make,genus", [(torus, 1),
+@pytest.mark.parametrize("make,genus", [(torus_mesh, 1),
                                         (lambda: voxel_plate(5, [(1, 1), (3, 1)]), 2),
                                         (lambda: voxel_plate(7, [(1, 1), (3, 1), (5, 1)]), 3)])
 def test_handles_are_cut_and_reglue(make, genus):
@@ -323,7 +307,7 @@ def test_handles_are_cut_and_reglue(make, genus):
 
 
 def test_torus_cut_is_a_meridian():
-    v, f = torus()
+    v, f = torus_mesh()
     cs = close_surface(v, f)
     # the shortest non-separating cycle goes round the tube (16 vertices, about 2 pi r)
     assert len(cs.cuts[0].vertices) == 16
@@ -334,7 +318,7 @@ def test_torus_cut_is_a_meridian():
 
 
 def test_handle_and_holes_together():
-    v, f = torus(nu=48, nv=20)
+    v, f = torus_mesh(nu=48, nv=20)
     # two holes: stars of two vertices on the outer equator
     f = f[~np.isin(f, [0, 24 * 20]).any(axis=1)]
     cs = close_surface(v, f)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from conftest import torus_mesh
 from surfidx import BitstreamError, InputError, SurfelSet, TriangleMesh
 from surfidx import container
 from surfidx.cli import cli
@@ -31,22 +32,6 @@ def _sphere_with_holes(centres, level=4):
     return v[used] * [1.0, 0.9, 1.1], remap[f]
 
 
-def _torus(R=2.0, r=0.7, nu=64, nv=24):
-    u = 2 * np.pi * np.arange(nu) / nu
-    w = 2 * np.pi * np.arange(nv) / nv
-    U, W = np.meshgrid(u, w, indexing="ij")
-    v = np.stack([(R + r * np.cos(W)) * np.cos(U), (R + r * np.cos(W)) * np.sin(U),
-                  r * np.sin(W)], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    i, j = i.ravel(), j.ravel()
-
-    def idx(a, b):
-        return (a % nu) * nv + (b % nv)
-    f = np.concatenate([np.stack([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)], 1),
-                        np.stack([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)], 1)])
-    return v, f
-
-
 def _topology(m):
     r = analyse(m.vertices, m.faces)
     return dict(loops=r.holes, genus=r.genus, parts=r.parts,
@@ -65,7 +50,7 @@ def holes3():
 
 @pytest.fixture(scope="module")
 def torus():
-    return _encoder(*_torus(), level=5)
+    return _encoder(*torus_mesh(nu=64, nv=24), level=5)
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +148,7 @@ def test_keep_virtual_returns_the_closed_surface(holes3, torus):
 
 
 def test_handle_and_hole_together():
-    v, f = _torus()
+    v, f = torus_mesh(nu=64, nv=24)
     f = f[~np.isin(f, [5]).any(axis=1)]
     e = _encoder(v, f, level=5)
     assert sorted(e.regions) == [0, 1, 2]
@@ -354,8 +339,8 @@ def test_cli_encode_decode_open_and_genus_1(tmp_path):
     runner = CliRunner()
     for name, (v, f), want in [("holes", _sphere_with_holes([0, 5, 9]),
                                 dict(loops=3, genus=(0,), parts=1, manifold=True)),
-                               ("torus", _torus(), dict(loops=0, genus=(1,), parts=1,
-                                                        manifold=True))]:
+                               ("torus", torus_mesh(nu=64, nv=24),
+                                dict(loops=0, genus=(1,), parts=1, manifold=True))]:
         src = tmp_path / f"{name}.obj"
         write_model(TriangleMesh(v, f), src)
         sfz = tmp_path / f"{name}.sfz"

@@ -9,12 +9,12 @@ import warnings
 import numpy as np
 import pytest
 
-from conftest import icosphere_mesh
+from conftest import icosphere_mesh, torus_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_surfels
 from surfidx.io import Model, join_surfels, model_hash, read_model
 from surfidx.topology import RepairOptions, close_surface, closed_mesh, patch_cuts
 
-from test_topology import moebius, sphere_with_holes, tetrahedron, torus
+from test_topology import moebius, sphere_with_holes, tetrahedron
 
 
 def write_obj(path, v, f):
@@ -65,7 +65,7 @@ def test_holes_are_filled_with_virtual_surfels(tmp_path):
 
 
 def test_handle_is_cut_and_its_lids_pair():
-    v, f = torus()
+    v, f = torus_mesh()
     m = read_model((v, f))
     s = m.parts[0]
     _check_closed(s)
@@ -102,7 +102,7 @@ def test_pieces_become_parts_tiny_ones_dropped_with_a_warning():
 
 
 def test_join_surfels_renumbers_patches_and_cuts():
-    a = read_model(torus()).parts[0]
+    a = read_model(torus_mesh()).parts[0]
     b = read_model(sphere_with_holes([0])).parts[0]
     j = join_surfels([a, b, a])
     pa, pb = len(a.patch_cut), len(b.patch_cut)
@@ -195,7 +195,7 @@ def test_face_patch_is_checked():
 
 
 def test_patch_cuts_pair_the_lids():
-    cs = close_surface(*torus())
+    cs = close_surface(*torus_mesh())
     cuts = patch_cuts(cs)
     assert sorted(cuts.tolist()) == [0, 0]
     cm = closed_mesh(cs)
@@ -239,7 +239,7 @@ def test_bundled_example_gives_todays_surfels_and_stream():
 def torus_processed():
     from surfidx.pipeline import process_model
 
-    v, f = torus(nu=30, nv=12)
+    v, f = torus_mesh(nu=30, nv=12)
     return process_model((v, f), bits_per_surfel=4.0, name="ring")
 
 
@@ -254,7 +254,7 @@ def test_process_model_takes_a_torus(torus_processed):
 def test_describe_model_equals_process_model(torus_processed):
     from surfidx.pipeline import describe_model
 
-    d = describe_model(torus(nu=30, nv=12), name="ring")
+    d = describe_model(torus_mesh(nu=30, nv=12), name="ring")
     assert d.topology == torus_processed.topology
     for k, vec in torus_processed.descriptors.items():
         assert np.array_equal(d.descriptors.vectors[k], vec)
@@ -319,7 +319,7 @@ def test_cli_info_reports_what_the_repair_would_add(tmp_path):
 
     from surfidx.cli import cli
 
-    v, f = torus()
+    v, f = torus_mesh()
     keep = np.ones(len(f), bool)
     keep[:2] = False                              # one hole as well
     p = write_obj(tmp_path / "ring.obj", v, f[keep])
