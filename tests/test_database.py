@@ -890,8 +890,6 @@ def _real_v1_database(path):
 
 
 def test_real_migration_1_to_2(tmp_path):
-    import re as _re
-
     path = tmp_path / "v1.db"
     _real_v1_database(path)
     with Database(path) as d:
@@ -899,19 +897,23 @@ def test_real_migration_1_to_2(tmp_path):
         assert d.conn.execute("SELECT id, name FROM models ORDER BY id").fetchall() == [
             (1, "twin"), (2, "b")]
         assert d.conn.execute("SELECT model_id FROM thumbnails").fetchall() == [(1,), (2,)]
-        migrated = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
-            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+        migrated = _schema_of(d.conn)
     with Database(tmp_path / "new.db") as d:
-        fresh = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
-            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+        fresh = _schema_of(d.conn)
     assert migrated == fresh
+
+
+def _schema_of(conn) -> dict:
+    """Name -> SQL (whitespace collapsed) of every table, index and trigger of a database."""
+    import re
+
+    return {r[0]: re.sub(r"\s+", " ", r[1]) for r in conn.execute(
+        "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
 
 
 def test_real_migration_2_to_3(tmp_path):
     """A schema-2 database (no model_topology, the old delete trigger) opens as schema 3 with
     the schema a new database has; its models are kept and have no topology record."""
-    import re as _re
-
     path = tmp_path / "v2.db"
     with Database(path):
         pass
@@ -937,9 +939,7 @@ def test_real_migration_2_to_3(tmp_path):
         d.conn.execute("PRAGMA foreign_keys = OFF")
         d.conn.execute("DELETE FROM models WHERE id = 1")        # the trigger removes the row
         assert d.conn.execute("SELECT count(*) FROM model_topology").fetchone()[0] == 0
-        migrated = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
-            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+        migrated = _schema_of(d.conn)
     with Database(tmp_path / "new.db") as d:
-        fresh = {r[0]: _re.sub(r"\s+", " ", r[1]) for r in d.conn.execute(
-            "SELECT name, sql FROM sqlite_master WHERE sql IS NOT NULL")}
+        fresh = _schema_of(d.conn)
     assert migrated == fresh
