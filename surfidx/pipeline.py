@@ -109,9 +109,8 @@ def combine_descriptors(sets, weights):
 
 
 def _read(timings, progress, path, texture, samples, allow_outside_textures):
-    """:func:`surfidx.io.read_model` timed as the ``read`` stage; its repair's CPU seconds in
-    ``timings["repair_cpu"]`` (the reading and the repair together, when anything was
-    repaired)."""
+    """:func:`surfidx.io.read_model` timed as the ``read`` stage; when anything was repaired, the
+    CPU seconds of the reading and the repair together in ``timings["read_cpu"]``."""
     import time
 
     from .io import read_model
@@ -208,7 +207,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     """
     import time
 
-    from .codec import CODEC_VERSION, COLOR_WEIGHT, Encoder, PartsEncoder, decode
+    from .codec import CODEC_VERSION, COLOR_WEIGHT, PartsEncoder, decode
     from .descriptors import DEFAULT_LMAX, describe_grid
     from .mesh import MAX_EDGE_RATIO
     from .metrics import evaluate
@@ -218,23 +217,15 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     timings = {}
     model = _read(timings, progress, path, texture, samples, allow_outside_textures)
     surfels = model.surfels
+    # one part: exactly Encoder's stream (PartsEncoder of one part is that part's Encoder)
+    pe = PartsEncoder(list(model.parts), level=level, method=method, progress=progress,
+                      face_patches=[model.face_patch(i) for i in range(len(model.parts))])
+    encoders = list(pe.encoders)
+    for e in encoders:
+        for k, v in e.setup_seconds.items():
+            timings[k] = timings.get(k, 0.0) + v
     t0 = time.perf_counter()
-    if len(model.parts) == 1:
-        enc = Encoder(model.parts[0], level=level, method=method, progress=progress,
-                      face_patch=model.face_patch(0))
-        encoders = [enc]
-        timings.update(enc.setup_seconds)
-        t0 = time.perf_counter()
-        stream = enc.encode(bits_per_surfel, progress=progress)
-    else:
-        pe = PartsEncoder(list(model.parts), level=level, method=method, progress=progress,
-                          face_patches=[model.face_patch(i) for i in range(len(model.parts))])
-        encoders = list(pe.encoders)
-        for e in encoders:
-            for k, v in e.setup_seconds.items():
-                timings[k] = timings.get(k, 0.0) + v
-        t0 = time.perf_counter()
-        stream = pe.encode(bits_per_surfel)
+    stream = pe.encode(bits_per_surfel, progress=progress)
     timings["encode"] = time.perf_counter() - t0
     decoded = _timed(timings, "decode", progress, decode, stream)
     q = _timed(timings, "evaluate", progress, evaluate, _reference(model), decoded)
@@ -355,7 +346,6 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
         sphere_map = parameterize(part, method=method, stress=False, progress=progress)
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
-        t0 = time.perf_counter()
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,
                       grid_level, color=part.has_color)
         d = _timed(timings, "describe", progress, describe_grid, grid, grid_level, lmax=lm)
