@@ -452,3 +452,25 @@ def test_unmapped_sqlite_error_is_one_line():
 
     r = CliRunner().invoke(boom, [])
     _one_error_line(r, "SQLite error (no such table: x\\nsecond line)")
+
+
+def test_warnings_are_one_line_and_resource_warnings_are_not_shown():
+    """A command's warnings are printed as one line each; a ResourceWarning (which the garbage
+    collector may raise during a command for an object that is not the command's) and a
+    DeprecationWarning are not."""
+    import warnings
+
+    import click
+
+    from surfidx.cli._common import command_errors
+
+    @click.command()
+    @command_errors
+    def warn():
+        warnings.warn("3 degenerate faces were dropped", UserWarning)
+        warnings.warn("unclosed file <_io.BufferedReader name=17>", ResourceWarning)
+        warnings.warn("old API", DeprecationWarning)
+
+    r = CliRunner().invoke(warn, [])
+    assert r.exit_code == 0
+    assert r.output.strip().splitlines() == ["warning: 3 degenerate faces were dropped"]

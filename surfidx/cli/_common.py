@@ -46,6 +46,10 @@ def plain(text) -> str:
     return _UNSAFE.sub(_escape, text) if _UNSAFE.search(text) else text
 
 
+_NOT_FOR_USERS = (DeprecationWarning, ResourceWarning)
+"""Warning categories the CLI does not print (Python's default filters hide them too)."""
+
+
 def command_errors(func):
     """Map library errors to ``click.ClickException`` (one line, exit 1), and OS errors too.
 
@@ -57,7 +61,9 @@ def command_errors(func):
     ``{"error": "..."}`` (exact, not escaped) and the exit status is 1. A closed pipe
     (``surfidx ls | head``) ends the command quietly (click's handling of ``EPIPE``).
 
-    Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format.
+    Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format;
+    :data:`_NOT_FOR_USERS` (deprecations, and resource warnings, which the garbage collector
+    may raise during a command for objects that are not the command's) are not shown.
     """
 
     @functools.wraps(func)
@@ -94,7 +100,7 @@ def command_errors(func):
                 seen = set()
                 for w in caught:
                     msg = str(w.message)
-                    if msg not in seen and not issubclass(w.category, DeprecationWarning):
+                    if msg not in seen and not issubclass(w.category, _NOT_FOR_USERS):
                         seen.add(msg)
                         click.echo(f"warning: {plain(msg)}", err=True)
 
