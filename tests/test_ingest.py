@@ -561,8 +561,11 @@ def _wait_dead(pids, seconds=60.0) -> list:
 
 
 def pid_processor(path, **kw):
-    """``fake_processor`` that first writes its process id to ``<path>.pid``."""
-    Path(str(path) + ".pid").write_text(str(os.getpid()))
+    """``fake_processor`` that first writes its process id to ``<path>.pid`` (whole: written
+    beside it, then renamed, so a reader never sees an empty file)."""
+    tmp = Path(str(path) + ".pid.tmp")
+    tmp.write_text(str(os.getpid()))
+    os.replace(tmp, Path(str(path) + ".pid"))
     return fake_processor(path, **kw)
 
 
@@ -595,6 +598,7 @@ def _kill_parent_and_watch_workers(tmp_path, n_pids, extra="{}"):
         os.kill(proc.pid, signal.SIGKILL)                 # only the parent, as the OOM killer
     finally:
         proc.wait()
+        proc.stderr.close()
     alive = _wait_dead(pids)
     for pid in alive:                                     # never leave orphans behind
         os.kill(pid, signal.SIGKILL)
