@@ -259,6 +259,7 @@ class Encoder:
         t["transform"] = time.perf_counter() - t0
         report(progress, "transform", 1, 1)
         self.setup_seconds = t
+        self._zerotree = None   # zerotree.prepare's, at the first encode
 
     def _code_mask(self, surfels, sphere_points, location, face_patch):
         """The virtual-region mask and region table (:mod:`surfidx.topology._restore`)."""
@@ -292,6 +293,16 @@ class Encoder:
             self.mask = encode_mask(bits, self.level)
             self.regions = codes
             self.virtual_share = float(bits.mean())
+
+    def _prepared(self):
+        """The coefficients quantised on the grid's forest (:func:`surfidx.zerotree.prepare`),
+        made at the first :meth:`encode` and kept: each rate then only codes."""
+        if self._zerotree is None:
+            ico = icosphere(self.level)
+            self._zerotree = zerotree.prepare(self.coeffs, ico.tree_parent, ico.children_indptr,
+                                              ico.children_indices, step=self.step,
+                                              final_plane=0)
+        return self._zerotree
 
     def header_bytes(self) -> int:
         """Bytes of the container header for this model (the virtual-region mask included)."""
@@ -339,10 +350,7 @@ class Encoder:
                              f"is {lowest:.3g} bits/surfel ({smallest} bytes)")
         if progress is not None:
             progress("code", 0, 1)
-        ico = icosphere(self.level)
-        stream, zh = zerotree.encode(self.coeffs, ico.tree_parent, ico.children_indptr,
-                                     ico.children_indices, step=self.step, final_plane=0,
-                                     max_bytes=budget)
+        stream, zh = zerotree.encode_prepared(self._prepared(), max_bytes=budget)
         # a stream that finished every plane early may be shorter than the grid's smallest
         # container: pad it with zero bytes, which the decoder reads past the end anyway
         stream += bytes(max(0, container.min_file_bytes(self.level) - self.header_bytes()

@@ -61,7 +61,7 @@ from .container import MAX_PLANE as _MAX_PLANE
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
-__all__ = ["encode", "decode", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
+__all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
            "check_forest", "DecodedPlanes", "quantize_to_plane", "anchor_values"]
 
 VERSION = 1
@@ -637,6 +637,55 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
         Bad shapes, a forest that is not one, non-finite coefficients, a step too small for the
         coefficients, a bad plane or budget.
     """
+    return encode_prepared(prepare(coeffs, parent, children_indptr, children_indices, step=step,
+                                   final_plane=final_plane, top_plane=top_plane),
+                           max_bytes=max_bytes)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Coefficients quantised on a validated forest, ready to be coded at any budget
+    (:func:`prepare`, :func:`encode_prepared`): the work of :func:`encode` that does not depend
+    on the budget, done once for an encoder that codes one model at several rates.
+
+    Attributes
+    ----------
+    header : dict
+        ``{"version", "top_plane", "final_plane", "step"}`` (as :func:`encode` returns it).
+    parent, indptr, indices : (n,), (n + 1,), (n - n_roots,) int64
+        The forest (:func:`check_forest`).
+    depth : (n,) int64
+    magnitudes : (k, n) int64
+        Quantised magnitudes, layer-major.
+    negative : (k, n) uint8
+    tops : tuple of three (k, n) int8
+        Top bit of each magnitude, of its descendants' largest and of its grand-descendants'.
+    """
+
+    header: dict
+    parent: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    depth: np.ndarray
+    magnitudes: np.ndarray
+    negative: np.ndarray
+    tops: tuple
+
+
+def prepare(coeffs, parent, children_indptr, children_indices, *, step: float = 1.0,
+            final_plane: int = 0, top_plane: int | None = None) -> Prepared:
+    """Validate and quantise coefficients for :func:`encode_prepared` (see :func:`encode` for
+    the parameters).
+
+    Returns
+    -------
+    Prepared
+
+    Raises
+    ------
+    InputError
+        As :func:`encode`.
+    """
     parent, indptr, indices, order, depth = check_forest(parent, children_indptr,
                                                          children_indices)
     n = parent.shape[0]
@@ -645,7 +694,6 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
         c = c[:, None]
     if c.ndim != 2 or c.shape[0] != n:
         raise InputError(f"coeffs must have shape ({n}, k) to match the forest, got {c.shape}")
-    k = c.shape[1]
     step32 = float(np.float32(step)) if np.isfinite(step) else float("nan")
     if not (step32 > 0 and np.isfinite(step32)):
         raise InputError(f"step must be a positive finite float32, got {step!r}")
@@ -665,11 +713,37 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
     if top < data_top or top > _MAX_PLANE:
         raise InputError(f"top_plane must be in [{data_top}, {_MAX_PLANE}] for these "
                          f"coefficients, got {top_plane}")
-    if max_bytes is not None and (isinstance(max_bytes, bool) or int(max_bytes) < 4):
-        raise InputError(f"max_bytes must be an integer >= 4, got {max_bytes!r}")
     header = {"version": VERSION, "top_plane": top, "final_plane": int(final_plane),
               "step": step32}
-    tb, dtop, ltop = _set_tops(mag, order, indptr, indices)
+    return Prepared(header=header, parent=parent, indptr=indptr, indices=indices, depth=depth,
+                    magnitudes=mag, negative=sgn, tops=_set_tops(mag, order, indptr, indices))
+
+
+def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
+    """:func:`encode` of prepared coefficients (:func:`prepare`): the same stream and header.
+
+    Parameters
+    ----------
+    prepared : Prepared
+    max_bytes : int, optional
+        As for :func:`encode`.
+
+    Returns
+    -------
+    stream : bytes
+    header : dict
+
+    Raises
+    ------
+    InputError
+        A bad budget.
+    """
+    if max_bytes is not None and (isinstance(max_bytes, bool) or int(max_bytes) < 4):
+        raise InputError(f"max_bytes must be an integer >= 4, got {max_bytes!r}")
+    k, n = prepared.magnitudes.shape
+    top = prepared.header["top_plane"]
+    final_plane = prepared.header["final_plane"]
+    tb, dtop, ltop = prepared.tops
     limit = np.iinfo(np.int64).max if max_bytes is None else int(max_bytes)
     planes = max(top - int(final_plane) + 1, 0)
     cap = min(limit, n * k * (planes + 3) // 6 + 1024) + 16
@@ -678,13 +752,15 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
         buf = np.zeros(cap, dtype=np.uint8)
         est = new_encoder()
         budget = min(limit, cap - 16)
-        complete = _run(0, buf, budget, est, dst, new_models(N_CONTEXTS), k, n, top, int(final_plane), parent, indptr,
-                        indices, depth, tb, dtop, ltop, mag, sgn)[0]
+        complete = _run(0, buf, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
+                        int(final_plane), prepared.parent, prepared.indptr, prepared.indices,
+                        prepared.depth, tb, dtop, ltop, prepared.magnitudes,
+                        prepared.negative)[0]
         if complete or budget >= limit:
             break
         cap = 4 * cap
     size = enc_flush(est, buf)
-    return bytes(buf[:min(size, budget)]), header
+    return bytes(buf[:min(size, budget)]), dict(prepared.header)
 
 
 def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *, header,

@@ -9,8 +9,8 @@ import pytest
 
 from surfidx import BitstreamError, InputError
 from surfidx.icosphere import icosphere
-from surfidx.zerotree import (HEADER_SIZE, check_forest, decode, encode, pack_header,
-                              unpack_header)
+from surfidx.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared,
+                              pack_header, prepare, unpack_header)
 
 
 def _csr(parent):
@@ -129,6 +129,25 @@ def test_prefix_equals_direct_encoding_bit_exact(make):
             np.testing.assert_array_equal(decode(direct, n, 3, *tree, header=header), pre)
         # max_bytes on decode equals slicing
         np.testing.assert_array_equal(decode(full, n, 3, *tree, header=header, max_bytes=b), pre)
+
+
+@pytest.mark.parametrize("make", [lambda: random_forest(2000, 5, 3), lambda: quad_forest(4)])
+def test_prepared_coefficients_give_encodes_streams_at_every_budget(make):
+    """One prepare (quantisation, set tops) serves every budget: the streams and headers are
+    encode's, byte for byte, and coding does not change what was prepared."""
+    tree = make()
+    c = wavelet_like(tree, 3, 8)
+    prepared = prepare(c, *tree, step=0.05)
+    before = prepared.magnitudes.copy(), [t.copy() for t in prepared.tops]
+    full, header = encode(c, *tree, step=0.05)
+    for b in [None, 4, 5, 100, len(full) // 2, len(full), len(full) + 7]:
+        assert encode_prepared(prepared, max_bytes=b) == encode(c, *tree, step=0.05, max_bytes=b)
+    np.testing.assert_array_equal(prepared.magnitudes, before[0])
+    for t, t0 in zip(prepared.tops, before[1]):
+        np.testing.assert_array_equal(t, t0)
+    assert prepared.header == header
+    with pytest.raises(InputError, match="max_bytes must be"):
+        encode_prepared(prepared, max_bytes=3)
 
 
 def test_layers_interleaved_weak_layer_later():
