@@ -38,6 +38,7 @@ across the parts in proportion to their input surfels (:func:`surfidx.container.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from pathlib import Path
@@ -89,6 +90,14 @@ MAX_COLOR_WEIGHT = 1e3
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
 encoder's are below 1e8 (level norms up to 371 at level 9, density weights up to 64)."""
+
+
+@functools.lru_cache(maxsize=MAX_LEVEL + 1)
+def _grid_forest(level: int):
+    """The zerotree forest of the level-``level`` grid, checked once per process (as
+    :func:`surfidx.icosphere.icosphere` builds the grid once)."""
+    ico = icosphere(level)
+    return zerotree.forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
 
 
 def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
@@ -298,10 +307,8 @@ class Encoder:
         """The coefficients quantised on the grid's forest (:func:`surfidx.zerotree.prepare`),
         made at the first :meth:`encode` and kept: each rate then only codes."""
         if self._zerotree is None:
-            ico = icosphere(self.level)
-            self._zerotree = zerotree.prepare(self.coeffs, ico.tree_parent, ico.children_indptr,
-                                              ico.children_indices, step=self.step,
-                                              final_plane=0)
+            self._zerotree = zerotree.prepare(self.coeffs, _grid_forest(self.level), None, None,
+                                              step=self.step, final_plane=0)
         return self._zerotree
 
     def header_bytes(self) -> int:
@@ -591,8 +598,8 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.n
     frames = header.tangent_weight is not None
     k = header.layers
     ico = icosphere(header.level)
-    w, planes = zerotree.decode(stream, ico.n_vertices, k, ico.tree_parent, ico.children_indptr,
-                                ico.children_indices, header=zh, planes=True)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(header.level), None, None,
+                                header=zh, planes=True)
     scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
     if field is not None:
         scales = scales * density.vertex_scales(*field, header.level)

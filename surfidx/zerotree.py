@@ -61,7 +61,7 @@ from .container import MAX_PLANE as _MAX_PLANE
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
-__all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
+__all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "Forest", "forest", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
            "check_forest", "DecodedPlanes", "quantize_to_plane", "anchor_values"]
 
 VERSION = 1
@@ -169,6 +169,44 @@ def check_forest(parent, children_indptr, children_indices):
         raise InputError("parent does not describe a forest (a cycle or a node listed twice); "
                          "every node must reach a root (-1) by following parent")
     return parent, indptr, indices, order, depth
+
+
+@dataclass(frozen=True)
+class Forest:
+    """A forest checked once by :func:`check_forest` (:func:`forest`), to pass as ``parent`` to
+    :func:`encode`, :func:`prepare` and :func:`decode` (with the children arguments left None)
+    when one forest serves many streams.
+
+    Attributes
+    ----------
+    parent : (n,) int64
+    indptr : (n + 1,) int64
+    indices : (n - n_roots,) int64
+    order : (n,) int64
+        Breadth-first order (roots first).
+    depth : (n,) int64
+    """
+
+    parent: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    order: np.ndarray
+    depth: np.ndarray
+
+
+def forest(parent, children_indptr, children_indices) -> Forest:
+    """:func:`check_forest`'s result as one :class:`Forest` (same parameters and errors)."""
+    return Forest(*check_forest(parent, children_indptr, children_indices))
+
+
+def _checked(parent, children_indptr, children_indices):
+    """The arrays of :func:`check_forest`, from a :class:`Forest` as they are."""
+    if isinstance(parent, Forest):
+        if children_indptr is not None or children_indices is not None:
+            raise InputError("with a Forest as parent, leave children_indptr and "
+                             "children_indices None (the Forest holds them)")
+        return parent.parent, parent.indptr, parent.indices, parent.order, parent.depth
+    return check_forest(parent, children_indptr, children_indices)
 
 
 @njit(cache=True)
@@ -453,8 +491,23 @@ def _dequantize(q, lo, negative, step):
     return np.where(negative, -val, val)
 
 
+@njit(cache=True)
 def _reconstruct(neg, known, lo, step):
-    return np.ascontiguousarray(_dequantize(known, lo, neg.astype(bool), step).T)
+    """:func:`_dequantize` of the decoder's layer-major state, node-major: ``(n, k)`` float64,
+    the same floating-point operations element by element."""
+    k, n = known.shape
+    frac = np.zeros(_MAX_PLANE + 1, dtype=np.float64)   # the midpoint offset of each lowest plane
+    for b in range(1, _MAX_PLANE + 1):
+        frac[b] = np.ldexp(1.0, b - 1) - 0.5
+    out = np.empty((n, k), dtype=np.float64)
+    for i in range(n):
+        for l in range(k):
+            q = known[l, i]
+            val = 0.0
+            if q > 0:
+                val = (np.float64(q) + frac[lo[l, i]]) * step
+            out[i, l] = -val if neg[l, i] != 0 else val
+    return out
 
 
 # ---------------------------------------------------------------- anchors
@@ -605,11 +658,12 @@ def encode(coeffs, parent, children_indptr, children_indices, *, step: float = 1
     ----------
     coeffs : (n, k) float64
         Coefficients, one row per tree node, one column per layer (a 1-D array is one layer).
-    parent : (n,) int64
-        Parent of every node, ``-1`` for roots.
-    children_indptr : (n + 1,) int64
+    parent : (n,) int64 or Forest
+        Parent of every node, ``-1`` for roots; or a :class:`Forest` (:func:`forest`), the
+        children arguments then None.
+    children_indptr : (n + 1,) int64 or None
         CSR row pointer of the children lists.
-    children_indices : (n - n_roots,) int64
+    children_indices : (n - n_roots,) int64 or None
         CSR column indices (the children of every node).
     step : float
         Quantisation step (rounded to float32): magnitudes are coded as
@@ -686,8 +740,7 @@ def prepare(coeffs, parent, children_indptr, children_indices, *, step: float = 
     InputError
         As :func:`encode`.
     """
-    parent, indptr, indices, order, depth = check_forest(parent, children_indptr,
-                                                         children_indices)
+    parent, indptr, indices, order, depth = _checked(parent, children_indptr, children_indices)
     n = parent.shape[0]
     c = as_array(coeffs, "coeffs", dtype=np.float64)
     if c.ndim == 1:
@@ -776,7 +829,8 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
     k : int
         Number of layers.
     parent, children_indptr, children_indices : arrays
-        The forest used by the encoder (see :func:`encode`).
+        The forest used by the encoder (see :func:`encode`), or a :class:`Forest` and None,
+        None.
     header : dict or bytes
         The encoder's header, as a dict or packed by :func:`pack_header`.
     max_bytes : int, optional
@@ -802,8 +856,7 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
     if isinstance(header, (bytes, bytearray, memoryview)):
         header = unpack_header(bytes(header))
     top, final, step = _check_header(header)
-    parent, indptr, indices, order, depth = check_forest(parent, children_indptr,
-                                                         children_indices)
+    parent, indptr, indices, order, depth = _checked(parent, children_indptr, children_indices)
     if int(n) != parent.shape[0]:
         raise InputError(f"n = {n} does not match the forest's {parent.shape[0]} nodes")
     if isinstance(k, bool) or int(k) < 1:

@@ -9,7 +9,7 @@ import pytest
 
 from surfidx import BitstreamError, InputError
 from surfidx.icosphere import icosphere
-from surfidx.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared,
+from surfidx.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared, forest,
                               pack_header, prepare, unpack_header)
 
 
@@ -148,6 +148,22 @@ def test_prepared_coefficients_give_encodes_streams_at_every_budget(make):
     assert prepared.header == header
     with pytest.raises(InputError, match="max_bytes must be"):
         encode_prepared(prepared, max_bytes=3)
+
+
+def test_a_checked_forest_codes_and_decodes_as_its_arrays():
+    """A Forest (checked once) in place of the three arrays: the same streams and values."""
+    tree = random_forest(1500, 4, 11)
+    n = len(tree[0])
+    c = wavelet_like(tree, 2, 9)
+    f = forest(*tree)
+    stream, header = encode(c, *tree, step=0.05, max_bytes=600)
+    assert encode(c, f, None, None, step=0.05, max_bytes=600) == (stream, header)
+    np.testing.assert_array_equal(decode(stream, n, 2, f, None, None, header=header),
+                                  decode(stream, n, 2, *tree, header=header))
+    with pytest.raises(InputError, match="leave children_indptr and children_indices None"):
+        decode(stream, n, 2, f, tree[1], tree[2], header=header)
+    with pytest.raises(InputError, match="does not match"):
+        decode(stream, n + 1, 2, f, None, None, header=header)
 
 
 def test_layers_interleaved_weak_layer_later():
