@@ -8,9 +8,10 @@ import pytest
 from surfidx import InputError, SurfelSet, read_surfels
 from surfidx.icosphere import icosphere
 from surfidx.sphere import parameterize
+from surfidx.spherical import map_points
 from surfidx.spherical import orientation as _orientation
-from surfidx.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, map_triangles,
-                              resample)
+from surfidx.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, locate_grid,
+                              map_triangles, resample)
 
 
 def _random_sites(n=500, seed=1):
@@ -142,6 +143,30 @@ def test_sharpness_one_is_the_phong_point(sphere_surfels):
     proj = p[:, None, :] - np.einsum("qkl,qkl->qk", p[:, None, :] - v, nrm)[..., None] * nrm
     np.testing.assert_allclose(out, 0.4 * p + 0.6 * np.einsum("qk,qkl->ql", bary, proj),
                                atol=1e-12)
+
+
+@pytest.mark.parametrize("phong, sharpness", [(0.9, 4.0), (0.6, 1.0), (0.0, 2.5)])
+def test_resample_gives_the_einsum_formula_bit_for_bit(sphere_surfels, phong, sharpness):
+    """The compiled lift is a speed-up only: every bit of the grid (signed zeros included) is
+    that of the numpy expressions it replaced."""
+    s = sphere_surfels
+    rng = np.random.default_rng(5)
+    tilted = s.normals + 0.1 * rng.normal(size=s.normals.shape)
+    bumpy = SurfelSet(s.positions * (1 + 0.2 * rng.random(len(s)))[:, None],
+                      tilted / np.linalg.norm(tilted, axis=1)[:, None], s.radii, s.colors,
+                      faces=s.faces)
+    out = resample(bumpy, s.positions, 4, phong=phong, sharpness=sharpness)
+    pts = map_points(bumpy, s.positions)
+    tri, idx, bary = locate_grid(pts, icosphere(4), triangles=map_triangles(bumpy, pts))
+    corners = tri[idx]
+    v, nrm = bumpy.positions[corners], bumpy.normals[corners]
+    p = np.einsum("qk,qkl->ql", bary, v)
+    off = np.einsum("qkl,qkl->qk", p[:, None, :] - v, nrm)
+    w = np.maximum(bary, 0.0) ** sharpness
+    w /= w.sum(axis=1)[:, None]
+    geo = p - phong * np.einsum("qk,qk,qkl->ql", w, off, nrm)
+    col = np.einsum("qk,qkl->ql", bary, bumpy.colors.astype(np.float64)[corners])
+    assert out.tobytes() == np.hstack([geo, col]).tobytes()
 
 
 def test_sharpened_lift_follows_the_surfel_disks():
