@@ -239,7 +239,54 @@ def _grid_normals_radii(p, f, ptr, nb):
 
 
 def _neighbors(tri: np.ndarray) -> np.ndarray:
-    """nbr[t, j]: the triangle across the edge opposite corner j of triangle t."""
+    """nbr[t, j]: the triangle across the edge opposite corner j of triangle t (-1: none)."""
+    tri = np.ascontiguousarray(tri, np.int64)
+    if len(tri) and tri.min() >= 0:
+        nbr, unique = _twin_edges(tri, int(tri.max()) + 1)
+        if unique:
+            return nbr
+    return _neighbors_sorted(tri)
+
+
+@numba.njit(cache=True)
+def _twin_edges(tri, n):
+    """:func:`_neighbors` through the directed edges leaving each vertex; ``unique`` False when
+    a directed edge occurs twice (then which twin the sort finds is the sort's choice, and
+    :func:`_neighbors_sorted` decides)."""
+    m = tri.shape[0]
+    ptr = np.zeros(n + 1, np.int64)
+    for t in range(m):
+        for j in range(3):
+            ptr[tri[t, j] + 1] += 1
+    for v in range(n):
+        ptr[v + 1] += ptr[v]
+    fill = ptr[:-1].copy()
+    head = np.empty(3 * m, np.int64)     # the directed edge a -> head, of triangle owner
+    owner = np.empty(3 * m, np.int64)
+    for t in range(m):
+        for j in range(3):
+            a = tri[t, (j + 1) % 3]
+            b = tri[t, (j + 2) % 3]
+            for e in range(ptr[a], fill[a]):
+                if head[e] == b:
+                    return np.empty((0, 3), np.int64), False
+            head[fill[a]] = b
+            owner[fill[a]] = t
+            fill[a] += 1
+    nbr = np.full((m, 3), -1, np.int64)
+    for t in range(m):
+        for j in range(3):
+            a = tri[t, (j + 1) % 3]
+            b = tri[t, (j + 2) % 3]
+            for e in range(ptr[b], fill[b]):
+                if head[e] == a:
+                    nbr[t, j] = owner[e]
+                    break
+    return nbr, True
+
+
+def _neighbors_sorted(tri: np.ndarray) -> np.ndarray:
+    """:func:`_neighbors` by sorting the directed edges (any triangle list)."""
     m = len(tri)
     n = int(tri.max()) + 1
     a = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0]])

@@ -270,3 +270,17 @@ def test_sites_in_one_hemisphere_still_locate_every_query():
     np.testing.assert_allclose(bary.sum(axis=1), 1.0, atol=1e-9)
     above = q[:, 2] > 0.5                   # inside the sites' cap: located exactly
     assert bary[above].min() >= -1e-12
+
+
+def test_triangle_neighbours_by_vertex_edges_equal_the_sorted_edges():
+    """The directed-edge walk finds the twins the edge sort finds, on a hull, on a mesh's own
+    faces and with an open edge; a directed edge listed twice goes to the sort."""
+    from surfidx.resample import _neighbors, _neighbors_sorted
+    from surfidx.spherical import hull_triangles
+
+    from conftest import icosphere_mesh
+
+    _, faces = icosphere_mesh(3)
+    for tri in (hull_triangles(_random_sites(400)), np.asarray(faces, np.int64),
+                np.asarray(faces, np.int64)[1:], np.array([[0, 1, 2], [0, 1, 2], [2, 1, 3]])):
+        np.testing.assert_array_equal(_neighbors(tri), _neighbors_sorted(tri))
