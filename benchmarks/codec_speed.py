@@ -5,7 +5,7 @@ size and SHA-256 so byte-identity across versions is visible.
 The spherical map (not the codec's) is computed once per model and kept in a cache folder
 (``--cache``, default ``$TMPDIR/surfidx-codec-speed``) keyed by the model file's content hash, so
 a re-run times only the codec. Figures are CPU seconds (``time.process_time``) of one core, the
-best of ``--repeat`` runs.
+best of ``--repeat`` runs, with one BLAS/OpenMP thread unless the environment says otherwise.
 
 Run: ``python benchmarks/codec_speed.py [MODEL ...] [--rates 1 2 4 8] [--repeat 3]``
 (default model: ``../shared/data/models/igea.ply`` beside the repository).
@@ -15,20 +15,25 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import os
 import pickle
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
+# one core, as an ingest worker runs (README: one BLAS/OpenMP thread per worker process); idle
+# BLAS threads spinning on a loaded machine would otherwise show up in the CPU seconds
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import surfidx.codec as codec
-from surfidx import density, wavelets, zerotree
-from surfidx.codec import PartsEncoder, decode, decode_grid
-from surfidx.io import read_model
-from surfidx.klt import KLT
-from surfidx.pipeline import content_hash
+import surfidx.codec as codec  # noqa: E402
+from surfidx import density, wavelets  # noqa: E402
+from surfidx.codec import PartsEncoder, decode, decode_grid  # noqa: E402
+from surfidx.io import read_model  # noqa: E402
+from surfidx.klt import KLT  # noqa: E402
+from surfidx.pipeline import content_hash  # noqa: E402
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "models" / "igea.ply"
 DEFAULT_RATES = (1.0, 2.0, 4.0, 8.0)
