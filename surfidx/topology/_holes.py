@@ -18,7 +18,8 @@
    steps 3 and 4 run twice. A patch that folds nonetheless (two neighbouring patch faces whose
    normals disagree: a flat disk's outline, which the continuation overshoots) or has
    degenerate faces takes the membrane solution ``L x = 0`` instead when that has fewer. The
-   two lids of a handle cut take the membrane from the start (a flat lid across the tube).
+   two lids of a handle cut take the membrane from the start, in both rounds (a flat lid
+   across the tube, its edges flipped for that shape).
 """
 
 from __future__ import annotations
@@ -457,18 +458,23 @@ def fill_holes(V: np.ndarray, F: np.ndarray, loops: list, options, *, membrane=N
     free[n:] = True
     flippable = np.zeros(len(every), bool)
     flippable[len(F):] = True
+    lid = np.zeros(nv, bool)
+    if membrane is not None and np.any(membrane):
+        lid[patch[np.asarray(membrane, bool)[hole]].ravel()] = True
+        lid &= free
     # flips on the flat refinement, fairing, then flips and fairing once more on the faired
     # patch (Liepa alternates the two: the first fairing turns slivers of a flat fan into
-    # folds that the second round of flips removes)
+    # folds that the second round of flips removes). The lids are faired as membranes in both
+    # rounds, so that the second round flips their edges for the membrane's shape: flipped for
+    # the bi-Laplacian's (folded back along the tube) and then relaxed as a membrane, a lid can
+    # squeeze a cluster of its vertices to one point (faces of zero area, which to_surfels drops,
+    # reopening the surface: retrieval model d067 had 10)
     for _ in range(2):
         if options.flip_rounds:
             _flip_rounds(allv, every, _twins(every, nv), flippable, options.flip_rounds)
-        allv = _fair(allv, every, free)
+        allv = _fair(allv, every, free & ~lid)
+        allv = _fair(allv, every, lid, order=1)
     patch = every[len(F):]
-    if membrane is not None and np.any(membrane):
-        lid = np.zeros(nv, bool)
-        lid[patch[np.asarray(membrane, bool)[hole]].ravel()] = True
-        allv = _fair(allv, every, lid & free, order=1)
     bad = _bad_faces(allv, every, len(F), hole, len(loops))
     if membrane is not None:
         bad[np.asarray(membrane, bool)] = 0
