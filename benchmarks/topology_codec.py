@@ -9,8 +9,10 @@ parts coded as one file (:class:`surfidx.codec.PartsEncoder`, geometry only) and
 real surface (:func:`surfidx.codec.decode`). One row per model and rate (2 and 4 bits/surfel):
 
 * the input's and the decoded mesh's topology, each counted independently with
-  :func:`surfidx.topology.analyse`: boundary loops, genus (of the largest piece), pieces;
-  ``same`` says whether loops and genus agree (pieces: the input's less the dropped tiny ones);
+  :func:`surfidx.topology.analyse`: boundary loops, genus (of the largest piece), pieces; the
+  kept pieces' loops and genus of every piece (each piece analysed on its own: what decoding
+  must restore, the dropped tiny pieces' loops not counted); ``same`` says whether the decoded
+  loops, genus of every piece and pieces are the kept pieces' (:func:`restored`);
 * the stream: bytes, the mask sections' bytes (mask, its length, region table) and their share
   of the file, the virtual share of the grid;
 * PSNR_D2 (:func:`surfidx.metrics.psnr_d2`) of the decoded real surface (surfels) against the
@@ -44,10 +46,28 @@ MODELS = ["cow.obj", "spot/spot_triangulated.obj", "rocker-arm.obj", "armadillo.
 
 
 def topology(vertices, faces) -> dict:
-    """Boundary loops, genus of the largest piece, pieces, pinched vertices, non-manifold edges."""
+    """Boundary loops, genus of the largest piece, genus of every piece (sorted), pieces,
+    pinched vertices, non-manifold edges."""
     r = analyse(vertices, faces)
-    return dict(loops=r.holes, genus=r.genus[0], pieces=r.parts, pinched=r.pinched_vertices,
-                nonmanifold=r.nonmanifold_edges)
+    return dict(loops=r.holes, genus=r.genus[0], genera=tuple(sorted(r.genus)), pieces=r.parts,
+                pinched=r.pinched_vertices, nonmanifold=r.nonmanifold_edges)
+
+
+def kept_topology(parts) -> dict:
+    """What decoding must restore: boundary loops (summed) and genus (sorted) of the pieces
+    :func:`~surfidx.topology.split_parts` kept, each counted on its own with
+    :func:`~surfidx.topology.analyse`, and their number (the dropped tiny pieces, with their
+    loops, are not stored)."""
+    rs = [analyse(p.vertices, p.faces) for p in parts.parts]
+    return dict(loops=sum(r.holes for r in rs),
+                genera=tuple(sorted(g for r in rs for g in r.genus)), pieces=len(rs))
+
+
+def restored(after, kept) -> bool:
+    """Whether the decoded mesh's topology (:func:`topology`) is the kept pieces'
+    (:func:`kept_topology`): loops, genus of every piece and pieces equal."""
+    return (after["loops"] == kept["loops"] and after["genera"] == kept["genera"]
+            and after["pieces"] == kept["pieces"])
 
 
 def measure(path, *, rates=(2.0, 4.0), level=None) -> list:
@@ -64,6 +84,7 @@ def measure(path, *, rates=(2.0, 4.0), level=None) -> list:
         parts = split_parts(mesh.vertices, mesh.faces)
     closed = [close_surface(p.vertices, p.faces) for p in parts.parts]
     t_repair = time.process_time() - t
+    kept = kept_topology(parts)
     built = [closed_surfels(c) for c in closed]
     t = time.process_time()
     enc = PartsEncoder([b[0] for b in built], face_patches=[b[1] for b in built], color=False,
@@ -82,9 +103,9 @@ def measure(path, *, rates=(2.0, 4.0), level=None) -> list:
             model=name, rate=rate, V=len(ref), parts=len(closed), dropped=parts.dropped,
             loops_in=before["loops"], genus_in=before["genus"], pieces_in=before["pieces"],
             loops_out=after["loops"], genus_out=after["genus"], pieces_out=after["pieces"],
+            loops_kept=kept["loops"], genera_kept=kept["genera"], genera_out=after["genera"],
             manifold=after["pinched"] == 0 and after["nonmanifold"] == 0,
-            same=(after["loops"] == before["loops"] and after["genus"] == before["genus"]
-                  and after["pieces"] == before["pieces"] - parts.dropped),
+            same=restored(after, kept),
             bytes=len(data), mask_bytes=sum(summ["mask_bytes"]), mask_share=summ["mask_share"],
             virtual_grid=float(np.dot(summ["virtual_share"], summ["part_surfels"])
                                / summ["surfels"]),
@@ -92,8 +113,8 @@ def measure(path, *, rates=(2.0, 4.0), level=None) -> list:
     return rows
 
 
-COLS = ["model", "rate", "V", "parts", "loops_in", "loops_out", "genus_in", "genus_out",
-        "pieces_in", "pieces_out", "manifold", "same", "bytes", "mask_bytes", "mask_share",
+COLS = ["model", "rate", "V", "parts", "loops_in", "loops_kept", "loops_out", "genus_in",
+        "genus_out", "genera_kept", "genera_out", "pieces_in", "pieces_out", "manifold", "same", "bytes", "mask_bytes", "mask_share",
         "virtual_grid", "psnr_d2", "t_repair", "t_setup"]
 
 
