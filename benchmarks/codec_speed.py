@@ -127,8 +127,10 @@ def run(path: Path, rates, repeat: int, cache: Path) -> None:
     print(f"\n{path.name}: {n:,} surfels, {len(model.parts)} part(s)")
     maps = cached_maps(path, model, cache)
     warm, _ = build_encoder(model, maps)   # load the compiled kernels, build the grid tables
-    warm.encode(rates[0])
-    del warm
+    warm_stream = warm.encode(rates[0])
+    decode(warm_stream)
+    decode(warm_stream, mesh=True)
+    del warm, warm_stream
     pe, steps = build_encoder(model, maps)
     print(f"  grid level {pe.encoders[0].level}, {pe.encoders[0].grid.shape[0]:,} vertices")
     print("  Encoder set-up (CPU s)")
@@ -142,7 +144,9 @@ def run(path: Path, rates, repeat: int, cache: Path) -> None:
     pe.encode(rates[0])
     print(f"  first encode (the coder's per-model preparation included): "
           f"{time.process_time() - t0:.3f} s at {rates[0]:g} b/s")
-    print(f"  {'rate':>5} {'bytes':>9} {'encode':>8} {'grid':>8} {'surfels':>8} {'mesh':>8}  sha256")
+    heads = ("bytes", "encode", "grid", "surfels", "mesh")
+    print(f"  {'rate':>5} " + " ".join(f"{h:>{9 if h == 'bytes' else 8}}" for h in heads)
+          + "  sha256")
     for rate in rates:
         data, t_enc = best(lambda: pe.encode(rate), repeat)
         if len(pe.encoders) == 1:

@@ -61,8 +61,9 @@ from .container import MAX_PLANE as _MAX_PLANE
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
-__all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "Forest", "forest", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
-           "check_forest", "DecodedPlanes", "quantize_to_plane", "anchor_values"]
+__all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "Forest", "forest",
+           "pack_header", "unpack_header", "HEADER_SIZE", "VERSION", "check_forest",
+           "DecodedPlanes", "quantize_to_plane", "anchor_values"]
 
 VERSION = 1
 """Version of the zerotree stream format (the first header byte)."""
