@@ -211,6 +211,19 @@ def _checked(parent, children_indptr, children_indices):
 
 
 @njit(cache=True)
+def _top_bit(m):
+    """Index of the highest set bit of ``m >= 0`` (-1 for 0), by halving the width."""
+    if m <= 0:
+        return -1
+    b = 0
+    for w in (32, 16, 8, 4, 2, 1):
+        if m >> w:
+            m >>= w
+            b += w
+    return b
+
+
+@njit(cache=True)
 def _set_tops(mag, order, indptr, indices):
     """Top bit (-1 for 0) of each magnitude, of the max over D(v) and of the max over L(v)."""
     k, n = mag.shape
@@ -219,12 +232,7 @@ def _set_tops(mag, order, indptr, indices):
     ltop = np.full((k, n), -1, dtype=np.int8)
     for l in range(k):
         for i in range(n):
-            m = mag[l, i]
-            b = -1
-            while m > 0:
-                m >>= 1
-                b += 1
-            tb[l, i] = b
+            tb[l, i] = _top_bit(mag[l, i])
         for t in range(n - 1, -1, -1):
             v = order[t]
             d = np.int8(-1)
