@@ -29,6 +29,7 @@ import warnings
 from pathlib import Path
 
 from surfidx import codec
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 from surfidx.io import read_mesh

@@ -37,6 +37,7 @@ import warnings
 import zlib
 from pathlib import Path
 
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 OUTCOMES = ("ok", "clean error", "crash", "hang", "memory kill")

@@ -28,6 +28,7 @@ import time
 import warnings
 from pathlib import Path
 
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 from surfidx import TriangleMesh, read_surfels

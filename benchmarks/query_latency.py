@@ -48,6 +48,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 from surfidx.database import Database, utc_now

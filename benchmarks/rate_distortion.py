@@ -58,6 +58,7 @@ import traceback
 import warnings
 from pathlib import Path
 
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 from surfidx.io import read_surfels

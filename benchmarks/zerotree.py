@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
 import numpy as np
 
 from surfidx import wavelets, zerotree

@@ -5,7 +5,11 @@ parameterization -> icosahedral resampling -> KLT + lifted butterfly wavelets ->
 arithmetic coding -> container; descriptors from the same spherical representation; SQLite store.
 """
 
-from ._jitcache import use_user_cache
+from ._numerics import use_portable_profile
+
+use_portable_profile()   # before numpy loads: the same kernels, so the same bytes, on every machine
+
+from ._jitcache import use_user_cache  # noqa: E402
 
 use_user_cache()   # before any kernel is compiled: numba's cache stays out of the package
 
@@ -18,7 +22,7 @@ __version__ = "0.1.0"
 __all__ = [
     "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
     "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
-    "DatabaseError", "TOL", "Tolerances", "__version__",
+    "DatabaseError", "TOL", "Tolerances", "__version__", "numerics_profile",
     "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
     "Icosphere", "choose_level", "KLT",
     "GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
@@ -29,7 +33,7 @@ __all__ = [
 # import, which a query of a stored model (`surfidx query id:N`) does not need. No export is
 # named as a submodule: importing the submodule would replace the export by the module
 # (the grid function is `surfidx.Icosphere(level)` or `surfidx.icosphere.icosphere(level)`).
-_LAZY = {"GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
+_LAZY = {"numerics_profile": "_numerics", "GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
          "farthest_point_landmarks": "geodesics", "geodesic_distances": "geodesics",
          "geodesic_path": "geodesics", "SphereOfInfluenceGraph": "graph",
          "Icosphere": "icosphere", "choose_level": "icosphere",

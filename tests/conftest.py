@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
+import surfidx  # noqa: F401  (first: numpy loads in surfidx's numerics profile, see _numerics)
+import numpy as np  # noqa: E402  (isort: skip)
 import pytest
 from hypothesis import settings
 

@@ -1,0 +1,62 @@
+"""The numerics profile: the same kernels, so the same bytes, on every x86-64 machine."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+
+import pytest
+
+import surfidx
+from surfidx._numerics import PROFILE, _cpu_flags
+
+x86_avx2 = pytest.mark.skipif(
+    platform.machine().lower() not in ("x86_64", "amd64")
+    or not {"avx2", "fma"} <= (_cpu_flags() or frozenset()),
+    reason="the portable profile is x86-64-v3 (AVX2 and FMA)")
+
+
+def _python(code: str, **env: str) -> subprocess.CompletedProcess:
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("NPY_DISABLE_CPU_FEATURES", "OPENBLAS_CORETYPE")}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**clean, **env}, timeout=120)
+
+
+@x86_avx2
+def test_the_test_process_computes_in_the_portable_profile():
+    assert surfidx.numerics_profile() == PROFILE == "x86-64-v3"
+
+
+@x86_avx2
+def test_import_surfidx_first_sets_the_profile_for_numpy_and_openblas():
+    out = _python("import os, surfidx, scipy.linalg; print(surfidx.numerics_profile()); "
+                  "print(os.environ['OPENBLAS_CORETYPE'])")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [PROFILE, "Haswell"]
+
+
+@x86_avx2
+def test_a_users_own_blas_kernels_are_kept_and_named():
+    out = _python("import surfidx; print(surfidx.numerics_profile())",
+                  OPENBLAS_CORETYPE="Sandybridge")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "native (OpenBLAS Sandybridge kernels)"
+
+
+@x86_avx2
+def test_numpy_loaded_first_with_other_kernels_is_warned_about():
+    """Only where numpy's own choice differs (an AVX-512 machine, or OpenBLAS picking kernels
+    other than Haswell's): elsewhere numpy loaded first computes as the profile does."""
+    native = _python("import numpy, surfidx; print(surfidx.numerics_profile())")
+    assert native.returncode == 0, native.stderr
+    profile = native.stdout.strip()
+    if profile == PROFILE:
+        assert "RuntimeWarning" not in native.stderr
+    else:
+        assert profile.startswith("native (")
+        assert "numpy was imported before surfidx" in native.stderr
+        assert "OPENBLAS_CORETYPE=Haswell" in native.stderr
+
