@@ -21,7 +21,7 @@ Modes
 -----
 * default: fills a surfidx database per size by bulk SQL (then ``Database.descriptors_changed``)
   and measures, in one run, ``SearchIndex(db, exact=True)`` (the exact scan), the index build
-  (:func:`surfidx.ann.build`: CPU time, resident memory, size on disk), opening it
+  (:func:`surfidx.ann.build`, faiss IVF lists: CPU time, resident memory, size on disk), opening it
   (:func:`surfidx.ann.open_index`, memory-mapped) and top-10 queries through
   :meth:`surfidx.ann.AnnIndex.query` (candidates re-ranked on the row copies) for several
   candidate factors, and through ``SearchIndex(db)`` as it stands (``search`` column); p50/p99
@@ -467,7 +467,7 @@ def changes(gen, path, *, k, n_changed, n_queries):
     return out
 
 
-def end_to_end(gen, m, qs, *, k, tmp, factors, expansions=(None,)):
+def end_to_end(gen, m, qs, *, k, tmp, factors, probes=(None,)):
     from surfidx import ann
 
     path = Path(tmp) / f"bench{m}.db"
@@ -512,13 +512,13 @@ def end_to_end(gen, m, qs, *, k, tmp, factors, expansions=(None,)):
         index = ann.open_index(db, kinds=DEFAULT_KINDS)       # memory-maps the files
         out["open"] = time.process_time() - t0
         out["runs"] = {}
-        for e in expansions:
-            ef = ann.DEFAULT_EXPANSION if e is None else e
+        for e in probes:
+            pr = ann.DEFAULT_PROBES if e is None else e
             for f in factors:
-                out["runs"][f"f{f}/e{ef}"] = recall_and_times(
+                out["runs"][f"f{f}/p{pr}"] = recall_and_times(
                     lambda q: index.query(q, distance=weighted_l2, k=k,
                                           shape_weight=DEFAULT_SHAPE_WEIGHT, factor=f,
-                                          expansion=ef)[0], qs, truth)
+                                          probes=pr)[0], qs, truth)
         out["mem_open"] = rss_mb() - r0
         approx = SearchIndex(db, threshold=0)
         assert approx.approximate
@@ -540,9 +540,9 @@ def main() -> None:
                                                   "usearch-f16"])
     ap.add_argument("--factors", type=int, nargs="+", default=[2, 4, 8])
     ap.add_argument("--ef", type=int, default=64, help="Search expansion (compare mode).")
-    ap.add_argument("--expansions", type=int, nargs="+", default=None,
-                    help="Search expansions of the AnnIndex.query rows (default: "
-                         "surfidx.ann.DEFAULT_EXPANSION).")
+    ap.add_argument("--probes", type=int, nargs="+", default=None,
+                    help="Lists probed in the AnnIndex.query rows (default: "
+                         "surfidx.ann.DEFAULT_PROBES).")
     ap.add_argument("--cli", type=int, default=0,
                     help="Also time this many `surfidx query id:N` processes per size (from "
                          "the threshold on).")
@@ -575,8 +575,8 @@ def main() -> None:
                     libs=[make[n]() for n in args.libs])
         return
     print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
-          "it stands (surfidx.ann defaults), 'fN/eE' = AnnIndex.query with N*k candidates "
-          "per graph (search expansion E) re-ranked on the row copies", flush=True)
+          "it stands (surfidx.ann defaults), 'fN/pP' = AnnIndex.query with N*k candidates "
+          "per index (P lists probed) re-ranked on the row copies", flush=True)
     print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
           f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>9} {'p50':>6} "
           f"{'p99':>6} {'rec sh':>6} {'rec col':>7}")
@@ -586,7 +586,7 @@ def main() -> None:
             gen = Generator(real, m)
             qs = queries(gen, args.queries)
             r = end_to_end(gen, m, qs, k=args.k, tmp=tmp, factors=args.factors,
-                           expansions=args.expansions or (None,))
+                           probes=args.probes or (None,))
             head = (f"{m:>8} {r['db_mb']:>6.0f} {r['exact50']:>9.2f} {r['exact99']:>6.2f} "
                     f"{r['mem_exact']:>5.0f} | {r['build']:>7.1f} {r['mem_build']:>5.0f} "
                     f"{r['size']:>7.0f} {r['open'] * 1e3:>7.1f} {r['mem_open']:>5.0f} |")

@@ -6,7 +6,7 @@ Two paths, one answer:
   stored vectors are read once into dense float32 matrices (built from
   :meth:`surfidx.database.Database.descriptor_matrix`) and every query is one vectorised scan
   followed by ``np.argpartition`` for the top ``k``;
-* approximate index (from the threshold on): HNSW graphs beside the database
+* approximate index (from the threshold on): faiss inverted-file indexes beside the database
   (:mod:`surfidx.ann`) give ``factor * k`` candidates by the shape vector (and as many by
   texture for a coloured query), ranked by the exact distance below on the index's float32 copies
   of the stored rows, so every distance returned is the exact one.

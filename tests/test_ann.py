@@ -197,20 +197,32 @@ def test_changes_lists_gone_and_changed_models():
     assert gone == [] and changed == [7]
 
 
-def test_views_search_without_key_lookups(big):
-    """Graphs opened for queries are usearch views without the key hash table (opening one
-    hashes nothing); their searches give the keys the loaded graphs give."""
+def test_mapped_index_searches_as_the_loaded_one(big):
+    """Indexes opened for queries are memory-mapped read-only; their candidates are the loaded
+    index's, and with every list probed the 40 candidates of a stored model hold its exact 10
+    nearest by the shape vector."""
     path, shape, tex, _ = big
     with Database(path, readonly=True) as db:
         ann.open_index(db)
         index = ann.open_index(db)
-        view = index._graph("shape")
         loaded, _ = ann._load(ann.index_dir(path), index.manifest, view=False)
-        v = np.concatenate([shape[3, :DIM], shape[3, DIM:]])
-        for n in (1, 10, 40):
-            np.testing.assert_array_equal(index.candidates("shape", v, n),
-                                          np.asarray(loaded["shape"].search(v, n).keys))
-        assert len(view) == len(loaded["shape"]) == 1500
+        full = loaded["shape"]
+        assert full.nlist == ann.list_count(1500) == 38
+        full.nprobe = ann.DEFAULT_PROBES
+        for i in (3, 700, 1499):
+            v = shape[i]
+            for n in (1, 10, 40):
+                got = index.candidates("shape", v, n)
+                np.testing.assert_array_equal(got, full.search(v[None], n)[1][0])
+            every = index.candidates("shape", v, 40, probes=full.nlist)
+            nearest = np.argsort(np.linalg.norm(shape - v, axis=1), kind="stable")[:10] + 1
+            assert set(nearest.tolist()) <= set(every.tolist())
+        assert index._graph("shape").ntotal == 1500
+
+
+def test_list_count_follows_the_square_root():
+    assert [ann.list_count(n) for n in (0, 1, 38, 39, 1500, 100_000, 1_000_000)] == \
+        [1, 1, 1, 1, 38, 1265, 4000]
 
 
 def test_crash_between_index_write_and_replace_keeps_a_working_index(big, monkeypatch):
