@@ -67,8 +67,8 @@ __all__ = ["AnnIndex", "open_index", "build", "update", "index_dir", "index_size
            "FORMAT"]
 
 #: Model count from which :class:`surfidx.search.SearchIndex` uses the index (the exact scan
-#: below it): where an index query with its re-rank costs less than the scan
-#: (``benchmarks/query_latency.py`` prints both).
+#: below it): below it a scan costs about 2 ms or less and is exact by construction, and no
+#: writer pays for an index (``benchmarks/query_latency.py`` prints both paths).
 DEFAULT_THRESHOLD = 20_000
 
 #: Candidates per result: ``factor * k`` models per graph are ranked by the exact distance.
@@ -262,12 +262,17 @@ def _open_graph(path, graph: dict, *, view: bool):
     Raises
     ------
     OSError
-        The file does not hold the index the manifest names.
+        The file is not of the size the manifest names (truncated, or another file), or does
+        not hold the index the manifest names.
     RuntimeError
-        faiss cannot read the file (damaged or truncated).
+        faiss cannot read the file (damaged).
     """
     faiss = _faiss()
-    flags = faiss.IO_FLAG_MMAP | faiss.IO_FLAG_READ_ONLY if view else 0
+    if Path(path).stat().st_size != graph.get("bytes"):
+        raise OSError(f"index file {path} is not of its manifest's size")
+    # in-place mapping of the codes (IO_FLAG_MMAP_IFC): a search reads the mapped lists as it
+    # reads loaded ones; faiss's older IO_FLAG_MMAP (on-disk lists) searched 10x slower
+    flags = faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY if view else 0
     ix = faiss.read_index(str(path), flags)
     if ix.ntotal != graph["count"] or ix.d != graph["ndim"] or not hasattr(ix, "nprobe"):
         raise OSError(f"index file {path} does not match its manifest")
@@ -529,7 +534,8 @@ class AnnIndex:
                 fname = f"{token}-{name}.faiss"
                 put(fname, lambda p, ix=ix: _faiss().write_index(ix, str(p)))
                 graphs[name] = {"file": fname, "count": int(ix.ntotal), "ndim": int(ix.d),
-                                "lists": int(ix.nlist), "kinds": _groups(self.kinds)[name]}
+                                "lists": int(ix.nlist), "bytes": (d / fname).stat().st_size,
+                                "kinds": _groups(self.kinds)[name]}
             rows = {}
             for kind, (kid, mat) in self._rows.items():
                 rows[kind] = {"ids": f"{token}-ids-{kind}.npy", "rows": f"{token}-rows-{kind}.npy",

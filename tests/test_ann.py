@@ -281,6 +281,26 @@ def test_damaged_index_file_is_rebuilt(big):
     assert ids.tolist() == [1]
 
 
+@pytest.mark.parametrize("cut", [0.5, 0.999])
+def test_truncated_index_file_is_rebuilt(big, cut):
+    """A truncated index file is never mapped (its lists would point past the end): its size is
+    not the manifest's, the index is rebuilt and answers as the exact scan."""
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        SearchIndex(db, threshold=0)
+    d = ann.index_dir(path)
+    man = json.loads((d / "manifest.json").read_text())
+    f = d / man["graphs"]["shape"]["file"]
+    data = f.read_bytes()
+    f.write_bytes(data[:int(len(data) * cut)])
+    with Database(path, readonly=True) as db:
+        q = query_of(shape, tex, 5, colour=True)
+        ids, _ = SearchIndex(db, threshold=0).query(q, k=5)
+        assert ids.tolist() == SearchIndex(db, exact=True).query(q, k=5)[0].tolist()
+    man2 = json.loads((d / "manifest.json").read_text())
+    assert man2["graphs"]["shape"]["file"] != man["graphs"]["shape"]["file"]
+
+
 def test_threshold_and_exact_choose_the_scan(big):
     with Database(big[0], readonly=True) as db:
         assert not SearchIndex(db).approximate            # 1500 < DEFAULT_THRESHOLD
