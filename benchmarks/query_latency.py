@@ -27,8 +27,9 @@ Modes
   candidate factors, and through ``SearchIndex(db)`` as it stands (``search`` column); p50/p99
   CPU time of a top-10 query and recall@10 against the exact scan, for shape-only and coloured
   queries.
-* ``--compare``: the same rows in memory, hnswlib, faiss-cpu and usearch HNSW indexes of the shape
-  vector (one thread, connectivity 16), each with the exact re-rank of ``factor * k`` candidates.
+* ``--compare``: the same rows in memory, hnswlib, faiss-cpu and usearch HNSW indexes (one
+  thread, connectivity 16) and surfidx.ann's faiss IVF index of the shape vector, each with the
+  exact re-rank of ``factor * k`` candidates.
 
 Times are ``time.process_time`` (CPU of this process, one thread), so that a shared machine's
 load changes them little. Run: ``python benchmarks/query_latency.py --real-npz
@@ -298,6 +299,26 @@ class _Faiss:
         return self.ix.search(v[None], n)[1][0].astype(np.int64)
 
 
+class _FaissIvf:
+    """surfidx.ann's index (faiss IVF, 8-bit codes, its list count and seed) in memory,
+    searched with ``surfidx.ann.DEFAULT_PROBES`` lists (``--ef`` is an HNSW setting)."""
+    name = "faiss-ivf-sq8"
+
+    def build(self, x, ef_add):
+        from surfidx import ann
+        self.ix = ann._new_graph(np.arange(len(x), dtype=np.int64), np.ascontiguousarray(x))
+
+    def save(self, path):
+        import faiss
+        faiss.write_index(self.ix, str(path))
+
+    def search(self, v, n, ef):
+        from surfidx import ann
+        self.ix.nprobe = ann.DEFAULT_PROBES
+        return self.ix.search(np.ascontiguousarray(v, np.float32)[None], n)[1][0].astype(
+            np.int64)
+
+
 class _Usearch:
     def __init__(self, dtype):
         self.dtype = dtype
@@ -537,7 +558,7 @@ def main() -> None:
     ap.add_argument("--compare", action="store_true",
                     help="Compare hnswlib, faiss-cpu and usearch in memory instead.")
     ap.add_argument("--libs", nargs="+", default=["hnswlib", "faiss", "usearch-f32",
-                                                  "usearch-f16"])
+                                                  "usearch-f16", "faiss-ivf"])
     ap.add_argument("--factors", type=int, nargs="+", default=[2, 4, 8])
     ap.add_argument("--ef", type=int, default=64, help="Search expansion (compare mode).")
     ap.add_argument("--probes", type=int, nargs="+", default=None,
@@ -562,7 +583,8 @@ def main() -> None:
           f"{args.queries} queries (half coloured), k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; "
           f"load {os.getloadavg()[0]:.1f}", flush=True)
     if args.compare:
-        make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "usearch-f32": lambda: _Usearch("f32"),
+        make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "faiss-ivf": _FaissIvf,
+                "usearch-f32": lambda: _Usearch("f32"),
                 "usearch-f16": lambda: _Usearch("f16"), "usearch-i8": lambda: _Usearch("i8")}
         print(f"HNSW M=16, ef_construction {args.ef_add}, ef_search max({args.ef}, candidates); "
               "CPU ms per query incl. exact re-rank in memory")
