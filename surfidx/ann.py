@@ -4,8 +4,8 @@ Above :data:`DEFAULT_THRESHOLD` stored models, :class:`surfidx.search.SearchInde
 every stored vector. It asks inverted-file indexes (faiss ``IndexIVFScalarQuantizer``: the
 vectors in :func:`list_count` k-means lists, stored as 8-bit codes; a query scans the
 :data:`DEFAULT_PROBES` nearest lists) for candidates and ranks them by the exact distance. They
-were chosen over HNSW graphs (hnswlib, usearch) because a million models build in about a minute
-of one core instead of a quarter of an hour, and a memory-mapped index opens in milliseconds:
+were chosen over HNSW graphs (hnswlib, usearch) because a million models build in 5 minutes of
+one core instead of a quarter of an hour, and a memory-mapped index opens in milliseconds:
 
 * the ``"shape"`` index holds, per model with the first kind (``"shape"``), every kind of the
   search but ``"texture"`` side by side (today shape with the KLT spectrum appended; a kind a
