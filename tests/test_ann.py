@@ -220,6 +220,19 @@ def test_mapped_index_searches_as_the_loaded_one(big):
         assert index._graph("shape").ntotal == 1500
 
 
+def test_index_file_not_matching_its_manifest_is_refused(big):
+    path = big[0]
+    with Database(path, readonly=True) as db:
+        man = ann.open_index(db).manifest
+    d = ann.index_dir(path)
+    g = man["graphs"]["shape"]
+    with pytest.raises(OSError, match="is not of its manifest's size"):
+        ann._open_graph(d / g["file"], dict(g, bytes=g["bytes"] + 1), view=True)
+    with pytest.raises(OSError, match="does not match its manifest"):
+        ann._open_graph(d / g["file"], dict(g, count=g["count"] + 1), view=True)
+    assert ann._open_graph(d / g["file"], g, view=False).ntotal == 1500
+
+
 def test_list_count_follows_the_square_root():
     assert [ann.list_count(n) for n in (0, 1, 38, 39, 1500, 100_000, 1_000_000)] == \
         [1, 1, 1, 1, 38, 1265, 4000]
