@@ -134,6 +134,27 @@ def test_sphere_with_three_holes_decodes_open(holes3, kw):
     assert len(s) == len(m.vertices) and s.faces is not None and not s.virtual.any()
 
 
+@pytest.mark.parametrize("hops", [3, 4])
+def test_two_holes_closer_than_the_grid_spacing_decode_as_two(hops):
+    """Two holes 3 or 4 mesh edges apart on a level-4 sphere, coded on the level-3 grid: their
+    dropped regions meet at grid vertices, which stay with the kept surface (they used to go
+    to one of the regions, merging the two holes into one)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import shortest_path
+
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(4)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
+    far = int(np.flatnonzero(shortest_path(g, unweighted=True, indices=[0])[0] == hops)[0])
+    enc = _encoder(*_sphere_with_holes([0, far]), level=3)
+    assert enc.regions == (0, 0)
+    for rate in (2.0, 4.0):
+        m = decode(enc.encode(rate), mesh=True)
+        assert _topology(m) == dict(loops=2, genus=(0,), parts=1, manifold=True)
+
+
 @pytest.mark.parametrize("kw", [{}, {"bits_per_surfel": 1.0}, {"level": 4}, {"level": 3}])
 def test_torus_decodes_closed_with_genus_1(torus, kw):
     m = decode(torus.encode(4.0), mesh=True, **kw)

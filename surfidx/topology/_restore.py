@@ -13,10 +13,12 @@ input's boundary loops and genus:
 
 1. a face is dropped with a region when at least two of its corners are in it;
 2. repeated until nothing changes: each region keeps only its largest edge-connected piece of
-   faces (a region left without a face takes the star of its smallest vertex); pieces of the
-   kept surface cut off from its largest piece join the region around them; a vertex where the
-   kept surface is pinched (more than two of its boundary edges) gives its whole star to the
-   region holding most of it;
+   faces (a region left without a face takes the star of its smallest vertex, or one face of it
+   where the star would touch another region); pieces of the kept surface cut off from its
+   largest piece join the region around them; a vertex where the kept surface is pinched (more
+   than two of its boundary edges) gives its whole star to the region holding it, or back to the
+   kept surface where two regions meet there (so two holes closer together than the grid's
+   spacing decode as two);
 3. the kept surface's boundary loops are assigned to regions by the dropped faces beside them;
    the loops of the two sides of cut ``k`` (one loop each) are matched by arc length at the best
    cyclic offset and the strip between them triangulated (one triangle per loop edge, advancing
@@ -307,7 +309,16 @@ def _clean(level, region, n_regions):
                     label[mine & (lab != big)] = -1
             else:
                 s = star[first_vertex[r]].indices
-                label[s[label[s] < 0]] = r
+                s = s[label[s] < 0]
+                # beside another region, the whole star would make one hole of the two: one
+                # face of it that touches no other region (by a corner) is the hole then
+                busy = np.zeros(n, bool)
+                busy[faces[label >= 0].ravel()] = True
+                busy[on & (region != r)] = True
+                clash = busy[faces[s]].any(axis=1)
+                if clash.any() and not clash.all():
+                    s = s[~clash][:1]
+                label[s] = r
         kept = label < 0
         lab, count = _components(kept, nbr)
         if count > 1:
@@ -331,8 +342,10 @@ def _clean(level, region, n_regions):
         for v in np.flatnonzero(deg > 2):
             s = star[v].indices
             held = label[s][label[s] >= 0]
-            if len(held):
-                label[s] = np.bincount(held).argmax()
+            if len(np.unique(held)) > 1:
+                label[s] = -1      # two regions meet: their faces at v stay, keeping them apart
+            elif len(held):
+                label[s] = held[0]
         if np.array_equal(before, label):
             break
     return label
