@@ -33,7 +33,8 @@ __all__ = [
 # import, which a query of a stored model (`surfidx query id:N`) does not need. No export is
 # named as a submodule: importing the submodule would replace the export by the module
 # (the grid function is `surfidx.Icosphere(level)` or `surfidx.icosphere.icosphere(level)`).
-_LAZY = {"numerics_profile": "_numerics", "GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
+_LAZY = {"numerics_profile": "_numerics",
+         "GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
          "farthest_point_landmarks": "geodesics", "geodesic_distances": "geodesics",
          "geodesic_path": "geodesics", "SphereOfInfluenceGraph": "graph",
          "Icosphere": "icosphere", "choose_level": "icosphere",

@@ -3,18 +3,16 @@
 from __future__ import annotations
 
 import os
-import platform
 import subprocess
 import sys
 
 import pytest
 
 import surfidx
-from surfidx._numerics import PROFILE, _cpu_flags
+from surfidx._numerics import PROFILE, _cpu_flags, _x86_64
 
 x86_avx2 = pytest.mark.skipif(
-    platform.machine().lower() not in ("x86_64", "amd64")
-    or not {"avx2", "fma"} <= (_cpu_flags() or frozenset()),
+    not _x86_64() or not {"avx2", "fma"} <= (_cpu_flags() or frozenset()),
     reason="the portable profile is x86-64-v3 (AVX2 and FMA)")
 
 
@@ -59,4 +57,3 @@ def test_numpy_loaded_first_with_other_kernels_is_warned_about():
         assert profile.startswith("native (")
         assert "numpy was imported before surfidx" in native.stderr
         assert "OPENBLAS_CORETYPE=Haswell" in native.stderr
-

@@ -312,10 +312,11 @@ def _clean(level, region, n_regions):
                 s = s[label[s] < 0]
                 # beside another region, the whole star would make one hole of the two: one
                 # face of it that touches no other region (by a corner) is the hole then
-                busy = np.zeros(n, bool)
-                busy[faces[label >= 0].ravel()] = True
-                busy[on & (region != r)] = True
-                clash = busy[faces[s]].any(axis=1)
+                corner = faces[s]
+                u = np.unique(corner)
+                busy = np.asarray(star[u] @ (label >= 0).astype(np.int8)).ravel() > 0
+                busy |= on[u] & (region[u] != r)
+                clash = busy[np.searchsorted(u, corner)].any(axis=1)
                 if clash.any() and not clash.all():
                     s = s[~clash][:1]
                 label[s] = r
