@@ -111,6 +111,26 @@ def test_mask_regions_anchor_and_join_patches():
     assert len(ccodes) == 2 and coarse.max() == 1
 
 
+def test_mask_regions_keep_touching_patches_apart():
+    """A large patch with a one-vertex patch beside it and an anchor beside both: three regions,
+    the large patch giving up its vertices beside the others and staying one region."""
+    from surfidx.icosphere import icosphere
+
+    g = icosphere(3)
+    lab = np.full(g.n_vertices, -1)
+    cap = np.flatnonzero(g.vertices @ [0.0, 0.0, 1.0] > 0.5)
+    lab[cap] = 0
+    ptr, nb = g.neighbor_indptr, g.neighbor_indices
+    rim = [v for v in range(g.n_vertices) if lab[v] < 0
+           and (lab[nb[ptr[v]:ptr[v + 1]]] == 0).any()]
+    lab[rim[0]] = 1                          # patch 1 on one grid vertex beside the cap
+    bits, codes = mask_regions(lab, 3, [-1, -1, -1], anchors=[-1, -1, rim[-1]])
+    count, region = grid_regions(bits, 3)
+    assert count == 3 and codes == (0, 0, 0)
+    assert bits[rim[0]] and not bits[rim[-1]]          # the anchor went a vertex further
+    assert len(np.unique(region[cap][bits[cap]])) == 1 and bits[cap].sum() > 0.8 * len(cap)
+
+
 def test_zip_loops_is_a_consistent_strip():
     t = 2 * np.pi * np.arange(8) / 8
     ring = np.stack([np.cos(t), np.sin(t), np.zeros(8)], 1)
@@ -134,11 +154,13 @@ def test_sphere_with_three_holes_decodes_open(holes3, kw):
     assert len(s) == len(m.vertices) and s.faces is not None and not s.virtual.any()
 
 
-@pytest.mark.parametrize("hops", [3, 4])
-def test_two_holes_closer_than_the_grid_spacing_decode_as_two(hops):
-    """Two holes 3 or 4 mesh edges apart on a level-4 sphere, coded on the level-3 grid: their
-    dropped regions meet at grid vertices, which stay with the kept surface (they used to go
-    to one of the regions, merging the two holes into one)."""
+@pytest.mark.parametrize("hops, level", [(3, 3), (4, 3), (3, 2), (4, 2)])
+def test_two_holes_closer_than_the_grid_spacing_decode_as_two(hops, level):
+    """Two holes 3 or 4 mesh edges apart on a level-4 sphere, coded on the level-3 or level-2
+    grid. On level 3 their dropped regions meet at grid vertices, which stay with the kept
+    surface (they used to go to one of the regions, merging the two holes into one); on level 2
+    neither hole holds a grid vertex and their nearest grid vertices are neighbours, so the
+    encoder anchors one of them a vertex further (they used to be one region of the mask)."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import shortest_path
 
@@ -148,7 +170,7 @@ def test_two_holes_closer_than_the_grid_spacing_decode_as_two(hops):
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
     far = int(np.flatnonzero(shortest_path(g, unweighted=True, indices=[0])[0] == hops)[0])
-    enc = _encoder(*_sphere_with_holes([0, far]), level=3)
+    enc = _encoder(*_sphere_with_holes([0, far]), level=level)
     assert enc.regions == (0, 0)
     for rate in (2.0, 4.0):
         m = decode(enc.encode(rate), mesh=True)

@@ -115,8 +115,9 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
     if anchors is not None:
         for p in range(P):
             a = int(anchors[p])
-            if a >= 0 and not (lab == p).any() and lab[a] < 0:
-                lab[a] = p
+            if a >= 0 and not (lab == p).any():
+                _place(lab, level, p, a)
+    _separate(lab, level, P)
     graph = None
     for p in _split_patches(lab, level):   # joined along shortest grid paths
         while True:
@@ -125,8 +126,9 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
             if count <= 1:
                 break
             graph = _grid_graph(level).astype(np.float64) if graph is None else graph
-            # through vertices of no other patch only: weight 1 into free vertices
-            free = (lab < 0) | on
+            # through real vertices with no other patch beside them (weight 1 into each), so
+            # the path keeps the patches apart
+            free = ((lab < 0) & ~_beside_others(lab, level, p)) | on
             w = graph.multiply(free[None, :].astype(np.float64)).tocsr()
             w.eliminate_zeros()
             src = np.flatnonzero(region == 0)
@@ -153,6 +155,59 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
             s = int(p != sides[0])
             codes.append(region_code(k, s))
     return bits, tuple(codes)
+
+
+def _separate(lab, level: int, P: int) -> None:
+    """Keep different patches off neighbouring grid vertices, in place: of two neighbours in
+    different patches, the vertex of the patch with more grid vertices (of equal counts, the
+    higher index) becomes real, unless it is its patch's last one. Regions are the connected
+    pieces of the mask, so two touching patches would be coded as one hole; a real vertex
+    between them keeps them two (the decoder's clean-up keeps such a vertex real)."""
+    g = _grid_graph(level).tocoo()
+    u, v = g.row, g.col
+    meet = (lab[u] >= 0) & (lab[v] >= 0) & (lab[u] != lab[v])
+    if not meet.any():
+        return
+    size = np.bincount(lab[lab >= 0], minlength=P)
+    u, v = u[meet], v[meet]
+    pu, pv = lab[u], lab[v]
+    bigger_u = (size[pu] > size[pv]) | ((size[pu] == size[pv]) & (pu > pv))
+    drop, other = np.where(bigger_u, u, v), np.where(bigger_u, v, u)
+    gone = np.unique(drop)
+    left = size - np.bincount(lab[gone], minlength=P)
+    flip = left[lab[drop]] <= 0     # the bigger patch would vanish: the smaller gives way
+    drop[flip] = other[flip]
+    gone = np.unique(drop)
+    left = size - np.bincount(lab[gone], minlength=P)
+    lab[gone[left[lab[gone]] > 0]] = -1     # both would vanish: they stay, and meet
+
+
+def _place(lab, level: int, p: int, a: int) -> None:
+    """Give patch ``p`` (on no grid vertex) the grid vertex nearest ``a`` in grid hops (of
+    equal hops, the smallest index) that is real and has no patch beside it, in place; ``a``
+    itself when none within 3 hops is (and it is real)."""
+    g = _grid_graph(level)
+    taken = lab >= 0
+    near = (g @ taken.astype(np.int8)) > 0
+    ring, seen = np.array([a]), {a}
+    for _ in range(4):
+        ok = ring[~taken[ring] & ~near[ring]]
+        if len(ok):
+            lab[int(ok.min())] = p
+            return
+        nxt = np.unique(g[ring].indices)
+        ring = np.array([x for x in nxt.tolist() if x not in seen], np.int64)
+        seen.update(ring.tolist())
+        if not len(ring):
+            break
+    if lab[a] < 0:
+        lab[a] = p
+
+
+def _beside_others(lab, level: int, p: int) -> np.ndarray:
+    """(n,) bool: grid vertices with a neighbour in a patch other than ``p``."""
+    other = ((lab >= 0) & (lab != p)).astype(np.int8)
+    return (_grid_graph(level) @ other) > 0
 
 
 def _split_patches(lab, level: int) -> np.ndarray:
