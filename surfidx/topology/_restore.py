@@ -4,8 +4,10 @@ Encoder side: the grid vertices that sample a virtual patch (:func:`surfidx.resa
 become the mask of :mod:`._mask`; its connected regions (through grid edges, ordered by their
 smallest grid vertex) each get a code (:func:`surfidx.container.region_code`: a hole of the
 input, or a side of a handle cut) in the container's region table. :func:`mask_regions` makes
-each patch one region: a patch the grid misses gets the grid vertex nearest one of its surfels, a
-patch the grid splits is joined along shortest grid paths.
+each patch one region: a patch the grid misses gets the real grid vertex nearest one of its
+surfels with no patch beside it, two patches on neighbouring grid vertices are moved apart (the
+larger gives up its vertices beside the smaller), and a patch the grid splits is joined along
+shortest grid paths that pass beside no other patch.
 
 Decoder side (:func:`restore`): the grid faces over each region are dropped as one clean disk, and
 the two boundary loops of each cut are zipped together again, so that the decoded mesh has the
