@@ -11,6 +11,9 @@ disagree the map is a mirror, not folded, and the minority counts.
 
 from __future__ import annotations
 
+import hashlib
+import threading
+
 import numpy as np
 
 from ._errors import InputError
@@ -64,6 +67,9 @@ def map_points(surfels: SurfelSet, sphere_points) -> np.ndarray:
 def hull_triangles(sphere_points) -> np.ndarray:
     """Spherical Delaunay triangulation of points on the unit sphere (their convex hull).
 
+    The map's stages ask for the hull of one map several times, so the last two hulls of at
+    least 2,000 points are remembered by the digest of the points' bytes (a copy is returned).
+
     Parameters
     ----------
     sphere_points : (n, 3) float64
@@ -81,7 +87,15 @@ def hull_triangles(sphere_points) -> np.ndarray:
     """
     from scipy.spatial import ConvexHull, QhullError
 
-    pts = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=4)
+    pts = np.ascontiguousarray(as_array(sphere_points, "sphere_points", shape=(None, 3),
+                                        min_len=4))
+    key = None
+    if len(pts) >= _HULL_MEMO_MIN:   # the map's stages ask again for the hull of the same map
+        key = hashlib.blake2b(pts.tobytes(), digest_size=16).digest()
+        with _hull_lock:
+            known = _hull_memo.get(key)
+        if known is not None:
+            return known.copy()
     try:
         hull = ConvexHull(pts)
     except QhullError as exc:
@@ -90,7 +104,18 @@ def hull_triangles(sphere_points) -> np.ndarray:
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
     flip = np.einsum("ij,ij->i", np.cross(b - a, c - a), a + b + c) < 0
     tri[flip] = tri[flip][:, [0, 2, 1]]
+    if key is not None:
+        with _hull_lock:
+            while len(_hull_memo) >= _HULL_MEMO_SIZE:
+                del _hull_memo[next(iter(_hull_memo))]
+            _hull_memo[key] = tri.copy()
     return tri
+
+
+_HULL_MEMO_MIN = 2000   # points from which a hull is remembered (qhull: ~5 ms per 1,000 points)
+_HULL_MEMO_SIZE = 2     # hulls remembered, by the digest of the points' bytes (a copy returned)
+_hull_memo: dict = {}
+_hull_lock = threading.Lock()
 
 
 def orientation(x, f) -> np.ndarray:

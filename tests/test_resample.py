@@ -284,3 +284,20 @@ def test_triangle_neighbours_by_vertex_edges_equal_the_sorted_edges():
     for tri in (hull_triangles(_random_sites(400)), np.asarray(faces, np.int64),
                 np.asarray(faces, np.int64)[1:], np.array([[0, 1, 2], [0, 1, 2], [2, 1, 3]])):
         np.testing.assert_array_equal(_neighbors(tri), _neighbors_sorted(tri))
+
+
+def test_hull_of_the_same_points_is_remembered_as_a_copy():
+    """A remembered hull is the one qhull gives, and changing a returned one changes nothing."""
+    from scipy.spatial import ConvexHull
+
+    from surfidx.spherical import hull_triangles
+
+    pts = _random_sites(3000)
+    first = hull_triangles(pts)
+    first[:] = 0
+    again = hull_triangles(pts.copy())
+    np.testing.assert_array_equal(np.sort(np.sort(again, axis=1), axis=0),
+                                  np.sort(np.sort(ConvexHull(pts).simplices, axis=1), axis=0))
+    moved = pts.copy()
+    moved[0] = -moved[0]
+    assert not np.array_equal(hull_triangles(moved), again)
