@@ -53,6 +53,8 @@ the resampling with it. So :func:`lower_folds` keeps a realisation only when the
 
 from __future__ import annotations
 
+from itertools import compress
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
@@ -215,7 +217,7 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     """
     state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
     for _ in range(rounds):
-        todo = [i for i, b in enumerate(state.bad) if b]
+        todo = list(compress(range(len(state.bad)), state.bad))
         changed = sum(state.mend(i) for i in todo if state.bad[i])
         if not changed:
             break
@@ -262,7 +264,7 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
     bad = []
     for step in range(int(steps)):
         if step % 64 == 0 or not bad:
-            bad = [i for i, b in enumerate(state.bad) if b]
+            bad = list(compress(range(len(state.bad)), state.bad))
             if not bad:
                 break
         i = bad[rng.integers(len(bad))]
@@ -376,15 +378,20 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     return None
 
 
-def _half_angle(x, ts):
+def _half_angle(x, ts, *, sin_ts=None, cos_ts=None):
     """Angle opposite an edge in a triangle whose circumcircle has log radius ``ρ_j``, when the
-    neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``."""
+    neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``.
+    ``sin_ts``, ``cos_ts``: ``sin(ts)`` and ``cos(ts)`` when the caller has them (Newton's
+    method evaluates the angles of one ``ts`` thousands of times)."""
+    st = np.sin(ts) if sin_ts is None else sin_ts
+    ct = np.cos(ts) if cos_ts is None else cos_ts
     with np.errstate(over="ignore"):        # a far larger neighbour: e^-x = inf, the angle 0
-        return np.arctan2(np.sin(ts), np.exp(-x) + np.cos(ts))
+        return np.arctan2(st, np.exp(-x) + ct)
 
 
-def _half_angle_slope(x, ts):
-    return np.sin(ts) / (2.0 * (np.cosh(np.clip(x, -700, 700)) + np.cos(ts)))
+def _half_angle_slope(x, sin_ts, cos_ts):
+    """Derivative of :func:`_half_angle` in ``x``, from ``sin(ts)`` and ``cos(ts)``."""
+    return sin_ts / (2.0 * (np.cosh(np.clip(x, -700, 700)) + cos_ts))
 
 
 def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
@@ -396,14 +403,15 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     converged)."""
     i, j = inner_pairs[:, 0], inner_pairs[:, 1]
     const = np.bincount(boundary_face, boundary_ts, minlength=m) - np.pi
+    trig = dict(sin_ts=np.sin(ts), cos_ts=np.cos(ts))
 
     def residual(r):
         d = r[j] - r[i]
-        return const + np.bincount(i, _half_angle(d, ts), minlength=m) \
-            + np.bincount(j, _half_angle(-d, ts), minlength=m)
+        return const + np.bincount(i, _half_angle(d, ts, **trig), minlength=m) \
+            + np.bincount(j, _half_angle(-d, ts, **trig), minlength=m)
 
     def jacobian(r):            # minus the residual's Jacobian: a weighted dual Laplacian
-        w = _half_angle_slope(r[j] - r[i], ts)
+        w = _half_angle_slope(r[j] - r[i], **trig)
         lap = sp.csr_matrix((np.concatenate([-w, -w]), (np.concatenate([i, j]),
                                                         np.concatenate([j, i]))), shape=(m, m))
         return (lap + sp.diags(np.bincount(i, w, minlength=m)
