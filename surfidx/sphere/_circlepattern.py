@@ -378,15 +378,13 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     return None
 
 
-def _half_angle(x, ts, *, sin_ts=None, cos_ts=None):
+def _half_angle(x, sin_ts, cos_ts):
     """Angle opposite an edge in a triangle whose circumcircle has log radius ``ρ_j``, when the
-    neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``.
-    ``sin_ts``, ``cos_ts``: ``sin(ts)`` and ``cos(ts)`` when the caller has them (Newton's
-    method evaluates the angles of one ``ts`` thousands of times)."""
-    st = np.sin(ts) if sin_ts is None else sin_ts
-    ct = np.cos(ts) if cos_ts is None else cos_ts
+    neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``,
+    from ``sin(ts)`` and ``cos(ts)`` (Newton's method evaluates the angles of one ``ts``
+    thousands of times, so it computes them once)."""
     with np.errstate(over="ignore"):        # a far larger neighbour: e^-x = inf, the angle 0
-        return np.arctan2(st, np.exp(-x) + ct)
+        return np.arctan2(sin_ts, np.exp(-x) + cos_ts)
 
 
 def _half_angle_slope(x, sin_ts, cos_ts):
@@ -407,8 +405,8 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
 
     def residual(r):
         d = r[j] - r[i]
-        return const + np.bincount(i, _half_angle(d, ts, **trig), minlength=m) \
-            + np.bincount(j, _half_angle(-d, ts, **trig), minlength=m)
+        return const + np.bincount(i, _half_angle(d, **trig), minlength=m) \
+            + np.bincount(j, _half_angle(-d, **trig), minlength=m)
 
     def jacobian(r):            # minus the residual's Jacobian: a weighted dual Laplacian
         w = _half_angle_slope(r[j] - r[i], **trig)
@@ -636,7 +634,8 @@ def _pattern(alpha, u, t, ang, opp_inner, ne, n, pole, keep, frame):
         e = opp_inner[:, k]
         q = np.maximum(pair_of[e], 0)
         nb = np.where(pairs[q, 0] == own, pairs[q, 1], pairs[q, 0])
-        angles[:, k] = np.where(pair_of[e] >= 0, _half_angle(rho[nb] - rho, ts[e]), ts[e])
+        half = _half_angle(rho[nb] - rho, np.sin(ts[e]), np.cos(ts[e]))
+        angles[:, k] = np.where(pair_of[e] >= 0, half, ts[e])
     if not (angles > 0).all():
         return None
     zc = _layout(t, angles, rho, n, pole)

@@ -122,15 +122,16 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
     _separate(lab, level, P)
     graph = None
     for p in _split_patches(lab, level):   # joined along shortest grid paths
+        # through real vertices with no other patch beside them (weight 1 into each), so the
+        # path keeps the patches apart; joining p changes no other patch's vertices
+        fenced = _beside_others(lab, level, p)
         while True:
             on = lab == p
             count, region = grid_regions(on, level)
             if count <= 1:
                 break
             graph = _grid_graph(level).astype(np.float64) if graph is None else graph
-            # through real vertices with no other patch beside them (weight 1 into each), so
-            # the path keeps the patches apart
-            free = ((lab < 0) & ~_beside_others(lab, level, p)) | on
+            free = ((lab < 0) & ~fenced) | on
             w = graph.multiply(free[None, :].astype(np.float64)).tocsr()
             w.eliminate_zeros()
             src = np.flatnonzero(region == 0)
@@ -190,7 +191,7 @@ def _place(lab, level: int, p: int, a: int) -> None:
     itself when none within 3 hops is (and it is real)."""
     g = _grid_graph(level)
     taken = lab >= 0
-    near = (g @ taken.astype(np.int8)) > 0
+    near = _beside_others(lab, level, p)    # p has no vertex yet: beside any patch
     ring, seen = np.array([a]), {a}
     for _ in range(4):
         ok = ring[~taken[ring] & ~near[ring]]
