@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from surfidx.sphere._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _coherent_angles,
-                                           _edges, _moebius_fit, _spacing, anneal_flips,
-                                           flip_folds, lower_folds, realise)
+from surfidx.sphere._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _NEWTON_STEPS,
+                                           _coherent_angles, _edges, _moebius_fit, _radii,
+                                           _spacing, anneal_flips, flip_folds, lower_folds,
+                                           realise)
 from surfidx.sphere import MapOptions
 from surfidx.spherical import against_normals as _folded, hull_triangles
 
@@ -243,3 +244,28 @@ def test_points_the_hull_leaves_out_have_no_realisation(points, ellipsoid):
     y /= np.linalg.norm(y, axis=1)[:, None]
     z, info = lower_folds(y, np.vstack([p, p[:1]]), np.vstack([n, n[:1]]))
     assert info["rounds"] == 0 and info["folds"] == info["folds_before"] and z is y
+
+
+def _two_triangles(b0, b1, ts):
+    """Two triangles sharing one edge (intersection angle ``π - ts``), each with its other two
+    edges on the boundary, their boundary angles summing to ``b0`` and ``b1``."""
+    return np.array([ts]), np.array([[0, 1]]), np.array([0, 1]), np.array([b0, b1]), 2, np.zeros(2)
+
+
+def test_radii_solve_a_coherent_system():
+    # coherent: (b0 - π) + (b1 - π) = -ts, so both angle sums can be π
+    rho, ok = _radii(*_two_triangles(1.6, 2 * np.pi - 3.1 - 1.6, 3.1))
+    assert ok and np.isfinite(rho).all()
+
+
+def test_radii_stop_when_the_line_search_finds_no_descent():
+    # incoherent by 0.08 rad: Newton's method stalls (no accepted point on a fresh step's line);
+    # without the stop it ran all _NEWTON_STEPS, each with at least one residual evaluation
+    from unittest import mock
+
+    import surfidx.sphere._circlepattern as cp
+
+    with mock.patch.object(cp, "_half_angle", wraps=cp._half_angle) as half:
+        rho, ok = cp._radii(*_two_triangles(1.5, 1.6, 3.1))
+    assert not ok
+    assert half.call_count < _NEWTON_STEPS

@@ -397,8 +397,11 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     angles sum to π. The residual is minus the gradient of a convex functional (Bobenko &
     Springborn), so each step is searched along for that functional's minimum on the line (by
     its derivative, the residual times the step): Newton's method then converges wherever the
-    functional has a minimum, which a coherent angle system guarantees. Returns (rho,
-    converged)."""
+    functional has a minimum, which a coherent angle system guarantees. When the search along
+    a step from a fresh factorisation finds no point the bisections accept, the method has
+    stalled: rounding leaves no descent, and the steps that follow repeat it until
+    :data:`_NEWTON_STEPS` (measured on the retrieval collection: no call that converges has
+    such a step), so it stops there. Returns (rho, converged)."""
     i, j = inner_pairs[:, 0], inner_pairs[:, 1]
     const = np.bincount(boundary_face, boundary_ts, minlength=m) - np.pi
     trig = dict(sin_ts=np.sin(ts), cos_ts=np.cos(ts))
@@ -444,6 +447,9 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
                 if abs(d) <= 0.1 * slope:
                     break
                 lo, hi = (h, hi) if d > 0 else (lo, h)
+            else:
+                if fresh:       # no descent along an exact Newton step: stalled for good
+                    return rho, False
         norm = np.linalg.norm(g)
         rho, g = rho + h * step, g1
         if not fresh and (h < 1.0 or np.linalg.norm(g) > _CHORD_RATE * norm):
