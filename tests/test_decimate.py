@@ -59,7 +59,7 @@ def test_prolong_is_exact_for_affine_values_on_a_flat_star():
     """Mean value weights reproduce affine functions of a planar neighbourhood (Floater 2003)."""
     v, f = icosphere_mesh(3)
     h = decimate(v, f, 300)
-    removed, ptr, ring = h.rounds[0]
+    removed, kept, ptr, ring = h.rounds[0]
     flat = v.copy()
     flat[:, 2] = 0.0   # mean value weights of a flattened star: affine values are reproduced
     i = int(np.argmax(v[removed, 2]))   # near the pole, where flattening keeps the star
@@ -69,8 +69,32 @@ def test_prolong_is_exact_for_affine_values_on_a_flat_star():
     from surfidx.sphere._decimate import Hierarchy
 
     one = Hierarchy(h.faces, np.setdiff1d(np.arange(len(v)), [removed[i]]),
-                    [(removed[i:i + 1], np.array([0, ptr[i + 1] - ptr[i]]), star[1:])])
+                    [(removed[i:i + 1], kept[i:i + 1], np.array([0, ptr[i + 1] - ptr[i]]),
+                      star[1:])])
     vals2 = vals.copy()
     vals2[removed[i]] = np.nan
     out = one.prolong(vals2, flat)
     assert out[removed[i], 0] == pytest.approx(vals[removed[i], 0], abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_embedded_prolongation_never_folds(seed):
+    """With ``embed``, an embedded coarse map gives an embedded map of every vertex, however
+    little the coarse map resembles the 3D shape the mean value weights come from (here the
+    sphere under a bumpy surface's weights); the plain mean folds some stars of the same input
+    (so the check can fail)."""
+    from surfidx.spherical import orientation
+
+    rng = np.random.default_rng(seed)
+    v, f = icosphere_mesh(4)
+    h = decimate(v, f, 150)
+    p = v * rng.uniform(0.2, 1.8, size=(len(v), 1))    # weights of a bumpy star-shaped surface
+    x = np.full((len(v), 3), np.nan)
+    x[h.vertices] = v[h.vertices]
+    assert orientation(x, h.faces).min() > 0     # the coarse map is embedded
+    plain = h.prolong(x, p, unit=True)
+    assert np.count_nonzero(orientation(plain, f) <= 0) > 0
+    out = h.prolong(x, p, unit=True, embed=True)
+    assert orientation(out, f).min() > 0
+    np.testing.assert_array_equal(out[h.vertices], x[h.vertices])
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)

@@ -271,7 +271,7 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
 
 def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
              lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
-             eps_max: float = 0.1):
+             eps_max: float = 0.1, lift: bool = False):
     """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
 
     Minimises ``Σ A (‖J‖² + lam (det² + 1)) / chi(det, eps)``, ``chi(d, eps) = (d + sqrt(eps² +
@@ -293,6 +293,9 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     precondition : bool
         As in :func:`balance` (without it, a large prolonged map untangles several times
         slower).
+    lift : bool
+        Also work on a fold-free map whose smallest area ratio is below ``_DET_GOAL`` (an
+        embedding squeezed that far pins :func:`balance`'s line search at its barrier).
 
     Returns
     -------
@@ -305,13 +308,13 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     energy.lam = float(lam)
     y = np.array(x, dtype=np.float64)
     mindet = energy.min_det(y)
-    if mindet > 0:
+    if mindet > (_DET_GOAL if lift else 0.0):
         return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
     options = dict(rounds=rounds, inner=inner, memory=memory,
                    precondition=precondition, shift=shift, eps_max=eps_max)
     # first only the vertices near the inverted triangles (a prolongation folds a few percent of
     # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
-    free = _near_inverted(energy, y, rings=_PATCH_RINGS)
+    free = _near_inverted(energy, y, rings=_PATCH_RINGS, below=_DET_GOAL if lift else 0.0)
     if free.mean() < 0.5:
         patch = _Patch(energy, y, free)
         z, done = _untangle_rounds(patch, y[free], **options)
@@ -335,13 +338,14 @@ _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below 
                    # left at 1e-8 pins the balancing's line search at its barrier)
 
 
-def _near_inverted(energy, y, *, rings: int):
-    """Vertices within ``rings`` edges of an inverted triangle."""
+def _near_inverted(energy, y, *, rings: int, below: float = 0.0):
+    """Vertices within ``rings`` edges of a triangle whose area ratio is at most ``below``
+    (0: an inverted one)."""
     import scipy.sparse as sp
 
     f, n = energy.f, energy.n
     mark = np.zeros(n)
-    mark[f[energy.dets(y) <= 0].ravel()] = 1.0
+    mark[f[energy.dets(y) <= below].ravel()] = 1.0
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
     adj = adj + adj.T

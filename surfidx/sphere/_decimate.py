@@ -46,20 +46,29 @@ class Hierarchy:
     vertices : (k,) int64
         The input vertices the coarse mesh keeps.
     rounds : list of tuple
-        One ``(removed, ring_ptr, ring)`` per round, finest first: ``removed`` (r,) int64, and
-        the neighbours of ``removed[i]`` at its removal in ``ring[ring_ptr[i]:ring_ptr[i+1]]``.
+        One ``(removed, kept, ring_ptr, ring)`` per round, finest first: ``removed`` (r,) int64,
+        the vertex ``kept[i]`` it was merged into, and the neighbours of ``removed[i]`` at its
+        removal in ``ring[ring_ptr[i]:ring_ptr[i+1]]`` (counter-clockwise, ``kept[i]`` among
+        them).
     """
 
     faces: np.ndarray
     vertices: np.ndarray
     rounds: list
 
-    def prolong(self, values, positions, *, unit: bool = False):
+    def prolong(self, values, positions, *, unit: bool = False, embed: bool = False):
         """Carry per-vertex values from the coarse mesh back to every vertex.
 
         Rounds are undone coarsest first; each removed vertex takes the mean of its ring's values
         with its 3D mean value coordinates (Floater 2003: positive, and exact for a map that is
         affine near the vertex), its ring being complete by then.
+
+        With ``embed`` (points on the sphere), a removed vertex whose star that mean turns over
+        goes instead into the kernel of its ring, near the vertex it was merged into: that vertex
+        is a corner of the ring and its fan over the ring was embedded, so every point close
+        enough to it inside the ring's angle there has an embedded star (the inverse of the
+        collapse, as a vertex split of progressive meshes). The removed vertices of one round
+        have disjoint stars, so an embedded coarse map stays embedded round by round.
 
         Parameters
         ----------
@@ -69,13 +78,15 @@ class Hierarchy:
             The input's 3D positions (for the weights).
         unit : bool
             Renormalise each new value to unit length (points on the sphere).
+        embed : bool
+            Keep an embedded spherical map embedded (needs ``unit`` and ``d == 3``).
 
         Returns
         -------
         (n, d) float64
         """
         out = np.array(values, dtype=np.float64)
-        for removed, ptr, ring in reversed(self.rounds):
+        for removed, kept, ptr, ring in reversed(self.rounds):
             counts = np.diff(ptr)
             owner = np.repeat(np.arange(len(removed)), counts)
             nxt = np.arange(len(ring)) + 1
@@ -93,8 +104,55 @@ class Hierarchy:
                 acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
             else:
                 acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
+            if embed:
+                acc = _into_kernels(acc, out, kept, ptr, ring, owner, nxt)
             out[removed] = acc
         return out
+
+
+def _star_folds(x, out, ring, owner, nxt):
+    """Per removed vertex (at ``x``), whether a triangle of its star is not counter-clockwise."""
+    a, b = out[ring], out[ring[nxt]]
+    c = x[owner]
+    o = np.einsum("ij,ij->i", np.cross(a - c, b - c), a + b + c)
+    return np.bincount(owner, o <= 0, minlength=len(x)) > 0
+
+
+def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
+    """Move each removed vertex whose star folds to the vertex it was merged into, plus a step
+    into the ring's kernel there (halved until the star is embedded, at most
+    ``_KERNEL_HALVINGS`` times).
+
+    Near the kept vertex ``k`` the kernel is the wedge left of both ring edges at ``k`` (the
+    other edges see ``k`` on their inner side, its fan being embedded); the sum of the two edges'
+    unit inner normals, ``k × next`` and ``prev × k``, points into that wedge, whether the ring's
+    angle at ``k`` is convex or reflex."""
+    bad = np.flatnonzero(_star_folds(x, out, ring, owner, nxt))
+    if not len(bad):
+        return x
+    x = x.copy()
+    at = np.empty(len(bad), np.int64)
+    for j, i in enumerate(bad):
+        at[j] = ptr[i] + int(np.flatnonzero(ring[ptr[i]:ptr[i + 1]] == kept[i])[0])
+    prv = np.empty_like(nxt)
+    prv[nxt] = np.arange(len(nxt))
+    k, a, b = out[kept[bad]], out[ring[nxt[at]]], out[ring[prv[at]]]
+    n1, n2 = np.cross(k, a), np.cross(b, k)
+    d = (n1 / np.linalg.norm(n1, axis=1)[:, None] + n2 / np.linalg.norm(n2, axis=1)[:, None])
+    d *= (0.5 * np.minimum(np.linalg.norm(a - k, axis=1), np.linalg.norm(b - k, axis=1))
+          / np.maximum(np.linalg.norm(d, axis=1), 1e-300))[:, None]
+    for _ in range(_KERNEL_HALVINGS):
+        y = k + d
+        x[bad] = y / np.linalg.norm(y, axis=1)[:, None]
+        still = _star_folds(x, out, ring, owner, nxt)[bad]
+        if not still.any():
+            break
+        bad, k, d = bad[still], k[still], 0.5 * d[still]
+    return x
+
+
+_KERNEL_HALVINGS = 60   # a point of the kernel closer than 2^-60 to the kept vertex is below
+                        # the floating-point resolution of the sphere's points
 
 
 @numba.njit(cache=True)
@@ -281,7 +339,8 @@ def _bucket_faces(flat, ptr):  # pragma: no cover - compiled
     return idx
 
 
-def decimate(positions: np.ndarray, faces: np.ndarray, target: int) -> Hierarchy:
+def decimate(positions: np.ndarray, faces: np.ndarray, target: int, *,
+             shape: bool = True) -> Hierarchy:
     """Decimate a closed manifold triangle mesh to about ``target`` vertices, keeping its topology.
 
     Parameters
@@ -291,6 +350,10 @@ def decimate(positions: np.ndarray, faces: np.ndarray, target: int) -> Hierarchy
         Closed, manifold, consistently wound; every vertex used.
     target : int
         Vertices to keep (at least 4). Fewer collapses are made when no more pass the checks.
+    shape : bool
+        Refuse collapses that turn a triangle's normal by more than 60° or leave a sliver
+        (False: only the link condition and the degrees are checked, for a hierarchy whose
+        prolongation keeps the map embedded whatever the coarse mesh's shape).
 
     Returns
     -------
@@ -302,6 +365,7 @@ def decimate(positions: np.ndarray, faces: np.ndarray, target: int) -> Hierarchy
     alive = n
     rounds = []
     target = max(int(target), 4)
+    turn_sliver = (_COS_TURN, _SLIVER) if shape else (-2.0, 0.0)
     while alive > target:
         deg = np.bincount(f.ravel(), minlength=n)    # closed manifold: faces = neighbours
         e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
@@ -313,14 +377,14 @@ def decimate(positions: np.ndarray, faces: np.ndarray, target: int) -> Hierarchy
         e = np.ascontiguousarray(e[np.argsort(key, kind="stable")])
         ptr, idx = _vertex_faces(f, n)
         removed, kept, ring_ptr, ring = _select(e, p, ptr, idx, f, deg, alive - target,
-                                                _MAX_DEGREE, _COS_TURN, _SLIVER)
+                                                _MAX_DEGREE, *turn_sliver)
         if not len(removed):
             break
         remap = np.arange(n)
         remap[removed] = kept
         f = remap[f]
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-        rounds.append((removed, ring_ptr, ring))
+        rounds.append((removed, kept, ring_ptr, ring))
         alive -= len(removed)
     vertices = np.unique(f)
     return Hierarchy(np.ascontiguousarray(f), vertices, rounds)

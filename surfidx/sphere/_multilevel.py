@@ -35,8 +35,9 @@ class Untangled(Exception):
 
 
 def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=None, **route):
-    """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, or the
-    single-level map when every hierarchy fails.
+    """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, then
+    (``options.embedded_hierarchy``) the embedded hierarchy, or the single-level map when every
+    hierarchy fails.
 
     Returns the map, its figures and whether it fell back. ``route`` holds ``iterations``,
     ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`); ``progress`` (a callback,
@@ -45,26 +46,35 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=No
     f = oriented_faces(surfels) if faces is None else faces
     large = len(surfels) > options.large_level
     steps = options.final_steps_large if large else options.final_steps
-    for tries, coarse in enumerate(options.coarse_ladder):
+    ladder = [(coarse, False) for coarse in options.coarse_ladder]
+    if options.embedded_hierarchy and route.get("balance", True):
+        ladder.append((options.coarse_ladder[0], True))
+    for tries, (coarse, embed) in enumerate(ladder):
         try:
             x, info = multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
-                                     options=options, progress=progress, **route)
+                                     options=options, progress=progress, embed=embed, **route)
         except Untangled:
             continue
-        return x, dict(info, coarse=coarse, retries=tries), False
+        return x, dict(info, coarse=coarse, retries=tries, **({"embedded": 1} if embed else {})), False
     x, info = tutte_map(surfels, faces=f, options=options, **route)
     return x, dict(info, levels=1, base_vertices=len(surfels),
-                   retries=len(options.coarse_ladder)), True
+                   retries=len(ladder)), True
 
 
 def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
                    balance: bool, coarse: int, steps: int, faces=None, progress=None,
-                   _depth: int = 0):
+                   embed: bool = False, _depth: int = 0):
     """Decimate by ``options.level_ratio``, map the coarser mesh (recursively, down to
     ``coarse`` vertices, which :func:`surfidx.sphere._tutte.tutte_map` maps), carry the map to
     every vertex, untangle what folded on the way and balance for at most ``steps`` steps
     (``options.level_steps`` on the coarser levels). ``progress``: as for :func:`mesh_map`
     (``_depth`` counts the finer levels above this one, so the coarsest knows the total).
+
+    ``embed``: the *embedded hierarchy*. The decimation checks only the topology (no shape
+    rule stalls it on a thin frame), the prolongation puts every vertex whose star the mean
+    would fold into its ring's kernel (:meth:`Hierarchy.prolong`), so each level starts
+    embedded, and the untangling lifts the triangles squeezed below its area goal before the
+    balancing.
 
     Raises
     ------
@@ -74,7 +84,7 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
     n = len(surfels)
     f = oriented_faces(surfels) if faces is None else faces   # decimation keeps the topology
     p = surfels.positions
-    h = decimate(p, f, max(coarse, n // options.level_ratio)) if n > coarse else None
+    h = decimate(p, f, max(coarse, n // options.level_ratio), shape=not embed) if n > coarse else None
     if h is None or len(h.vertices) >= n:
         x, info = tutte_map(surfels, options=options, iterations=iterations, gamma=gamma,
                             balance=balance)
@@ -87,11 +97,12 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
     small = SurfelSet(p[kept], surfels.normals[kept], surfels.radii[kept], faces=index[h.faces])
     xc, info = multilevel_map(small, faces=small.faces, options=options, iterations=iterations,
                               gamma=gamma, balance=balance, coarse=coarse,
-                              steps=options.level_steps, progress=progress, _depth=_depth + 1)
+                              steps=options.level_steps, progress=progress, embed=embed,
+                              _depth=_depth + 1)
     x = np.zeros((n, 3))
     x[kept] = xc
-    x = h.prolong(x, p, unit=True)
-    x, uinfo = untangle(x, p, f, rounds=options.untangle_rounds if balance else 0)
+    x = h.prolong(x, p, unit=True, embed=embed)
+    x, uinfo = untangle(x, p, f, rounds=options.untangle_rounds if balance else 0, lift=embed)
     # a few triangles left inverted (slivers of a randomly split mesh can pin the untangling)
     # cost a few folds; the single-level map instead squeezes every limb
     if uinfo["inverted"] > options.inverted_kept * len(f):

@@ -38,6 +38,11 @@ class MapOptions:
         long fingers) that untangling, which on the sphere has no fixed boundary, collapses the
         map; another hierarchy rarely does. When every size fails, the single-level map (which
         squeezes every limb) is the last resort.
+    embedded_hierarchy : bool
+        When every size of ``coarse_ladder`` fails, try one more hierarchy before the
+        single-level map: decimated to ``coarse_ladder[0]`` with topology checks only and
+        prolonged so that every level starts embedded (each removed vertex placed in its ring's
+        kernel where the mean would fold it), which cannot fail to untangle.
     level_ratio : int
         Each level has this many times the vertices of the next coarser one (≥ 2).
     level_steps : int
@@ -114,6 +119,7 @@ class MapOptions:
     """
 
     coarse_ladder: tuple = (64, 256, 32)
+    embedded_hierarchy: bool = True
     level_ratio: int = 4
     level_steps: int = 300
     final_steps: int = 1500
