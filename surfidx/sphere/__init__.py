@@ -23,12 +23,12 @@ The stages of the default method ``"tutte"``, one module each:
    sphere the grid needs. A Möbius normalisation ends each level: the area-weighted centre of
    mass at the origin, which makes the map canonical up to a rotation.
    A level that cannot be untangled fails its hierarchy; other coarsest sizes are tried
-   (``MapOptions.coarse_ladder``), then the *embedded hierarchy*
-   (``MapOptions.embedded_hierarchy``): decimated under the link condition alone, each removed
-   vertex that the mean would fold put into the kernel of its ring instead, so that every level
-   starts embedded and none can fail (thin frames such as CAD chairs need it). Only when that
-   fails too does the whole surface get the single-level map (the *fallback*, refused when it
-   squeezes parts of the surface to nothing).
+   (``MapOptions.coarse_ladder``), and when every one fails the whole surface gets the
+   single-level map (the *fallback*). Where that squeezes parts of the surface to nothing, the
+   *embedded hierarchy* (``MapOptions.embedded_hierarchy``) maps it instead: decimated under
+   the link condition alone, each removed vertex that the mean would fold put into the kernel of
+   its ring, so that every level starts embedded and none can fail (thin frames such as CAD
+   chairs need it); a squeezed fallback that remains is refused.
 4. :mod:`._repair`: the folded triangles of the spherical Delaunay triangulation of the mapped
    surfels (where the map is anisotropic) are lowered by single-vertex moves
    (:mod:`._foldrepair`), a second pass, and edge flips realised as the exact Delaunay

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..spherical import orientation
+from ..spherical import hull_triangles, orientation
 from ..surfels import SurfelSet
 from ._balance import balance as balance_map, untangle
 from ._decimate import decimate
 from .options import MapOptions
 from ._surface import areas3, oriented_faces, vertex_areas
 from ._tutte import centre, tutte_map
+from .quality import _area_distortion
 
 __all__ = ["mesh_map", "multilevel_map", "Untangled"]
 
@@ -35,30 +36,43 @@ class Untangled(Exception):
 
 
 def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=None, **route):
-    """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, then
-    (``options.embedded_hierarchy``) the embedded hierarchy, or the single-level map when every
-    hierarchy fails.
+    """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, or the
+    single-level map when every hierarchy fails; where that squeezes the surface beyond
+    ``options.max_area_distortion`` (which :func:`surfidx.sphere.parameterize` refuses), the
+    embedded hierarchy (``options.embedded_hierarchy``) instead.
 
-    Returns the map, its figures and whether it fell back. ``route`` holds ``iterations``,
-    ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`); ``progress`` (a callback,
-    :mod:`surfidx.progress`) gets ``("map", k, levels)`` as each level of a hierarchy is done,
-    coarsest first."""
+    Returns the map, its figures and whether it fell back to the single-level map. ``route``
+    holds ``iterations``, ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`);
+    ``progress`` (a callback, :mod:`surfidx.progress`) gets ``("map", k, levels)`` as each level
+    of a hierarchy is done, coarsest first."""
     f = oriented_faces(surfels) if faces is None else faces
     large = len(surfels) > options.large_level
     steps = options.final_steps_large if large else options.final_steps
-    ladder = [(coarse, False) for coarse in options.coarse_ladder]
-    if options.embedded_hierarchy and route.get("balance", True):
-        ladder.append((options.coarse_ladder[0], True))
-    for tries, (coarse, embed) in enumerate(ladder):
+    ladder = options.coarse_ladder
+    for tries, coarse in enumerate(ladder):
         try:
             x, info = multilevel_map(surfels, faces=f, steps=steps, coarse=coarse,
-                                     options=options, progress=progress, embed=embed, **route)
+                                     options=options, progress=progress, **route)
         except Untangled:
             continue
-        return x, dict(info, coarse=coarse, retries=tries, **({"embedded": 1} if embed else {})), False
+        return x, dict(info, coarse=coarse, retries=tries), False
     x, info = tutte_map(surfels, faces=f, options=options, **route)
-    return x, dict(info, levels=1, base_vertices=len(surfels),
-                   retries=len(ladder)), True
+    if (options.embedded_hierarchy and route["balance"]
+            and _squeezed(surfels, x) > options.max_area_distortion):
+        try:
+            xe, info = multilevel_map(surfels, faces=f, steps=steps, coarse=ladder[0],
+                                      options=options, progress=progress, embed=True, **route)
+        except Untangled:       # not expected: every level starts embedded
+            pass
+        else:
+            return xe, dict(info, coarse=ladder[0], retries=len(ladder), embedded=1), False
+    return x, dict(info, levels=1, base_vertices=len(surfels), retries=len(ladder)), True
+
+
+def _squeezed(surfels: SurfelSet, x) -> float:
+    """The area distortion of the map ``x`` (on the Delaunay triangles of the mapped surfels),
+    the figure by which a single-level map is refused."""
+    return _area_distortion(surfels.positions, x, hull_triangles(x))
 
 
 def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
