@@ -48,8 +48,9 @@ Descriptor vectors (float32), by kind:
            resampled positions), so shells, D2 and radial measure the surface, not the sphere
            map: limbs the map squeezes keep their surface share. They use the grid of level
            ``min(level, SHAPE_LEVEL)`` (a prefix of the grid). Square roots make the L2 distance
-           a Hellinger one. The weights are chosen on ``benchmarks/retrieval.py --study``, on a
-           plateau of weights that give the same figures (the README gives them).
+           a Hellinger one. The weights (:data:`SHAPE_PART_WEIGHTS`, version 7) are chosen on
+           all 95 models of ``benchmarks/retrieval.py``, on a plateau of weights that give the
+           same figures (the README gives them).
 ``layers`` (3·(lmax+1),) — ``sqrt`` of the per-degree energies (pyshtools) of the three geometric
            KLT layers up to the ``lmax`` argument (the raw vector of the shape vector's layers
            part, kept for other distances).
@@ -92,7 +93,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 
 DEFAULT_LMAX = 24
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
-DESCRIPTOR_VERSION = 6
+DESCRIPTOR_VERSION = 7
 
 SHELLS = 8
 SHELL_LMAX = 8
@@ -117,8 +118,11 @@ SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "layers")
 #: Median distance between different models of each unscaled shape part (shells, D2, radial,
 #: spectral, layers) on the retrieval benchmark's genus-0 set.
 SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 0.3359)
-#: Relative weight of each shape part (its median distance becomes 1.15 × the weight).
-SHAPE_PART_WEIGHTS = (1.0, 0.5, 0.5, 2.0, 1.0)
+#: Relative weight of each shape part (its median distance becomes 1.15 × the weight): chosen
+#: on all 95 retrieval models (genus 0-6, the genus > 0 ones repaired), in the middle of a
+#: plateau where a quarter more or less of any one weight keeps the figures
+#: (``benchmarks/retrieval.py``; the README gives them).
+SHAPE_PART_WEIGHTS = (0.5, 0.25, 0.25, 3.0, 2.0)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
 
 

@@ -27,7 +27,7 @@ def test_object_rotation_translation_scale_invariance():
         np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
     assert set(a.vectors) == {"shape", "layers", "texture", "spectrum"}
     assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
-    assert a.params["version"] == DESCRIPTOR_VERSION == 6 and a.params["shape"]["shells"] == 8
+    assert a.params["version"] == DESCRIPTOR_VERSION == 7 and a.params["shape"]["shells"] == 8
     assert a.params["shape"]["spectral_k"] == 30
     # a reflection too, and the descriptor does see a different shape
     c = describe_grid(np.c_[0.3 * s * [1, -1, 1] - 5, col], 5)
