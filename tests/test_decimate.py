@@ -98,3 +98,19 @@ def test_embedded_prolongation_never_folds(seed):
     assert orientation(out, f).min() > 0
     np.testing.assert_array_equal(out[h.vertices], x[h.vertices])
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
+    """d043, a genus-1 chair of the retrieval set: no hierarchy of the ladder untangles and the
+    single-level map squeezes it (area distortion above the refusal limit); the embedded
+    hierarchy maps it without a folded mesh triangle, within the limit."""
+    from surfidx.io import read_model
+    from surfidx.sphere._multilevel import _squeezed, mesh_map
+    from surfidx.sphere.options import DEFAULT_OPTIONS
+
+    surfels = read_model(shared_data / "retrieval/meshes/d043.off").parts[0]
+    x, info, fallback = mesh_map(surfels, options=DEFAULT_OPTIONS, iterations=40, gamma=0.15,
+                                 balance=True)
+    assert not fallback and info["embedded"] == 1 and info["mesh_folds"] == 0
+    assert _squeezed(surfels, x) < DEFAULT_OPTIONS.max_area_distortion
