@@ -102,6 +102,7 @@ class _Flips:
         self.p, self.normals, self.x, self.mirror = p, normals, x, mirror
         self.convex = convex or max_violation < np.pi
         self.max_violation = max_violation
+        self._flipped = {}
         self.edge = {}
         for i in range(len(self.tri)):
             self._register(i)
@@ -142,14 +143,25 @@ class _Flips:
         if c == d or (c, d) in self.edge or (d, c) in self.edge:
             return None
         new = ((a, d, c), (d, b, c))
+        bad = self._flipped.get(new)
+        if bad is None:
+            bad = self._flipped[new] = self._judge(new)
+        if bad is False:
+            return None
+        return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
+
+    def _judge(self, new):
+        """The folds of the two triangles ``new`` of a flip (a list of two bools), or False
+        where ``convex`` refuses the flip. They depend on the corners alone, and the searches
+        meet the same flip again and again, so :meth:`candidate` remembers them."""
+        (a, d, c), (_, b, _) = new
         corners = np.array(new)
         if self.convex and not (
                 (corner_orientation(self.x[corners]) > 0).all()
                 and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
                 >= -self.max_violation):
-            return None
-        bad = (against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
-        return int(self.bad[i]) + int(self.bad[j]) - sum(bad), i, j, new, bad
+            return False
+        return (against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
 
     def apply(self, cand):
         _, i, j, new, bad = cand
