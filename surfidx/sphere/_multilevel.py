@@ -11,7 +11,9 @@ is balanced at the level's resolution (:mod:`surfidx.sphere._balance`), then nor
 
 A level left with more than ``inverted_kept`` of its triangles inverted fails the hierarchy; the
 next coarsest size is tried, and only when every one fails is the whole mesh mapped by the
-single-level route (the *fallback*).
+single-level route (the *fallback*). A fallback that squeezes the surface beyond the limit at
+which :func:`surfidx.sphere.parameterize` refuses it gives way to the *embedded hierarchy*
+(``embed``), whose levels all start embedded and so cannot fail.
 """
 
 from __future__ import annotations
@@ -98,7 +100,8 @@ def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, 
     n = len(surfels)
     f = oriented_faces(surfels) if faces is None else faces   # decimation keeps the topology
     p = surfels.positions
-    h = decimate(p, f, max(coarse, n // options.level_ratio), shape=not embed) if n > coarse else None
+    target = max(coarse, n // options.level_ratio)
+    h = decimate(p, f, target, shape=not embed) if n > coarse else None
     if h is None or len(h.vertices) >= n:
         x, info = tutte_map(surfels, options=options, iterations=iterations, gamma=gamma,
                             balance=balance)
