@@ -436,7 +436,9 @@ class TriangleMesh:
         """
         e = np.sort(np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]],
                                     self.faces[:, [2, 0]]]), axis=1)
-        _, count = np.unique(e, axis=0, return_counts=True)
+        # each undirected edge as one integer (a row-wise unique sorts 3x slower)
+        _, count = np.unique(e[:, 0] * np.int64(len(self.vertices)) + e[:, 1],
+                             return_counts=True)
         if np.any(count != 2):
             return 1.0
         return -1.0 if self.signed_volume() < 0 else 1.0
