@@ -517,26 +517,24 @@ def _triangulate_polygons(polys, path):
 
 
 def _faces_from_strips(data, path):
-    """Triangles from -1 separated strips; odd triangles flip winding; degenerate ones dropped."""
+    """Triangles from -1 separated strips; odd triangles flip winding; degenerate ones dropped.
+
+    Every window of three consecutive entries of one strip is a triangle, in strip order, odd
+    when its first entry is an odd number of places into its strip."""
     col = _list_column(data)
     strips = np.concatenate([np.asarray(s, np.int64).ravel() for s in col])
-    out = []
-    # split at -1
-    cuts = np.flatnonzero(strips < 0)
-    start = 0
-    for end in list(cuts) + [len(strips)]:
-        s = strips[start:end]
-        start = end + 1
-        if len(s) < 3:
-            continue
-        a, b, c = s[:-2], s[1:-1], s[2:]
-        t = np.stack([a, b, c], axis=1)
-        odd = (np.arange(len(t)) % 2) == 1
-        t[odd] = t[odd][:, [1, 0, 2]]
-        out.append(t)
-    if not out:
+    i = np.arange(max(len(strips) - 2, 0))
+    i = i[(strips[i] >= 0) & (strips[i + 1] >= 0) & (strips[i + 2] >= 0)]
+    if not len(i):
         raise FileFormatError("tristrips hold no triangle", path=path)
-    t = np.concatenate(out)
+    start = np.zeros(len(strips), np.int64)          # where the strip of each entry starts
+    after = np.flatnonzero(strips < 0) + 1
+    after = after[after < len(strips)]
+    start[after] = after
+    start = np.maximum.accumulate(start)
+    t = np.stack([strips[i], strips[i + 1], strips[i + 2]], axis=1)
+    odd = (i - start[i]) % 2 == 1
+    t[odd] = t[odd][:, [1, 0, 2]]
     keep = (t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 0] != t[:, 2])
     return t[keep]
 

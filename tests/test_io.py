@@ -571,3 +571,28 @@ def test_write_atomic_never_follows_a_symlink_at_a_temporary_name(tmp_path, sphe
     assert set(tmp_path.iterdir()) == before  # the temporary file is gone
     with pytest.raises(FileFormatError, match="no-such-dir/y.bin: cannot write"):
         write_atomic(tmp_path / "no-such-dir" / "y.bin", lambda tmp: None)
+
+
+def _strips(*rows):
+    data = np.empty(len(rows), dtype=[("vertex_indices", object)])
+    for k, row in enumerate(rows):
+        data[k] = (np.array(row, np.int64),)
+    return data
+
+
+def test_tristrips_alternate_winding_and_drop_degenerate_triangles():
+    from surfidx.io import _faces_from_strips
+
+    faces = _faces_from_strips(_strips([0, 1, 2, 3, -1, 4, 5, 6, 6, 7, 8], [9]), "s.ply")
+    # strip 1: (0 1 2), odd (1 2 3) -> (2 1 3); strip 2: (4 5 6), then degenerate windows
+    # (5 6 6) (6 6 7) dropped, (6 7 8) is the 4th window (odd) -> (7 6 8), then (7 8 9)
+    # even, the strip going on across the list rows
+    np.testing.assert_array_equal(faces, [[0, 1, 2], [2, 1, 3], [4, 5, 6], [7, 6, 8],
+                                          [7, 8, 9]])
+
+
+def test_tristrips_without_a_triangle_are_refused():
+    from surfidx.io import _faces_from_strips
+
+    with pytest.raises(FileFormatError, match="tristrips hold no triangle"):
+        _faces_from_strips(_strips([0, 1, -1, 2, 3, -1]), "s.ply")
