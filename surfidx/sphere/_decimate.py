@@ -131,9 +131,7 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
     if not len(bad):
         return x
     x = x.copy()
-    at = np.empty(len(bad), np.int64)
-    for j, i in enumerate(bad):
-        at[j] = ptr[i] + int(np.flatnonzero(ring[ptr[i]:ptr[i + 1]] == kept[i])[0])
+    at = np.flatnonzero(ring == kept[owner])[bad]      # the kept vertex is once in each ring
     prv = np.empty_like(nxt)
     prv[nxt] = np.arange(len(nxt))
     k, a, b = out[kept[bad]], out[ring[nxt[at]]], out[ring[prv[at]]]
