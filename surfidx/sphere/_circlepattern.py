@@ -407,6 +407,40 @@ def _half_angle_slope(x, sin_ts, cos_ts):
     return sin_ts / (2.0 * (np.cosh(np.clip(x, -700, 700)) + cos_ts))
 
 
+class _Reordered:
+    """``splu(a, permc_spec="COLAMD")`` of matrices of one sparsity pattern, ordered once.
+
+    COLAMD's column order (SuperLU's ``perm_c``) depends on the pattern alone; while the pattern
+    stays, the matrix is permuted by it and factored in its natural order, which gives the same
+    factors and solutions bit for bit without ordering again. A new pattern is ordered afresh."""
+
+    def __init__(self):
+        self._pattern = self._inverse = None
+
+    def __call__(self, a):
+        pattern = (a.indptr, a.indices)
+        if self._pattern is None or not all(
+                np.array_equal(u, v) for u, v in zip(pattern, self._pattern)):
+            lu = splu(a, permc_spec="COLAMD")
+            self._pattern = (a.indptr.copy(), a.indices.copy())
+            self._inverse = np.empty_like(lu.perm_c)
+            self._inverse[lu.perm_c] = np.arange(len(lu.perm_c))
+            return lu
+        return _Permuted(splu(a[:, self._inverse], permc_spec="NATURAL"), self._inverse)
+
+
+class _Permuted:
+    """The factors of ``a[:, inverse]``, solving ``a x = b``."""
+
+    def __init__(self, lu, inverse):
+        self._lu, self._inverse = lu, inverse
+
+    def solve(self, b):
+        x = np.empty_like(b)
+        x[self._inverse] = self._lu.solve(b)
+        return x
+
+
 def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     """Newton's method for the log circumradii ``rho`` (m,) of the triangles: each triangle's
     angles sum to π. The residual is minus the gradient of a convex functional (Bobenko &
@@ -433,13 +467,13 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
                                + np.bincount(j, w, minlength=m))).tocsc()[1:, 1:]
 
     g = residual(rho)
-    lu, stalls = None, 0
+    lu, stalls, factor = None, 0, _Reordered()
     for _ in range(_NEWTON_STEPS):
         if np.abs(g).max() < _NEWTON_TOL:
             return rho, True
         if lu is None:          # a fresh factorisation, reused while the steps converge fast
             try:
-                lu = splu(jacobian(rho), permc_spec="COLAMD")
+                lu = factor(jacobian(rho))
             except RuntimeError:
                 return rho, False
             fresh = True
