@@ -171,11 +171,8 @@ class TriangleMesh:
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
         used = np.unique(f)
         nv, nf = len(used), len(f)
-        e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
         n = len(self.vertices)
-        # one integer key per undirected edge: a 1-D unique is far faster than unique(axis=0)
-        base = np.int64(max(n, 1))
-        keys, ecount = np.unique(e[:, 0] * base + e[:, 1], return_counts=True)
+        keys, ecount, base = _undirected_edges(f, n)
         ekeys = np.column_stack([keys // base, keys % base])
         ne = len(ekeys)
         if nf:
@@ -434,11 +431,7 @@ class TriangleMesh:
 
         An open mesh keeps the orientation its winding gives.
         """
-        e = np.sort(np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]],
-                                    self.faces[:, [2, 0]]]), axis=1)
-        # each undirected edge as one integer (a row-wise unique sorts 3x slower)
-        _, count = np.unique(e[:, 0] * np.int64(len(self.vertices)) + e[:, 1],
-                             return_counts=True)
+        _, count, _ = _undirected_edges(self.faces, len(self.vertices))
         if np.any(count != 2):
             return 1.0
         return -1.0 if self.signed_volume() < 0 else 1.0
@@ -555,6 +548,16 @@ class TriangleMesh:
         patch = None if self.face_patch is None else self.face_patch[tri]
         return SurfelSet(pos, nrm, radii, colors, name=self.name, patch=patch,
                          patch_cut=self.patch_cut)
+
+
+def _undirected_edges(faces: np.ndarray, n: int):
+    """Each undirected edge of ``faces`` (over ``n`` vertices) once, as the key
+    ``lo * base + hi`` in increasing order, the number of faces holding it, and ``base`` (one
+    integer per edge: a 1-D unique is far faster than ``unique(axis=0)``)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    base = np.int64(max(n, 1))
+    keys, count = np.unique(e[:, 0] * base + e[:, 1], return_counts=True)
+    return keys, count, base
 
 
 def _bisection_round(verts: np.ndarray, faces: np.ndarray, max_edge: float):
