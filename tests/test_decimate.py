@@ -106,11 +106,12 @@ def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
     single-level map squeezes it (area distortion above the refusal limit); the embedded
     hierarchy maps it without a folded mesh triangle, within the limit."""
     from surfidx.io import read_model
-    from surfidx.sphere._multilevel import _squeezed, mesh_map
+    from surfidx.sphere._multilevel import mesh_map
     from surfidx.sphere.options import DEFAULT_OPTIONS
+    from surfidx.sphere.quality import area_distortion
 
     surfels = read_model(shared_data / "retrieval/meshes/d043.off").parts[0]
     x, info, fallback = mesh_map(surfels, options=DEFAULT_OPTIONS, iterations=40, gamma=0.15,
                                  balance=True)
     assert not fallback and info["embedded"] == 1 and info["mesh_folds"] == 0
-    assert _squeezed(surfels, x) < DEFAULT_OPTIONS.max_area_distortion
+    assert area_distortion(surfels, x) < DEFAULT_OPTIONS.max_area_distortion

@@ -27,12 +27,16 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ..spherical import corner_orientation
+
 __all__ = ["Hierarchy", "decimate"]
 
 _MAX_DEGREE = 12     # a kept vertex may not grow beyond this many neighbours
 _COS_TURN = 0.5      # a collapse may rotate a triangle's normal by at most 60 degrees
 _SLIVER = 0.05       # and leaves no triangle with area below this fraction of its longest edge²
 _MAX_SCAN = 64       # vertices of higher degree (rare fan centres) are left alone
+_KERNEL_HALVINGS = 60  # a point of a ring's kernel closer than 2^-60 to the kept vertex is below
+                       # the floating-point resolution of the sphere's points
 
 
 @dataclass
@@ -112,9 +116,7 @@ class Hierarchy:
 
 def _star_folds(x, out, ring, owner, nxt):
     """Per removed vertex (at ``x``), whether a triangle of its star is not counter-clockwise."""
-    a, b = out[ring], out[ring[nxt]]
-    c = x[owner]
-    o = np.einsum("ij,ij->i", np.cross(a - c, b - c), a + b + c)
+    o = corner_orientation(np.stack([x[owner], out[ring], out[ring[nxt]]], axis=1))
     return np.bincount(owner, o <= 0, minlength=len(x)) > 0
 
 
@@ -147,10 +149,6 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
             break
         bad, k, d = bad[still], k[still], 0.5 * d[still]
     return x
-
-
-_KERNEL_HALVINGS = 60   # a point of the kernel closer than 2^-60 to the kept vertex is below
-                        # the floating-point resolution of the sphere's points
 
 
 @numba.njit(cache=True)

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..spherical import hull_triangles, orientation
+from ..spherical import orientation
 from ..surfels import SurfelSet
 from ._balance import balance as balance_map, untangle
 from ._decimate import decimate
 from .options import MapOptions
 from ._surface import areas3, oriented_faces, vertex_areas
 from ._tutte import centre, tutte_map
-from .quality import _area_distortion
+from .quality import area_distortion
 
 __all__ = ["mesh_map", "multilevel_map", "Untangled"]
 
@@ -60,7 +60,7 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=No
         return x, dict(info, coarse=coarse, retries=tries), False
     x, info = tutte_map(surfels, faces=f, options=options, **route)
     if (options.embedded_hierarchy and route["balance"]
-            and _squeezed(surfels, x) > options.max_area_distortion):
+            and area_distortion(surfels, x) > options.max_area_distortion):
         try:
             xe, info = multilevel_map(surfels, faces=f, steps=steps, coarse=ladder[0],
                                       options=options, progress=progress, embed=True, **route)
@@ -69,12 +69,6 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=No
         else:
             return xe, dict(info, coarse=ladder[0], retries=len(ladder), embedded=1), False
     return x, dict(info, levels=1, base_vertices=len(surfels), retries=len(ladder)), True
-
-
-def _squeezed(surfels: SurfelSet, x) -> float:
-    """The area distortion of the map ``x`` (on the Delaunay triangles of the mapped surfels),
-    the figure by which a single-level map is refused."""
-    return _area_distortion(surfels.positions, x, hull_triangles(x))
 
 
 def multilevel_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
