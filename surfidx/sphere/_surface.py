@@ -60,8 +60,9 @@ def oriented_faces(surfels: SurfelSet) -> np.ndarray:
                             f"{topo.euler}); only genus-0 (sphere-like) surfaces can be mapped "
                             "to the sphere without cuts")
     # consistent winding: every directed edge once
-    he = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    if len(np.unique(he[:, 0] * n + he[:, 1])) != len(he):
+    he = np.sort(np.concatenate([f[:, 0] * n + f[:, 1], f[:, 1] * n + f[:, 2],
+                                 f[:, 2] * n + f[:, 0]]))
+    if (he[1:] == he[:-1]).any():
         raise TopologyError("the triangles are not consistently oriented (the surface is "
                             "non-orientable or has flipped faces); fix the face winding")
     p = surfels.positions
