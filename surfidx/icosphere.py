@@ -332,8 +332,7 @@ class Icosphere:
         n = len(self.vertices)
         src = np.concatenate([e[:, 0], e[:, 1]])
         dst = np.concatenate([e[:, 1], e[:, 0]])
-        order = np.lexsort((dst, src))
-        indices = dst[order]
+        indices = np.sort(src * np.int64(n) + dst) % n     # by source, then neighbour
         indptr = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(np.bincount(src, minlength=n), out=indptr[1:])
         _readonly(indptr, indices)
