@@ -34,7 +34,7 @@ from scipy.sparse.csgraph import connected_components
 from .._errors import InputError, TopologyError
 from .._validate import as_array
 from ._analyse import (boundary_loops, distinct_corners, edge_table, euler_characteristic,
-                       face_components, orientation)
+                       face_components, orientation, used_count)
 from ._handles import cut_shortest_handle
 from ._holes import fill_holes
 from ._options import RepairOptions
@@ -358,14 +358,14 @@ def analyse(vertices, faces, *, options: RepairOptions = RepairOptions()) -> Top
     threshold = drop_threshold(int(pv.sum()), options)
     dropped = int(sum(1 for i, p in enumerate(order) if i > 0 and pv[p] < threshold))
     kept = [p for i, p in enumerate(order) if i == 0 or pv[p] >= threshold]
+    used = used_count(f, n)
     return TopologyReport(
-        vertices=int(np.unique(f).size), faces=len(f), edges=len(np.unique(
-            np.minimum(f, np.roll(f, -1, 1)) * np.int64(n) + np.maximum(f, np.roll(f, -1, 1)))),
+        vertices=used, faces=len(f), edges=len(count),
         degenerate_faces=int((~keep).sum()), components=comps, pinched_vertices=pinched,
         nonmanifold_edges=nonman, parts=parts, part_vertices=tuple(int(pv[p]) for p in order),
         parts_dropped=dropped, orientable=orientable,
         holes=len(sizes), hole_sizes=tuple(int(s) for s in np.sort(sizes)[::-1]),
-        euler=euler_characteristic(f, n), genus=tuple(int(genus[p]) for p in order),
+        euler=used - len(count) + len(f), genus=tuple(int(genus[p]) for p in order),
         closed=bool(len(sizes) == 0 and nonman == 0 and pinched == 0 and (count == 2).all()),
         handles=int(sum(max(int(genus[p]), 0) for p in kept)))
 
