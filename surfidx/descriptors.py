@@ -80,6 +80,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._errors import InputError
+from ._sparse import SPDSolver
 from ._tolerance import TOL
 from ._validate import as_array
 from .icosphere import icosphere, vertex_count
@@ -270,43 +271,11 @@ def _shape_vector(parts: dict) -> np.ndarray:
     return np.concatenate([s * parts[name] for name, s in zip(SHAPE_PARTS, SHAPE_PART_SCALES)])
 
 
-_ND_LEAF = 16   # nested dissection stops splitting at this many vertices
-
-
 @functools.lru_cache(maxsize=4)
-def _dissection_order(level: int) -> np.ndarray:
-    """(n,) int64: a nested-dissection ordering of the level-``level`` grid's vertices.
-
-    The vertex set is split in two by the median of the unit-sphere coordinate of largest spread;
-    the vertices of one half adjacent to the other form the separator, numbered after both halves,
-    which are ordered recursively. An LU factor of a matrix on the grid's edges in this order has
-    3.97 M entries at level 6 against 7.17 M with SuperLU's COLAMD, and factors and solves in 0.11
-    s and 5.3 ms against 0.29 s and 17.5 ms (a sphere-like grid surface): the connectivity is the
-    same for every model, so the order is computed once per level.
-    """
-    ico = icosphere(level)
-    n = ico.n_vertices
-    indptr, indices = ico.neighbor_indptr, ico.neighbor_indices
-    adj = sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
-    pts = ico.vertices
-    order: list[np.ndarray] = []
-    stack = [(np.arange(n), False)]   # (vertices, already-ordered separator)
-    while stack:                      # explicit stack: halves first, then their separator
-        idx, done = stack.pop()
-        if done or len(idx) <= _ND_LEAF:
-            order.append(idx)
-            continue
-        c = pts[idx]
-        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-        left = c[:, axis] <= np.median(c[:, axis])
-        lo, hi = idx[left], idx[~left]
-        mark = np.zeros(n)
-        mark[hi] = 1.0
-        touches = (adj[lo] @ mark) > 0
-        stack += [(lo[touches], True), (hi, False), (lo[~touches], False)]
-    perm = np.concatenate(order)
-    perm.flags.writeable = False
-    return perm
+def _grid_solver(level: int) -> SPDSolver:
+    """The factoriser of the level-``level`` grid's Laplacians: every model's has the grid's
+    connectivity, so its nested-dissection order is computed once per level."""
+    return SPDSolver()
 
 
 def _log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
@@ -320,7 +289,7 @@ def _log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL)
     ``M``) with one LU factor in the grid's nested-dissection order.
     """
     import scipy.linalg
-    from scipy.sparse.linalg import LinearOperator, eigsh, splu
+    from scipy.sparse.linalg import LinearOperator, eigsh
 
     lev = min(level, max_level)
     f = icosphere(lev).faces
@@ -346,16 +315,11 @@ def _log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL)
         # the standard form C = M^-1/2 K M^-1/2 shifted below 0, so that K - sigma M is
         # positive definite (a plain LU works); (C - sigma)^-1 y = M^1/2 (K - sigma M)^-1 M^1/2 y
         sigma = -0.1 * 4.0 * np.pi / total
-        perm = _dissection_order(lev)
-        shifted = (stiff + sp.diags(-sigma * mass)).tocsr()[perm][:, perm].tocsc()
-        lu = splu(shifted, permc_spec="NATURAL")
+        lu = _grid_solver(lev).factor(stiff + sp.diags(-sigma * mass))
         root = np.sqrt(mass)
-        root_p = root[perm]
-        inverse = np.empty_like(perm)
-        inverse[perm] = np.arange(n)
 
         def solve(y):
-            return root * lu.solve(root_p * y.ravel()[perm])[inverse]
+            return root * lu.solve(root * y.ravel())
 
         # a fixed start vector: ARPACK's own random start depends on its earlier calls
         v0 = np.random.default_rng(SEED).standard_normal(n)

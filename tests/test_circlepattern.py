@@ -271,31 +271,3 @@ def test_radii_stop_when_the_line_search_finds_no_descent():
     assert not ok
     assert half.call_count < 2 * _NEWTON_STEPS
 
-
-def test_reordered_factors_solve_as_colamd_bit_for_bit():
-    """The circle pattern's Newton steps factor matrices of one pattern again and again; ordering
-    once and factoring the permuted matrix gives COLAMD's solutions exactly, and a new pattern
-    is ordered afresh."""
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    from surfidx.sphere._circlepattern import _Reordered
-
-    rng = np.random.default_rng(0)
-    m = 400
-    i, j = rng.integers(0, m, 1500), rng.integers(0, m, 1500)
-    keep = i != j
-    i, j = i[keep], j[keep]
-
-    def laplacian(w, extra=0.0):
-        lap = sp.csr_matrix((np.concatenate([-w, -w]), (np.concatenate([i, j]),
-                                                        np.concatenate([j, i]))), shape=(m, m))
-        deg = np.bincount(i, w, minlength=m) + np.bincount(j, w, minlength=m) + 1.0
-        return (lap + sp.diags(deg)).tocsc() + extra * sp.eye(m, k=5, format="csc")
-
-    factor = _Reordered()
-    b = rng.normal(size=m)
-    for extra in (0.0, 0.0, 0.0, 0.5, 0.5):           # the fourth matrix has a new pattern
-        a = laplacian(rng.uniform(0.1, 2.0, len(i)), extra).tocsc()
-        expected = splu(a, permc_spec="COLAMD").solve(b)
-        np.testing.assert_array_equal(factor(a).solve(b), expected)

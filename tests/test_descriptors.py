@@ -112,30 +112,6 @@ def test_spectral_part_is_the_sphere_laplacian_spectrum():
         assert np.max(np.abs(got - want)) < (0.02 if level == 5 else 0.06)
 
 
-def test_dissection_order_is_a_permutation_that_cuts_fill():
-    """The grid's nested-dissection order numbers every vertex once, and an LU factor of a
-    Laplacian in that order has less fill than SuperLU's own column ordering."""
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    from surfidx.descriptors import _dissection_order
-
-    ico = icosphere(5)
-    perm = _dissection_order(5)
-    assert np.array_equal(np.sort(perm), np.arange(ico.n_vertices))
-    n = ico.n_vertices
-    adj = sp.csr_matrix((np.ones(len(ico.neighbor_indices)), ico.neighbor_indices,
-                         ico.neighbor_indptr), shape=(n, n))
-    lap = (sp.diags(np.asarray(adj.sum(axis=1)).ravel() + 0.1) - adj).tocsr()
-    ours = splu(lap[perm][:, perm].tocsc(), permc_spec="NATURAL")
-    theirs = splu(lap.tocsc())
-    assert ours.L.nnz + ours.U.nnz < 0.8 * (theirs.L.nnz + theirs.U.nnz)
-    b = np.random.default_rng(0).standard_normal(n)
-    x = np.empty(n)
-    x[perm] = ours.solve(b[perm])
-    assert np.allclose(lap @ x, b, atol=1e-10)
-
-
 def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
     """Bending a surface without stretching keeps its spectrum; a map squeezing grid points onto
     each other (zero-area triangles) still gives a finite descriptor."""

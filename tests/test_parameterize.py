@@ -272,13 +272,15 @@ def test_resampling_check_refuses_a_map_that_resamples_worse(models):
     assert not check(y)
 
 
-def test_realisation_removes_the_fold_the_repair_leaves_on_homer(models):
-    """Homer's repair leaves one folded Delaunay triangle; flips and their Delaunay realisation
-    remove it, and resampling still interpolates in the mesh's own faces."""
+def test_realisation_removes_the_folds_the_repair_leaves_on_homer(models):
+    """With the fold repair cut to one round and no search, Homer keeps folded Delaunay
+    triangles; flips and their Delaunay realisation remove them, and resampling still
+    interpolates in the mesh's own faces."""
     from surfidx.resample import map_triangles
 
     s = read_surfels(models / "homer.obj")
-    m = parameterize(s, stress=False)
+    m = parameterize(s, stress=False, options=MapOptions(repair_rounds=1, second_pass=False,
+                                                         search_folds=0))
     assert m.folded == 0 and m.stage("realise").figures["folds_realised"] >= 1
     assert count_folds(s, m.points)[0] == 0          # counted afresh from the points
     tri = map_triangles(s, m.points)

@@ -184,19 +184,19 @@ class _Energy:
         quadratic proxy of Kovalsky et al. 2016). Updates spread over whole limbs instead of
         creeping one ring per step."""
         import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
 
+        from .._sparse import spd_factor
         from ..mesh import cotangent_laplacian
 
         lap = cotangent_laplacian(self.f, self.cot, self.n)
         lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
         if keep is not None:        # the rows and columns of the free vertices only
             lap = lap.tocsr()[keep][:, keep]
-        lap = lap.tocsc()
-        lu = splu(lap, permc_spec="COLAMD")
+        lap = lap.tocsr()
+        lu = spd_factor(lap)
 
         def solve(r):
-            return lu.solve(np.asfortranarray(r.reshape(-1, 3))).ravel(order="C")
+            return lu.solve(r.reshape(-1, 3)).ravel(order="C")
 
         def apply(r):
             return np.asarray(lap @ r.reshape(-1, 3)).ravel()

@@ -57,8 +57,7 @@ from itertools import compress
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
-
+from .._sparse import SPDSolver, spd_factor
 from ..spherical import against_normals, corner_orientation, hull_triangles, mirrored
 from .options import DEFAULT_OPTIONS, MapOptions
 
@@ -367,7 +366,7 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     sums[ring] = ring_sums
     rhs = np.concatenate([np.full(m, np.pi), sums[inner]])
     try:
-        lu = splu((lin @ lin.T).tocsc())
+        lu = spd_factor(lin @ lin.T)
     except RuntimeError:
         return None
     e = opposite.ravel()
@@ -407,40 +406,6 @@ def _half_angle_slope(x, sin_ts, cos_ts):
     return sin_ts / (2.0 * (np.cosh(np.clip(x, -700, 700)) + cos_ts))
 
 
-class _Reordered:
-    """``splu(a, permc_spec="COLAMD")`` of matrices of one sparsity pattern, ordered once.
-
-    COLAMD's column order (SuperLU's ``perm_c``) depends on the pattern alone; while the pattern
-    stays, the matrix is permuted by it and factored in its natural order, which gives the same
-    factors and solutions bit for bit without ordering again. A new pattern is ordered afresh."""
-
-    def __init__(self):
-        self._pattern = self._inverse = None
-
-    def __call__(self, a):
-        pattern = (a.indptr, a.indices)
-        if self._pattern is None or not all(
-                np.array_equal(u, v) for u, v in zip(pattern, self._pattern)):
-            lu = splu(a, permc_spec="COLAMD")
-            self._pattern = (a.indptr.copy(), a.indices.copy())
-            self._inverse = np.empty_like(lu.perm_c)
-            self._inverse[lu.perm_c] = np.arange(len(lu.perm_c))
-            return lu
-        return _Permuted(splu(a[:, self._inverse], permc_spec="NATURAL"), self._inverse)
-
-
-class _Permuted:
-    """The factors of ``a[:, inverse]``, solving ``a x = b``."""
-
-    def __init__(self, lu, inverse):
-        self._lu, self._inverse = lu, inverse
-
-    def solve(self, b):
-        x = np.empty_like(b)
-        x[self._inverse] = self._lu.solve(b)
-        return x
-
-
 def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     """Newton's method for the log circumradii ``rho`` (m,) of the triangles: each triangle's
     angles sum to π. The residual is minus the gradient of a convex functional (Bobenko &
@@ -467,13 +432,13 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
                                + np.bincount(j, w, minlength=m))).tocsc()[1:, 1:]
 
     g = residual(rho)
-    lu, stalls, factor = None, 0, _Reordered()
+    lu, stalls, solver = None, 0, SPDSolver()
     for _ in range(_NEWTON_STEPS):
         if np.abs(g).max() < _NEWTON_TOL:
             return rho, True
         if lu is None:          # a fresh factorisation, reused while the steps converge fast
             try:
-                lu = factor(jacobian(rho))
+                lu = solver.factor(jacobian(rho))
             except RuntimeError:
                 return rho, False
             fresh = True
@@ -536,7 +501,7 @@ def _layout(t, angles, rho, n, anchor):
     sub = mat[:, free]
     z = fixed.copy()
     try:
-        z[free] = splu((sub.conj().T @ sub).tocsc()).solve(sub.conj().T @ -(mat @ fixed))
+        z[free] = spd_factor(sub.conj().T @ sub).solve(sub.conj().T @ -(mat @ fixed))
     except RuntimeError:
         return None
     return z
