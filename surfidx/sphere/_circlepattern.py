@@ -57,6 +57,7 @@ from itertools import compress
 
 import numpy as np
 import scipy.sparse as sp
+
 from .._sparse import SPDSolver, spd_factor
 from ..spherical import against_normals, corner_orientation, hull_triangles, mirrored
 from .options import DEFAULT_OPTIONS, MapOptions
@@ -429,7 +430,7 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
         lap = sp.csr_matrix((np.concatenate([-w, -w]), (np.concatenate([i, j]),
                                                         np.concatenate([j, i]))), shape=(m, m))
         return (lap + sp.diags(np.bincount(i, w, minlength=m)
-                               + np.bincount(j, w, minlength=m))).tocsc()[1:, 1:]
+                               + np.bincount(j, w, minlength=m))).tocsr()[1:, 1:]
 
     g = residual(rho)
     lu, stalls, solver = None, 0, SPDSolver()
