@@ -125,29 +125,26 @@ class _HalfEdges:
     in lexicographic ``(lo, hi)`` order.
     """
 
-    def __init__(self, faces: np.ndarray, n_vertices: int):
+    def __init__(self, faces: np.ndarray, n_vertices: int, *,
+                 coarse: "_HalfEdges | None" = None):
         tail = faces.ravel()
         head = faces[:, [1, 2, 0]].ravel()
         self.tail, self.head = tail, head
         self.opp = faces[:, [2, 0, 1]].ravel()
-        lo = np.minimum(tail, head)
-        hi = np.maximum(tail, head)
-        key = lo * np.int64(n_vertices) + hi
-        order = np.argsort(key, kind="stable")
-        sk = key[order]
-        if len(sk) % 2 or not np.all(sk[0::2] == sk[1::2]) or np.any(sk[2::2] == sk[1:-1:2]):
-            raise AssertionError("icosphere mesh is not a closed 2-manifold")  # pragma: no cover
-        n_edges = len(sk) // 2
-        edge = np.empty(len(key), dtype=np.int64)
-        edge[order] = np.repeat(np.arange(n_edges, dtype=np.int64), 2)
-        twin = np.empty(len(key), dtype=np.int64)
-        twin[order[0::2]] = order[1::2]
-        twin[order[1::2]] = order[0::2]
-        self.edge, self.twin = edge, twin
-        self.edges = np.stack([sk[0::2] // n_vertices, sk[0::2] % n_vertices], axis=1)
-        # the half-edge of each edge that runs lo -> hi
-        first, second = order[0::2], order[1::2]
-        self.forward = np.where(tail[first] < head[first], first, second)
+        if coarse is None:
+            self.twin = _twins_by_sorting(tail, head, n_vertices)
+        else:
+            self.twin = _subdivided_twins(coarse.twin)
+        # the half-edge of each edge that runs lo -> hi, edges in lexicographic (lo, hi) order
+        forward = np.flatnonzero(tail < head)
+        key = tail[forward] * np.int64(n_vertices) + head[forward]
+        order = np.argsort(key)                  # keys are distinct: any sort gives this order
+        self.forward = forward[order]
+        self.edges = np.stack([tail[self.forward], head[self.forward]], axis=1)
+        edge = np.empty(len(tail), dtype=np.int64)
+        edge[self.forward] = np.arange(len(self.forward), dtype=np.int64)
+        edge[self.twin[self.forward]] = edge[self.forward]
+        self.edge = edge
 
     @staticmethod
     def nxt(h):
@@ -156,6 +153,49 @@ class _HalfEdges:
     @staticmethod
     def prv(h):
         return h - h % 3 + (h + 2) % 3
+
+
+def _twins_by_sorting(tail: np.ndarray, head: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The reversed half-edge of each half-edge of a closed 2-manifold, by sorting edge keys."""
+    key = np.minimum(tail, head) * np.int64(n_vertices) + np.maximum(tail, head)
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    if len(sk) % 2 or not np.all(sk[0::2] == sk[1::2]) or np.any(sk[2::2] == sk[1:-1:2]):
+        raise AssertionError("icosphere mesh is not a closed 2-manifold")  # pragma: no cover
+    twin = np.empty(len(key), dtype=np.int64)
+    twin[order[0::2]] = order[1::2]
+    twin[order[1::2]] = order[0::2]
+    return twin
+
+
+def _subdivided_twins(coarse_twin: np.ndarray) -> np.ndarray:
+    """The twins of the half-edges of a 4-to-1 subdivision (:meth:`Icosphere._subdivide`'s
+    face order), from the coarse mesh's twins, without a sort.
+
+    Coarse half-edge ``H = 3f + p`` (``x -> y``) is split into ``x -> mid``, position 0 of child
+    ``4f + p``, and ``mid -> y``, position 2 of child ``4f + (p+1) % 3``; each half twins the
+    other half of ``twin(H)``. Position 1 of children 0, 1, 2 twins positions 2, 0, 1 of the
+    inner child ``4f + 3``."""
+    n_half = len(coarse_twin)
+    h = np.arange(n_half, dtype=np.int64)
+    f, p = h // 3, h % 3
+
+    def first(f, p):
+        return 3 * (4 * f + p)
+
+    def second(f, p):
+        return 3 * (4 * f + (p + 1) % 3) + 2
+
+    t = coarse_twin
+    tf, tp = t // 3, t % 3
+    twin = np.empty(4 * n_half, dtype=np.int64)
+    twin[first(f, p)] = second(tf, tp)
+    twin[second(f, p)] = first(tf, tp)
+    inner = 3 * (4 * f + p) + 1
+    inner_twin = 3 * (4 * f + 3) + (p + 2) % 3
+    twin[inner] = inner_twin
+    twin[inner_twin] = inner
+    return twin
 
 
 def _balanced_root_owners(edges: np.ndarray) -> np.ndarray:
@@ -308,7 +348,8 @@ class Icosphere:
 
     @functools.cached_property
     def _half_edges(self) -> _HalfEdges:
-        return _HalfEdges(self.faces, len(self.vertices))
+        coarse = icosphere(self.level - 1)._half_edges if self.level else None
+        return _HalfEdges(self.faces, len(self.vertices), coarse=coarse)
 
     # ------------------------------------------------------------------ queries
     @property
