@@ -178,7 +178,10 @@ def compute(job: dict) -> dict:
         level = choose_level(len(surfels), sparse_sampling=m.sparse_sampling)
         grid = resample(surfels, m.points, level)
         rec.update(level=level, area_distortion=float(m.area_distortion), folded=int(m.folded),
-                   map_seconds=float(m.seconds))
+                   map_seconds=float(m.seconds),
+                   map_sha256=hashlib.sha256(np.ascontiguousarray(m.points).tobytes())
+                   .hexdigest()[:16],
+                   stages={st.name: dict(st.figures) for st in m.stages})
         rec["cpu_seconds"] = time.process_time() - cpu0
     except surfidx.SurfidxError as exc:
         rec["error"] = f"{type(exc).__name__}: {exc}"
