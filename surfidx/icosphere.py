@@ -369,10 +369,10 @@ class Icosphere:
 
     @functools.cached_property
     def _neighbors(self):
-        e = self.edges
+        # a closed 2-manifold: each ordered pair of neighbours is one directed edge of a face
         n = len(self.vertices)
-        src = np.concatenate([e[:, 0], e[:, 1]])
-        dst = np.concatenate([e[:, 1], e[:, 0]])
+        src = self.faces.ravel()
+        dst = self.faces[:, [1, 2, 0]].ravel()
         indices = np.sort(src * np.int64(n) + dst) % n     # by source, then neighbour
         indptr = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(np.bincount(src, minlength=n), out=indptr[1:])
