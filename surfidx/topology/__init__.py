@@ -288,9 +288,10 @@ def _check_options(options):
     return options
 
 
-def _loop_sizes(faces, n):
-    """Edge counts of the boundary cycles (orientation-free: components of boundary edges)."""
-    he_edge, edges, count = edge_table(faces, n)
+def _loop_sizes(table, n):
+    """Edge counts of the boundary cycles (orientation-free: components of boundary edges) of
+    the faces whose :func:`edge_table` is ``table``, over ``n`` vertices."""
+    _, edges, count = table
     b = edges[count == 1]
     if not len(b):
         return np.zeros(0, np.int64), np.zeros(n, np.int64) - 1
@@ -329,19 +330,24 @@ def analyse(vertices, faces, *, options: RepairOptions = RepairOptions()) -> Top
     options = _check_options(options)
     n = len(v)
     f = f[keep]
-    comps, _ = face_components(f, n)
-    _, _, count = edge_table(f, n)
-    split, origin, pinched, nonman = split_pinched(f, n)
+    comps, flab = face_components(f, n)
+    table = edge_table(f, n)
+    count = table[2]
+    split, origin, pinched, nonman = split_pinched(f, n, table=table)
     nn = n + len(origin)
-    parts, plab = face_components(split, nn)
-    sizes, vlab = _loop_sizes(split, nn)
-    flip = orientation(split, nn)
+    if len(origin):
+        parts, plab = face_components(split, nn)
+        table = edge_table(split, nn)
+    else:       # nothing split: the faces, their pieces and edges are those above
+        parts, plab = comps, flab
+    sizes, vlab = _loop_sizes(table, nn)
+    flip = orientation(split, nn, table=table)
     orientable = flip is not None
     # per-part counts
     vpart = np.full(nn, -1, np.int64)
     vpart[split.ravel()] = np.repeat(plab, 3)
     pv = np.bincount(vpart[vpart >= 0], minlength=parts)
-    _, edges, _ = edge_table(split, nn)
+    edges = table[1]
     pe = np.bincount(vpart[edges[:, 0]], minlength=parts)
     pf = np.bincount(plab, minlength=parts)
     loop_part = np.zeros(len(sizes), np.int64)

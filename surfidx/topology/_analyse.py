@@ -53,15 +53,16 @@ def _edge_pairs(he_edge: np.ndarray, count: np.ndarray):
     return pairs[:, 0], pairs[:, 1]
 
 
-def corner_fans(faces: np.ndarray, n: int) -> np.ndarray:
+def corner_fans(faces: np.ndarray, n: int, *, table=None) -> np.ndarray:
     """(3m,) int64 fan label of every corner.
 
     Two corners of one vertex are in one fan when their faces share an edge at that vertex held
     by exactly two faces; edges of one face (boundary) or of three and more (non-manifold) do
-    not join fans. A vertex whose corners carry more than one label is pinched.
+    not join fans. A vertex whose corners carry more than one label is pinched. ``table``:
+    :func:`edge_table` of these faces, when the caller has it.
     """
     m = len(faces)
-    he_edge, _, count = edge_table(faces, n)
+    he_edge, _, count = edge_table(faces, n) if table is None else table
     h1, h2 = _edge_pairs(he_edge, count)
     f1, j1 = h1 // 3, h1 % 3
     f2, j2 = h2 // 3, h2 % 3
@@ -100,8 +101,9 @@ def face_components(faces: np.ndarray, n: int):
     return len(first), rank[inv.ravel()]
 
 
-def orientation(faces: np.ndarray, n: int):
-    """Face flips that wind every component consistently.
+def orientation(faces: np.ndarray, n: int, *, table=None):
+    """Face flips that wind every component consistently (``table``: :func:`edge_table` of
+    these faces, when the caller has it).
 
     Works on the orientation double cover: node ``f`` and ``f + m`` are face ``f`` kept and
     flipped; an edge of two faces joins (kept, kept) when its half-edges run opposite ways, else
@@ -114,7 +116,7 @@ def orientation(faces: np.ndarray, n: int):
         Faces to flip; ``None`` when a component is non-orientable.
     """
     m = len(faces)
-    he_edge, _, count = edge_table(faces, n)
+    he_edge, _, count = edge_table(faces, n) if table is None else table
     h1, h2 = _edge_pairs(he_edge, count)
     fl = faces.ravel()
     f1, f2 = h1 // 3, h2 // 3

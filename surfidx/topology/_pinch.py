@@ -16,7 +16,7 @@ from ._analyse import corner_fans, edge_table
 __all__ = ["split_pinched"]
 
 
-def split_pinched(faces: np.ndarray, n: int):
+def split_pinched(faces: np.ndarray, n: int, *, table=None):
     """Split the pinched vertices and non-manifold edges of ``faces``.
 
     Parameters
@@ -25,6 +25,8 @@ def split_pinched(faces: np.ndarray, n: int):
         Faces with distinct corners.
     n : int
         Vertex count.
+    table : tuple, optional
+        :func:`~._analyse.edge_table` of ``faces``, when the caller has it.
 
     Returns
     -------
@@ -38,9 +40,9 @@ def split_pinched(faces: np.ndarray, n: int):
         Edges that had three or more faces.
     """
     m = len(faces)
-    _, _, count = edge_table(faces, n)
-    nonman = int((count > 2).sum())
-    lab = corner_fans(faces, n)
+    table = edge_table(faces, n) if table is None else table
+    nonman = int((table[2] > 2).sum())
+    lab = corner_fans(faces, n, table=table)
     cv = faces.ravel()
     # distinct (vertex, fan) pairs, each fan ranked by its lowest corner within its vertex
     corner = np.arange(3 * m)
