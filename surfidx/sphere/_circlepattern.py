@@ -277,9 +277,10 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
     folds = best = int(sum(state.bad))
     found = []
     bad = []
+    folded = set(compress(range(len(state.bad)), state.bad))    # kept up to date, flip by flip
     for step in range(int(steps)):
         if step % 64 == 0 or not bad:
-            bad = list(compress(range(len(state.bad)), state.bad))
+            bad = sorted(folded)        # the folded triangles in index order, without a scan
             if not bad:
                 break
         i = bad[rng.integers(len(bad))]
@@ -296,6 +297,11 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
                 gain < 0 and rng.random() < np.exp(gain / temperature)):
             state.apply(cand)
             folds -= gain
+            for q in cand[1:3]:
+                if state.bad[q]:
+                    folded.add(q)
+                else:
+                    folded.discard(q)
             bad = [q for q in bad if state.bad[q]] + [q for q in cand[1:3] if state.bad[q]
                                                       and q not in bad]
             if folds < best:
