@@ -8,9 +8,14 @@ machines (the blob and spot streams of the tests). Before numpy is loaded, surfi
 libraries for the kernels of x86-64-v3 (AVX2 and FMA), which every x86-64 server of the last ten
 years has: ``NPY_DISABLE_CPU_FEATURES`` names numpy's AVX-512 targets and ``OPENBLAS_CORETYPE``
 is ``Haswell`` (set only where ``/proc/cpuinfo`` shows AVX2 and FMA: forcing it elsewhere would
-stop the process). A variable the user set is kept. When numpy was imported before surfidx,
-nothing can be changed any more; :func:`numerics_profile` then says whether the process still
-computes as every other one does.
+stop the process). OpenBLAS also splits a long dot product among its threads, one per core by
+default, and adds the parts in an order that depends on their number: the same map came out
+different with one BLAS thread and with two. So surfidx asks for one (``OPENBLAS_NUM_THREADS=1``;
+the work is sparse solves and small dense products, and a worker process per core is what runs
+in parallel). A variable the user set is kept. When numpy was imported before surfidx, its
+OpenBLAS threads are limited at import (threadpoolctl) but its kernels cannot be changed any
+more; :func:`numerics_profile` then says whether the process still computes as every other one
+does.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ _AVX512_TARGETS = {
             "AVX512_CNL", "AVX512_ICL", "AVX512_SPR"),
 }
 _BLAS_CORE = "Haswell"
+_BLAS_THREADS = "1"   # a threaded dot product sums in a thread-count-dependent order
 
 
 def _x86_64() -> bool:
@@ -61,12 +67,19 @@ def _cpu_flags() -> frozenset[str] | None:
 
 
 def use_portable_profile() -> None:
-    """Ask numpy and OpenBLAS for the x86-64-v3 kernels, before they load.
+    """Ask numpy and OpenBLAS for the x86-64-v3 kernels and OpenBLAS for one thread, before
+    they load.
 
     Runs first in ``import surfidx``. The environment variables it sets are inherited by the
     worker processes of a bulk ingestion, so they compute alike too. When numpy was loaded
-    already and runs other kernels, a RuntimeWarning says so and how to avoid it.
+    already, its OpenBLAS is limited to one thread now (threads, unlike kernels, can still be
+    changed; a count the user set is kept), and when it runs other kernels a RuntimeWarning says
+    so and how to avoid it.
     """
+    users_threads = "OPENBLAS_NUM_THREADS" in os.environ
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", _BLAS_THREADS)
+    if "numpy" in sys.modules and not users_threads:
+        _limit_loaded_blas()
     if not _x86_64():
         return
     os.environ.setdefault("NPY_DISABLE_CPU_FEATURES",
@@ -84,17 +97,28 @@ def use_portable_profile() -> None:
                 f"streams and descriptors made in this process may differ from other "
                 f"machines' (import surfidx before numpy, or start Python with "
                 f"NPY_DISABLE_CPU_FEATURES='{os.environ['NPY_DISABLE_CPU_FEATURES']}' "
-                f"OPENBLAS_CORETYPE={_BLAS_CORE})", RuntimeWarning, stacklevel=3)
+                f"OPENBLAS_CORETYPE={_BLAS_CORE} OPENBLAS_NUM_THREADS={_BLAS_THREADS})",
+                RuntimeWarning, stacklevel=3)
 
 
-def _blas_cores() -> list[str]:
-    """The kernel families of the OpenBLAS libraries loaded in this process."""
+def _limit_loaded_blas() -> None:
+    """One thread for the OpenBLAS libraries loaded already (numpy imported before surfidx)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - scikit-learn brings threadpoolctl
+        return
+    threadpool_limits(limits=int(_BLAS_THREADS), user_api="blas")
+
+
+def _blas_libraries() -> list[tuple[str, int]]:
+    """Kernel family and thread count of each OpenBLAS library loaded in this process."""
     try:
         from threadpoolctl import threadpool_info
     except ImportError:  # pragma: no cover - scikit-learn brings threadpoolctl
-        return [os.environ.get("OPENBLAS_CORETYPE", "unknown")]
-    return [str(lib.get("architecture")) for lib in threadpool_info()
-            if lib.get("internal_api") == "openblas"]
+        return [(os.environ.get("OPENBLAS_CORETYPE", "unknown"),
+                 int(os.environ.get("OPENBLAS_NUM_THREADS", "0") or 0))]
+    return [(str(lib.get("architecture")), int(lib.get("num_threads") or 0))
+            for lib in threadpool_info() if lib.get("internal_api") == "openblas"]
 
 
 def numerics_profile() -> str:
@@ -120,7 +144,11 @@ def numerics_profile() -> str:
     differs = []
     if any(features.get(name) for name in _AVX512_TARGETS[_numpy_names_levels()]):
         differs.append("numpy AVX-512 kernels")
-    cores = sorted({c for c in _blas_cores() if c.lower() != _BLAS_CORE.lower()})
+    libraries = _blas_libraries()
+    cores = sorted({c for c, _ in libraries if c.lower() != _BLAS_CORE.lower()})
     if cores:
         differs.append(f"OpenBLAS {'/'.join(cores)} kernels")
+    threads = sorted({t for _, t in libraries if t > int(_BLAS_THREADS)})
+    if threads:
+        differs.append(f"OpenBLAS {'/'.join(map(str, threads))} threads")
     return PROFILE if not differs else f"native ({', '.join(differs)})"
