@@ -115,3 +115,23 @@ def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
                                  balance=True)
     assert not fallback and info["embedded"] == 1 and info["mesh_folds"] == 0
     assert area_distortion(surfels, x) < DEFAULT_OPTIONS.max_area_distortion
+
+
+@pytest.mark.parametrize("far", [1.0, 1e6])
+def test_shortest_first_is_the_stable_order_of_rounded_lengths(far):
+    """The edges go shortest first by squared length rounded to 9 decimals relative to the mean,
+    ties in edge order: exactly a stable argsort of those rounded values, whether the integer
+    keys fit 63 bits or (100k edges, one a million times longer) the argsort itself runs."""
+    from surfidx.sphere._decimate import _shortest_first
+
+    rng = np.random.default_rng(3)
+    p = np.round(rng.random((300, 3)), 2)            # a coarse lattice: many equal lengths
+    p[0] *= far
+    e = rng.integers(1, 300, (100_000, 2))
+    e = np.vstack([[0, 1], e[e[:, 0] != e[:, 1]]])   # vertex 0 on one edge
+    d = p[e[:, 0]] - p[e[:, 1]]
+    rounded = np.round(np.einsum("ij,ij->i", d, d) / np.einsum("ij,ij->i", d, d).mean(), 9)
+    assert len(np.unique(rounded)) < len(e)                                  # ties exist
+    fits = rounded.max() * 1e9 < 2.0 ** (62 - int(len(e) - 1).bit_length())
+    assert fits == (far == 1.0)
+    assert np.array_equal(_shortest_first(p, e), np.argsort(rounded, kind="stable"))

@@ -238,3 +238,20 @@ def test_icosphere_imports_without_scipy():
     code = "import sys, surfidx.icosphere, surfidx.container; print('scipy' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("level", [1, 2, 5])
+def test_subdivided_half_edges_match_a_sort(level):
+    """A subdivided level's twins follow from the coarser level's without a sort: each is the
+    reversed half-edge (an involution swapping tail and head), the same the sort finds; the edges
+    are the lo -> hi half-edges in lexicographic order, each half-edge numbered by its edge."""
+    from surfidx.icosphere import _twins_by_sorting
+
+    ico = icosphere(level)
+    he = ico._half_edges
+    assert np.array_equal(he.twin[he.twin], np.arange(len(he.twin)))
+    assert np.array_equal(he.tail[he.twin], he.head) and np.array_equal(he.head[he.twin], he.tail)
+    assert np.array_equal(he.twin, _twins_by_sorting(he.tail, he.head, ico.n_vertices))
+    key = he.edges[:, 0] * ico.n_vertices + he.edges[:, 1]
+    assert (he.edges[:, 0] < he.edges[:, 1]).all() and (np.diff(key) > 0).all()
+    assert np.array_equal(he.edges[he.edge], np.sort(np.column_stack([he.tail, he.head]), axis=1))
