@@ -117,7 +117,10 @@ def _blas_libraries() -> list[tuple[str, int]]:
     except ImportError:  # pragma: no cover - scikit-learn brings threadpoolctl
         return [(os.environ.get("OPENBLAS_CORETYPE", "unknown"),
                  int(os.environ.get("OPENBLAS_NUM_THREADS", "0") or 0))]
-    return [(str(lib.get("architecture")), int(lib.get("num_threads") or 0))
+    # an OpenMP build (faiss's own, which the ANN index runs on one thread) follows
+    # OMP_NUM_THREADS, not OPENBLAS_NUM_THREADS: its threads are not counted
+    return [(str(lib.get("architecture")),
+             0 if lib.get("threading_layer") == "openmp" else int(lib.get("num_threads") or 0))
             for lib in threadpool_info() if lib.get("internal_api") == "openblas"]
 
 
