@@ -95,7 +95,8 @@ def _angle(x, a, b, c):
 
 
 class _Flips:
-    """A triangulation under edge flips: directed edge -> triangle, and each triangle's fold."""
+    """A triangulation under edge flips: directed edge -> triangle, each triangle's fold, and the
+    set of folded triangles."""
 
     def __init__(self, tri, p, normals, x, mirror, convex=False, max_violation=np.inf):
         self.tri = [tuple(t) for t in np.asarray(tri).tolist()]
@@ -107,6 +108,7 @@ class _Flips:
         for i in range(len(self.tri)):
             self._register(i)
         self.bad = (against_normals(p, normals, tri) ^ mirror).tolist()
+        self.folded = set(compress(range(len(self.bad)), self.bad))   # kept up to date by flips
 
     @classmethod
     def of(cls, tri, p, normals, x, **options):
@@ -172,6 +174,7 @@ class _Flips:
         self.bad[i], self.bad[j] = bad
         self._register(i)
         self._register(j)
+        self._refold(i, j)
         return i, j, old
 
     def undo(self, record):
@@ -181,6 +184,14 @@ class _Flips:
         self.tri[i], self.tri[j], self.bad[i], self.bad[j] = ti, tj, bi, bj
         self._register(i)
         self._register(j)
+        self._refold(i, j)
+
+    def _refold(self, *triangles):
+        for q in triangles:
+            if self.bad[q]:
+                self.folded.add(q)
+            else:
+                self.folded.discard(q)
 
     def mend(self, i, depth: int = None, gained: int = 0) -> bool:
         """A sequence of at most ``depth`` flips, each on a folded triangle the previous one left
@@ -232,7 +243,7 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     """
     state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
     for _ in range(rounds):
-        todo = list(compress(range(len(state.bad)), state.bad))
+        todo = sorted(state.folded)
         changed = sum(state.mend(i) for i in todo if state.bad[i])
         if not changed:
             break
@@ -277,10 +288,9 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
     folds = best = int(sum(state.bad))
     found = []
     bad = []
-    folded = set(compress(range(len(state.bad)), state.bad))    # kept up to date, flip by flip
     for step in range(int(steps)):
         if step % 64 == 0 or not bad:
-            bad = sorted(folded)        # the folded triangles in index order, without a scan
+            bad = sorted(state.folded)      # the folded triangles in index order, without a scan
             if not bad:
                 break
         i = bad[rng.integers(len(bad))]
@@ -297,11 +307,6 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
                 gain < 0 and rng.random() < np.exp(gain / temperature)):
             state.apply(cand)
             folds -= gain
-            for q in cand[1:3]:
-                if state.bad[q]:
-                    folded.add(q)
-                else:
-                    folded.discard(q)
             bad = [q for q in bad if state.bad[q]] + [q for q in cand[1:3] if state.bad[q]
                                                       and q not in bad]
             if folds < best:
