@@ -76,6 +76,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 
@@ -103,6 +104,7 @@ SHELL_KAPPA = 10.0
 D2_BINS = 64
 D2_RMAX = 3.0
 D2_PAIRS = 1 << 20
+_DRAW_BUCKETS = 1 << 16   # slices of [0, 1] bounding each D2 draw's search (a power of two)
 RADIAL_BINS = 32
 RADIAL_RMAX = 3.0
 SPECTRAL_K = 30
@@ -249,13 +251,57 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     y = y / rms
     part["shells"] = _shell_energies(y, w).ravel()
     rng = np.random.default_rng(SEED)
-    i = rng.choice(len(y), D2_PAIRS, p=w)
-    j = rng.choice(len(y), D2_PAIRS, p=w)
-    d = np.linalg.norm(y[i] - y[j], axis=1)
+    cdf = np.cumsum(w)
+    cdf /= cdf[-1]
+    i = _search_right(cdf, rng.random(D2_PAIRS))
+    j = _search_right(cdf, rng.random(D2_PAIRS))
+    d = _pair_distances(y, i, j)
     part["d2"] = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
     part["radial"] = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
     part["spectral"] = spectral
     return {name: part[name] for name in SHAPE_PARTS}
+
+
+@numba.njit(cache=True)
+def _search_right(cdf, u):  # pragma: no cover - compiled
+    """``np.searchsorted(cdf, u, side="right")`` for a non-decreasing ``cdf`` ending at 1 and
+    ``u`` in [0, 1): the inverse-CDF draws of ``Generator.choice(p=...)``, the same indices.
+    A table of :data:`_DRAW_BUCKETS` equal slices of [0, 1] bounds each binary search, so the
+    million draws of D2 take milliseconds instead of a cache-missing search over the whole
+    ``cdf`` each."""
+    n, buckets = len(cdf), _DRAW_BUCKETS
+    start = np.empty(buckets + 1, np.int64)      # first index whose cdf exceeds b / buckets
+    k = 0
+    for b in range(buckets + 1):
+        v = b / buckets
+        while k < n and cdf[k] <= v:
+            k += 1
+        start[b] = k
+    out = np.empty(len(u), np.int64)
+    for q in range(len(u)):
+        x = u[q]
+        b = int(x * buckets)        # exact: buckets is a power of two, b / buckets <= x
+        lo, hi = start[b], start[b + 1]
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if cdf[mid] <= x:
+                lo = mid + 1
+            else:
+                hi = mid
+        out[q] = lo
+    return out
+
+
+@numba.njit(cache=True)
+def _pair_distances(y, i, j):  # pragma: no cover - compiled
+    """``np.linalg.norm(y[i] - y[j], axis=1)``, the same sums in the same order, without the
+    two gathered ``(k, 3)`` copies."""
+    out = np.empty(len(i))
+    for q in range(len(i)):
+        a, b = i[q], j[q]
+        d0, d1, d2 = y[a, 0] - y[b, 0], y[a, 1] - y[b, 1], y[a, 2] - y[b, 2]
+        out[q] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+    return out
 
 
 def _layers_part(layers: np.ndarray, level: int) -> np.ndarray:

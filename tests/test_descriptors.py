@@ -225,3 +225,26 @@ def test_descriptor_distance_is_the_search_distance():
         descriptor_distance(a, dict(b, texture=b["texture"][:3]))
     with pytest.raises(InputError, match=r"shape_weight must be in \[0, 1\], got 'x'"):
         descriptor_distance(a, b, shape_weight="x")
+
+
+def test_d2_draws_and_distances_are_numpys():
+    """D2's kernels give what ``Generator.choice(p=w)`` and ``np.linalg.norm`` give, bit for
+    bit: the inverse-CDF draws (with zero weights, ties at bucket edges and u = 0) and the
+    pair distances."""
+    from surfidx.descriptors import _pair_distances, _search_right
+
+    rng = np.random.default_rng(5)
+    w = rng.random(3001) ** 4
+    w[rng.integers(0, len(w), 400)] = 0.0          # zero weights: runs of equal cdf values
+    w /= w.sum()
+    draws = np.random.default_rng(9).choice(len(w), 50_000, p=w)
+    cdf = np.cumsum(w)
+    cdf /= cdf[-1]
+    u = np.random.default_rng(9).random(50_000)
+    assert np.array_equal(_search_right(cdf, u), draws)
+    edges = np.r_[0.0, np.arange(1, 1 << 16) / (1 << 16), cdf[:-1], np.nextafter(cdf[:-1], 0)]
+    edges = edges[(edges >= 0) & (edges < 1)]
+    assert np.array_equal(_search_right(cdf, edges), np.searchsorted(cdf, edges, side="right"))
+    y = rng.normal(size=(500, 3)) * rng.random((500, 1)) * 1e3
+    i, j = rng.integers(0, 500, 20_000), rng.integers(0, 500, 20_000)
+    assert np.array_equal(_pair_distances(y, i, j), np.linalg.norm(y[i] - y[j], axis=1))
