@@ -58,6 +58,7 @@ SHARED = ROOT.parent / "shared" / "data"
 #: ``surfidx`` module that holds it (``from .x import f`` binds the name there).
 STAGES = (
     ("surfidx.io", "read_surfels", "read"),
+    ("surfidx.io", "read_model", "read"),
     ("surfidx.graph", "sphere_of_influence_graph", "graph"),
     ("surfidx.geodesics", "GeodesicSolver.__init__", "geodesics"),
     ("surfidx.sphere._multilevel", "mesh_map", "map.multilevel"),
