@@ -271,27 +271,3 @@ def test_radii_stop_when_the_line_search_finds_no_descent():
     assert not ok
     assert half.call_count < 2 * _NEWTON_STEPS
 
-
-
-def test_lower_folds_realises_a_triangulation_once(points, ellipsoid, monkeypatch):
-    """Only the flips alone are accepted here: the first round realises and refuses the
-    annealed triangulations, then keeps the flips. The second round's flips and annealing
-    start from those flips and propose the same annealed triangulations again, which are not
-    realised a second time."""
-    import surfidx.sphere._circlepattern as cp
-
-    p, n = ellipsoid
-    x = _noisy(points)
-    plain = flip_folds(hull_triangles(x), p, n, x)[1]
-    realised = []
-    real = cp.realise
-
-    def counted(x, tri, **kw):
-        realised.append(_sorted(tri).tobytes())
-        return real(x, tri, **kw)
-
-    monkeypatch.setattr(cp, "realise", counted)
-    y, info = lower_folds(x, p, n, accept=lambda y: int(_folded(
-        p, n, hull_triangles(y)).sum()) == plain)
-    assert info["rounds"] == 1 and info["folds"] == plain and info["refused"] == 1
-    assert len(realised) >= 2 and len(set(realised)) == len(realised)

@@ -53,7 +53,6 @@ the resampling with it. So :func:`lower_folds` keeps a realisation only when the
 
 from __future__ import annotations
 
-import hashlib
 from itertools import compress
 
 import numpy as np
@@ -720,11 +719,6 @@ def _spacing(x):
     return cKDTree(x).query(x, k=k)[0][:, 1:].mean(axis=1)
 
 
-def _digest(t):
-    """A digest of the triangulation ``t`` as a set of triangles (orientation kept)."""
-    return hashlib.blake2b(_canonical(t).tobytes(), digest_size=16).digest()
-
-
 def _sorted_rows(t):
     s = np.sort(t, axis=1)
     return s[np.lexsort(s.T[::-1])]
@@ -734,12 +728,6 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
     """Rounds of :func:`flip_folds` (or :func:`anneal_flips`) on the Delaunay triangulation of
     ``x`` and :func:`realise`, each kept only when it lowers the count of folded Delaunay
     triangles and ``accept`` takes it.
-
-    A triangulation that a round could not realise, or whose realisation ``accept`` refused, is
-    not realised again in a later round. The rounds after a kept one mostly propose the same
-    triangulations again (the unconstrained flips and the annealing depend on the
-    triangulation and the 3D surface, not on the map); realised from the moved points they
-    fail or are refused again, and each attempt costs a whole Newton solve.
 
     Parameters
     ----------
@@ -777,7 +765,6 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
         def accept(y):
             return bool(np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO)
 
-    failed = set()      # digests of the triangulations not realised, or realised and refused
     for _ in range(options.realise_rounds):
         if not folds:
             break
@@ -791,14 +778,11 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
                     flipped, left, p, normals, x, options.anneal_steps,
                     options.anneal_temperature)] + tries
             for cand, cleft, annealed in tries:
-                key = _digest(cand) if cleft < folds else None
-                y = realise(x, cand) if key is not None and key not in failed else None
+                y = realise(x, cand) if cleft < folds else None
                 if y is not None:
                     if accept(y):
                         break
                     info["refused"] += 1
-                if key is not None:
-                    failed.add(key)
                 y = None
             if y is not None:
                 break
