@@ -266,9 +266,9 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
 def _search_right(cdf, u):  # pragma: no cover - compiled
     """``np.searchsorted(cdf, u, side="right")`` for a non-decreasing ``cdf`` ending at 1 and
     ``u`` in [0, 1): the inverse-CDF draws of ``Generator.choice(p=...)``, the same indices.
-    A table of :data:`_DRAW_BUCKETS` equal slices of [0, 1] bounds each binary search, so the
-    million draws of D2 take milliseconds instead of a cache-missing search over the whole
-    ``cdf`` each."""
+    A table of :data:`_DRAW_BUCKETS` equal slices of [0, 1] bounds each binary search to the
+    few entries of its slice, where ``searchsorted`` searches the whole ``cdf`` for each of D2's
+    million draws."""
     n, buckets = len(cdf), _DRAW_BUCKETS
     start = np.empty(buckets + 1, np.int64)      # first index whose cdf exceeds b / buckets
     k = 0
