@@ -443,10 +443,11 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=N
             d *= 1e-3 / max(np.abs(d).max(), 1e-300)
             slope = _dot(g.ravel(), d)
         step = min(1.0, 4.0 * last)
-        while step > 1e-12:
+        while step > 1e-12:         # the gradient only where a point is accepted
             y2 = y + step * d.reshape(-1, 3)
-            e2, g2 = energy(y2)
+            e2, _ = energy(y2, grad=False)
             if e2 <= e + 1e-4 * step * slope:
+                e2, g2 = energy(y2)
                 break
             step *= 0.5
         else:
