@@ -14,11 +14,28 @@ matrix gives the same factors and solutions on every run.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 __all__ = ["SPDSolver", "SPDFactor", "spd_factor"]
+
+
+@numba.njit(cache=True)
+def _gather_rows(b, perm, out):  # pragma: no cover - compiled
+    """``out[i] = b[perm[i]]`` (one pass, into ``out``'s own layout)."""
+    for c in range(b.shape[1]):
+        for i in range(b.shape[0]):
+            out[i, c] = b[perm[i], c]
+
+
+@numba.njit(cache=True)
+def _scatter_rows(y, perm, out):  # pragma: no cover - compiled
+    """``out[perm[i]] = y[i]``."""
+    for c in range(y.shape[1]):
+        for i in range(y.shape[0]):
+            out[perm[i], c] = y[i, c]
 
 
 class SPDFactor:
@@ -35,9 +52,17 @@ class SPDFactor:
     def solve(self, b):
         """``x`` with ``a x = b``; ``b`` is ``(n,)`` or ``(n, k)``, as is ``x``."""
         b = np.asarray(b)
-        x = np.empty(b.shape, dtype=np.result_type(b.dtype, self._lu.U.dtype))
-        x[self._perm] = self._lu.solve(np.asfortranarray(b[self._perm]))
-        return x
+        dtype = np.result_type(b.dtype, self._lu.U.dtype)
+        if dtype != np.float64:
+            x = np.empty(b.shape, dtype=dtype)
+            x[self._perm] = self._lu.solve(np.asfortranarray(b[self._perm]))
+            return x
+        b2 = b.reshape(len(b), -1)
+        permuted = np.empty(b2.shape, order="F")   # SuperLU's own layout: no copy inside
+        _gather_rows(b2, self._perm, permuted)
+        x = np.empty(b2.shape)
+        _scatter_rows(self._lu.solve(permuted), self._perm, x)
+        return x.reshape(b.shape)
 
 
 class SPDSolver:
