@@ -93,7 +93,8 @@ def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
 @pytest.mark.parametrize("seed", range(6))
 def test_local_delaunay_update_equals_the_global_hull(seed):
     """Moving a few vertices, the locally updated triangulation is the convex hull of the moved
-    map, and its folded mask that of the hull (random points: no cocircular ties)."""
+    map, and its folded mask that of the hull (random points: no cocircular ties); the count
+    alone (:meth:`_Hull.folds_if_moved`) agrees."""
     from surfidx.sphere._foldrepair import _Hull
 
     rng = np.random.default_rng(seed)
@@ -109,7 +110,9 @@ def test_local_delaunay_update_equals_the_global_hull(seed):
         y = x.copy()
         y[moved] += [0.005, 0.05][seed % 2] * rng.normal(size=(k, 3))
         y /= np.linalg.norm(y, axis=1)[:, None]
+        count = state.folds_if_moved(x, y, moved)      # the count alone, asked first
         tri, bad = state.moved(x, y, moved)
+        assert count == np.count_nonzero(bad)
         ref = hull_triangles(y)
         assert {tuple(sorted(t)) for t in tri.tolist()} == {tuple(sorted(t)) for t in ref.tolist()}
         got = {tuple(sorted(t)) for t in tri[bad].tolist()}

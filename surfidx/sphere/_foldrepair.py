@@ -129,7 +129,7 @@ class _Hull:
         self.mirror = mirrored(bad)
         self.tri, self.bad = tri, bad ^ self.mirror
         self._of = None          # (x, tri) the cached figures below belong to
-        self._caps = self._tree = self._keys = None
+        self._caps = self._tree = self._keys = self._centres = None
 
     def _folded(self, t):
         return against_normals(self.p, self.normals, t) ^ self.mirror
@@ -137,6 +137,25 @@ class _Hull:
     def moved(self, x, y, moved):
         """(triangles, folded mask) of ``y``, which differs from ``x`` (this triangulation's map)
         at the vertices ``moved``."""
+        gone, local = self._cavity(x, y, moved)
+        if local is None:
+            return self._global(y)
+        return (np.concatenate([self.tri[~gone], local]),
+                np.concatenate([self.bad[~gone], self._folded(local)]))
+
+    def folds_if_moved(self, x, y, moved) -> int:
+        """``moved(x, y, moved)[1].sum()``, the count alone: the new triangulation is not
+        assembled (the random search asks this of thousands of moves and keeps one)."""
+        gone, local = self._cavity(x, y, moved)
+        if local is None:
+            return int(self._global(y)[1].sum())
+        return int(np.count_nonzero(self.bad) - np.count_nonzero(self.bad[gone])
+                   + np.count_nonzero(self._folded(local)))
+
+    def _cavity(self, x, y, moved):
+        """The triangles ``gone`` (a mask over :attr:`tri`) when ``moved`` vertices of ``x``
+        move to their places in ``y``, and the ``local`` triangles that replace them; ``local``
+        is None where the result is no triangulation of the sphere (use the global hull)."""
         from scipy.spatial import cKDTree
 
         tri, n = self.tri, self.n
@@ -145,6 +164,7 @@ class _Hull:
             # circumcircles and a KD-tree of the current map, reused while it stays current
             self._of, self._caps, self._tree, self._keys = (x, tri), _circumcaps(x, tri), \
                 cKDTree(x), None
+            self._centres = None
         (centre, radius), tree = self._caps, self._tree
         few = len(mv) <= _FEW_MOVED
 
@@ -154,13 +174,25 @@ class _Hull:
                 return np.sqrt(np.maximum(2.0 - 2.0 * (c @ y[mv].T).max(axis=1), 0.0))
             return cKDTree(y[mv]).query(c, k=1)[0]
 
-        near = to_moved(centre)
-        gone = moved[tri].any(axis=1) | (near < radius * (1.0 - _ON_CIRCLE))
+        if few:
+            # only circumcircles that can hold a moved vertex, at its old or new place, are
+            # tested: their centres lie within the largest radius plus the longest move
+            if self._centres is None:
+                self._centres = cKDTree(centre), float(radius.max())
+            ctree, rmax = self._centres
+            reach = rmax + float(np.linalg.norm(y[mv] - x[mv], axis=1).max())
+            near = ctree.query_ball_point(y[mv], reach * (1.0 + 1e-9) + 1e-12)
+            cand = np.unique(np.concatenate([np.asarray(c, dtype=np.int64) for c in near]))
+        else:
+            cand = np.arange(len(tri))
+        gone = np.zeros(len(tri), dtype=bool)
+        gone[cand] = (moved[tri[cand]].any(axis=1)
+                      | (to_moved(centre[cand]) < radius[cand] * (1.0 - _ON_CIRCLE)))
         cavity = np.union1d(np.unique(tri[gone]), mv)
         try:
             local = cavity[hull_triangles(y[cavity])]
         except InputError:          # too few or coplanar cavity points
-            return self._global(y)
+            return gone, None
         centre, radius = _circumcaps(y, local)
         # nearest point of y: of the unmoved ones (the tree of x, skipping moved vertices) or of
         # the moved ones at their new places
@@ -171,20 +203,19 @@ class _Hull:
         else:
             nearest, _ = cKDTree(y).query(centre, k=1)
         local = local[nearest >= radius * (1.0 - _ON_CIRCLE)]
-        keep = tri[~gone]
-        if n ** 3 < 2 ** 62:
-            w = np.array([n * n, n, 1])
-            if self._keys is None:          # keys of the current triangles, and as a set
-                keys = np.sort(tri, axis=1) @ w
-                self._keys = keys, set(keys.tolist())
-            keys, keyset = self._keys
-            gone_keys = set(keys[gone].tolist())
-            lk = (np.sort(local, axis=1) @ w).tolist()
-            local = local[[not (k in keyset and k not in gone_keys) for k in lk]]
-            if len(keep) + len(local) == 2 * n - 4:
-                return (np.concatenate([keep, local]),
-                        np.concatenate([self.bad[~gone], self._folded(local)]))
-        return self._global(y)
+        if n ** 3 >= 2 ** 62:
+            return gone, None
+        w = np.array([n * n, n, 1])
+        if self._keys is None:          # keys of the current triangles, and as a set
+            keys = np.sort(tri, axis=1) @ w
+            self._keys = keys, set(keys.tolist())
+        keys, keyset = self._keys
+        gone_keys = set(keys[gone].tolist())
+        lk = (np.sort(local, axis=1) @ w).tolist()
+        local = local[[not (k in keyset and k not in gone_keys) for k in lk]]
+        if len(tri) - np.count_nonzero(gone) + len(local) != 2 * n - 4:
+            return gone, None
+        return gone, local
 
     def _global(self, y):
         t = hull_triangles(y)
@@ -312,6 +343,7 @@ def _search(x, state, mesh, *, trials: int, work: float):
     rng = np.random.default_rng(0)
     removed = 0
     budget = int(work / len(x))
+    y, moved = x.copy(), np.zeros(len(x), bool)   # a trial's map and moved vertex, reused
     folded = state.tri[state.bad]
     for i, t in enumerate(folded):
         if not state._folded(t[None])[0]:
@@ -334,17 +366,17 @@ def _search(x, state, mesh, *, trials: int, work: float):
             corners = x[faces]
             corners[faces == v] = new
             if np.any(corner_orientation(corners) <= 0):
-                continue                     # inverts a mesh triangle: rejected before any copy
-            y = x.copy()
-            y[v] = new
-            moved = np.zeros(len(x), bool)
-            moved[v] = True
+                continue                     # inverts a mesh triangle: rejected unevaluated
             left -= 1
-            tri2, bad2 = state.moved(x, y, moved)
-            if bad2.sum() < state.bad.sum():
-                removed += int(state.bad.sum() - bad2.sum())
-                x, state.tri, state.bad = y, tri2, bad2
+            y[v], moved[v] = new, True       # the trial in place; undone below unless kept
+            folds = int(np.count_nonzero(state.bad))
+            if state.folds_if_moved(x, y, moved) < folds:
+                tri2, bad2 = state.moved(x, y, moved)
+                removed += folds - int(np.count_nonzero(bad2))
+                x, state.tri, state.bad = y.copy(), tri2, bad2
+                moved[v] = False
                 break
+            y[v], moved[v] = x[v], False
         budget += left                                  # what this fold left goes to the rest
     return x, removed
 
