@@ -139,6 +139,38 @@ def test_random_search_removes_folds_deterministically(tube_map):
     np.testing.assert_array_equal(results[0], results[1])
 
 
+def test_search_trial_moves_by_its_share_of_the_edge_length(tube_map):
+    """A search trial moves the vertex along the tangent part of its random direction by the
+    drawn share of its mean mesh-edge length on the sphere, and is refused exactly when one of
+    the vertex's mesh triangles would turn over (against the orientation of the whole map)."""
+    from surfidx.sphere._foldrepair import _Mesh, _trial_move
+    from surfidx.spherical import corner_orientation
+
+    s, f, x = tube_map
+    mesh = _Mesh(f, len(x))
+    adj, vf = mesh.adj, mesh.vf
+    rng = np.random.default_rng(5)
+    refused = 0
+    for _ in range(300):
+        v = int(rng.integers(len(x)))
+        d, share = rng.standard_normal(3), float(rng.uniform(0.05, 3.0))
+        new = _trial_move(x, v, d, share, adj.indptr, adj.indices, vf.indptr, vf.indices, f)
+        nb = adj.indices[adj.indptr[v]:adj.indptr[v + 1]]
+        h = np.mean(np.linalg.norm(x[nb] - x[v], axis=1))
+        t = d - (d @ x[v]) * x[v]
+        want = x[v] + t / np.linalg.norm(t) * h * share
+        want /= np.linalg.norm(want)
+        faces = f[vf.indices[vf.indptr[v]:vf.indptr[v + 1]]]
+        corners = x[faces]
+        corners[faces == v] = want
+        if np.any(corner_orientation(corners) <= 0):
+            assert new is None
+            refused += 1
+        else:
+            np.testing.assert_allclose(new, want, rtol=0, atol=1e-14)
+    assert 0 < refused < 300          # both outcomes met
+
+
 def test_parameterize_reports_the_repair(tube_map):
     from surfidx.sphere import parameterize
 

@@ -34,12 +34,13 @@ convex hull is computed at the start and one at the end.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .._errors import InputError
-from ..spherical import against_normals, corner_orientation, folded_mask, hull_triangles, mirrored
+from ..spherical import against_normals, folded_mask, hull_triangles, mirrored
 from ..spherical import orientation
 from .options import DEFAULT_OPTIONS, MapOptions
 
@@ -344,6 +345,7 @@ def _search(x, state, mesh, *, trials: int, work: float):
     removed = 0
     budget = int(work / len(x))
     y, moved = x.copy(), np.zeros(len(x), bool)   # a trial's map and moved vertex, reused
+    adj, vf = mesh.adj, mesh.vf
     folded = state.tri[state.bad]
     for i, t in enumerate(folded):
         if not state._folded(t[None])[0]:
@@ -355,17 +357,12 @@ def _search(x, state, mesh, *, trials: int, work: float):
             if not left:
                 break
             v = int(rng.choice(cand))
-            nb = _row(mesh.adj, v)
-            if not len(nb):
+            if adj.indptr[v] == adj.indptr[v + 1]:
                 continue                     # no mesh neighbour: no step length to draw from
-            h = float(np.mean(np.linalg.norm(x[nb] - x[v], axis=1)))
             d = rng.standard_normal(3)
-            d -= (d @ x[v]) * x[v]
-            new = _unit((x[v] + d / np.linalg.norm(d) * h * rng.uniform(*_SEARCH_STEP))[None])[0]
-            faces = mesh.f[_row(mesh.vf, v)]
-            corners = x[faces]
-            corners[faces == v] = new
-            if np.any(corner_orientation(corners) <= 0):
+            new = _trial_move(x, v, d, rng.uniform(*_SEARCH_STEP), adj.indptr, adj.indices,
+                              vf.indptr, vf.indices, mesh.f)
+            if new is None:
                 continue                     # inverts a mesh triangle: rejected unevaluated
             left -= 1
             y[v], moved[v] = new, True       # the trial in place; undone below unless kept
@@ -381,10 +378,46 @@ def _search(x, state, mesh, *, trials: int, work: float):
     return x, removed
 
 
-def _row(matrix: sp.csr_matrix, v: int) -> np.ndarray:
-    """Column indices of row ``v`` of a CSR matrix (``matrix[v].indices`` builds a matrix first:
-    about 0.1 ms, most of a search draw's cost)."""
-    return matrix.indices[matrix.indptr[v]:matrix.indptr[v + 1]]
+def _trial_move(x, v, d, share, adj_ptr, adj_idx, vf_ptr, vf_idx, f):
+    """:func:`_search`'s move of vertex ``v``: along the random direction ``d`` (projected on the
+    tangent plane) by ``share`` of its mean mesh-edge length on the sphere; the new unit vector,
+    or None when it would invert one of ``v``'s mesh triangles."""
+    new = np.empty(3)
+    return new if _trial_kernel(x, v, d, share, adj_ptr, adj_idx, vf_ptr, vf_idx, f, new) else None
+
+
+@numba.njit(cache=True)
+def _trial_kernel(x, v, d, share, adj_ptr, adj_idx, vf_ptr, vf_idx, f, new):  # pragma: no cover
+    h = 0.0
+    for k in range(adj_ptr[v], adj_ptr[v + 1]):
+        u = adj_idx[k]
+        h += np.sqrt((x[u, 0] - x[v, 0]) ** 2 + (x[u, 1] - x[v, 1]) ** 2 + (x[u, 2] - x[v, 2]) ** 2)
+    h /= adj_ptr[v + 1] - adj_ptr[v]
+    dot = d[0] * x[v, 0] + d[1] * x[v, 1] + d[2] * x[v, 2]
+    t = np.empty(3)
+    for c in range(3):
+        t[c] = d[c] - dot * x[v, c]
+    step = h * share / np.sqrt(t[0] ** 2 + t[1] ** 2 + t[2] ** 2)
+    for c in range(3):
+        new[c] = x[v, c] + t[c] * step
+    r = np.sqrt(new[0] ** 2 + new[1] ** 2 + new[2] ** 2)
+    for c in range(3):
+        new[c] /= r
+    q = np.empty((3, 3))
+    for k in range(vf_ptr[v], vf_ptr[v + 1]):
+        t_ = vf_idx[k]
+        for j in range(3):
+            w = f[t_, j]
+            for c in range(3):
+                q[j, c] = new[c] if w == v else x[w, c]
+        u0, u1, u2 = q[1, 0] - q[0, 0], q[1, 1] - q[0, 1], q[1, 2] - q[0, 2]
+        v0, v1, v2 = q[2, 0] - q[0, 0], q[2, 1] - q[0, 1], q[2, 2] - q[0, 2]
+        o = ((u1 * v2 - u2 * v1) * (q[0, 0] + q[1, 0] + q[2, 0])
+             + (u2 * v0 - u0 * v2) * (q[0, 1] + q[1, 1] + q[2, 1])
+             + (u0 * v1 - u1 * v0) * (q[0, 2] + q[1, 2] + q[2, 2]))
+        if o <= 0.0:
+            return False
+    return True
 
 
 def _improving(mesh, tri, bad, tri2, bad2, moved):
