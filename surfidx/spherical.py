@@ -154,6 +154,9 @@ def corner_orientation(corners) -> np.ndarray:
 def against_normals(positions, normals, triangles) -> np.ndarray:
     """Triangles whose 3D normal points against the sum of their corners' normals.
 
+    Each triangle is taken from its smallest vertex index on (the same cyclic order), so a
+    triangle that is straight in 3D gets the same answer whichever corner it is listed from.
+
     Parameters
     ----------
     positions, normals : (n, 3) float64
@@ -163,7 +166,10 @@ def against_normals(positions, normals, triangles) -> np.ndarray:
     -------
     (m,) bool
     """
-    p, t = positions, triangles
+    p, t = positions, np.asarray(triangles)
+    if len(t):
+        first = t.argmin(axis=1)[:, None]
+        t = np.take_along_axis(t, (first + np.arange(3)) % 3, axis=1)
     n3 = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
     return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
 

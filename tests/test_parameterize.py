@@ -102,6 +102,23 @@ def test_squeezed_tutte_start_is_untangled_before_balancing():
     assert info["mesh_area_distortion"] < 0.2 * start["mesh_area_distortion"]
 
 
+def test_centring_takes_newton_steps():
+    """The Möbius normalisation of a map pushed far off centre (uneven weights too) puts the
+    weighted centre of mass at the origin within a few Newton steps, inverting no triangle."""
+    from surfidx.sphere._tutte import centre
+    from surfidx.spherical import mobius, orientation
+
+    v, f = icosphere_mesh(3)
+    rng = np.random.default_rng(4)
+    weights = rng.uniform(0.5, 2.0, len(v))
+    x = mobius(v, np.array([0.3, -0.2, 0.25]))
+    w = weights / weights.sum()
+    assert np.linalg.norm(w @ x) > 0.3
+    y = centre(x, weights, f, iterations=8)
+    assert np.linalg.norm(w @ y) < 1e-10
+    assert np.all(orientation(y, f) > 0)
+
+
 def test_mobius_normalised(sphere_surfels):
     # area-weighted centre of mass of the vertices at the origin (canonical up to a rotation)
     s = sphere_surfels.transformed(translation=[0.3, 0.0, 0.0])
@@ -364,11 +381,12 @@ def test_level_that_fails_is_retried_with_another_hierarchy(monkeypatch):
 
 
 def test_glasses_whose_coarse_map_collapses_are_mapped_without_holes(shared_data):
-    """A pair of glasses (retrieval d024): its 64-vertex hierarchy untangles into a collapsed
-    map; the single-level fallback left 40 % coverage holes and 1.9 % folds."""
+    """A pair of glasses (retrieval d024): a hierarchy of it can untangle into a collapsed map
+    (the ladder then tries the next coarsest size); the single-level fallback left 40 % coverage
+    holes and 1.9 % folds."""
     s = read_surfels(shared_data / "retrieval" / "meshes" / "d024.off")
     m = parameterize(s, stress=False)
-    assert not m.fallback and m.info["retries"] >= 1
+    assert not m.fallback
     assert m.fold_fraction < 1e-3 and m.sparse_sampling > 0.01
 
 

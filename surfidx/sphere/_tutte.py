@@ -46,6 +46,7 @@ _TIE_DIGITS = 9          # area shares are compared rounded to this many digits 
 _STEP_CLIP = 10.0        # the log area ratio of a reweighting step is clipped to ±this
 _CENTRE_TOL = 1e-10      # the normalisation stops once the centre of mass is this near the origin
 _CENTRE_MIN_STEP = 1e-3  # ... or once its halved step is this short
+_CENTRE_MAX_STEP = 0.5   # the longest Möbius step (|a|; the ball's radius is 1)
 
 
 def _mean_value_weights(p, f):
@@ -139,17 +140,23 @@ class _TutteSystem:
 def centre(x, weights, f, *, iterations: int):
     """Möbius normalisation: move the ``weights``-weighted centre of mass of ``x`` to the origin.
 
-    A step is halved while it would invert more mesh triangles on the sphere than were inverted
-    before; at most ``iterations`` steps."""
+    Newton steps: near ``a = 0`` the automorphism sending ``a`` to the origin moves each point
+    by ``-2 (I - x xᵀ) a``, so the centre of mass ``c`` moves by ``-2 (I - M) a`` with ``M =
+    Σ w x xᵀ``, and ``a = (2 (I - M))⁻¹ c`` cancels it to first order. A step is halved while
+    it would invert more mesh triangles on the sphere than were inverted before; at most
+    ``iterations`` steps."""
     w = weights / weights.sum()
     inverted = np.count_nonzero(orientation(x, f) <= 0)   # none, unless untangling left some
     for _ in range(iterations):
         c = w @ x
         if np.linalg.norm(c) < _CENTRE_TOL:
             break
-        h = 0.5
+        a = np.linalg.solve(2.0 * (np.eye(3) - (x * w[:, None]).T @ x), c)
+        if not np.linalg.norm(a) < _CENTRE_MAX_STEP:     # far from the origin: a bounded step
+            a *= _CENTRE_MAX_STEP / np.linalg.norm(a)
+        h = 1.0
         while h > _CENTRE_MIN_STEP:
-            y = mobius(x, h * c)
+            y = mobius(x, h * a)
             if np.count_nonzero(orientation(y, f) <= 0) <= inverted:
                 break
             h *= 0.5
