@@ -85,6 +85,8 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
         v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
         c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
         s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
+        # signed area projected on the tangent plane at the centroid direction u: it vanishes
+        # when the corners fall on one great circle (where the plain area |c|/2 does not)
         sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
         n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
         ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
