@@ -183,26 +183,19 @@ class _Energy:
         sub.radius, sub.n, sub.eps, sub.lam = self.radius, len(verts), self.eps, self.lam
         return sub, verts
 
-    def preconditioner(self, *, shift: float, keep=None, at=None):
+    def preconditioner(self, *, shift: float, keep=None):
         """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
         mesh (the Hessian of the energy's Dirichlet part at an isometry: the accelerated
         quadratic proxy of Kovalsky et al. 2016). Updates spread over whole limbs instead of
-        creeping one ring per step.
-
-        ``at`` (a fold-free map ``y``, optional): each triangle's cotangents are weighted by
-        ``det ** -_PROXY_EXPONENT`` there. At a map, the Dirichlet part's Hessian is the
-        triangle's stiffness over ``det``; the milder power brings balancing from a prolonged
-        map to the same stop in fewer steps than either extreme (no weight, or ``1 / det``)."""
+        creeping one ring per step. It depends on the 3D mesh alone: a proxy weighted by the
+        start map's area ratios reaches the stop in fewer steps, but where it stops then depends
+        on the start, and copies of a model get less alike descriptors."""
         import scipy.sparse as sp
 
         from .._sparse import spd_factor
         from ..mesh import cotangent_laplacian
 
-        cot = self.cot
-        if at is not None:
-            dets = np.maximum(self.dets(at), _DET_GOAL)
-            cot = cot * (dets ** -_PROXY_EXPONENT)[:, None]
-        lap = cotangent_laplacian(self.f, cot, self.n)
+        lap = cotangent_laplacian(self.f, self.cot, self.n)
         lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
         if keep is not None:        # the rows and columns of the free vertices only
             lap = lap.tocsr()[keep][:, keep]
@@ -249,9 +242,7 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
         Stop when ``patience`` steps in a row lower the energy by less than the fraction ``tol``.
     precondition : bool
         Precondition L-BFGS with the 3D cotangent Laplacian (plus ``shift`` times its mean
-        diagonal), each triangle weighted by its area ratio in ``x`` (see
-        ``_Energy.preconditioner``): the accelerated quadratic proxy of Kovalsky, Galun &
-        Lipman (2016), reweighted at the start.
+        diagonal): the accelerated quadratic proxy of Kovalsky, Galun & Lipman (2016).
     lam : float, optional
         None: the symmetric Dirichlet energy. A number: the conformal-plus-area energy
         ``Σ A (‖J‖² / det + lam (det + 1 / det))`` (Garanzha et al. 2021 with ``eps = 0``),
@@ -277,7 +268,7 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     if not np.isfinite(e0):
         return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0}
     if precondition:
-        solve, apply = energy.preconditioner(shift=shift, at=y)
+        solve, apply = energy.preconditioner(shift=shift)
     else:
         solve = apply = _identity
     y, e, steps = _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience)
@@ -350,7 +341,6 @@ def _untangled(energy, y, **info):
 
 
 _PATCH_RINGS = 4   # rings of vertices around the inverted triangles that a patch frees
-_PROXY_EXPONENT = 0.5   # power of 1 / det weighting the balancing's preconditioner
 _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
                    # left at 1e-8 pins the balancing's line search at its barrier)
 
