@@ -53,14 +53,10 @@ class SPDFactor:
         """``x`` with ``a x = b``; ``b`` is ``(n,)`` or ``(n, k)``, as is ``x``."""
         b = np.asarray(b)
         dtype = np.result_type(b.dtype, self._lu.U.dtype)
-        if dtype != np.float64:
-            x = np.empty(b.shape, dtype=dtype)
-            x[self._perm] = self._lu.solve(np.asfortranarray(b[self._perm]))
-            return x
         b2 = b.reshape(len(b), -1)
-        permuted = np.empty(b2.shape, order="F")   # SuperLU's own layout: no copy inside
+        permuted = np.empty(b2.shape, dtype=dtype, order="F")   # SuperLU's layout: no copy inside
         _gather_rows(b2, self._perm, permuted)
-        x = np.empty(b2.shape)
+        x = np.empty(b2.shape, dtype=dtype)
         _scatter_rows(self._lu.solve(permuted), self._perm, x)
         return x.reshape(b.shape)
 

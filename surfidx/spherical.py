@@ -22,7 +22,8 @@ from ._validate import as_array
 from .surfels import SurfelSet
 
 __all__ = ["hull_triangles", "unit_vectors", "map_points", "orientation", "corner_orientation",
-           "against_normals", "mirrored", "folded_mask", "triangle_areas", "mobius"]
+           "against_normals", "mirrored", "folded_mask", "triangle_areas", "mobius",
+           "smallest_first"]
 
 
 def unit_vectors(points, *, count: int | None = None, name: str = "sphere_points") -> np.ndarray:
@@ -166,12 +167,27 @@ def against_normals(positions, normals, triangles) -> np.ndarray:
     -------
     (m,) bool
     """
-    p, t = positions, np.asarray(triangles)
-    if len(t):
-        first = t.argmin(axis=1)[:, None]
-        t = np.take_along_axis(t, (first + np.arange(3)) % 3, axis=1)
+    p, t = positions, smallest_first(triangles)
     n3 = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])
     return np.einsum("ij,ij->i", n3, normals[t].sum(axis=1)) < 0
+
+
+def smallest_first(triangles) -> np.ndarray:
+    """Each triangle rotated to start at its smallest vertex index (its orientation kept): one
+    listing of a triangle, whichever corner it was given from.
+
+    Parameters
+    ----------
+    triangles : (m, 3) int
+
+    Returns
+    -------
+    (m, 3) int, the same dtype
+    """
+    t = np.asarray(triangles)
+    if not len(t):
+        return t
+    return np.take_along_axis(t, (t.argmin(axis=1)[:, None] + np.arange(3)) % 3, axis=1)
 
 
 def mirrored(bad) -> bool:

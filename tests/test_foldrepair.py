@@ -99,6 +99,14 @@ def test_folded_mask_does_not_depend_on_the_listed_corner():
     assert np.array_equal(masks[0], masks[1]) and np.array_equal(masks[0], masks[2])
 
 
+def test_smallest_first_keeps_each_triangles_cycle():
+    from surfidx.spherical import smallest_first
+
+    t = np.array([[5, 2, 9], [2, 9, 5], [9, 5, 2], [3, 1, 2]])
+    np.testing.assert_array_equal(smallest_first(t), [[2, 9, 5]] * 3 + [[1, 2, 3]])
+    assert smallest_first(np.empty((0, 3), np.int64)).shape == (0, 3)
+
+
 def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
     s = sphere_surfels
     tri = hull_triangles(s.positions)

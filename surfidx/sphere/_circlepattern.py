@@ -59,7 +59,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._sparse import SPDSolver, spd_factor
-from ..spherical import against_normals, corner_orientation, hull_triangles, mirrored
+from ..spherical import against_normals, corner_orientation, hull_triangles, mirrored, smallest_first
 from .options import DEFAULT_OPTIONS, MapOptions
 
 __all__ = ["flip_folds", "anneal_flips", "realise", "lower_folds"]
@@ -704,10 +704,7 @@ def _moebius_fit(z, target, z_all):
 
 def _canonical(t):
     """Triangles rotated to start at their smallest corner (orientation kept), rows sorted."""
-    t = np.asarray(t, dtype=np.int64)
-    k = np.argmin(t, axis=1)
-    rows = np.arange(len(t))[:, None]
-    t = t[rows, (k[:, None] + np.arange(3)) % 3]
+    t = smallest_first(np.asarray(t, dtype=np.int64))
     return t[np.lexsort(t.T[::-1])]
 
 

@@ -353,6 +353,7 @@ def _search(x, state, mesh, *, trials: int, work: float):
         cand = np.unique(np.concatenate([t, mesh.adj[t].indices]))
         left = max(_SEARCH_MIN, budget // (len(folded) - i))
         budget -= left
+        folds = int(np.count_nonzero(state.bad))      # changes only when a move is kept
         for _ in range(trials):
             if not left:
                 break
@@ -366,7 +367,6 @@ def _search(x, state, mesh, *, trials: int, work: float):
                 continue                     # inverts a mesh triangle: rejected unevaluated
             left -= 1
             y[v], moved[v] = new, True       # the trial in place; undone below unless kept
-            folds = int(np.count_nonzero(state.bad))
             if state.folds_if_moved(x, y, moved) < folds:
                 tri2, bad2 = state.moved(x, y, moved)
                 removed += folds - int(np.count_nonzero(bad2))
