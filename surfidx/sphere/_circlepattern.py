@@ -29,8 +29,10 @@ This module works the other way round, in two steps.
    squares, fitted to the current map by a Möbius map (which keeps circles, so the realisation
    stays exact; a few flipped triangles change the radii everywhere, and a similarity fit left
    that change in) and projected back to the sphere.
-   The realisation is accepted only when Newton converged and the convex hull of the new points
-   is that triangulation, triangle for triangle.
+   :func:`realise` returns the points only when Newton converged and their convex hull is
+   that triangulation, triangle for triangle. :func:`lower_folds` takes the folds of the hull
+   itself instead: a sliver of the pattern (angles of 1e-7) can be too thin for double
+   precision on the sphere and come out flipped, which changes a fold count by one or two.
 
    Rivin's conditions are checked through the whole angle system, not the vertex sums
    alone: a flipped quadrilateral that is not convex can make three edges of a triangle sum
@@ -76,6 +78,8 @@ _STALLS = 2            # fresh Newton steps in a row whose line search accepts n
 # 4 that ran all _NEWTON_STEPS had one at every fresh step from the 3rd to the 7th on.
 _POLE_TRIES = 20       # candidate poles of the stereographic projection (by their star's area)
 _MOEBIUS_STEPS = 5     # reweightings of the Möbius fit of a realisation to the current map
+_LAYOUT_WEIGHT = 0.5   # rows of the layout weighted by circumradius ** -this (see _layout)
+_LAYOUT_REFINEMENTS = 2
 _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
@@ -489,33 +493,43 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
 
 def _layout(t, angles, rho, n, anchor):
     """Positions (n,) complex of the triangles ``t`` with the given corner angles, by least squares
-    over ``p_c - p_a = w (p_b - p_a)`` at every corner, each scaled by its circumradius; the
-    first triangle's first two corners pinned."""
+    over ``p_c - p_a = w (p_b - p_a)`` at every corner; the first triangle's first two corners
+    pinned.
+
+    The equations are consistent (Newton's angles close up to rounding), so their weights choose
+    only how rounding spreads, and the circumradii span many orders of magnitude (slivers of
+    angle 1e-7 next to triangles 1e8 times larger). Each corner's row is scaled to unit norm
+    (``|w|`` reaches 1e7 at a sliver) times the circumradius to the power
+    ``-``:data:`_LAYOUT_WEIGHT`, and the solution is refined :data:`_LAYOUT_REFINEMENTS` times
+    from its residual with the same factor. Unscaled rows, weighted by the inverse
+    circumradius, left half the triangles of scorpion's realisations with wrong angles."""
     m = len(t)
-    scale = np.exp(-rho)
+    scale = np.exp(-_LAYOUT_WEIGHT * rho)
     rows, cols, vals = [], [], []
     for k in range(3):
         a, b, c = t[:, k], t[:, (k + 1) % 3], t[:, (k + 2) % 3]
         w = np.sin(angles[:, (k + 1) % 3]) / np.sin(angles[:, (k + 2) % 3]) \
             * np.exp(1j * angles[:, k])
         r = k * m + np.arange(m)
+        s = scale / np.sqrt(1.0 + np.abs(w - 1.0) ** 2 + np.abs(w) ** 2)
         rows += [r, r, r]
         cols += [c, a, b]
-        vals += [scale, (w - 1.0) * scale, -w * scale]
+        vals += [s, (w - 1.0) * s, -w * s]
     mat = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                         shape=(3 * m, n))
-    fixed = np.zeros(n, complex)
+    z = np.zeros(n, complex)
     a0, b0 = t[0, 0], t[0, 1]
-    fixed[b0] = 2.0 * np.exp(rho[0]) * np.sin(angles[0, 2])
+    z[b0] = 2.0 * np.exp(rho[0]) * np.sin(angles[0, 2])
     free = np.ones(n, bool)
     free[[a0, b0]] = False
     free[anchor] = False
     sub = mat[:, free]
-    z = fixed.copy()
     try:
-        z[free] = spd_factor(sub.conj().T @ sub).solve(sub.conj().T @ -(mat @ fixed))
+        lu = spd_factor(sub.conj().T @ sub)
     except RuntimeError:
         return None
+    for _ in range(1 + _LAYOUT_REFINEMENTS):
+        z[free] += lu.solve(sub.conj().T @ -(mat @ z))
     return z
 
 
@@ -593,8 +607,18 @@ def realise(x, tri, *, new_edges=None):
     (n, 3) float64 or None
         The realisation (its convex hull is ``tri``), or None when ``tri`` is no triangulation
         of all the points (a duplicate point that the convex hull leaves out), the angles admit
-        no realisation or Newton's method does not converge.
+        no realisation, Newton's method does not converge, or the hull of the points it gives
+        differs from ``tri``.
     """
+    out = _circle_pattern(x, tri, new_edges=new_edges)
+    return out if out is not None and _same_triangles(hull_triangles(out), tri) else None
+
+
+def _circle_pattern(x, tri, *, new_edges=None):
+    """:func:`realise` before its check: the points of the circle pattern, or None when ``tri``
+    is no triangulation of all the points, the angles admit no realisation or Newton's method
+    does not converge. Their hull can differ from ``tri`` where a triangle is thinner than
+    double precision resolves on the sphere (angles of 1e-7 at a size of 1e-9)."""
     x = np.asarray(x, dtype=np.float64)
     tri = np.asarray(tri, dtype=np.int64)
     n = len(x)
@@ -628,12 +652,11 @@ def realise(x, tri, *, new_edges=None):
     alpha = _coherent_angles(ang, t, n, ring, vertex_sum[ring], opposite[inner], np.pi - floor)
     out = None if alpha is None else _pattern(
         alpha, u, t, ang, opposite[inner], ne, n, pole, keep, frame)
-    return out if out is not None and _is_hull(out, tri) else None
+    return out
 
 
-def _is_hull(out, tri):
-    hull = hull_triangles(out)
-    return len(hull) == len(tri) and np.array_equal(_sorted_rows(hull), _sorted_rows(tri))
+def _same_triangles(a, b):
+    return len(a) == len(b) and np.array_equal(_sorted_rows(a), _sorted_rows(b))
 
 
 def _pattern(alpha, u, t, ang, opp_inner, ne, n, pole, keep, frame):
@@ -775,18 +798,23 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
                     flipped, left, p, normals, x, options.anneal_steps,
                     options.anneal_temperature)] + tries
             for cand, cleft, annealed in tries:
-                y = realise(x, cand) if cleft < folds else None
+                y = _circle_pattern(x, cand) if cleft < folds else None
                 if y is not None:
-                    if accept(y):
-                        break
-                    info["refused"] += 1
+                    # the hull is ``cand`` but for triangles too thin for double precision,
+                    # which can come out flipped: the folds are the hull's own
+                    hull = hull_triangles(y)
+                    got = cleft if _same_triangles(hull, cand) else int(
+                        (against_normals(p, normals, hull) ^ mirror).sum())
+                    if got < folds:
+                        if accept(y):
+                            break
+                        info["refused"] += 1
                 y = None
             if y is not None:
                 break
         if y is None:
             break
-        # realise returned y only because its hull is ``cand``: the count is the flips'
-        x, tri, folds = y, cand, cleft
+        x, tri, folds = y, hull, got
         info["folds"], info["rounds"] = folds, info["rounds"] + 1
         info["annealed"] += int(annealed)
     return x, info
