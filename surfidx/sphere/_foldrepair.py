@@ -195,14 +195,20 @@ class _Hull:
         except InputError:          # too few or coplanar cavity points
             return gone, None
         centre, radius = _circumcaps(y, local)
-        # nearest point of y: of the unmoved ones (the tree of x, skipping moved vertices) or of
-        # the moved ones at their new places
+        # nearest point of y other than the triangle's corners (they lie on the circle up to a
+        # rounding that grows as the circle shrinks: 2e-10 of the radius at 1e-3 on frag_115):
+        # of the unmoved ones (the tree of x, skipping moved vertices) or of the moved ones at
+        # their new places
+        own = local[:, :, None]
         if few:
-            dist, idx = tree.query(centre, k=len(mv) + 1)
-            dist = np.where(moved[idx], np.inf, dist).min(axis=1)
-            nearest = np.minimum(dist, to_moved(centre))
+            dist, idx = tree.query(centre, k=len(mv) + 4)
+            dist = np.where(moved[idx] | (idx[:, None, :] == own).any(axis=1), np.inf, dist)
+            chord = np.sqrt(np.maximum(2.0 - 2.0 * centre @ y[mv].T, 0.0))
+            chord[(mv[None, None, :] == own).any(axis=1)] = np.inf
+            nearest = np.minimum(dist.min(axis=1), chord.min(axis=1))
         else:
-            nearest, _ = cKDTree(y).query(centre, k=1)
+            dist, idx = cKDTree(y).query(centre, k=4)
+            nearest = np.where((idx[:, None, :] == own).any(axis=1), np.inf, dist).min(axis=1)
         local = local[nearest >= radius * (1.0 - _ON_CIRCLE)]
         if n ** 3 >= 2 ** 62:
             return gone, None
