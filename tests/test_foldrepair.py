@@ -149,8 +149,8 @@ def test_local_delaunay_update_equals_the_global_hull(seed):
 def test_local_update_holds_where_circles_are_small(k):
     """Circumcircles of 1e-4 on the unit sphere: the corners of a cavity triangle lie on its
     circle only up to rounding (a few 1e-10 of the radius), so the test of the circles against
-    the map's points skips the corners. Testing them too refused the local update and fell back
-    to the global hull (43 times in 66 on frag_115's first repair)."""
+    the map's points skips the corners; testing them too refuses the local update, which falls
+    back to the global hull."""
     from surfidx.sphere._foldrepair import _Hull
 
     rng = np.random.default_rng(k)

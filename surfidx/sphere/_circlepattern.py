@@ -66,9 +66,8 @@ from .options import DEFAULT_OPTIONS, MapOptions
 
 __all__ = ["flip_folds", "anneal_flips", "realise", "lower_folds"]
 
-_FLOOR = 0.01          # intersection angle floor of the triangulation's edges (radians): at 1e-3
-# Newton's damped phase took three times as many residuals on scorpion's and frag_115's
-# realisations (1477 -> 483 on one), for the same movement of the points
+_FLOOR = 0.01          # intersection angle floor of the triangulation's edges (radians); near
+# cocircular edges make Newton's functional nearly a step along them and its damped phase long
 _NEW_ANGLE = 0.05      # ... of the flipped-in edges: Delaunay by this margin after realisation
 _MIN_CORNER = 1e-4     # smallest corner angle of the coherent angle system (radians)
 _PROJECTION_STEPS = 300
@@ -503,8 +502,8 @@ def _layout(t, angles, rho, n, anchor):
     angle 1e-7 next to triangles 1e8 times larger). Each corner's row is scaled to unit norm
     (``|w|`` reaches 1e7 at a sliver) times the circumradius to the power
     ``-``:data:`_LAYOUT_WEIGHT`, and the solution is refined :data:`_LAYOUT_REFINEMENTS` times
-    from its residual with the same factor. Unscaled rows, weighted by the inverse
-    circumradius, left half the triangles of scorpion's realisations with wrong angles."""
+    from its residual with the same factor: without both, the normal equations are too
+    ill-conditioned for double precision and large realisations come out with wrong angles."""
     m = len(t)
     scale = np.exp(-_LAYOUT_WEIGHT * rho)
     rows, cols, vals = [], [], []

@@ -196,9 +196,8 @@ class _Hull:
             return gone, None
         centre, radius = _circumcaps(y, local)
         # nearest point of y other than the triangle's corners (they lie on the circle up to a
-        # rounding that grows as the circle shrinks: 2e-10 of the radius at 1e-3 on frag_115):
-        # of the unmoved ones (the tree of x, skipping moved vertices) or of the moved ones at
-        # their new places
+        # rounding that grows as the circle shrinks, past _ON_CIRCLE): of the unmoved ones (the
+        # tree of x, skipping moved vertices) or of the moved ones at their new places
         own = local[:, :, None]
         if few:
             dist, idx = tree.query(centre, k=len(mv) + 4)
