@@ -255,7 +255,7 @@ def test_scorpion_folds_after_realisation(models):
     (its mesh has near-degenerate spots: faces against their own normals); the flips and their
     realisation remove at least nine in ten. The count is the one counted afresh from the
     points, the resampling loses at most ``TOL.realise_loss`` dB, and convex flips alone never
-    do better on the same map. About 15 minutes: left out by default (``-m long``)."""
+    do better on the same map. A few minutes: left out by default (``-m long``)."""
     from surfidx.sphere._circlepattern import lower_folds
     from surfidx.sphere._repair import ResamplingCheck
 
