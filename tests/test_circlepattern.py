@@ -44,12 +44,12 @@ def test_the_layout_keeps_its_angles_over_five_orders_of_scale():
     """Planar triangles from 1e-2 to 1e2 (circumradii over a factor 2e5, slivers of 5e-4 rad):
     the least-squares layout puts them back with their angles. With rows weighted by the
     inverse circumradius and not scaled to unit norm, the error was 0.02 rad."""
+    from scipy.spatial import Delaunay
+
     rng = np.random.default_rng(0)
     r = np.repeat(10.0 ** np.linspace(-2, 2, 100), 24)
     phi = rng.uniform(0, 2 * np.pi, len(r))
     u = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
-    from scipy.spatial import Delaunay
-
     t = Delaunay(u).simplices
     e1, e2 = u[t[:, 1]] - u[t[:, 0]], u[t[:, 2]] - u[t[:, 0]]
     cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0

@@ -169,10 +169,15 @@ class _Hull:
         (centre, radius), tree = self._caps, self._tree
         few = len(mv) <= _FEW_MOVED
 
+        def chords(c):
+            """Chord distances ``(len(c), len(mv))`` from unit vectors ``c`` to the moved
+            vertices (directly: they are few)."""
+            return np.sqrt(np.maximum(2.0 - 2.0 * (c @ y[mv].T), 0.0))
+
         def to_moved(c):
             """Chord distance from each unit vector ``c`` to the nearest moved vertex."""
             if few:
-                return np.sqrt(np.maximum(2.0 - 2.0 * (c @ y[mv].T).max(axis=1), 0.0))
+                return chords(c).min(axis=1)
             return cKDTree(y[mv]).query(c, k=1)[0]
 
         if few:
@@ -198,16 +203,19 @@ class _Hull:
         # nearest point of y other than the triangle's corners (they lie on the circle up to a
         # rounding that grows as the circle shrinks, past _ON_CIRCLE): of the unmoved ones (the
         # tree of x, skipping moved vertices) or of the moved ones at their new places
-        own = local[:, :, None]
+        def corners(idx):
+            """Whether the point indices ``idx`` (a row per local triangle, or one row for all)
+            are corners of that triangle."""
+            return (idx[:, None, :] == local[:, :, None]).any(axis=1)
+
         if few:
             dist, idx = tree.query(centre, k=len(mv) + 4)
-            dist = np.where(moved[idx] | (idx[:, None, :] == own).any(axis=1), np.inf, dist)
-            chord = np.sqrt(np.maximum(2.0 - 2.0 * centre @ y[mv].T, 0.0))
-            chord[(mv[None, None, :] == own).any(axis=1)] = np.inf
+            dist = np.where(moved[idx] | corners(idx), np.inf, dist)
+            chord = np.where(corners(mv[None, :]), np.inf, chords(centre))
             nearest = np.minimum(dist.min(axis=1), chord.min(axis=1))
         else:
             dist, idx = cKDTree(y).query(centre, k=4)
-            nearest = np.where((idx[:, None, :] == own).any(axis=1), np.inf, dist).min(axis=1)
+            nearest = np.where(corners(idx), np.inf, dist).min(axis=1)
         local = local[nearest >= radius * (1.0 - _ON_CIRCLE)]
         if n ** 3 >= 2 ** 62:
             return gone, None
