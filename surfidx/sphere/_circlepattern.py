@@ -801,11 +801,10 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
             for cand, cleft, annealed in tries:
                 y = _circle_pattern(x, cand) if cleft < folds else None
                 if y is not None:
-                    # the hull is ``cand`` but for triangles too thin for double precision,
-                    # which can come out flipped: the folds are the hull's own
+                    # the folds of the hull itself: it is ``cand`` but for triangles too thin
+                    # for double precision, which can come out flipped
                     hull = hull_triangles(y)
-                    got = cleft if _same_triangles(hull, cand) else int(
-                        (against_normals(p, normals, hull) ^ mirror).sum())
+                    got = int((against_normals(p, normals, hull) ^ mirror).sum())
                     if got < folds:
                         if accept(y):
                             break
