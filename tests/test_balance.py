@@ -142,11 +142,29 @@ def test_untangle_removes_inverted_triangles():
     assert np.count_nonzero(_orientation(bad, f) <= 0) > 10
     x2, info = untangle(bad, p, f)
     assert info["min_det"] > 0 and info["rounds"] >= 1
-    assert info.get("patch") == 1           # only the rings around the scrambled patch moved
+    assert info.get("patch") == 4           # only the rings around the scrambled patch moved
     unchanged = np.all(x2 == bad, axis=1)
     assert unchanged.mean() > 0.5            # measured: 68 % of the vertices
     assert np.all(_orientation(x2, f) > 0)
     np.testing.assert_allclose(np.linalg.norm(x2, axis=1), 1.0, atol=1e-12)
+
+
+def test_a_pinned_patch_gives_way_to_a_wider_one():
+    """A cap turned half a turn folds only a ring of triangles at its border, and a patch of one
+    ring around them, its borders held on both sides, cannot unwind it; the next, wider patch of
+    ``patch_rings`` does, and the map's far side stays where it was."""
+    p, f, x = _start()
+    c = x[0]
+    cap = x @ c > np.cos(0.5)
+    bad = x.copy()
+    bad[cap] = 2 * np.outer(x[cap] @ c, c) - x[cap]        # half a turn about the cap's centre
+    assert np.count_nonzero(_orientation(bad, f) <= 0) > 20
+    _, narrow = untangle(bad, p, f, patch_rings=(1,))
+    assert "patch" not in narrow                            # the whole map had to move
+    x2, info = untangle(bad, p, f, patch_rings=(1, 4))
+    assert info["patch"] == 4 and info["inverted"] == 0
+    assert np.all(_orientation(x2, f) > 0)
+    assert np.all(x2 == bad, axis=1).mean() > 0.5
 
 
 def test_untangle_returns_a_fold_free_map_unchanged():

@@ -278,7 +278,7 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
 
 def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
              lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
-             eps_max: float = 0.1, lift: bool = False):
+             eps_max: float = 0.1, lift: bool = False, patch_rings: tuple = None):
     """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
 
     Minimises ``Σ A (‖J‖² + lam (det² + 1)) / chi(det, eps)``, ``chi(d, eps) = (d + sqrt(eps² +
@@ -286,8 +286,9 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     triangles, by rounds of preconditioned L-BFGS while ``eps`` shrinks with the energy's progress
     (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
     toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
-    The vertices within ``_PATCH_RINGS`` edges of an inverted triangle are untangled first, the
-    others held (when they are fewer than half); the whole map only if that fails.
+    The vertices within ``patch_rings[0]`` edges of an inverted triangle are untangled first,
+    the others held (when they are fewer than half); where that patch stays tangled, the wider
+    patches of ``patch_rings`` in turn; the whole map only if they all fail.
 
     Parameters
     ----------
@@ -303,13 +304,16 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     lift : bool
         Also work on a fold-free map whose smallest area ratio is below ``_DET_GOAL`` (an
         embedding squeezed that far pins :func:`balance`'s line search at its barrier).
+    patch_rings : tuple of int, optional
+        The widths (rings of vertices around the inverted triangles) of the patches tried in
+        turn; default :data:`_PATCH_RINGS`.
 
     Returns
     -------
     x : (n, 3) float64
     info : dict
         ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted), ``rounds``,
-        and ``patch`` (1) when the patch did it.
+        and ``patch`` (the width in rings) when a patch did it.
     """
     energy = _Energy(p, f)
     energy.lam = float(lam)
@@ -321,13 +325,15 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
                    precondition=precondition, shift=shift, eps_max=eps_max)
     # first only the vertices near the inverted triangles (a prolongation folds a few percent of
     # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
-    free = _near_inverted(energy, y, rings=_PATCH_RINGS, below=_DET_GOAL if lift else 0.0)
-    if free.mean() < 0.5:
+    for rings in _PATCH_RINGS if patch_rings is None else patch_rings:
+        free = _near_inverted(energy, y, rings=rings, below=_DET_GOAL if lift else 0.0)
+        if free.mean() >= 0.5:
+            break
         patch = _Patch(energy, y, free)
         z, done = _untangle_rounds(patch, y[free], **options)
         if done > 0:
             y[free] = z
-            return _untangled(energy, y, rounds=done, patch=1)
+            return _untangled(energy, y, rounds=done, patch=rings)
     y, done = _untangle_rounds(energy, y, **options)
     return _untangled(energy, y, rounds=abs(done))
 
@@ -340,7 +346,9 @@ def _untangled(energy, y, **info):
         "min_det": float(dets.min()), "inverted": int(np.count_nonzero(dets <= 0)), **info}
 
 
-_PATCH_RINGS = 4   # rings of vertices around the inverted triangles that a patch frees
+_PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
+# in turn: a patch's held border can pin a fold that one twice as wide lets go (frag_115's
+# finest level), at a fraction of the whole map's cost
 _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
                    # left at 1e-8 pins the balancing's line search at its barrier)
 
