@@ -175,7 +175,7 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     # a fold-free map is returned as it is
     z, info = lower_folds(points, p, n)
     assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0,
-                    "annealed": 0} and z is points
+                    "annealed": 0, "annealing": 0} and z is points
 
 
 def _is_sphere_triangulation(tri, n):
@@ -242,6 +242,26 @@ def test_lower_folds_keeps_only_what_accept_takes(points, ellipsoid):
     assert all(int(_folded(p, n, hull_triangles(y)).sum()) < info["folds_before"] for y in seen)
     y, taken = lower_folds(x, p, n, accept=lambda y: True)
     assert taken["refused"] == 0 and taken["folds"] <= info["folds_before"] // 3
+
+
+def test_a_refused_annealed_triangulation_ends_the_annealing(points, ellipsoid):
+    """Accepting everything, each of three rounds anneals and keeps its annealed triangulation.
+    When ``accept`` refuses the first realisation (the annealed one of the first round), the
+    rounds after it no longer anneal: their annealed triangulations would change the limbs'
+    scale as much, at the cost of a circle pattern and a check each."""
+    p, n = ellipsoid
+    x = _noisy(points, 0.04, 3)
+    _, taken = lower_folds(x, p, n, accept=lambda y: True)
+    assert taken["rounds"] == taken["annealing"] == taken["annealed"] == 3
+    calls = []
+
+    def refuse_first(y):
+        calls.append(y)
+        return len(calls) > 1
+
+    _, info = lower_folds(x, p, n, accept=refuse_first)
+    assert info["refused"] == 1 and info["rounds"] >= 1
+    assert info["annealing"] == 1 and info["annealed"] == 0
 
 
 def test_realisation_is_rotation_equivariant(points, ellipsoid):

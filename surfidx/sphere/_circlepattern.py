@@ -766,26 +766,32 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
         turn. ``anneal_steps``, ``anneal_temperature``: the annealed search
         (:func:`anneal_flips`) from the flips of a rung of any flips, before they are realised
         alone (0 steps: none); two of its triangulations at most are realised per round
-        (:func:`_annealed`).
+        (:func:`_annealed`). Once ``accept`` refuses an annealed triangulation, the later
+        rounds do not anneal: the map has changed since by milder flips only, and their
+        annealed triangulations were refused as well, each after a circle pattern and a
+        check.
 
     Returns
     -------
     x : (n, 3) float64
     info : dict
         ``folds_before``, ``folds``, ``rounds`` (kept), ``refused`` (realisations that
-        ``accept`` refused), ``annealed`` (rounds that kept an annealed triangulation).
+        ``accept`` refused), ``annealed`` (rounds that kept an annealed triangulation),
+        ``annealing`` (annealed searches run).
     """
     tri = hull_triangles(x)
     bad = against_normals(p, normals, tri)
     mirror = mirrored(bad)
     folds = int((bad ^ mirror).sum())
-    info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0, "annealed": 0}
+    info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0, "annealed": 0,
+            "annealing": 0}
     if accept is None:
         spacing = _spacing(x)    # the rounds together may crowd a point this much at most
 
         def accept(y):
             return bool(np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO)
 
+    anneal = options.anneal_steps > 0
     for _ in range(options.realise_rounds):
         if not folds:
             break
@@ -794,7 +800,8 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
         for convex, limit in options.flip_ladder:
             flipped, left = flip_folds(tri, p, normals, x, convex=convex, max_violation=limit)
             tries = [(flipped, left, False)]
-            if options.anneal_steps and not convex and limit == np.inf:
+            if anneal and not convex and limit == np.inf:
+                info["annealing"] += 1
                 tries = [(t, k, True) for t, k in _annealed(
                     flipped, left, p, normals, x, options.anneal_steps,
                     options.anneal_temperature)] + tries
@@ -809,6 +816,9 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
                         if accept(y):
                             break
                         info["refused"] += 1
+                        # the rounds after keep the map of milder flips, whose annealed
+                        # triangulations change the limbs' scale as much: no more annealing
+                        anneal = anneal and not annealed
                 y = None
             if y is not None:
                 break
