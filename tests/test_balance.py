@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx.sphere import MapOptions
-from surfidx.sphere._balance import _Energy, balance, untangle
+from surfidx.sphere._balance import (_PATCH_PATIENCE, _Energy, _near_inverted, _Patch,
+                                     _untangle_rounds, balance, untangle)
 from surfidx.sphere._surface import oriented_faces
 from surfidx.sphere._tutte import tutte_map
 from surfidx.spherical import orientation as _orientation
@@ -149,15 +150,21 @@ def test_untangle_removes_inverted_triangles():
     np.testing.assert_allclose(np.linalg.norm(x2, axis=1), 1.0, atol=1e-12)
 
 
+def _half_turn(x):
+    """``x`` with a cap turned half a turn about its centre."""
+    c = x[0]
+    cap = x @ c > np.cos(0.5)
+    bad = x.copy()
+    bad[cap] = 2 * np.outer(x[cap] @ c, c) - x[cap]
+    return bad
+
+
 def test_a_pinned_patch_gives_way_to_a_wider_one():
     """A cap turned half a turn folds only a ring of triangles at its border, and a patch of one
     ring around them, its borders held on both sides, cannot unwind it; the next, wider patch of
     ``patch_rings`` does, and the map's far side stays where it was."""
     p, f, x = _start()
-    c = x[0]
-    cap = x @ c > np.cos(0.5)
-    bad = x.copy()
-    bad[cap] = 2 * np.outer(x[cap] @ c, c) - x[cap]        # half a turn about the cap's centre
+    bad = _half_turn(x)
     assert np.count_nonzero(_orientation(bad, f) <= 0) > 20
     _, narrow = untangle(bad, p, f, patch_rings=(1,))
     assert "patch" not in narrow                            # the whole map had to move
@@ -165,6 +172,23 @@ def test_a_pinned_patch_gives_way_to_a_wider_one():
     assert info["patch"] == 4 and info["inverted"] == 0
     assert np.all(_orientation(x2, f) > 0)
     assert np.all(x2 == bad, axis=1).mean() > 0.5
+
+
+def test_a_patch_still_inverted_after_its_patience_stops_there():
+    """The pinned one-ring patch above keeps an inverted triangle through all its rounds; with
+    the patience that :func:`untangle` gives a patch, it stops after that many."""
+    p, f, x = _start()
+    bad = _half_turn(x)
+    energy = _Energy(p, f)
+    energy.lam = 0.5
+    free = _near_inverted(energy, bad, rings=1)
+    options = dict(rounds=2 * _PATCH_PATIENCE, inner=30, memory=8, precondition=True,
+                   shift=1e-3, eps_max=0.1)
+    _, done = _untangle_rounds(_Patch(energy, bad, free), bad[free], **options)
+    assert done == -2 * _PATCH_PATIENCE
+    _, done = _untangle_rounds(_Patch(energy, bad, free), bad[free], patience=_PATCH_PATIENCE,
+                               **options)
+    assert done == -_PATCH_PATIENCE
 
 
 def test_untangle_returns_a_fold_free_map_unchanged():

@@ -287,8 +287,9 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
     toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
     The vertices within ``patch_rings[0]`` edges of an inverted triangle are untangled first,
-    the others held (when they are fewer than half); where that patch stays tangled, the wider
-    patches of ``patch_rings`` in turn; the whole map only if they all fail.
+    the others held (when they are fewer than half); where that patch stays tangled (a triangle
+    still inverted after :data:`_PATCH_PATIENCE` rounds), the wider patches of ``patch_rings``
+    in turn; the whole map only if they all fail.
 
     Parameters
     ----------
@@ -330,7 +331,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
         if free.mean() >= 0.5:
             break
         patch = _Patch(energy, y, free)
-        z, done = _untangle_rounds(patch, y[free], **options)
+        z, done = _untangle_rounds(patch, y[free], patience=_PATCH_PATIENCE, **options)
         if done > 0:
             y[free] = z
             return _untangled(energy, y, rounds=done, patch=rings)
@@ -349,6 +350,10 @@ def _untangled(energy, y, **info):
 _PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
 # in turn: a patch's held border can pin a fold that one twice as wide lets go (frag_115's
 # finest level), at a fraction of the whole map's cost
+_PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
+# the next: on the shared and retrieval models, every patch that untangled had none left by the
+# 28th round (d041's 69 vertices; the others by the 13th), and frag_115's 4-ring patch, pinned
+# by its held border, kept 4 to the 60th
 _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
                    # left at 1e-8 pins the balancing's line search at its barrier)
 
@@ -396,9 +401,10 @@ class _Patch:
 
 
 def _untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
-                     eps_max):
+                     eps_max, patience=None):
     """The eps rounds of :func:`untangle` on ``energy``; returns the positions and the rounds
-    taken (negative when it stopped with triangles still inverted)."""
+    taken (negative when it stopped with triangles still inverted). With ``patience``, it
+    stops after that many rounds while a triangle is still inverted."""
     y = np.array(y, dtype=np.float64)
     mindet = energy.min_det(y)
     solve, apply = energy.preconditioner(shift=shift) if precondition else (_identity, _identity)
@@ -414,6 +420,8 @@ def _untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
         y, e, _ = _lbfgs(energy, y, solve, apply, inner, memory, 0.0,
                          stop=lambda z: energy.min_det(z) > _DET_GOAL)
         mindet = energy.min_det(y)
+        if patience is not None and k >= patience and mindet <= 0:
+            break
         sigma = max(1.0 - e / e_prev, 0.1)
         mu = (1.0 - sigma) * 0.5 * (mindet + np.sqrt(eps * eps + mindet * mindet))
         eps = min(max(2.0 * np.sqrt(mu * (mu - mindet)), 1e-10), eps_max) if mindet < mu else 1e-10
