@@ -83,6 +83,8 @@ STAGES = (
     ("surfidx.codec", "Encoder.encode", "coding"),
     ("surfidx.codec", "decode", "decode"),
     ("surfidx.metrics", "evaluate", "evaluate"),
+    ("surfidx.metrics", "Reference.psnr_d2", "evaluate"),
+    ("surfidx.metrics", "Reference.psnr_d2_at_least", "evaluate"),
     ("surfidx.descriptors", "describe_grid", "describe"),
     ("surfidx.render", "render", "thumbnail"),
 )

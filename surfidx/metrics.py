@@ -33,7 +33,8 @@ from ._errors import InputError
 from ._validate import as_array
 from .surfels import SurfelSet
 
-__all__ = ["LUMA_WEIGHTS", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff", "evaluate"]
+__all__ = ["LUMA_WEIGHTS", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff", "evaluate",
+           "Reference"]
 
 #: BT.709 luma weights of R, G, B (those of MPEG's pc_error).
 LUMA_WEIGHTS = (0.2126, 0.7152, 0.0722)
@@ -63,9 +64,7 @@ class _Pairs:
 
     def mse_d2(self) -> float:
         r, t = self.reference, self.test
-        fwd = _plane_errors(t.positions, r.positions[self.i_fwd], r.normals[self.i_fwd])
-        bwd = _plane_errors(r.positions, t.positions[self.i_bwd], t.normals[self.i_bwd])
-        return max(float(np.mean(fwd)), float(np.mean(bwd)))
+        return max(_mse_d2(t, r, self.i_fwd), _mse_d2(r, t, self.i_bwd))
 
     def mse_luma(self) -> float:
         yr, yt = _luma(self.reference.colors), _luma(self.test.colors)
@@ -75,6 +74,13 @@ class _Pairs:
 
     def max_distance(self) -> float:
         return max(float(self.d_fwd.max()), float(self.d_bwd.max()))
+
+
+def _mse_d2(probed: SurfelSet, searched: SurfelSet, found: np.ndarray) -> float:
+    """One direction's D2 MSE: ``probed``'s points against ``searched``'s points ``found``
+    ``(n,)`` nearest to them."""
+    return float(np.mean(_plane_errors(probed.positions, searched.positions[found],
+                                       searched.normals[found])))
 
 
 def _plane_errors(probe: np.ndarray, found: np.ndarray, found_normals: np.ndarray) -> np.ndarray:
@@ -95,14 +101,18 @@ def _psnr(mse: float, peak: float) -> float:
 
 
 # ---------------------------------------------------------------------- validation
+def _check_set(name, s) -> None:
+    if not isinstance(s, SurfelSet):
+        raise InputError(f"{name} must be a SurfelSet, got {type(s).__name__}; read files "
+                         "with surfidx.read_surfels")
+    if len(s) == 0:
+        raise InputError(f"the {name} surfel set is empty; distortion needs at least one "
+                         "surfel on each side")
+
+
 def _check_sets(reference, test, *, luma: bool = False) -> None:
     for name, s in (("reference", reference), ("test", test)):
-        if not isinstance(s, SurfelSet):
-            raise InputError(f"{name} must be a SurfelSet, got {type(s).__name__}; read files "
-                             "with surfidx.read_surfels")
-        if len(s) == 0:
-            raise InputError(f"the {name} surfel set is empty; distortion needs at least one "
-                             "surfel on each side")
+        _check_set(name, s)
     if luma and not (reference.has_color and test.has_color):
         missing = [n for n, s in (("reference", reference), ("test", test)) if not s.has_color]
         raise InputError(f"luma PSNR needs colours on both sets; the {' and '.join(missing)} "
@@ -269,3 +279,66 @@ def evaluate(reference: SurfelSet, test: SurfelSet, *, peak: float | None = None
         "n_reference": len(reference),
         "n_test": len(test),
     }
+
+
+class Reference:
+    """A reference surfel set that many test sets are measured against: its KD-tree is built
+    once (:func:`psnr_d2` builds both sets' trees on every call).
+
+    Parameters
+    ----------
+    reference : SurfelSet
+        The original; its bounding-box diagonal is the peak.
+    peak : float, optional
+        Peak signal instead of the reference's bounding-box diagonal.
+
+    Raises
+    ------
+    InputError
+        When the set is empty or not a :class:`SurfelSet`, or the peak is not positive.
+
+    Examples
+    --------
+    >>> ref = Reference(surfels)                                  # doctest: +SKIP
+    >>> ref.psnr_d2(decoded) == psnr_d2(surfels, decoded)        # doctest: +SKIP
+    True
+    """
+
+    def __init__(self, reference: SurfelSet, *, peak: float | None = None):
+        from scipy.spatial import cKDTree
+
+        _check_set("reference", reference)
+        self.surfels = reference
+        self.peak = _peak(reference, peak)
+        self._tree = cKDTree(reference.positions)
+        self._directions = [self._probed, self._searched]   # the last to fail a floor first
+
+    def _probed(self, test: SurfelSet) -> float:
+        """D2 MSE of the test points against the reference (the reference searched)."""
+        return _mse_d2(test, self.surfels,
+                       self._tree.query(test.positions, k=1, workers=-1)[1])
+
+    def _searched(self, test: SurfelSet) -> float:
+        """D2 MSE of the reference points against the test set (the test set searched)."""
+        from scipy.spatial import cKDTree
+
+        found = cKDTree(test.positions).query(self.surfels.positions, k=1, workers=-1)[1]
+        return _mse_d2(self.surfels, test, found)
+
+    def psnr_d2(self, test: SurfelSet) -> float:
+        """:func:`psnr_d2` of ``test`` against the reference, in dB."""
+        _check_set("test", test)
+        return _psnr(max(self._probed(test), self._searched(test)), self.peak)
+
+    def psnr_d2_at_least(self, test: SurfelSet, floor: float) -> bool:
+        """Whether ``psnr_d2(test) >= floor`` (dB), one direction at a time: the second is
+        computed only when the first passes. The direction that failed last goes first (one
+        caller's test sets tend to fail the same way: points off the surface where they are
+        probed against the reference, a sparse set where it is searched for the reference's
+        points); at first, the test points are probed."""
+        _check_set("test", test)
+        for k, direction in enumerate(self._directions):
+            if not _psnr(direction(test), self.peak) >= floor:
+                self._directions.insert(0, self._directions.pop(k))
+                return False
+        return True

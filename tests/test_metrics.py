@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from surfidx import TOL, InputError, SurfelSet, read_surfels
-from surfidx.metrics import evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
+from surfidx.metrics import Reference, evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
 
 
 # ---------------------------------------------------------------------- independent reference
@@ -214,6 +214,40 @@ def test_explicit_peak_shifts_psnr(sphere_surfels):
     base = psnr_d1(sphere_surfels, test)
     ten = psnr_d1(sphere_surfels, test, peak=10 * sphere_surfels.diagonal)
     assert ten == pytest.approx(base + 20)  # 10x the peak: +20 dB
+
+
+def test_a_reference_measures_as_psnr_d2_does():
+    """A reference searched for many test sets gives psnr_d2's numbers exactly, and its
+    ``psnr_d2_at_least`` the same answer as comparing them, whichever direction fails: a
+    sparse test set fails where the reference is searched for it, a test set with one far
+    outlier where its points are probed."""
+    rng = np.random.default_rng(3)
+    ref = random_surfels(400, rng)
+    reference = Reference(ref)
+    sparse = ref.subset(rng.choice(400, 40, replace=False))
+    noisy = perturbed(ref, rng.normal(scale=0.01, size=(400, 3)))
+    outlier = SurfelSet(np.vstack([ref.positions, [[50.0, 0, 0]]]),
+                        np.vstack([ref.normals, [[1.0, 0, 0]]]), np.full(401, 0.05))
+    for test in (sparse, noisy, outlier, ref):
+        value = psnr_d2(ref, test)
+        assert reference.psnr_d2(test) == value
+        for floor in (value - 1e-9, value, value + 1e-9, -math.inf, math.inf):
+            assert reference.psnr_d2_at_least(test, floor) is (value >= floor)
+    assert reference.psnr_d2(ref) == math.inf
+    assert Reference(ref, peak=10 * ref.diagonal).psnr_d2(noisy) == pytest.approx(
+        psnr_d2(ref, noisy) + 20)
+
+
+def test_a_reference_checks_its_sets(sphere_surfels):
+    empty = SurfelSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    with pytest.raises(InputError, match="reference surfel set is empty"):
+        Reference(empty)
+    with pytest.raises(InputError, match="test must be a SurfelSet, got ndarray"):
+        Reference(sphere_surfels).psnr_d2(np.zeros((3, 3)))
+    with pytest.raises(InputError, match="test surfel set is empty"):
+        Reference(sphere_surfels).psnr_d2_at_least(empty, 50.0)
+    with pytest.raises(InputError, match="diagonal is zero"):
+        Reference(sphere_surfels.subset([0]))
 
 
 # ---------------------------------------------------------------------- errors

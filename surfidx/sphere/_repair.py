@@ -22,7 +22,7 @@ import numpy as np
 
 from .._tolerance import TOL
 from ..icosphere import choose_level
-from ..metrics import evaluate
+from ..metrics import Reference
 from ..resample import grid_to_surfels, resample
 from ..spherical import folded_mask, hull_triangles
 from ..surfels import SurfelSet
@@ -84,13 +84,16 @@ class ResamplingCheck:
 
     def __init__(self, surfels: SurfelSet, x):
         self.surfels = surfels
+        self.reference = Reference(surfels)
         self.level = choose_level(len(surfels), sparse_sampling=sparse_sampling(surfels, x))
         self.floor = self.psnr(x) - TOL.realise_loss
 
+    def _grid(self, x) -> SurfelSet:
+        return grid_to_surfels(resample(self.surfels, x, self.level, color=False))
+
     def psnr(self, x) -> float:
         """Infinite-rate PSNR_D2 (dB) of the map ``x`` resampled at :attr:`level`."""
-        grid = grid_to_surfels(resample(self.surfels, x, self.level, color=False))
-        return float(evaluate(self.surfels, grid)["psnr_d2"])
+        return self.reference.psnr_d2(self._grid(x))
 
     def __call__(self, y) -> bool:
-        return self.psnr(y) >= self.floor
+        return self.reference.psnr_d2_at_least(self._grid(y), self.floor)
