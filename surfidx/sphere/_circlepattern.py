@@ -623,8 +623,8 @@ def _circle_pattern(x, tri, *, new_edges=None):
     x = np.asarray(x, dtype=np.float64)
     tri = np.asarray(tri, dtype=np.int64)
     n = len(x)
-    if len(tri) != 2 * n - 4 or np.bincount(tri.ravel(), minlength=n).min() < 3:
-        return None             # not a triangulation of all the points (duplicates, too few)
+    if not _spans(tri, n):
+        return None
     edges, opposite = _edges(tri, n)
     ne = len(edges)
     for pole in _poles(x, tri)[:_POLE_TRIES]:
@@ -654,6 +654,14 @@ def _circle_pattern(x, tri, *, new_edges=None):
     out = None if alpha is None else _pattern(
         alpha, u, t, ang, opposite[inner], ne, n, pole, keep, frame)
     return out
+
+
+def _spans(tri, n):
+    """Whether ``tri`` is a triangulation of the sphere on all ``n`` points: ``2n - 4``
+    triangles, each point a corner of three at least. A hull that leaves out a point (a
+    duplicate, or one that a sliver too thin for double precision put on a face) is not, and
+    no flip of it is: its flips cannot be realised."""
+    return len(tri) == 2 * n - 4 and np.bincount(np.ravel(tri), minlength=n).min() >= 3
 
 
 def _same_triangles(a, b):
@@ -748,7 +756,8 @@ def _sorted_rows(t):
 def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPTIONS):
     """Rounds of :func:`flip_folds` (or :func:`anneal_flips`) on the Delaunay triangulation of
     ``x`` and :func:`realise`, each kept only when it lowers the count of folded Delaunay
-    triangles and ``accept`` takes it.
+    triangles and ``accept`` takes it. The rounds end where that triangulation leaves a point
+    out (a realisation can put a point on a face of its hull): no flip of it can be realised.
 
     Parameters
     ----------
@@ -793,7 +802,7 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
 
     anneal = options.anneal_steps > 0
     for _ in range(options.realise_rounds):
-        if not folds:
+        if not folds or not _spans(tri, len(x)):
             break
         y = None
         # flips with no realisation, or whose realisation is refused: milder ones
