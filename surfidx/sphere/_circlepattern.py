@@ -349,7 +349,9 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
 
     Alternating projections: onto each edge's constraints, which involve its two corners only
     (a triangle the flips turned over has negative angles), then onto the linear sums (a
-    least-norm correction through one factorisation).
+    least-norm correction). The triangle sums have disjoint corners, so the correction's
+    normal equations are solved through their Schur complement on the vertex sums, a matrix
+    with the mesh's vertex adjacency, factored once.
 
     Parameters
     ----------
@@ -374,18 +376,26 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     row = np.full(n, -1)
     inner = np.flatnonzero(np.bincount(vertex, minlength=n) > 0)
     inner = inner[inner != ring[0]]         # the sums are dependent: one vertex row left out
-    row[inner] = m + np.arange(len(inner))
+    row[inner] = np.arange(len(inner))
     use = row[vertex] >= 0
-    lin = sp.csr_matrix((np.ones(3 * m + use.sum()), (np.concatenate(
-        [corner // 3, row[vertex][use]]), np.concatenate([corner, corner[use]]))),
-        shape=(m + len(inner), 3 * m))
+    tsum = sp.csr_matrix((np.ones(3 * m), (corner // 3, corner)), shape=(m, 3 * m))
+    vsum = sp.csr_matrix((np.ones(use.sum()), (row[vertex][use], corner[use])),
+                         shape=(len(inner), 3 * m))
     sums = np.full(n, 2 * np.pi)
     sums[ring] = ring_sums
-    rhs = np.concatenate([np.full(m, np.pi), sums[inner]])
+    vrhs = sums[inner]
+    # [[3 I, B], [B^T, D]] = [tsum; vsum] [tsum; vsum]^T, eliminated to D - B^T B / 3
+    cross = tsum @ vsum.T
     try:
-        lu = spd_factor(lin @ lin.T)
+        lu = spd_factor(vsum @ vsum.T - (cross.T @ cross) / 3.0)
     except RuntimeError:
         return None
+
+    def project(a):         # the nearest point of the linear sums' affine subspace
+        rt, rv = tsum @ a - np.pi, vsum @ a - vrhs
+        z = lu.solve(rv - cross.T @ rt / 3.0)
+        return a - tsum.T @ ((rt - cross @ z) / 3.0) - vsum.T @ z
+
     e = opposite.ravel()
     order = np.argsort(e, kind="stable")
     first = np.flatnonzero(np.r_[True, e[order][1:] != e[order][:-1]])
@@ -397,7 +407,7 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     a = alpha.ravel().copy()
     for _ in range(_PROJECTION_STEPS):
         if a.min() >= _MIN_CORNER and (a[p] + a[q] <= cap_p).all() and (a[single] <= cap_s).all() \
-                and np.abs(lin @ a - rhs).max() < 1e-9:
+                and np.abs(tsum @ a - np.pi).max() < 1e-9 and np.abs(vsum @ a - vrhs).max() < 1e-9:
             return a.reshape(m, 3)
         u, v = np.maximum(a[p], lo), np.maximum(a[q], lo)
         excess = np.maximum(u + v - hi_p, 0.0) / 2   # the nearest point of the triangle
@@ -405,7 +415,7 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
         a[p] = np.where(u < lo, lo, np.where(v < lo, hi_p - lo, u))
         a[q] = np.where(v < lo, lo, np.where(u < lo, hi_p - lo, v))
         a[single] = np.clip(a[single], lo, hi_s)
-        a -= lin.T @ lu.solve(lin @ a - rhs)
+        a = project(a)
     return None
 
 
@@ -436,10 +446,9 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     const = np.bincount(boundary_face, boundary_ts, minlength=m) - np.pi
     trig = dict(sin_ts=np.sin(ts), cos_ts=np.cos(ts))
 
-    def residual(r):
-        d = r[j] - r[i]
-        return const + np.bincount(i, _half_angle(d, **trig), minlength=m) \
-            + np.bincount(j, _half_angle(-d, **trig), minlength=m)
+    def residual(r):            # the two angles opposite an edge sum to its ts
+        half = _half_angle(r[j] - r[i], **trig)
+        return const + np.bincount(i, half, minlength=m) + np.bincount(j, ts - half, minlength=m)
 
     def jacobian(r):            # minus the residual's Jacobian: a weighted dual Laplacian
         w = _half_angle_slope(r[j] - r[i], **trig)
