@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from surfidx.sphere._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _NEWTON_STEPS,
+                                           _against,
                                            _coherent_angles, _edges, _layout, _moebius_fit,
                                            _planar_angles, _radii,
                                            _spacing, anneal_flips, flip_folds, lower_folds,
@@ -149,6 +150,23 @@ def _noisy(points, amplitude=0.02, seed=2):
     rng = np.random.default_rng(seed)
     x = points + amplitude * rng.standard_normal(points.shape)
     return x / np.linalg.norm(x, axis=1)[:, None]
+
+
+def test_a_single_triangle_is_judged_as_against_normals_judges_it():
+    """The flips' one-triangle fold test gives the vectorised answer exactly, for triangles in
+    any listing and for nearly straight ones, whose sign is decided by rounding."""
+    rng = np.random.default_rng(5)
+    p, normals = rng.standard_normal((600, 3)), rng.standard_normal((600, 3))
+    p[:300] = np.outer(rng.standard_normal(300), [1.0, 2.0, 3.0]) \
+        + 1e-9 * rng.standard_normal((300, 3))                     # on one line, but for rounding
+    t = rng.integers(0, 600, (30_000, 3))
+    t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
+    t[: len(t) // 2] = rng.integers(0, 300, (len(t) // 2, 3))
+    t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
+    rows = p.tolist(), normals.tolist()
+    got = [_against(*rows, tuple(r)) for r in t.tolist()]
+    assert got == _folded(p, normals, t).tolist()
+    assert 0 < sum(got) < len(got)
 
 
 def test_flips_lower_the_folds_of_a_triangulation(points, ellipsoid):

@@ -99,6 +99,21 @@ def _angle(x, a, b, c):
     return float(np.arccos(np.clip(u @ v / np.sqrt((u @ u) * (v @ v)), -1.0, 1.0)))
 
 
+def _against(p, normals, t):
+    """:func:`surfidx.spherical.against_normals` of the one triangle ``t``, on the rows of
+    ``p`` and ``normals`` as lists: the same operations in the same order in Python floats
+    (the searches judge tens of thousands of single flips, where numpy's cost per call is
+    most of the work)."""
+    k = t.index(min(t))
+    i, j, m = t[k], t[k - 2], t[k - 1]          # from the smallest index, the order kept
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = p[i], p[j], p[m]
+    ux, uy, uz = x1 - x0, y1 - y0, z1 - z0
+    vx, vy, vz = x2 - x0, y2 - y0, z2 - z0
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = normals[i], normals[j], normals[m]
+    return ((uy * vz - uz * vy) * (a0 + b0 + c0) + (uz * vx - ux * vz) * (a1 + b1 + c1)
+            + (ux * vy - uy * vx) * (a2 + b2 + c2)) < 0
+
+
 class _Flips:
     """A triangulation under edge flips: directed edge -> triangle, each triangle's fold, and the
     set of folded triangles."""
@@ -114,6 +129,7 @@ class _Flips:
             self._register(i)
         self.bad = (against_normals(p, normals, tri) ^ mirror).tolist()
         self.folded = set(compress(range(len(self.bad)), self.bad))   # kept up to date by flips
+        self._rows = p.tolist(), normals.tolist()       # for _against, one triangle at a time
 
     @classmethod
     def of(cls, tri, p, normals, x, **options):
@@ -162,13 +178,12 @@ class _Flips:
         where ``convex`` refuses the flip. They depend on the corners alone, and the searches
         meet the same flip again and again, so :meth:`candidate` remembers them."""
         (a, d, c), (_, b, _) = new
-        corners = np.array(new)
         if self.convex and not (
-                (corner_orientation(self.x[corners]) > 0).all()
+                (corner_orientation(self.x[np.array(new)]) > 0).all()
                 and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
                 >= -self.max_violation):
             return False
-        return (against_normals(self.p, self.normals, corners) ^ self.mirror).tolist()
+        return [_against(*self._rows, t) != self.mirror for t in new]
 
     def apply(self, cand):
         _, i, j, new, bad = cand
