@@ -174,11 +174,12 @@ class _Hull:
             vertices (directly: they are few)."""
             return np.sqrt(np.maximum(2.0 - 2.0 * (c @ y[mv].T), 0.0))
 
-        def to_moved(c):
-            """Chord distance from each unit vector ``c`` to the nearest moved vertex."""
+        def to_moved(c, within):
+            """Chord distance from each unit vector ``c`` to the nearest moved vertex; beyond
+            ``within`` it may be inf instead (the tree's search stops there)."""
             if few:
                 return chords(c).min(axis=1)
-            return cKDTree(y[mv]).query(c, k=1)[0]
+            return cKDTree(y[mv]).query(c, k=1, distance_upper_bound=within)[0]
 
         if few:
             # only circumcircles that can hold a moved vertex, at its old or new place, are
@@ -192,8 +193,9 @@ class _Hull:
         else:
             cand = np.arange(len(tri))
         gone = np.zeros(len(tri), dtype=bool)
-        gone[cand] = (moved[tri[cand]].any(axis=1)
-                      | (to_moved(centre[cand]) < radius[cand] * (1.0 - _ON_CIRCLE)))
+        inside = radius[cand] * (1.0 - _ON_CIRCLE)      # a circle holds what is nearer
+        holds = to_moved(centre[cand], inside.max(initial=0.0)) < inside
+        gone[cand] = moved[tri[cand]].any(axis=1) | holds
         cavity = np.union1d(np.unique(tri[gone]), mv)
         try:
             local = cavity[hull_triangles(y[cavity])]
