@@ -41,6 +41,10 @@ LUMA_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
 _COLOR_PEAK = 255.0
 
+# Points per KD query block of Reference._probed: large enough that a block's query overhead is
+# small, small enough that a test set far below a floor stops after a few blocks.
+_BLOCK = 1 << 17
+
 
 # ---------------------------------------------------------------------- kernels (private)
 class _Pairs:
@@ -94,9 +98,11 @@ def _luma(colors: np.ndarray) -> np.ndarray:
 
 
 def _psnr(mse: float, peak: float) -> float:
-    """``10 log10(peak^2 / mse)``; ``inf`` when ``mse`` is zero."""
+    """``10 log10(peak^2 / mse)``; ``inf`` when ``mse`` is zero, ``-inf`` when it is ``inf``."""
     if mse <= 0.0:
         return math.inf
+    if mse == math.inf:
+        return -math.inf
     return 10.0 * math.log10(peak * peak / mse)
 
 
@@ -313,13 +319,29 @@ class Reference:
         self._tree = cKDTree(reference.positions)
         self._directions = [self._probed, self._searched]   # the last to fail a floor first
 
-    def _probed(self, test: SurfelSet) -> float:
-        """D2 MSE of the test points against the reference (the reference searched)."""
-        return _mse_d2(test, self.surfels,
-                       self._tree.query(test.positions, k=1, workers=-1)[1])
+    def _probed(self, test: SurfelSet, limit: float = math.inf) -> float:
+        """D2 MSE of the test points against the reference (the reference searched).
 
-    def _searched(self, test: SurfelSet) -> float:
-        """D2 MSE of the reference points against the test set (the test set searched)."""
+        The points go in blocks of :data:`_BLOCK`; once the errors summed so far exceed
+        ``limit`` times the point count (with a margin far above rounding), the MSE exceeds
+        ``limit`` whatever the rest add, and ``inf`` is returned. Otherwise the errors are those
+        of one query of all points, so the MSE is the same to the bit."""
+        pos = test.positions
+        budget = limit * len(pos) * (1.0 + 1e-9)
+        errors, total = [], 0.0
+        for start in range(0, len(pos), _BLOCK):
+            block = pos[start:start + _BLOCK]
+            found = self._tree.query(block, k=1, workers=-1)[1]
+            err = _plane_errors(block, self.surfels.positions[found], self.surfels.normals[found])
+            total += float(err.sum())
+            if total > budget:
+                return math.inf
+            errors.append(err)
+        return float(np.mean(np.concatenate(errors)))
+
+    def _searched(self, test: SurfelSet, limit: float = math.inf) -> float:
+        """D2 MSE of the reference points against the test set (the test set searched; the
+        test set's tree is the cost, so ``limit`` stops nothing early)."""
         from scipy.spatial import cKDTree
 
         found = cKDTree(test.positions).query(self.surfels.positions, k=1, workers=-1)[1]
@@ -337,8 +359,10 @@ class Reference:
         probed against the reference, a sparse set where it is searched for the reference's
         points); at first, the test points are probed."""
         _check_set("test", test)
+        # the largest MSE that passes (the exponent capped: 10.0 ** 301 raises OverflowError)
+        limit = self.peak * self.peak * 10.0 ** min(-floor / 10.0, 300.0)
         for k, direction in enumerate(self._directions):
-            if not _psnr(direction(test), self.peak) >= floor:
+            if not _psnr(direction(test, limit), self.peak) >= floor:
                 self._directions.insert(0, self._directions.pop(k))
                 return False
         return True

@@ -238,6 +238,28 @@ def test_a_reference_measures_as_psnr_d2_does():
         psnr_d2(ref, noisy) + 20)
 
 
+def test_a_reference_probes_large_sets_in_blocks_with_the_same_answers():
+    """A test set of more points than one query block (its errors far off in the last block,
+    or everywhere) gives psnr_d2's numbers to the bit, and ``psnr_d2_at_least`` the comparison's
+    answer for floors just around the value, far above it (where the blocks stop early),
+    far below it and beyond float range."""
+    from surfidx.metrics import _BLOCK
+
+    rng = np.random.default_rng(5)
+    ref = sphere_points(2000, rng)
+    n = _BLOCK + 5000
+    dense = sphere_points(n, rng)
+    far_tail = SurfelSet(dense.positions * np.where(np.arange(n) >= _BLOCK, 1.3, 1.0)[:, None],
+                         dense.normals, dense.radii)
+    for test in (dense, far_tail):
+        reference = Reference(ref)
+        value = psnr_d2(ref, test)
+        assert reference.psnr_d2(test) == value
+        for floor in (value - 1e-9, value, value + 1e-9, value + 10.0, value + 60.0,
+                      value - 60.0, 1e4, -1e4, math.inf, -math.inf):
+            assert reference.psnr_d2_at_least(test, floor) is (value >= floor)
+
+
 def test_a_reference_checks_its_sets(sphere_surfels):
     empty = SurfelSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     with pytest.raises(InputError, match="reference surfel set is empty"):
