@@ -112,6 +112,21 @@ def _icosahedron():
     return v, f
 
 
+def _filled(shape, head, *cols) -> np.ndarray:
+    """A new int64 array of ``shape``: ``head``'s rows (if any) on top, then the rows whose
+    entries are ``cols`` in row-major order (``len(cols)`` a multiple of the row length). It is
+    ``np.concatenate([head, np.stack(cols, 1).reshape(-1, shape[1])])`` without the stacked
+    copies, which on a fine grid cost more in fresh pages than in copying."""
+    out = np.empty(shape, dtype=np.int64)
+    start = 0 if head is None else len(head)
+    if head is not None:
+        out[:start] = head
+    body = out[start:].reshape(-1, len(cols))
+    for k, col in enumerate(cols):
+        body[:, k] = col
+    return out
+
+
 def _readonly(*arrays):
     for a in arrays:
         a.flags.writeable = False
@@ -303,9 +318,8 @@ class Icosphere:
         m = n_old + he.edge.reshape(-1, 3)  # midpoints of (a,b), (b,c), (c,a) per face
         fa, fb, fc = c.faces[:, 0], c.faces[:, 1], c.faces[:, 2]
         ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
-        nf = np.stack([np.stack([fa, ab, ca], 1), np.stack([fb, bc, ab], 1),
-                       np.stack([fc, ca, bc], 1), np.stack([ab, bc, ca], 1)], axis=1)
-        self.faces = nf.reshape(-1, 3)
+        self.faces = _filled((4 * len(c.faces), 3), None, fa, ab, ca, fb, bc, ab, fc, ca, bc,
+                             ab, bc, ca)
         self.counts = np.append(c.counts, len(self.vertices)).astype(np.int64)
         self.level_of = np.concatenate([c.level_of, np.full(n_new, j + 1, dtype=np.int64)])
         self.edge_parents = np.concatenate([c.edge_parents, edges])
@@ -317,8 +331,7 @@ class Icosphere:
         e2 = he.opp[he.twin[he.prv(h1)]]     # across (c, a)
         e3 = he.opp[he.twin[he.nxt(h2)]]     # across (a, d)
         e4 = he.opp[he.twin[he.prv(h2)]]     # across (d, b)
-        stencil = np.stack([a, b, cc, dd, e1, e2, e3, e4], axis=1)
-        self.butterfly = np.concatenate([c.butterfly, stencil])
+        self.butterfly = _filled((n_old + n_new, 8), c.butterfly, a, b, cc, dd, e1, e2, e3, e4)
         # zerotree owners of the level-j edges
         if j == 0:
             owner = _balanced_root_owners(edges)
