@@ -224,6 +224,28 @@ def test_annealing_goes_below_what_the_flips_reach(points, ellipsoid):
     assert anneal_flips(hull_triangles(points), p, n, points) == []      # nothing to lower
 
 
+def test_the_flip_searches_leave_the_garbage_collector_as_they_found_it(points, ellipsoid):
+    """The searches pause the cyclic collector while they run and restore its state: enabled
+    stays enabled, disabled stays disabled, also when a search raises."""
+    import gc
+
+    p, n = ellipsoid
+    x = _noisy(points)
+    tri = hull_triangles(x)
+    was = gc.isenabled()
+    try:
+        for enabled in (True, False):
+            gc.enable() if enabled else gc.disable()
+            flip_folds(tri, p, n, x)
+            anneal_flips(tri, p, n, x, steps=100)
+            assert gc.isenabled() is enabled
+            with pytest.raises(IndexError):
+                flip_folds(tri, p[:5], n[:5], x)
+            assert gc.isenabled() is enabled
+    finally:
+        gc.enable() if was else gc.disable()
+
+
 def test_annealing_needs_a_positive_temperature(points, ellipsoid):
     p, n = ellipsoid
     with pytest.raises(ValueError, match="temperature must be positive, got 0"):

@@ -55,6 +55,8 @@ the resampling with it. So :func:`lower_folds` keeps a realisation only when the
 
 from __future__ import annotations
 
+import contextlib
+import gc
 from itertools import compress
 
 import numpy as np
@@ -91,6 +93,21 @@ closer by this factor at most, measured from the map before the first round: a f
 Delaunay moves its corners a lot, and the grid then samples the surfels there too sparsely.
 A proxy only, and a poor one: the map measures the resampling instead."""
 _SPACING_NEIGHBOURS = 6
+
+
+@contextlib.contextmanager
+def _collector_paused():
+    """Python's cyclic garbage collector paused for the block (restored as it was). The flip
+    searches build a few hundred thousand tuples, lists and dict entries that live until the
+    search ends and form no cycles: the collector would only walk them again and again as they
+    grow (a third of a triangulation's set-up, and 2.3 s of scorpion's fold realisation)."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _angle(x, a, b, c):
@@ -261,13 +278,14 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     folds : int
         Its folded triangles.
     """
-    state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
-    for _ in range(rounds):
-        todo = sorted(state.folded)
-        changed = sum(state.mend(i) for i in todo if state.bad[i])
-        if not changed:
-            break
-    return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
+    with _collector_paused():
+        state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
+        for _ in range(rounds):
+            todo = sorted(state.folded)
+            changed = sum(state.mend(i) for i in todo if state.bad[i])
+            if not changed:
+                break
+        return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
 
 
 def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_steps,
@@ -303,7 +321,13 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
     """
     if not temperature > 0:
         raise ValueError(f"temperature must be positive, got {temperature!r}")
-    rng = np.random.default_rng(seed)
+    with _collector_paused():
+        return _anneal(tri, p, normals, x, int(steps), temperature,
+                       np.random.default_rng(seed))
+
+
+def _anneal(tri, p, normals, x, steps, temperature, rng):
+    """:func:`anneal_flips`' search."""
     state = _Flips.of(tri, p, normals, x)
     folds = best = int(sum(state.bad))
     found = []
