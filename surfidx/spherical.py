@@ -25,6 +25,11 @@ __all__ = ["hull_triangles", "unit_vectors", "map_points", "orientation", "corne
            "against_normals", "mirrored", "folded_mask", "triangle_areas", "mobius",
            "smallest_first"]
 
+# Rows per block of the per-triangle kernels below: their temporaries then stay in cache and
+# are reused, where whole-array temporaries of a fine grid (5M triangles at level 9) cost more
+# in fresh pages than in arithmetic. Each row's result does not depend on the blocking.
+_BLOCK = 1 << 16
+
 
 def unit_vectors(points, *, count: int | None = None, name: str = "sphere_points") -> np.ndarray:
     """Points checked to lie on the unit sphere, renormalised.
@@ -228,11 +233,15 @@ def triangle_areas(sphere_points, triangles) -> np.ndarray:
         sphere.
     """
     pts, tri = sphere_points, triangles
-    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
-    num = np.einsum("ij,ij->i", a, np.cross(b, c))
-    den = 1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \
-        + np.einsum("ij,ij->i", c, a)
-    return 2.0 * np.arctan2(num, den)
+    out = np.empty(len(tri))
+    for s in range(0, len(tri), _BLOCK):    # blocks: the temporaries stay in cache
+        t = tri[s:s + _BLOCK]
+        a, b, c = pts[t[:, 0]], pts[t[:, 1]], pts[t[:, 2]]
+        num = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = 1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \
+            + np.einsum("ij,ij->i", c, a)
+        out[s:s + _BLOCK] = 2.0 * np.arctan2(num, den)
+    return out
 
 
 def mobius(x, a) -> np.ndarray:

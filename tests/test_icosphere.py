@@ -255,3 +255,23 @@ def test_subdivided_half_edges_match_a_sort(level):
     key = he.edges[:, 0] * ico.n_vertices + he.edges[:, 1]
     assert (he.edges[:, 0] < he.edges[:, 1]).all() and (np.diff(key) > 0).all()
     assert np.array_equal(he.edges[he.edge], np.sort(np.column_stack([he.tail, he.head]), axis=1))
+
+
+def test_spherical_triangle_areas_of_a_grid_are_blocked_without_changing_a_bit():
+    """Over more triangles than one block, ``triangle_areas`` gives each triangle the value of
+    the whole-array formula to the bit; a grid's areas are positive and sum to 4π, and its
+    vertex areas (a third of each incident triangle's) too."""
+    from surfidx.spherical import _BLOCK, triangle_areas
+
+    ico = icosphere(6)
+    pts, tri = ico.vertices, ico.faces
+    assert len(tri) > _BLOCK
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = 1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \
+        + np.einsum("ij,ij->i", c, a)
+    whole = 2.0 * np.arctan2(num, den)
+    area = triangle_areas(pts, tri)
+    assert np.array_equal(area, whole)
+    assert area.min() > 0 and area.sum() == pytest.approx(4 * np.pi, rel=1e-12)
+    assert ico.vertex_areas().sum() == pytest.approx(4 * np.pi, rel=1e-12)
