@@ -162,11 +162,11 @@ class _Hull:
         tri, n = self.tri, self.n
         mv = np.flatnonzero(moved)
         if self._of is None or self._of[0] is not x or self._of[1] is not tri:
-            # circumcircles and a KD-tree of the current map, reused while it stays current
-            self._of, self._caps, self._tree, self._keys = (x, tri), _circumcaps(x, tri), \
-                cKDTree(x), None
-            self._centres = None
-        (centre, radius), tree = self._caps, self._tree
+            # circumcircles of the current map, reused while it stays current (and, built when
+            # a few moved vertices first ask, KD-trees of its points and of the centres)
+            self._of, self._caps, self._keys = (x, tri), _circumcaps(x, tri), None
+            self._tree = self._centres = None
+        centre, radius = self._caps
         few = len(mv) <= _FEW_MOVED
 
         def chords(c):
@@ -211,7 +211,9 @@ class _Hull:
             return (idx[:, None, :] == local[:, :, None]).any(axis=1)
 
         if few:
-            dist, idx = tree.query(centre, k=len(mv) + 4)
+            if self._tree is None:
+                self._tree = cKDTree(x)
+            dist, idx = self._tree.query(centre, k=len(mv) + 4)
             dist = np.where(moved[idx] | corners(idx), np.inf, dist)
             chord = np.where(corners(mv[None, :]), np.inf, chords(centre))
             nearest = np.minimum(dist.min(axis=1), chord.min(axis=1))
