@@ -75,6 +75,7 @@ STAGES = (
     ("surfidx.sphere.quality", "_area_distortion", "map.quality"),
     ("surfidx.sphere.quality", "_sparse_sampling", "map.quality"),
     ("surfidx.resample", "resample", "resample"),
+    ("surfidx.resample", "locate_surfels", "resample"),
     ("surfidx.klt", "KLT.fit", "klt"),
     ("surfidx.wavelets", "forward", "wavelets"),
     ("surfidx.wavelets", "forward_anchored", "wavelets"),

@@ -204,7 +204,9 @@ class Encoder:
         self.level = sphere_map.grid_level if level is None else level
         t0 = time.perf_counter()
         report(progress, "resample", 0, 1)
-        location = locate_surfels(surfels, sphere_map.points, self.level)
+        location = sphere_map.location(self.level)
+        if location is None:
+            location = locate_surfels(surfels, sphere_map.points, self.level)
         grid = resample(surfels, sphere_map.points, self.level, color=self.color,
                         location=location)
         self.grid = grid

@@ -59,8 +59,8 @@ def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map):
     from surfidx.sphere._repair import repair
 
     s, f, x = tube_map
-    x1, (r1,) = repair(x, s, options=MapOptions(second_pass=False, realise=False), mesh=f)
-    x2, (r2,) = repair(x, s, options=MapOptions(realise=False), mesh=f)
+    x1, (r1,), _ = repair(x, s, options=MapOptions(second_pass=False, realise=False), mesh=f)
+    x2, (r2,), located = repair(x, s, options=MapOptions(realise=False), mesh=f)
     assert r1 == ("repair", dict(r1[1], second_pass=0))
     assert _folds(s, x2) <= _folds(s, x1)
     assert r2[1]["folds_repaired"] >= r1[1]["folds_repaired"]

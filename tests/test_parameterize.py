@@ -1,9 +1,13 @@
 """Spherical parameterization: no folds, canonical up to rotation, clear topology errors."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_surfels
+from surfidx.codec import Encoder
+from surfidx.resample import locate_surfels
 from surfidx.sphere import (METHODS, MapOptions, SphericalMap, area_distortion, count_folds,
                             hull_triangles, parameterize, sparse_sampling)
 
@@ -287,6 +291,10 @@ def test_resampling_check_refuses_a_map_that_resamples_worse(models):
     i = rng.choice(len(x), len(x) // 50, replace=False)
     y[i] = y[rng.permutation(i)]
     assert not check(y)
+    # where the grid lies is kept for the last map taken (an equal copy is another map)
+    assert check.location_of(y) is None and check.location_of(x.copy()) is None
+    kept, fresh = check.location_of(x), locate_surfels(s, x, check.level)
+    assert all(np.array_equal(a, b) for a, b in zip(kept, fresh))
 
 
 def test_realisation_removes_the_folds_the_repair_leaves_on_homer(models):
@@ -302,6 +310,15 @@ def test_realisation_removes_the_folds_the_repair_leaves_on_homer(models):
     assert count_folds(s, m.points)[0] == 0          # counted afresh from the points
     tri = map_triangles(s, m.points)
     assert np.array_equal(tri, np.asarray(s.faces))
+    # the check located the grid in the realised map; the codec takes that location, and
+    # codes the same bytes as when it locates the grid itself
+    level, location = m.located
+    assert m.location(level) is location and m.location(level + 1) is None
+    assert all(np.array_equal(a, b) for a, b in zip(location, locate_surfels(s, m.points, level)))
+    bare = dataclasses.replace(m, located=None)
+    assert bare.location(level) is None
+    one, other = (Encoder(s, sphere_map=mm, level=level).encode(8.0) for mm in (m, bare))
+    assert one == other
 
 
 def test_multilevel_map_has_levels_down_to_a_small_base():

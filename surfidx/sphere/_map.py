@@ -5,7 +5,7 @@ records of the stages that ran."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Mapping
 
@@ -80,6 +80,11 @@ class SphericalMap:
         :func:`surfidx.sphere.sparse_sampling` of the map: how densely an even grid on the sphere samples the
         sparsest-mapped surfels, relative to their count (1 for an even map); it sets the grid
         level with the surfel count (:func:`surfidx.icosphere.choose_level`).
+    located : tuple or None
+        ``(level, location)``: where the vertices of the level-``level`` grid lie in the map
+        (:func:`surfidx.resample.locate_surfels` of these points), when the fold realisation's
+        check found that already; :meth:`location` hands it on, so the codec does not locate
+        the grid twice.
     """
 
     points: np.ndarray
@@ -91,6 +96,14 @@ class SphericalMap:
     seconds: float
     stages: tuple = ()
     sparse_sampling: float = 1.0
+    located: tuple | None = field(default=None, repr=False, compare=False)
+
+    def location(self, level: int):
+        """:func:`surfidx.resample.locate_surfels` of this map at grid level ``level`` when it is
+        known already (:attr:`located`), else None."""
+        if self.located is not None and self.located[0] == level:
+            return self.located[1]
+        return None
 
     @property
     def grid_level(self) -> int:
@@ -208,18 +221,18 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
                                           **route)
         stages = [_route_stage(figures, fallback)]
         report(progress, "repair", 0, 1)
-        pts, repaired = repair(pts, surfels, options=options, mesh=f)
+        pts, repaired, located = repair(pts, surfels, options=options, mesh=f)
     elif method == "tutte":
         pts, figures, fallback, proxy = cloud_map(surfels, options=options, **route)
         stages = [Stage.of("proxy", proxy), _route_stage(figures, fallback)]
         report(progress, "repair", 0, 1)
-        pts, repaired = repair(pts, surfels, options=options)
+        pts, repaired, located = repair(pts, surfels, options=options)
     else:
         if has_faces(surfels):
             oriented_faces(surfels)  # topology check before mapping
         pts, figures, lm, dist = mds_map(surfels, options=options, landmarks=landmarks,
                                          seed=seed, maxiter=max(10 * iterations, 10))
-        stages, repaired = [Stage.of("mds", figures)], []
+        stages, repaired, located = [Stage.of("mds", figures)], [], None
     stages += [Stage.of(name, figs) for name, figs in repaired]
     seconds = time.perf_counter() - t0
     report(progress, "figures", 0, 1)
@@ -243,4 +256,5 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
             lm, dist = geodesics(surfels, min(landmarks, len(surfels)), seed)
         st = landmark_stress(pts, lm, dist)
     report(progress, "figures", 1, 1)
-    return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse)
+    return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse,
+                        located)

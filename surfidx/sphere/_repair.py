@@ -23,7 +23,7 @@ import numpy as np
 from .._tolerance import TOL
 from ..icosphere import choose_level
 from ..metrics import Reference
-from ..resample import grid_to_surfels, resample
+from ..resample import grid_to_surfels, locate_surfels, resample
 from ..spherical import folded_mask, hull_triangles
 from ..surfels import SurfelSet
 from ._circlepattern import lower_folds
@@ -37,11 +37,12 @@ __all__ = ["repair", "ResamplingCheck"]
 def repair(x, surfels: SurfelSet, *, options: MapOptions, mesh=None):
     """The three stages on the map ``x``; ``mesh`` (faces) is kept embedded.
 
-    Returns the map and a list of ``(stage name, figures)``: ``"repair"`` (``folds_repaired``
+    Returns the map, a list of ``(stage name, figures)``: ``"repair"`` (``folds_repaired``
     by both passes, ``repair_rounds``, ``second_pass`` the folds the second pass removed) and,
     when it ran, ``"realise"`` (``folds_realised``, ``realise_rounds``, ``realise_refused``,
-    ``realise_annealed``). Empty for a point cloud whose triangulation has no folded triangle,
-    or only folded ones."""
+    ``realise_annealed``), empty for a point cloud whose triangulation has no folded triangle
+    or only folded ones; and, when the realisation's check located the grid in the returned
+    map, ``(level, location)`` (:func:`surfidx.resample.locate_surfels`), else None."""
     p, normals = surfels.positions, surfels.normals
 
     def unfolded(x):
@@ -53,7 +54,7 @@ def repair(x, surfels: SurfelSet, *, options: MapOptions, mesh=None):
     if mesh is None:
         bad, faces = unfolded(x)
         if not bad.any() or bad.all():
-            return x, []
+            return x, [], None
     x, first = repair_folds(x, p, normals, faces, options=options)
     figures = {"folds_repaired": first["folds_before"] - first["folds"],
                "repair_rounds": first["rounds"], "second_pass": 0}
@@ -64,14 +65,17 @@ def repair(x, surfels: SurfelSet, *, options: MapOptions, mesh=None):
         figures["second_pass"] = second["folds_before"] - second["folds"]
         figures["folds_repaired"] += figures["second_pass"]
         folds = second["folds"]
+    located = None
     if folds and options.realise:
-        x, real = lower_folds(x, p, normals, accept=ResamplingCheck(surfels, x),
-                              options=options)
+        check = ResamplingCheck(surfels, x)
+        x, real = lower_folds(x, p, normals, accept=check, options=options)
         stages.append(("realise", {"folds_realised": real["folds_before"] - real["folds"],
                                    "realise_rounds": real["rounds"],
                                    "realise_refused": real["refused"],
                                    "realise_annealed": real["annealed"]}))
-    return x, stages
+        location = check.location_of(x)
+        located = None if location is None else (check.level, location)
+    return x, stages, located
 
 
 class ResamplingCheck:
@@ -80,20 +84,36 @@ class ResamplingCheck:
     surfels) is at most ``TOL.realise_loss`` dB below that of ``x``.
 
     What a realisation costs shows only in the resampling: it changes the scale of whole limbs,
-    and how far the points crowd is a poor predictor of that cost."""
+    and how far the points crowd is a poor predictor of that cost.
+
+    It keeps where the grid lies in the last map it took (``x``, then each accepted
+    realisation), which the final map's resampling can reuse (:meth:`location_of`)."""
 
     def __init__(self, surfels: SurfelSet, x):
         self.surfels = surfels
         self.reference = Reference(surfels)
         self.level = choose_level(len(surfels), sparse_sampling=sparse_sampling(surfels, x))
-        self.floor = self.psnr(x) - TOL.realise_loss
+        grid, location = self._grid(x)
+        self.floor = self.reference.psnr_d2(grid) - TOL.realise_loss
+        self._taken = (x, location)
 
-    def _grid(self, x) -> SurfelSet:
-        return grid_to_surfels(resample(self.surfels, x, self.level, color=False))
+    def _grid(self, x) -> tuple[SurfelSet, tuple]:
+        location = locate_surfels(self.surfels, x, self.level)
+        grid = resample(self.surfels, x, self.level, color=False, location=location)
+        return grid_to_surfels(grid), location
 
     def psnr(self, x) -> float:
         """Infinite-rate PSNR_D2 (dB) of the map ``x`` resampled at :attr:`level`."""
-        return self.reference.psnr_d2(self._grid(x))
+        return self.reference.psnr_d2(self._grid(x)[0])
+
+    def location_of(self, x):
+        """:func:`surfidx.resample.locate_surfels` of the map ``x`` at :attr:`level` when ``x``
+        is the last map this check took (the same array object), else None."""
+        return self._taken[1] if self._taken[0] is x else None
 
     def __call__(self, y) -> bool:
-        return self.reference.psnr_d2_at_least(self._grid(y), self.floor)
+        grid, location = self._grid(y)
+        if not self.reference.psnr_d2_at_least(grid, self.floor):
+            return False
+        self._taken = (y, location)
+        return True
