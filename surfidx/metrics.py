@@ -55,13 +55,9 @@ class _Pairs:
     """
 
     def __init__(self, reference: SurfelSet, test: SurfelSet):
-        from scipy.spatial import cKDTree
-
         self.reference, self.test = reference, test
-        ref_tree = cKDTree(reference.positions)
-        test_tree = cKDTree(test.positions)
-        self.d_fwd, self.i_fwd = ref_tree.query(test.positions, k=1, workers=-1)
-        self.d_bwd, self.i_bwd = test_tree.query(reference.positions, k=1, workers=-1)
+        self.d_fwd, self.i_fwd = _nearest(_tree(reference), test.positions)
+        self.d_bwd, self.i_bwd = _nearest(_tree(test), reference.positions)
 
     def mse_d1(self) -> float:
         return max(float(np.mean(self.d_fwd ** 2)), float(np.mean(self.d_bwd ** 2)))
@@ -78,6 +74,19 @@ class _Pairs:
 
     def max_distance(self) -> float:
         return max(float(self.d_fwd.max()), float(self.d_bwd.max()))
+
+
+def _tree(s: SurfelSet):
+    """The KD-tree of a set's positions."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(s.positions)
+
+
+def _nearest(tree, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance ``(q,)`` and index ``(q,)`` of the point of ``tree`` nearest each of ``points``
+    ``(q, 3)`` (queried on all cores: the answers do not depend on their number)."""
+    return tree.query(points, k=1, workers=-1)
 
 
 def _mse_d2(probed: SurfelSet, searched: SurfelSet, found: np.ndarray) -> float:
@@ -311,12 +320,10 @@ class Reference:
     """
 
     def __init__(self, reference: SurfelSet, *, peak: float | None = None):
-        from scipy.spatial import cKDTree
-
         _check_set("reference", reference)
         self.surfels = reference
         self.peak = _peak(reference, peak)
-        self._tree = cKDTree(reference.positions)
+        self._tree = _tree(reference)
         self._directions = [self._probed, self._searched]   # the last to fail a floor first
 
     def _probed(self, test: SurfelSet, limit: float = math.inf) -> float:
@@ -331,7 +338,7 @@ class Reference:
         errors, total = [], 0.0
         for start in range(0, len(pos), _BLOCK):
             block = pos[start:start + _BLOCK]
-            found = self._tree.query(block, k=1, workers=-1)[1]
+            found = _nearest(self._tree, block)[1]
             err = _plane_errors(block, self.surfels.positions[found], self.surfels.normals[found])
             total += float(err.sum())
             if total > budget:
@@ -342,9 +349,7 @@ class Reference:
     def _searched(self, test: SurfelSet, limit: float = math.inf) -> float:
         """D2 MSE of the reference points against the test set (the test set searched; the
         test set's tree is the cost, so ``limit`` stops nothing early)."""
-        from scipy.spatial import cKDTree
-
-        found = cKDTree(test.positions).query(self.surfels.positions, k=1, workers=-1)[1]
+        found = _nearest(_tree(test), self.surfels.positions)[1]
         return _mse_d2(self.surfels, test, found)
 
     def psnr_d2(self, test: SurfelSet) -> float:
