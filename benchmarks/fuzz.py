@@ -163,16 +163,16 @@ def file_seeds() -> list[tuple[str, dict]]:
 
 def stream_seeds() -> list[bytes]:
     """Valid ``.sfz`` streams of a coloured level-3 icosphere (about 0.2-2 KB each)."""
-    from types import SimpleNamespace
-
     from surfidx import TriangleMesh
     from surfidx.codec import Encoder
+    from surfidx.sphere import SphericalMap
 
     v, f = _icosphere(3)
     p = v * (1 + 0.2 * v[:, [0]] ** 2)
     col = np.clip((v + 1) * 127, 0, 255)
     # the deformed sphere's map is the sphere it came from: no need to compute one
-    sphere_map = SimpleNamespace(points=v, sparse_sampling=1.0, method="tutte", folded=0)
+    sphere_map = SphericalMap(v, "tutte", folded=0, triangles=len(f), landmark_stress=np.nan,
+                              area_distortion=0.0, seconds=0.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         s = TriangleMesh(p, f, vertex_colors=col, name="seed").to_surfels()
