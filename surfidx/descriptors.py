@@ -212,13 +212,15 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     phi = np.arctan2(y[:, 1], y[:, 0])
     shell = np.minimum((r / SHELL_RMAX * SHELLS).astype(np.int64), SHELLS - 1)
     out = np.zeros((SHELLS, SHELL_LMAX + 1))
+    cos = [np.cos(m * phi) for m in range(SHELL_LMAX + 1)]     # each order's, for every degree
+    sin = [np.sin(m * phi) for m in range(SHELL_LMAX + 1)]
     for l in range(SHELL_LMAX + 1):
         for m in range(l + 1):
             wy = w * sph_harm_y(l, m, theta, 0.0).real
-            c = np.bincount(shell, weights=wy * np.cos(m * phi), minlength=SHELLS)
+            c = np.bincount(shell, weights=wy * cos[m], minlength=SHELLS)
             c2 = c ** 2
             if m:
-                c = np.bincount(shell, weights=wy * np.sin(m * phi), minlength=SHELLS)
+                c = np.bincount(shell, weights=wy * sin[m], minlength=SHELLS)
                 c2 = 2.0 * (c2 + c ** 2)
             out[:, l] += c2
     damp = np.exp(-np.arange(SHELL_LMAX + 1) * np.arange(1, SHELL_LMAX + 2) / (4 * SHELL_KAPPA))
