@@ -100,7 +100,7 @@ def _collector_paused():
     """Python's cyclic garbage collector paused for the block (restored as it was). The flip
     searches build a few hundred thousand tuples, lists and dict entries that live until the
     search ends and form no cycles: the collector would only walk them again and again as they
-    grow (a third of a triangulation's set-up, and 2.3 s of scorpion's fold realisation)."""
+    grow."""
     was = gc.isenabled()
     gc.disable()
     try:
