@@ -43,7 +43,7 @@ _COLOR_PEAK = 255.0
 
 # Points per KD query block of Reference._probed: large enough that a block's query overhead is
 # small, small enough that a test set far below a floor stops after a few blocks.
-_BLOCK = 1 << 17
+_PROBE_BLOCK = 1 << 17
 
 
 # ---------------------------------------------------------------------- kernels (private)
@@ -329,15 +329,15 @@ class Reference:
     def _probed(self, test: SurfelSet, limit: float = math.inf) -> float:
         """D2 MSE of the test points against the reference (the reference searched).
 
-        The points go in blocks of :data:`_BLOCK`; once the errors summed so far exceed
+        The points go in blocks of :data:`_PROBE_BLOCK`; once the errors summed so far exceed
         ``limit`` times the point count (with a margin far above rounding), the MSE exceeds
         ``limit`` whatever the rest add, and ``inf`` is returned. Otherwise the errors are those
         of one query of all points, so the MSE is the same to the bit."""
         pos = test.positions
         budget = limit * len(pos) * (1.0 + 1e-9)
         errors, total = [], 0.0
-        for start in range(0, len(pos), _BLOCK):
-            block = pos[start:start + _BLOCK]
+        for start in range(0, len(pos), _PROBE_BLOCK):
+            block = pos[start:start + _PROBE_BLOCK]
             found = _nearest(self._tree, block)[1]
             err = _plane_errors(block, self.surfels.positions[found], self.surfels.normals[found])
             total += float(err.sum())
