@@ -97,10 +97,10 @@ _SPACING_NEIGHBOURS = 6
 
 @contextlib.contextmanager
 def _collector_paused():
-    """Python's cyclic garbage collector paused for the block (restored as it was). The flip
-    searches build a few hundred thousand tuples, lists and dict entries that live until the
-    search ends and form no cycles: the collector would only walk them again and again as they
-    grow."""
+    """Python's cyclic garbage collector paused for the block or the decorated function
+    (restored as it was). The flip searches build a few hundred thousand tuples, lists and dict
+    entries that live until the search ends and form no cycles: the collector would only walk
+    them again and again as they grow."""
     was = gc.isenabled()
     gc.disable()
     try:
@@ -247,6 +247,7 @@ class _Flips:
         return False
 
 
+@_collector_paused()
 def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool = False,
                max_violation: float = np.inf):
     """Edge flips of a spherical triangulation that lower its count of folded triangles.
@@ -278,16 +279,16 @@ def flip_folds(tri, p, normals, x, *, rounds: int = _FLIP_ROUNDS, convex: bool =
     folds : int
         Its folded triangles.
     """
-    with _collector_paused():
-        state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
-        for _ in range(rounds):
-            todo = sorted(state.folded)
-            changed = sum(state.mend(i) for i in todo if state.bad[i])
-            if not changed:
-                break
-        return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
+    state = _Flips.of(tri, p, normals, x, convex=convex, max_violation=max_violation)
+    for _ in range(rounds):
+        todo = sorted(state.folded)
+        changed = sum(state.mend(i) for i in todo if state.bad[i])
+        if not changed:
+            break
+    return np.array(state.tri, dtype=np.int64), int(sum(state.bad))
 
 
+@_collector_paused()
 def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_steps,
                  temperature: float = DEFAULT_OPTIONS.anneal_temperature, seed: int = 0):
     """Random edge flips around the folded triangles, kept by the Metropolis rule: the
@@ -321,13 +322,7 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
     """
     if not temperature > 0:
         raise ValueError(f"temperature must be positive, got {temperature!r}")
-    with _collector_paused():
-        return _anneal(tri, p, normals, x, int(steps), temperature,
-                       np.random.default_rng(seed))
-
-
-def _anneal(tri, p, normals, x, steps, temperature, rng):
-    """:func:`anneal_flips`' search."""
+    rng = np.random.default_rng(seed)
     state = _Flips.of(tri, p, normals, x)
     folds = best = int(sum(state.bad))
     found = []
