@@ -25,9 +25,9 @@ __all__ = ["hull_triangles", "unit_vectors", "map_points", "orientation", "corne
            "against_normals", "mirrored", "folded_mask", "triangle_areas", "mobius",
            "smallest_first"]
 
-# Rows per block of the per-triangle kernels below: their temporaries then stay in cache and
-# are reused, where whole-array temporaries of a fine grid (5M triangles at level 9) cost more
-# in fresh pages than in arithmetic. Each row's result does not depend on the blocking.
+# Rows per block of triangle_areas: its temporaries then stay in cache and are reused, where
+# whole-array temporaries of a fine grid (5M triangles at level 9) cost more in fresh pages than
+# in arithmetic. Each row's result does not depend on the blocking.
 _BLOCK = 1 << 16
 
 
