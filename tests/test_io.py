@@ -189,6 +189,32 @@ def test_point_cloud_gets_outward_normals(tmp_path, sphere_surfels):
     assert np.all(s.radii > 0)
 
 
+@pytest.mark.parametrize("quads", [False, True])
+def test_binary_ply_faces_read_alike_as_triangles_or_as_lists(tmp_path, quads):
+    """All-triangle faces take plyfile's one-array path, a file with a quad its row-by-row
+    one: both give the mesh's triangles in the file's order."""
+    from plyfile import PlyElement
+
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(2)
+    rows = [list(t) for t in f]
+    tris = np.asarray(f, dtype=np.int64)
+    if quads:       # a quad in place of the first two triangles, read as its fan 0-1-2, 0-2-3
+        rows = [[0, 1, 2, 3]] + rows[2:]
+        tris = np.concatenate([[[0, 1, 2], [0, 2, 3]], tris[2:]])
+    vert = np.array([tuple(x) for x in v], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    face = np.empty(len(rows), dtype=[("vertex_indices", "i4", (len(rows[0]),))]) \
+        if not quads else np.array([(r,) for r in rows], dtype=[("vertex_indices", "O")])
+    if not quads:
+        face["vertex_indices"] = rows
+    path = tmp_path / "m.ply"
+    PlyData([PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")]).write(
+        str(path))
+    mesh = read_mesh(path)
+    np.testing.assert_array_equal(mesh.faces, tris)
+
+
 def test_point_cloud_mixed_orientation_is_made_consistent():
     from surfidx import points_to_surfels
     from surfidx.pointcloud import estimate_normals, orient_normals
