@@ -20,10 +20,13 @@ repaired) are listed apart.
 
 Run::
 
-    python benchmarks/profile.py [--set examples shared retrieval] [--workers 2] [--limit N]
+    python benchmarks/profile.py [--set examples shared retrieval] [--workers 1] [--limit N]
         [--per-model] [--json out.json]
 
-Workers are warmed up first (imports, numba caches) on the smallest example model.
+Workers are warmed up first (imports, numba caches) on the smallest example model. One worker
+(the default) measures each model on an otherwise idle machine, as the per-model targets are
+stated. Workers on all cores share the caches and the memory bandwidth: each model then costs
+more CPU time, the largest maps most (the README gives both figures).
 
 ``--mode query`` times :func:`surfidx.pipeline.describe_model` instead: what ``surfidx query
 FILE`` computes for its example (read, map, resample, describe; nothing coded or decoded).
@@ -225,7 +228,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", nargs="+", default=["examples", "shared", "retrieval"],
                     choices=["examples", "shared", "retrieval"])
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=1,
+                    help="worker processes (1: each model has the machine to itself)")
     ap.add_argument("--limit", type=int, default=None, help="first N models of each set")
     ap.add_argument("--per-model", action="store_true", help="print a line per model")
     ap.add_argument("--json", type=Path, default=None)
