@@ -206,3 +206,33 @@ def test_untangle_of_folds_everywhere_moves_the_whole_map():
     x2, info = untangle(noisy, p, f)
     assert "patch" not in info and info["min_det"] > 0
     assert np.all(_orientation(x2, f) > 0)
+
+
+def test_untangle_never_returns_more_inverted_triangles_than_it_was_given(monkeypatch):
+    """On the coarsest level (64 vertices) of a cut and capped torus, the whole-map untangling
+    shrinks the Tutte map with its one inverted triangle toward a point (every triangle then
+    degenerate): the map as given is returned instead, the coarser levels carry it on, and the
+    map needs no second try at another coarsest level (and takes no log of 0/0 on the way)."""
+    import warnings
+
+    import surfidx.sphere._tutte as tutte_module
+    from conftest import torus_mesh
+    from surfidx.sphere import parameterize
+    from surfidx.topology import close_surface
+    from surfidx.topology._restore import closed_surfels
+
+    calls = []
+
+    def spy(x, p, f, **kw):
+        y, info = untangle(x, p, f, **kw)
+        calls.append((int(np.count_nonzero(_Energy(p, f).dets(x) <= 0)), info["inverted"]))
+        return y, info
+
+    monkeypatch.setattr(tutte_module, "untangle", spy)
+    s, _ = closed_surfels(close_surface(*torus_mesh(nu=64, nv=24)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        figures = parameterize(s, stress=False).figures()
+    assert calls == [(1, 1)]                   # the coarsest level's map kept as it was given
+    assert figures["retries"] == 0 and figures["base_vertices"] == 64
+    assert figures["folded"] == 0

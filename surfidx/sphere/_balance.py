@@ -335,8 +335,13 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
         if done > 0:
             y[free] = z
             return _untangled(energy, y, rounds=done, patch=rings)
-    y, done = _untangle_rounds(energy, y, **options)
-    return _untangled(energy, y, rounds=abs(done))
+    start = int(np.count_nonzero(energy.dets(y) <= 0))
+    z, done = _untangle_rounds(energy, y, **options)
+    if np.count_nonzero(energy.dets(z) <= 0) > start:
+        # the map shrank toward a point (nothing on the sphere holds its scale): the map as
+        # given, with its few inverted triangles, is the better one
+        return _untangled(energy, y, rounds=abs(done))
+    return _untangled(energy, z, rounds=abs(done))
 
 
 def _untangled(energy, y, **info):
