@@ -319,7 +319,8 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     energy = _Energy(p, f)
     energy.lam = float(lam)
     y = np.array(x, dtype=np.float64)
-    mindet = energy.min_det(y)
+    dets = energy.dets(y)
+    mindet = float(dets.min())
     if mindet > (_DET_GOAL if lift else 0.0):
         return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
     options = dict(rounds=rounds, inner=inner, memory=memory,
@@ -335,13 +336,13 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
         if done > 0:
             y[free] = z
             return _untangled(energy, y, rounds=done, patch=rings)
-    start = int(np.count_nonzero(energy.dets(y) <= 0))
     z, done = _untangle_rounds(energy, y, **options)
-    if np.count_nonzero(energy.dets(z) <= 0) > start:
+    out = _untangled(energy, z, rounds=abs(done))
+    if out[1]["inverted"] > np.count_nonzero(dets <= 0):
         # the map shrank toward a point (nothing on the sphere holds its scale): the map as
         # given, with its few inverted triangles, is the better one
         return _untangled(energy, y, rounds=abs(done))
-    return _untangled(energy, z, rounds=abs(done))
+    return out
 
 
 def _untangled(energy, y, **info):
