@@ -9,7 +9,7 @@ surfidx's decoded surfels:
   uses the normals of the set searched, so the test-to-reference direction of D2 needs normals on
   Draco's points; borrowing the input's is the most favourable choice for Draco (an oracle it would
   not have at the decoder), so D2 never penalises Draco for missing normals.
-* **radii**: from the decoded points' spacing (:func:`surfidx.mesh.spacing_radii`, distance to the
+* **radii**: from the decoded points' spacing (:func:`surfidx.geometry.mesh.spacing_radii`, distance to the
   6th nearest neighbour); no metric uses them.
 
 The timings cover ``DracoPy.encode`` / ``DracoPy.decode`` only, not this evaluation bookkeeping.
@@ -27,8 +27,8 @@ import time
 
 import numpy as np
 
-from surfidx.mesh import spacing_radii
-from surfidx.surfels import SurfelSet
+from surfidx.geometry.mesh import spacing_radii
+from surfidx.geometry.surfels import SurfelSet
 
 __all__ = ["DEFAULT_BITS", "DEFAULT_LEVEL", "draco_encode", "draco_decode", "draco_point"]
 

@@ -28,7 +28,9 @@ import time
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -46,7 +48,7 @@ def run(name: str, root: Path = COLLECTION) -> dict:
 
     from surfidx import SurfidxError, codec
     from surfidx.io import read_surfels
-    from surfidx.metrics import psnr_d2
+    from surfidx.geometry.metrics import psnr_d2
 
     try:
         s = read_surfels(root / name).without_color()

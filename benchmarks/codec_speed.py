@@ -29,10 +29,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import surfidx.codec as codec  # noqa: E402
-from surfidx import density, wavelets  # noqa: E402
+from surfidx.codec import density, wavelets  # noqa: E402
 from surfidx.codec import PartsEncoder, decode, decode_grid  # noqa: E402
 from surfidx.io import read_model  # noqa: E402
-from surfidx.klt import KLT  # noqa: E402
+from surfidx.codec.klt import KLT  # noqa: E402
 from surfidx.pipeline import content_hash  # noqa: E402
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "models" / "igea.ply"

@@ -29,12 +29,14 @@ import warnings
 from pathlib import Path
 
 from surfidx import codec
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 from surfidx.io import read_mesh
-from surfidx.mesh import TriangleMesh
-from surfidx.metrics import evaluate
+from surfidx.geometry.mesh import TriangleMesh
+from surfidx.geometry.metrics import evaluate
 from surfidx.sphere import parameterize
 
 REPO = Path(__file__).resolve().parents[1]

@@ -37,7 +37,9 @@ import warnings
 import zlib
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 OUTCOMES = ("ok", "clean error", "crash", "hang", "memory kill")

@@ -28,13 +28,15 @@ import time
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 from surfidx import TriangleMesh, read_surfels
-from surfidx.geodesics import GeodesicSolver
-from surfidx.icosphere import icosphere
-from surfidx.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
+from surfidx.geometry.geodesics import GeodesicSolver
+from surfidx.geometry.icosphere import icosphere
+from surfidx.geometry.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 MODELS = {

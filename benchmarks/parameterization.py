@@ -3,7 +3,7 @@
 For every closed genus-0 model and each method (default ``tutte`` and the original ``mds``):
 fold fraction of the spherical Delaunay triangulation, normalised landmark stress, area
 distortion (RMS of log area ratio), infinite-rate PSNR D1/D2 of the uncompressed grid
-reconstruction at the default level (:func:`surfidx.icosphere.choose_level`) against the input,
+reconstruction at the default level (:func:`surfidx.geometry.icosphere.choose_level`) against the input,
 coverage holes (share of input surfels with no reconstructed surfel within twice the mean
 spacing) and time. Prints a table; the last column says whether the issue's targets (folds
 ≤ 0.01 %, holes ≤ 0.5 %, PSNR_D2 ≥ 70 dB) are met.
@@ -27,15 +27,17 @@ import time
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 from scipy.spatial import cKDTree
 
 import surfidx
-from surfidx.icosphere import choose_level
-from surfidx.metrics import evaluate
+from surfidx.geometry.icosphere import choose_level
+from surfidx.geometry.metrics import evaluate
 from surfidx.sphere import parameterize
-from surfidx.resample import grid_to_surfels, resample
+from surfidx.codec.resample import grid_to_surfels, resample
 
 MODELS = ["igea.ply", "bunny_hr.obj", "horse.ply", "armadillo.obj", "nefertiti.obj", "koala.obj",
           "scorpion.obj", "falconstatue.obj", "homer.obj", "spot/spot_triangulated.obj",

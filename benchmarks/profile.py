@@ -50,7 +50,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,34 +64,34 @@ SHARED = ROOT.parent / "shared" / "data"
 STAGES = (
     ("surfidx.io", "read_surfels", "read"),
     ("surfidx.io", "read_model", "read"),
-    ("surfidx.graph", "sphere_of_influence_graph", "graph"),
-    ("surfidx.geodesics", "GeodesicSolver.__init__", "geodesics"),
-    ("surfidx.sphere._multilevel", "mesh_map", "map.multilevel"),
-    ("surfidx.sphere._decimate", "decimate", "map.decimate"),
-    ("surfidx.sphere._tutte", "tutte_map", "map.tutte"),
-    ("surfidx.sphere._balance", "balance", "map.balance"),
-    ("surfidx.sphere._balance", "untangle", "map.untangle"),
-    ("surfidx.sphere._cloud", "cloud_map", "map.proxy"),
+    ("surfidx.geometry.graph", "sphere_of_influence_graph", "graph"),
+    ("surfidx.geometry.geodesics", "GeodesicSolver.__init__", "geodesics"),
+    ("surfidx.sphere.multilevel", "mesh_map", "map.multilevel"),
+    ("surfidx.sphere.decimate", "decimate", "map.decimate"),
+    ("surfidx.sphere.tutte", "tutte_map", "map.tutte"),
+    ("surfidx.sphere.balance", "balance", "map.balance"),
+    ("surfidx.sphere.balance", "untangle", "map.untangle"),
+    ("surfidx.sphere.cloud", "cloud_map", "map.proxy"),
     ("surfidx.sphere.proxy", "proxy_mesh", "map.proxy"),
-    ("surfidx.sphere._repair", "repair", "map.repair"),
-    ("surfidx.sphere._foldrepair", "repair_folds", "map.repair"),
-    ("surfidx.sphere._circlepattern", "lower_folds", "map.realise"),
+    ("surfidx.sphere.repair", "repair", "map.repair"),
+    ("surfidx.sphere.foldrepair", "repair_folds", "map.repair"),
+    ("surfidx.sphere.circlepattern", "lower_folds", "map.realise"),
     ("surfidx.sphere.quality", "_count_folds", "map.quality"),
     ("surfidx.sphere.quality", "_area_distortion", "map.quality"),
     ("surfidx.sphere.quality", "_sparse_sampling", "map.quality"),
-    ("surfidx.resample", "resample", "resample"),
-    ("surfidx.resample", "locate_surfels", "resample"),
-    ("surfidx.klt", "KLT.fit", "klt"),
-    ("surfidx.wavelets", "forward", "wavelets"),
-    ("surfidx.wavelets", "forward_anchored", "wavelets"),
-    ("surfidx.wavelets", "choose_anchors", "wavelets"),
-    ("surfidx.density", "weight_field", "density"),
+    ("surfidx.codec.resample", "resample", "resample"),
+    ("surfidx.codec.resample", "locate_surfels", "resample"),
+    ("surfidx.codec.klt", "KLT.fit", "klt"),
+    ("surfidx.codec.wavelets", "forward", "wavelets"),
+    ("surfidx.codec.wavelets", "forward_anchored", "wavelets"),
+    ("surfidx.codec.wavelets", "choose_anchors", "wavelets"),
+    ("surfidx.codec.density", "weight_field", "density"),
     ("surfidx.codec", "Encoder.encode", "coding"),
     ("surfidx.codec", "decode", "decode"),
-    ("surfidx.metrics", "evaluate", "evaluate"),
-    ("surfidx.metrics", "Reference.psnr_d2", "evaluate"),
-    ("surfidx.metrics", "Reference.psnr_d2_at_least", "evaluate"),
-    ("surfidx.descriptors", "describe_grid", "describe"),
+    ("surfidx.geometry.metrics", "evaluate", "evaluate"),
+    ("surfidx.geometry.metrics", "Reference.psnr_d2", "evaluate"),
+    ("surfidx.geometry.metrics", "Reference.psnr_d2_at_least", "evaluate"),
+    ("surfidx.describe.descriptors", "describe_grid", "describe"),
     ("surfidx.render", "render", "thumbnail"),
 )
 

@@ -12,12 +12,14 @@ import time
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 import surfidx
 from surfidx import SurfelSet, TriangleMesh
-from surfidx._errors import SurfidxError
+from surfidx.errors import SurfidxError
 from surfidx.sphere.proxy import closest_points, proxy_mesh
 
 MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"

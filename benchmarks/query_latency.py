@@ -1,14 +1,14 @@
-"""Query-by-example latency and recall of surfidx.search at 10k / 100k / 1M stored models: the
-exact scan beside the approximate index (surfidx.ann), and the candidate libraries side by side.
+"""Query-by-example latency and recall of surfidx.db.search at 10k / 100k / 1M stored models: the
+exact scan beside the approximate index (surfidx.db.ann), and the candidate libraries side by side.
 
 Rows
 ----
 Built from real descriptors: ``--real-npz`` folders of per-model grids cached by
 ``benchmarks/retrieval.py`` (``/tmp/surfidx_retrieval_cache/<key>/*.npz``, the retrieval
-collection; their descriptors are computed with :func:`surfidx.descriptors.describe_grid` and
+collection; their descriptors are computed with :func:`surfidx.describe.descriptors.describe_grid` and
 cached in ``/tmp/surfidx_query_latency_desc``)
 and/or ``--real-db`` databases of ingested models. Every stored kind is generated (``shape``,
-``spectrum``, ``layers``, ``texture``), searched by :data:`surfidx.search.DEFAULT_KINDS`. They are
+``spectrum``, ``layers``, ``texture``), searched by :data:`surfidx.db.search.DEFAULT_KINDS`. They are
 perturbed so that neighbourhoods look like real ones (:class:`Generator`): every row belongs to a
 sub-class whose centre mixes two real models of one class (classes from ``labels.csv`` of the
 retrieval collection; the mixing weight drawn towards the first) plus noise along the real models'
@@ -21,14 +21,14 @@ Modes
 -----
 * default: fills a surfidx database per size by bulk SQL (then ``Database.descriptors_changed``)
   and measures, in one run, ``SearchIndex(db, exact=True)`` (the exact scan), the index build
-  (:func:`surfidx.ann.build`, faiss IVF lists: CPU time, resident memory, size on disk), opening it
-  (:func:`surfidx.ann.open_index`, memory-mapped) and top-10 queries through
-  :meth:`surfidx.ann.AnnIndex.query` (candidates re-ranked on the row copies) for several
+  (:func:`surfidx.db.ann.build`, faiss IVF lists: CPU time, resident memory, size on disk), opening it
+  (:func:`surfidx.db.ann.open_index`, memory-mapped) and top-10 queries through
+  :meth:`surfidx.db.ann.AnnIndex.query` (candidates re-ranked on the row copies) for several
   candidate factors, and through ``SearchIndex(db)`` as it stands (``search`` column); p50/p99
   CPU time of a top-10 query and recall@10 against the exact scan, for shape-only and coloured
   queries.
 * ``--compare``: the same rows in memory, hnswlib, faiss-cpu and usearch HNSW indexes (one
-  thread, connectivity 16) and surfidx.ann's faiss IVF index of the shape vector, each with the
+  thread, connectivity 16) and surfidx.db.ann's faiss IVF index of the shape vector, each with the
   exact re-rank of ``factor * k`` candidates.
 
 Times are ``time.process_time`` (CPU of this process, one thread), so that a shared machine's
@@ -49,11 +49,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
-from surfidx.database import Database, utc_now
-from surfidx.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
+from surfidx.db.catalog import Database, utc_now
+from surfidx.db.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
 
 LABELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval" / "labels.csv"
 COLOUR = "texture"
@@ -79,7 +81,7 @@ def _described(npz: Path, cache: Path):
     """describe_grid vectors of one cached grid (themselves cached per descriptors.py)."""
     import hashlib
 
-    import surfidx.descriptors as sd
+    import surfidx.describe.descriptors as sd
 
     key = hashlib.sha256(Path(sd.__file__).read_bytes()).hexdigest()[:12]
     out = cache / f"{npz.stem}-{key}.npz"
@@ -300,12 +302,12 @@ class _Faiss:
 
 
 class _FaissIvf:
-    """surfidx.ann's index (faiss IVF, 8-bit codes, its list count and seed) in memory,
-    searched with ``surfidx.ann.DEFAULT_PROBES`` lists (``--ef`` is an HNSW setting)."""
+    """surfidx.db.ann's index (faiss IVF, 8-bit codes, its list count and seed) in memory,
+    searched with ``surfidx.db.ann.DEFAULT_PROBES`` lists (``--ef`` is an HNSW setting)."""
     name = "faiss-ivf-sq8"
 
     def build(self, x, ef_add):
-        from surfidx import ann
+        from surfidx.db import ann
         self.ix = ann._new_graph(np.arange(len(x), dtype=np.int64), np.ascontiguousarray(x))
 
     def save(self, path):
@@ -313,7 +315,7 @@ class _FaissIvf:
         faiss.write_index(self.ix, str(path))
 
     def search(self, v, n, ef):
-        from surfidx import ann
+        from surfidx.db import ann
         self.ix.nprobe = ann.DEFAULT_PROBES
         return self.ix.search(np.ascontiguousarray(v, np.float32)[None], n)[1][0].astype(
             np.int64)
@@ -437,7 +439,7 @@ def changes(gen, path, *, k, n_changed, n_queries):
     compare queries through the index (which the writer's close brings up to date) with the
     exact scan: the removed models' old descriptors and the redescribed models' new ones as
     queries, shape-only and coloured."""
-    from surfidx import ann
+    from surfidx.db import ann
 
     rng = np.random.default_rng(7)
     with Database(path, readonly=True) as db:
@@ -489,7 +491,7 @@ def changes(gen, path, *, k, n_changed, n_queries):
 
 
 def end_to_end(gen, m, qs, *, k, tmp, factors, probes=(None,)):
-    from surfidx import ann
+    from surfidx.db import ann
 
     path = Path(tmp) / f"bench{m}.db"
     kinds, color = gen.rows(m)
@@ -563,7 +565,7 @@ def main() -> None:
     ap.add_argument("--ef", type=int, default=64, help="Search expansion (compare mode).")
     ap.add_argument("--probes", type=int, nargs="+", default=None,
                     help="Lists probed in the AnnIndex.query rows (default: "
-                         "surfidx.ann.DEFAULT_PROBES).")
+                         "surfidx.db.ann.DEFAULT_PROBES).")
     ap.add_argument("--cli", type=int, default=0,
                     help="Also time this many `surfidx query id:N` processes per size (from "
                          "the threshold on).")
@@ -597,7 +599,7 @@ def main() -> None:
                     libs=[make[n]() for n in args.libs])
         return
     print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
-          "it stands (surfidx.ann defaults), 'fN/pP' = AnnIndex.query with N*k candidates "
+          "it stands (surfidx.db.ann defaults), 'fN/pP' = AnnIndex.query with N*k candidates "
           "per index (P lists probed) re-ranked on the row copies", flush=True)
     print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
           f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>9} {'p50':>6} "
@@ -618,7 +620,7 @@ def main() -> None:
                       f"{x['p99']:>6.2f} {x['rec_shape']:>6.3f} {x['rec_color']:>7.3f}",
                       flush=True)
             path = Path(tmp) / f"bench{m}.db"
-            from surfidx import ann
+            from surfidx.db import ann
             if args.cli and m >= ann.DEFAULT_THRESHOLD:
                 ids = np.random.default_rng(3).choice(np.arange(1, m + 1), args.cli,
                                                       replace=False)

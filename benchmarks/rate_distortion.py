@@ -6,7 +6,7 @@ map, resampling, KLT, wavelets; its ``setup_seconds`` printed apart) and then en
 (default 0.5, 0.89, 1.39, 2, 3.56, 8 bits/surfel) and decoded with ``surfidx.codec.decode``. Beside
 it, Draco codes the same points at quantisation 6..14 bits (compression level 10, RGB attribute
 when colour is on). Both decoded sets are measured against the input surfels with
-``surfidx.metrics.evaluate``:
+``surfidx.geometry.metrics.evaluate``:
 
 * **rate**: whole file bytes * 8 / input surfels (the container's header and checksums included;
   for Draco ``len(bytes) * 8 / n``);
@@ -58,11 +58,13 @@ import traceback
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 from surfidx.io import read_surfels
-from surfidx.metrics import evaluate
+from surfidx.geometry.metrics import evaluate
 
 from _draco import DEFAULT_BITS, DEFAULT_LEVEL, draco_point
 

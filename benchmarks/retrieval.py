@@ -4,9 +4,9 @@ Data: ``../shared/data/retrieval`` (``labels.csv``: path,class; ``meta.csv``: ge
 ...). Every model goes through the ingest code path up to the descriptors — read
 (:func:`surfidx.read_surfels`) → spherical map (:func:`surfidx.sphere.parameterize`, the
 pipeline's default method, no stress figure) → resampling on the icosahedral grid at
-:func:`surfidx.icosphere.choose_level` (what :class:`surfidx.codec.Encoder` does before coding;
-the coding itself is skipped) → :func:`surfidx.descriptors.describe_grid` →
-:func:`surfidx.descriptors.descriptor_distance`. Models are read by :func:`surfidx.io.read_model`,
+:func:`surfidx.geometry.icosphere.choose_level` (what :class:`surfidx.codec.Encoder` does before coding;
+the coding itself is skipped) → :func:`surfidx.describe.descriptors.describe_grid` →
+:func:`surfidx.describe.descriptors.descriptor_distance`. Models are read by :func:`surfidx.io.read_model`,
 as ingest reads them: a closed genus-0 mesh exactly as :func:`surfidx.read_surfels` reads it, a
 genus > 0 one (18 of the 95) through the topology repair (handles cut, the cut sides capped by
 virtual patches), so the descriptors describe its closed surface. Models that still cannot be
@@ -59,7 +59,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -119,7 +121,7 @@ def file_hash(path: Path) -> str:
 def _load_model(path: Path, variant):
     """The surfels and mesh (vertices, faces) of a model or of its transformed, resampled copy."""
     import surfidx
-    from surfidx.mesh import TriangleMesh
+    from surfidx.geometry.mesh import TriangleMesh
 
     mesh = surfidx.read_mesh(path)
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
@@ -159,9 +161,9 @@ def compute(job: dict) -> dict:
         rec["cached"] = True
         return rec
     import surfidx
-    from surfidx.icosphere import choose_level
+    from surfidx.geometry.icosphere import choose_level
     from surfidx.sphere import parameterize
-    from surfidx.resample import resample
+    from surfidx.codec.resample import resample
 
     path = Path(job["path"])
     t0 = time.perf_counter()
@@ -241,7 +243,7 @@ def read_table(path: Path) -> list[dict]:
 
 
 def describe(rec, lmax):
-    from surfidx.descriptors import describe_grid
+    from surfidx.describe.descriptors import describe_grid
 
     if rec["grid"] is None:
         return None
@@ -250,7 +252,7 @@ def describe(rec, lmax):
 
 def distance_matrix(descs, **kw) -> np.ndarray:
     """(n, n) descriptor_distance between every pair; inf where a descriptor is missing."""
-    from surfidx.descriptors import descriptor_distance
+    from surfidx.describe.descriptors import descriptor_distance
 
     n = len(descs)
     d = np.full((n, n), np.inf)
@@ -275,16 +277,16 @@ share)."""
 STUDY_LOG_EPS = 1e-5
 STUDY_WEIGHTS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 """Weights of the layers part beside the other shape parts (the weight of a part is its median
-distance over 1.15, as ``surfidx.descriptors.SHAPE_PART_WEIGHTS``)."""
+distance over 1.15, as ``surfidx.describe.descriptors.SHAPE_PART_WEIGHTS``)."""
 ALT_SPECTRAL_LEVEL = 6
 """Grid level of the spectral part of descriptor versions 4 and 5 (the study's comparison rows)."""
 
 
 def study_parts(rec):
     """The unscaled shape parts, the KLT spectrum and the layer energies of every study grid."""
-    from surfidx import descriptors as D
-    from surfidx.icosphere import icosphere
-    from surfidx.klt import KLT
+    from surfidx.describe import descriptors as D
+    from surfidx.geometry.icosphere import icosphere
+    from surfidx.codec.klt import KLT
 
     if rec["grid"] is None:
         return None
@@ -357,7 +359,7 @@ def per_query_table(new, old, classes, g0_idx, base_idx, *, label) -> dict:
 
 def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
     """Tables of ``--study``: every kind alone and combined, layer variants, the plateau."""
-    from surfidx import descriptors as D
+    from surfidx.describe import descriptors as D
 
     names = D.SHAPE_PARTS
     scales = dict(zip(names, D.SHAPE_PART_SCALES))
@@ -493,7 +495,7 @@ def read_textured(name, data=MODELS):
 def textured_copy(mesh, rng, fraction=SPLIT_FRACTION):
     """A random similarity of a textured mesh with a random ``fraction`` of its faces split 1→3
     at a random interior point (positions and texture coordinates with the same barycentrics)."""
-    from surfidx.mesh import TriangleMesh
+    from surfidx.geometry.mesh import TriangleMesh
 
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     pick = rng.random(len(f)) < fraction
@@ -519,9 +521,9 @@ def grid_of(mesh, method="tutte", *, other_texture=None):
     """(grid (n_grid, 6), level, surfel count) of a textured mesh through the ingest path; with
     ``other_texture`` also the grid of the same surfels coloured by that texture image (the same
     geometry, so the same map)."""
-    from surfidx.icosphere import choose_level
-    from surfidx.mesh import TriangleMesh
-    from surfidx.resample import resample
+    from surfidx.geometry.icosphere import choose_level
+    from surfidx.geometry.mesh import TriangleMesh
+    from surfidx.codec.resample import resample
     from surfidx.sphere import parameterize
 
     with warnings.catch_warnings():
@@ -584,7 +586,7 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
     """Texture invariance (similarity + resampled copies) and discrimination (recoloured) of
     the textured shared models: ``‖Δtexture‖`` over the median distance between differently
     coloured models (every model and recolouring of the table)."""
-    from surfidx.descriptors import _texture_vector, describe_grid, descriptor_distance
+    from surfidx.describe.descriptors import _texture_vector, describe_grid, descriptor_distance
 
     models = [n for n in TEXTURED if (MODELS / TEXTURED[n][0]).exists()]
     if not models:
@@ -736,7 +738,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
 
-    from surfidx.descriptors import DEFAULT_LMAX
+    from surfidx.describe.descriptors import DEFAULT_LMAX
 
     lmax = DEFAULT_LMAX if args.lmax is None else args.lmax
     if args.texture or args.texture_only:
@@ -895,7 +897,7 @@ def main(argv=None) -> int:
     med = float(np.median(ours[fin])) if fin.any() else float("nan")
     med_d2 = float(np.median(d2[~np.eye(len(paths), dtype=bool)]))
     if copies:
-        from surfidx.descriptors import descriptor_distance
+        from surfidx.describe.descriptors import descriptor_distance
 
         for i, rec in zip(inv_models, copies):
             if descs[i] is None or rec["grid"] is None:

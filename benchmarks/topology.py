@@ -17,12 +17,12 @@ RGB-D fragment ``frag_115``) and the genus > 0 models of ``../shared/data/retrie
 ``--no-map`` leaves the maps out (repair figures only); ``--models a.obj,b.ply`` chooses the
 models (paths under ``../shared/data/models`` or ``../shared/data/retrieval``);
 ``--no-retrieval`` leaves the retrieval models out; ``--mask`` adds the size of the virtual
-mask coded per grid vertex (:mod:`surfidx.topology._mask`) at the map's grid level.
+mask coded per grid vertex (:mod:`surfidx.codec.mask`) at the map's grid level.
 
 ``--ingest`` prints the issue's table instead, one row per model of ``--models`` (default the
 five real models), everything through the ingest path as it is:
 
-* before (:func:`surfidx.topology.analyse` of the file's mesh): holes, genus (largest piece),
+* before (:func:`surfidx.topology.analysis` of the file's mesh): holes, genus (largest piece),
   pieces;
 * what the repair added (:func:`surfidx.io.read_model`'s :meth:`~surfidx.io.Model.summary`):
   holes filled, handles cut, pinched vertices split, parts kept (dropped), virtual share of the
@@ -35,7 +35,7 @@ five real models), everything through the ingest path as it is:
 * the stored stream decoded at 2 and 4 bits/surfel (prefixes of the one stream,
   :func:`surfidx.codec.decode`, virtual region dropped, cuts zipped): boundary loops, genus and
   pieces counted independently on the decoded mesh (``topology`` of
-  ``benchmarks/topology_codec.py``: :func:`~surfidx.topology.analyse`) against the input's,
+  ``benchmarks/topology_codec.py``: :func:`~surfidx.topology.analysis`) against the input's,
   the kept pieces' in brackets (``same``: loops, genus of every piece and pieces equal to the
   kept pieces', ``restored`` there: the dropped tiny pieces are not stored),
   PSNR_D2 of the decoded real surface against the input's surfels (one per used vertex, peak
@@ -54,7 +54,7 @@ import warnings
 from pathlib import Path
 
 import surfidx
-from surfidx.mesh import TriangleMesh
+from surfidx.geometry.mesh import TriangleMesh
 from surfidx.topology import analyse, close_surface, split_parts
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -102,7 +102,7 @@ def run(path: Path, *, do_map: bool, do_mask: bool) -> dict:
                     m = parameterize(s, stress=False)
                 folds += m.folded
                 if do_mask:
-                    from surfidx.topology._mask import grid_mask_bytes
+                    from surfidx.codec.mask import grid_mask_bytes
                     nb, ng = grid_mask_bytes(s, m, c)
                     mask_bytes += nb
                     grid += ng
@@ -125,7 +125,7 @@ def ingest_row(path: Path, rates) -> dict:
 
     from surfidx.codec import decode, max_file_bytes, stream_summary
     from surfidx.io import read_model
-    from surfidx.metrics import psnr_d2
+    from surfidx.geometry.metrics import psnr_d2
     from surfidx.pipeline import process_model
     from surfidx.topology import closed_mesh
 

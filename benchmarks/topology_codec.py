@@ -4,18 +4,18 @@ For each model (``../shared/data/models``; default the Stanford bunny with its 5
 genus-1 rocker arm, the pinched cow, and a closed genus-0 model of similar size beside each:
 ``bunny_hr``, ``armadillo``, ``spot``) the mesh is split into its pieces
 (:func:`surfidx.topology.split_parts`), each piece closed (:func:`surfidx.topology.close_surface`)
-and turned into surfels with its patches (``surfidx.topology._restore.closed_surfels``), all
+and turned into surfels with its patches (``surfidx.codec.restore.closed_surfels``), all
 parts coded as one file (:class:`surfidx.codec.PartsEncoder`, geometry only) and decoded to the
 real surface (:func:`surfidx.codec.decode`). One row per model and rate (2 and 4 bits/surfel):
 
 * the input's and the decoded mesh's topology, each counted independently with
-  :func:`surfidx.topology.analyse`: boundary loops, genus (of the largest piece), pieces; the
+  :func:`surfidx.topology.analysis`: boundary loops, genus (of the largest piece), pieces; the
   kept pieces' loops and genus of every piece (each piece analysed on its own: what decoding
   must restore, the dropped tiny pieces' loops not counted); ``same`` says whether the decoded
   loops, genus of every piece and pieces are the kept pieces' (:func:`restored`);
 * the stream: bytes, the mask sections' bytes (mask, its length, region table) and their share
   of the file, the virtual share of the grid;
-* PSNR_D2 (:func:`surfidx.metrics.psnr_d2`) of the decoded real surface (surfels) against the
+* PSNR_D2 (:func:`surfidx.geometry.metrics.psnr_d2`) of the decoded real surface (surfels) against the
   input's surfels (one per used vertex, peak: the input's bounding-box diagonal);
 * CPU time (``time.process_time``) of the repair and of the encoder set-up (the map dominates).
 
@@ -31,15 +31,17 @@ import time
 import warnings
 from pathlib import Path
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
 import surfidx
 from surfidx.codec import PartsEncoder, decode, stream_summary
-from surfidx.mesh import TriangleMesh
-from surfidx.metrics import psnr_d2
+from surfidx.geometry.mesh import TriangleMesh
+from surfidx.geometry.metrics import psnr_d2
 from surfidx.topology import analyse, close_surface, split_parts
-from surfidx.topology._restore import closed_surfels
+from surfidx.codec.restore import closed_surfels
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MODELS = ["cow.obj", "spot/spot_triangulated.obj", "rocker-arm.obj", "armadillo.obj",
@@ -57,7 +59,7 @@ def topology(vertices, faces) -> dict:
 def kept_topology(parts) -> dict:
     """What decoding must restore: boundary loops (summed) and genus (sorted) of the pieces
     :func:`~surfidx.topology.split_parts` kept, each counted on its own with
-    :func:`~surfidx.topology.analyse`, and their number (the dropped tiny pieces, with their
+    :func:`~surfidx.topology.analysis`, and their number (the dropped tiny pieces, with their
     loops, are not stored)."""
     rs = [analyse(p.vertices, p.faces) for p in parts.parts]
     return dict(loops=sum(r.holes for r in rs),

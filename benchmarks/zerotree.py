@@ -13,11 +13,13 @@ from __future__ import annotations
 import argparse
 import time
 
-import surfidx  # noqa: F401,E402  (first: numpy loads in surfidx's numerics profile)
+from surfidx.numerics import use_portable_profile  # noqa: E402
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
-from surfidx import wavelets, zerotree
-from surfidx.icosphere import icosphere
+from surfidx.codec import wavelets, zerotree
+from surfidx.geometry.icosphere import icosphere
 
 
 def surface(level: int, seed: int = 0) -> np.ndarray:

@@ -13,8 +13,8 @@ surfidx ls --db "$DB"
 
 # query by example: a rotated, rescaled copy of the armadillo finds the stored armadillo first
 python - <<'PY'
-import surfidx  # first: numpy then computes in surfidx's portable profile (no warning)
 import numpy as np
+import surfidx
 s = surfidx.read_surfels("examples/models/armadillo.obj")
 q, _ = np.linalg.qr(np.random.default_rng(7).normal(size=(3, 3)))
 surfidx.write_ply(s.transformed(rotation=q * np.sign(np.linalg.det(q)), translation=[1, 2, 3],

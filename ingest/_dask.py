@@ -27,8 +27,8 @@ from __future__ import annotations
 import time
 import uuid
 
-from surfidx._errors import InputError, SurfidxError
-from surfidx._validate import check_positive_int
+from surfidx.errors import InputError, SurfidxError
+from surfidx.validate import check_positive_int
 
 from ._tasks import Outcome, error_message
 
@@ -130,13 +130,19 @@ class DaskExecutor:
             return self
         import dask
 
+        from surfidx.numerics import environment, portable_environment
+
         try:
             if self.is_local:
                 # Every worker death reaches the client at once: the retries are counted there.
-                with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+                # The workers start in the portable numerics profile (this process's own
+                # environment is restored once they have started).
+                env = portable_environment()
+                with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+                        environment(env):
                     self.cluster = distributed.LocalCluster(
                         n_workers=self.workers, threads_per_worker=1, processes=True,
-                        host="127.0.0.1", dashboard_address=None)
+                        host="127.0.0.1", dashboard_address=None, env=env)
                 self.client = distributed.Client(self.cluster, set_as_default=False)
             else:
                 self.client = distributed.Client(self.scheduler, set_as_default=False,

@@ -12,7 +12,7 @@ import os
 import stat
 from pathlib import Path
 
-from surfidx._errors import InputError
+from surfidx.errors import InputError
 
 __all__ = ["discover", "NotRegularFile", "not_regular", "hash_files", "find_texture"]
 

@@ -27,7 +27,7 @@ Data flow of :func:`run`:
    committed stays whole.
 
 File names are text as the OS gives them (``os.fsdecode``); a name whose bytes are not UTF-8 is
-processed like any other and stored and reported through :func:`surfidx.database.escape_name`
+processed like any other and stored and reported through :func:`surfidx.db.catalog.escape_name`
 (undecodable bytes as ``\\xHH``). Worker processes end when the process that started them dies
 (even by SIGKILL, as the OOM killer sends it): see :class:`ProcessPool`.
 
@@ -51,8 +51,8 @@ import time
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
-from surfidx._errors import InputError, SurfidxError
-from surfidx._validate import check_positive_int
+from surfidx.errors import InputError, SurfidxError
+from surfidx.validate import check_positive_int
 
 from ._files import discover
 from ._tasks import (Outcome, accepts_progress, error_message, make_tasks, process_task,
@@ -110,6 +110,18 @@ def _worker_init(parent_pid: int) -> None:
     if os.getppid() != parent_pid and not _alive(parent_pid):
         os._exit(1)                                 # the parent died while this one started
     exit_with_parent()
+
+
+def _worker_context():
+    """How worker processes start: forked from this process when it computes in the portable
+    numerics profile already (the ``surfidx`` command), else spawned in it
+    (:func:`surfidx.numerics.portable_context`), so that every worker makes the same bytes
+    whoever started the ingestion."""
+    import multiprocessing
+
+    from surfidx.numerics import portable_context, portable_environment
+
+    return multiprocessing.get_context() if not portable_environment() else portable_context()
 
 
 def _alive(pid: int) -> bool:
@@ -222,7 +234,7 @@ class ProcessPool:
         self._pool = None
 
     def _new_pool(self, n):
-        return cf.ProcessPoolExecutor(max_workers=n, mp_context=self.mp_context,
+        return cf.ProcessPoolExecutor(max_workers=n, mp_context=self.mp_context or _worker_context(),
                                       initializer=_worker_init, initargs=(os.getpid(),))
 
     def shutdown(self, *, kill: bool = False):
@@ -347,7 +359,7 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
     ----------
     paths : sequence of str or os.PathLike
         Model files and folders (see :func:`discover`).
-    db : surfidx.database.Database or str or os.PathLike
+    db : surfidx.db.catalog.Database or str or os.PathLike
         An open database, or the path of one (created when missing).
     workers : int, optional
         Worker processes; ``1`` processes in this process. Default: as many as the machine's
@@ -410,7 +422,7 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.database import Database
+    from surfidx.db.catalog import Database
 
     defaulted = workers is None
     workers = default_workers() if defaulted else check_positive_int(workers, "workers")
@@ -483,7 +495,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
             flush_seconds, name, tags, allow_outside_textures) -> IngestSummary:
     """The run of :func:`run` on its checked arguments: ``files`` found once by
     :func:`discover`, ``db`` open, ``executor`` None or ready."""
-    from surfidx.database import escape_name, is_storage_failure, storable_text
+    from surfidx.db.catalog import escape_name, is_storage_failure, storable_text
 
     t_start = time.perf_counter()
     n_workers = getattr(executor, "n_workers", workers)      # a cluster's actual worker count

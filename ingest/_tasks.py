@@ -13,7 +13,7 @@ import stat
 import time
 from dataclasses import dataclass
 
-from surfidx._errors import SurfidxError
+from surfidx.errors import SurfidxError
 
 from ._files import NotRegularFile, find_texture, hash_files, not_regular
 

@@ -1,62 +1,29 @@
 """surfidx: a database for textured 3D scans represented as surfels.
 
-Data flow: files -> :class:`SurfelSet` -> spheres-of-influence graph and geodesics -> spherical
-parameterization -> icosahedral resampling -> KLT + lifted butterfly wavelets -> zerotree and
-arithmetic coding -> container; descriptors from the same spherical representation; SQLite store.
+The pipeline, one subpackage a stage (``ARCHITECTURE.md`` draws it)::
+
+    io -> topology -> sphere -> codec -> describe -> db
+    (read)  (repair)   (map)   (resample, KLT, wavelets, zerotree, container)
+
+:mod:`surfidx.geometry` holds what every stage shares (surfels, meshes, the icosahedral grid,
+the spheres-of-influence graph, geodesics, distortion metrics); :mod:`surfidx.pipeline` is the
+per-model unit of work, :mod:`surfidx.options` its one options tree.
+
+Importing surfidx changes nothing in the host process (no environment variable, no thread limit,
+no output). The public names are imported on first use (PEP 562, ``lazy_loader``), so ``import surfidx``
+and a query of a stored model do not pay for numba, scipy and trimesh; ``__init__.pyi`` beside
+this file lists them for IDEs, type checkers and ``help(surfidx)``.
 """
 
-from ._numerics import use_portable_profile
+from __future__ import annotations
 
-use_portable_profile()   # before numpy loads: the same kernels, so the same bytes, on every machine
+import lazy_loader as _lazy
 
-from ._jitcache import use_user_cache  # noqa: E402
-
-use_user_cache()   # before any kernel is compiled: numba's cache stays out of the package
-
-from ._errors import (BitstreamError, DatabaseError, FileFormatError, InputError,  # noqa: E402
-                      SurfidxError, TopologyError)
-from ._tolerance import TOL, Tolerances  # noqa: E402
+from .errors import (BitstreamError, DatabaseError, FileFormatError, InputError, SurfidxError,
+                     TopologyError)
+from .tolerance import TOL, Tolerances
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "SurfelSet", "TriangleMesh", "read_surfels", "read_mesh", "write_ply", "points_to_surfels",
-    "SurfidxError", "InputError", "FileFormatError", "TopologyError", "BitstreamError",
-    "DatabaseError", "TOL", "Tolerances", "__version__", "numerics_profile",
-    "evaluate", "psnr_d1", "psnr_d2", "psnr_luma", "hausdorff",
-    "Icosphere", "choose_level", "KLT",
-    "GeodesicSolver", "GeodesicPath", "geodesic_distances", "geodesic_path",
-    "farthest_point_landmarks", "SphereOfInfluenceGraph",
-]
-
-# Everything else is imported on first use: numba, scipy and sqlite-utils cost seconds to
-# import, which a query of a stored model (`surfidx query id:N`) does not need. No export is
-# named as a submodule: importing the submodule would replace the export by the module
-# (the grid function is `surfidx.Icosphere(level)` or `surfidx.icosphere.icosphere(level)`).
-_LAZY = {"numerics_profile": "_numerics",
-         "GeodesicPath": "geodesics", "GeodesicSolver": "geodesics",
-         "farthest_point_landmarks": "geodesics", "geodesic_distances": "geodesics",
-         "geodesic_path": "geodesics", "SphereOfInfluenceGraph": "graph",
-         "Icosphere": "icosphere", "choose_level": "icosphere",
-         "read_mesh": "io", "read_surfels": "io", "write_ply": "io", "KLT": "klt",
-         "TriangleMesh": "mesh", "evaluate": "metrics", "hausdorff": "metrics",
-         "psnr_d1": "metrics", "psnr_d2": "metrics", "psnr_luma": "metrics",
-         "points_to_surfels": "pointcloud", "SurfelSet": "surfels",
-         "as_surfels": "io", "write_model": "io", "read_model": "io", "Model": "io",
-         "join_surfels": "io",
-         "Database": "store", "SearchIndex": "search"}
-__all__ += [n for n in _LAZY if n not in __all__]
-
-
-def __getattr__(name):
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__, __all__ = _lazy.attach_stub(__name__, __file__)
+__all__ = ["__version__", *__all__]

@@ -1,6 +1,6 @@
 """``python -m surfidx``."""
 
-from .cli import cli
+from .cli import main
 
 if __name__ == "__main__":  # pragma: no cover
-    cli(prog_name="surfidx")
+    main()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .database import ProcessedModel
+from .db.catalog import ProcessedModel
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
            "describe_stream", "redescribe", "output_level", "combine_descriptors"]
@@ -70,13 +70,13 @@ def combine_descriptors(sets, weights):
 
     Parameters
     ----------
-    sets : sequence of surfidx.descriptors.DescriptorSet
+    sets : sequence of surfidx.describe.descriptors.DescriptorSet
     weights : sequence of float
         Positive, one per set.
 
     Returns
     -------
-    surfidx.descriptors.DescriptorSet
+    surfidx.describe.descriptors.DescriptorSet
         ``params`` of the first set plus ``parts`` (the count) when there are several.
 
     Raises
@@ -85,8 +85,8 @@ def combine_descriptors(sets, weights):
         When ``sets`` is empty, the counts differ, a weight is not positive or the sets' params
         differ.
     """
-    from ._errors import InputError
-    from .descriptors import DescriptorSet
+    from .errors import InputError
+    from .describe.descriptors import DescriptorSet
 
     sets, w = list(sets), np.asarray(weights, np.float64)
     if not sets or len(sets) != len(w):
@@ -177,7 +177,7 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     thumbnail_size : int
         Thumbnail width and height in pixels.
     lmax : int, optional
-        Largest SH degree of the descriptors (default :data:`surfidx.descriptors.DEFAULT_LMAX`).
+        Largest SH degree of the descriptors (default :data:`surfidx.describe.descriptors.DEFAULT_LMAX`).
     allow_outside_textures : bool
         Use a texture an OBJ's MTL names outside the model's folder
         (:func:`surfidx.read_surfels`).
@@ -208,11 +208,11 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     import time
 
     from .codec import CODEC_VERSION, COLOR_WEIGHT, PartsEncoder, decode
-    from .descriptors import DEFAULT_LMAX, describe_grid
-    from .mesh import MAX_EDGE_RATIO
-    from .metrics import evaluate
+    from .describe.descriptors import DEFAULT_LMAX, describe_grid
+    from .geometry.mesh import MAX_EDGE_RATIO
+    from .geometry.metrics import evaluate
     from .render import render
-    from .resample import PHONG_ALPHA, PHONG_SHARPNESS
+    from .codec.resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     timings = {}
     model = _read(timings, progress, path, texture, samples, allow_outside_textures)
@@ -267,7 +267,7 @@ class DescribedModel:
         As :class:`ProcessedModel`'s (the hash finds the model when it is stored).
     n_surfels : int
     has_color : bool
-    descriptors : surfidx.descriptors.DescriptorSet
+    descriptors : surfidx.describe.descriptors.DescriptorSet
         The vectors and conventions an ingest of the model stores.
     grid_level : int
     thumbnail : bytes or None
@@ -328,10 +328,10 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     """
     import time
 
-    from ._errors import InputError
-    from .descriptors import DEFAULT_LMAX, describe_grid
+    from .errors import InputError
+    from .describe.descriptors import DEFAULT_LMAX, describe_grid
     from .render import render
-    from .resample import resample
+    from .codec.resample import resample
     from .sphere import METHODS, parameterize
 
     if method not in METHODS:
@@ -382,9 +382,9 @@ def output_level(stream: bytes, *, path=None) -> int | None:
     int or None
         None when ``stream`` is not a container (a stand-in decoder's data).
     """
-    from ._errors import BitstreamError
-    from .container import unpack
-    from .icosphere import vertex_count
+    from .errors import BitstreamError
+    from .codec.container import unpack
+    from .geometry.icosphere import vertex_count
 
     try:
         header, _ = unpack(bytes(stream), path=path)
@@ -409,7 +409,7 @@ def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):
 
     Returns
     -------
-    surfidx.descriptors.DescriptorSet
+    surfidx.describe.descriptors.DescriptorSet
 
     Notes
     -----
@@ -418,7 +418,7 @@ def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):
     between different models).
     """
     from .codec import decode_grid
-    from .descriptors import DEFAULT_LMAX, describe_grid
+    from .describe.descriptors import DEFAULT_LMAX, describe_grid
 
     values, header = decode_grid(bytes(stream), path=path)
     return describe_grid(values, header.level, lmax=DEFAULT_LMAX if lmax is None else lmax)
@@ -433,7 +433,7 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
 
     Parameters
     ----------
-    db : surfidx.database.Database
+    db : surfidx.db.catalog.Database
     everything : bool
         Recompute every model, not only those whose conventions differ from this surfidx's.
     lmax : int, optional
@@ -448,9 +448,9 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
     """
     import json
 
-    from ._errors import SurfidxError
-    from .database import is_storage_failure
-    from .descriptors import DEFAULT_LMAX, descriptor_params
+    from .errors import SurfidxError
+    from .db.catalog import is_storage_failure
+    from .describe.descriptors import DEFAULT_LMAX, descriptor_params
 
     want = descriptor_params(lmax=DEFAULT_LMAX if lmax is None else lmax)
     want = json.loads(json.dumps(want))

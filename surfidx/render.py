@@ -29,12 +29,12 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numba
+from .jit import numba
 import numpy as np
 
-from ._errors import FileFormatError, InputError
-from ._validate import as_array, check_positive_int
-from .surfels import SurfelSet
+from .errors import FileFormatError, InputError
+from .validate import as_array, check_positive_int
+from .geometry.surfels import SurfelSet
 
 __all__ = ["VIEWS", "PRINCIPAL", "render", "save_png", "camera_basis", "principal_basis",
            "read_polyline"]

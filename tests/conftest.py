@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import surfidx  # noqa: F401  (first: numpy loads in surfidx's numerics profile, see _numerics)
+from surfidx.numerics import use_portable_profile
+
+use_portable_profile()   # before numpy loads: the test process makes the bytes the command makes
+
 import numpy as np  # noqa: E402  (isort: skip)
 import pytest
 from hypothesis import settings

@@ -1,4 +1,4 @@
-"""The approximate index beside the database (surfidx.ann) and its use by surfidx.search: the
+"""The approximate index beside the database (surfidx.db.ann) and its use by surfidx.db.search: the
 re-ranked candidates are the exact scan's top k, a stale or damaged index is repaired, removed
 models never come back, a read-only query never writes the database."""
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from surfidx import ann
-from surfidx._errors import DatabaseError, InputError
-from surfidx.database import Database, utc_now
-from surfidx.search import SearchIndex
+from surfidx.db import ann
+from surfidx.errors import DatabaseError, InputError
+from surfidx.db.catalog import Database, utc_now
+from surfidx.db.search import SearchIndex
 
 DIM, TEX = 40, 12
 
@@ -371,7 +371,7 @@ def test_cli_query_exact_and_approximate_agree(at_threshold):
 
 
 # ---------------------------------------------------------------------- AnnIndex.query
-from surfidx.search import DEFAULT_KINDS, weighted_l2  # noqa: E402
+from surfidx.db.search import DEFAULT_KINDS, weighted_l2  # noqa: E402
 
 
 def ann_query(index, q, **kw):
@@ -543,8 +543,8 @@ def test_cli_query_by_id_imports_no_heavy_module(at_threshold):
             "print(json.dumps(sorted(m for m in sys.modules if m.startswith('surfidx.cli.'))))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True).stdout.strip().splitlines()
-    assert json.loads(out[-1]) == ["surfidx.cli._common", "surfidx.cli._db",
-                                   "surfidx.cli._group"]      # no other command module
+    assert json.loads(out[-1]) == ["surfidx.cli.common", "surfidx.cli.db",
+                                   "surfidx.cli.group"]      # no other command module
     out.pop()
     assert json.loads(out[-1]) == []
     assert len(json.loads("\n".join(out[:-1]))["results"]) == 3
@@ -588,7 +588,7 @@ def test_cli_queries_stay_exact_while_models_are_removed_and_redescribed(at_thre
 
 def test_cli_query_defaults_come_from_the_library():
     from surfidx.cli import cli
-    from surfidx.search import DEFAULT_SHAPE_WEIGHT
+    from surfidx.db.search import DEFAULT_SHAPE_WEIGHT
 
     params = {p.name: p for p in cli.get_command(None, "query").params}
     assert params["shape_weight"].default == DEFAULT_SHAPE_WEIGHT
@@ -632,7 +632,7 @@ def test_database_query_keeps_its_index_and_follows_changes(at_threshold, tmp_pa
     redescribed one is found by its new rows, every answer as the exact scan's."""
     import shutil
 
-    from surfidx.store import Database as Store
+    from surfidx.db.database import Database as Store
 
     src, shape, tex, color = at_threshold
     path = tmp_path / "thr.db"

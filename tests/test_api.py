@@ -64,18 +64,6 @@ def test_readme_example_runs(tmp_path, monkeypatch, capsys):
         assert [m["name"] for m in db.list_models()] == ["capsule"]
 
 
-def test_demo_python_imports_surfidx_before_numpy():
-    """numpy imported first computes in the machine's own profile, and surfidx warns (the demo
-    would print that warning to every newcomer)."""
-    demo = (REPO / "examples" / "demo.sh").read_text()
-    snippets = re.findall(r"python - <<'PY'\n(.*?)^PY$", demo, re.S | re.M)
-    assert snippets
-    for code in snippets:
-        imports = [line.split("#")[0] for line in code.splitlines()
-                   if re.match(r"(import|from) ", line)]
-        assert "surfidx" in imports[0] and "numpy" not in imports[0], imports
-
-
 def test_get_and_export(real, tmp_path):
     root, path = real
     with surfidx.Database.open(path, readonly=True) as db:

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from surfidx.sphere import MapOptions
-from surfidx.sphere._balance import (_PATCH_PATIENCE, _Energy, _near_inverted, _Patch,
+from surfidx.sphere.balance import (_PATCH_PATIENCE, _Energy, _near_inverted, _Patch,
                                      _untangle_rounds, balance, untangle)
-from surfidx.sphere._surface import oriented_faces
-from surfidx.sphere._tutte import tutte_map
-from surfidx.spherical import orientation as _orientation
+from surfidx.sphere.surface import oriented_faces
+from surfidx.sphere.tutte import tutte_map
+from surfidx.geometry.unitsphere import orientation as _orientation
 from test_parameterize import _limbs
 
 
@@ -92,7 +92,7 @@ def test_preconditioning_lowers_energy_faster_on_limbs():
 def test_lbfgs_history_is_the_two_loop_recursion():
     """The ring-buffer history gives the textbook two-loop direction over the last ``memory``
     pairs, oldest dropped first."""
-    from surfidx.sphere._balance import _History
+    from surfidx.sphere.balance import _History
 
     rng = np.random.default_rng(3)
     n, memory = 50, 4
@@ -215,11 +215,11 @@ def test_untangle_never_returns_more_inverted_triangles_than_it_was_given(monkey
     map needs no second try at another coarsest level (and takes no log of 0/0 on the way)."""
     import warnings
 
-    import surfidx.sphere._tutte as tutte_module
+    import surfidx.sphere.tutte as tutte_module
     from conftest import torus_mesh
     from surfidx.sphere import parameterize
     from surfidx.topology import close_surface
-    from surfidx.topology._restore import closed_surfels
+    from surfidx.codec.restore import closed_surfels
 
     calls = []
 

@@ -1,16 +1,16 @@
-"""Fold removal by edge flips and Delaunay realisation (surfidx.sphere._circlepattern)."""
+"""Fold removal by edge flips and Delaunay realisation (surfidx.sphere.circlepattern)."""
 
 import numpy as np
 import pytest
 
-from surfidx.sphere._circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _NEWTON_STEPS,
+from surfidx.sphere.circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _NEWTON_STEPS,
                                            _against,
                                            _coherent_angles, _edges, _layout, _moebius_fit,
                                            _planar_angles, _radii,
                                            _spacing, anneal_flips, flip_folds, lower_folds,
                                            realise)
 from surfidx.sphere import MapOptions
-from surfidx.spherical import against_normals as _folded, hull_triangles
+from surfidx.geometry.unitsphere import against_normals as _folded, hull_triangles
 
 
 def _sorted(t):
@@ -349,7 +349,7 @@ def test_radii_stop_when_the_line_search_finds_no_descent():
     # half-angle calls) at least once
     from unittest import mock
 
-    import surfidx.sphere._circlepattern as cp
+    import surfidx.sphere.circlepattern as cp
 
     with mock.patch.object(cp, "_half_angle", wraps=cp._half_angle) as half:
         rho, ok = cp._radii(*_two_triangles(1.5, 1.6, 3.1))

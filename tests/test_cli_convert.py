@@ -147,7 +147,7 @@ def test_zero_surfel_stream_info_is_a_clean_error(tmp_path):
     import struct
     import zlib
 
-    from surfidx.container import Header, pack
+    from surfidx.codec.container import Header, pack
 
     import numpy as np
 

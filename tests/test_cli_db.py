@@ -12,8 +12,8 @@ from PIL import Image
 
 from surfidx import SurfelSet, read_surfels
 from surfidx.cli import cli
-from surfidx.cli._db import parse_model_ref
-from surfidx.database import Database
+from surfidx.cli.db import parse_model_ref
+from surfidx.db.catalog import Database
 
 from test_ingest import fake_processor, make_tree
 
@@ -338,7 +338,7 @@ def test_read_commands_never_write(filled, tmp_path):
 
 
 def test_read_only_database_ingest_is_one_line(filled, tmp_path, monkeypatch):
-    import surfidx.database as dbmod
+    import surfidx.db.catalog as dbmod
 
     root, db = filled
     (root / "new.ply").write_text("model new")
@@ -352,7 +352,7 @@ def test_read_only_database_ingest_is_one_line(filled, tmp_path, monkeypatch):
 
 
 def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, monkeypatch):
-    import surfidx.database as dbmod
+    import surfidx.db.catalog as dbmod
 
     root = tmp_path / "data"
     root.mkdir()
@@ -443,7 +443,7 @@ def test_skipped_files_are_reported(tmp_path):
 def test_unmapped_sqlite_error_is_one_line():
     import click
 
-    from surfidx.cli._common import command_errors
+    from surfidx.cli.common import command_errors
 
     @click.command()
     @command_errors
@@ -462,7 +462,7 @@ def test_warnings_are_one_line_and_resource_warnings_are_not_shown():
 
     import click
 
-    from surfidx.cli._common import command_errors
+    from surfidx.cli.common import command_errors
 
     @click.command()
     @command_errors

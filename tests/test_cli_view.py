@@ -11,7 +11,7 @@ from plyfile import PlyData, PlyElement
 
 from surfidx import SurfelSet, read_surfels, write_ply
 from surfidx.cli import cli
-from surfidx.metrics import evaluate
+from surfidx.geometry.metrics import evaluate
 
 
 def run(*args):

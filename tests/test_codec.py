@@ -55,7 +55,7 @@ def test_prefix_decoding_equals_direct_encoding(enc):
 def test_closed_genus_0_streams_are_unchanged_by_version_4(enc):
     """Format version 4 (virtual-region masks, parts) writes closed genus-0 single-part models
     as version 3, byte for byte. The hashes were those of version 3's streams, re-measured when
-    a change of the map (the nested-dissection factorisation of :mod:`surfidx._sparse`, Newton
+    a change of the map (the nested-dissection factorisation of :mod:`surfidx.geometry.sparse`, Newton
     steps of the centring) changed every map; the version byte still says 3."""
     import hashlib
 
@@ -77,7 +77,7 @@ def test_high_rate_reproduces_the_grid(blob):
 
 def test_decode_at_a_coarser_level(blob):
     """A coarser level keeps the prefix of the decoded grid: the same surface, fewer surfels."""
-    from surfidx.icosphere import vertex_count
+    from surfidx.geometry.icosphere import vertex_count
 
     data = encode(blob, bits_per_surfel=4.0, level=4)
     full = decode(data)
@@ -166,7 +166,7 @@ def test_cli_encode_decode(tmp_path, blob):
 
 # ---------------------------------------------------------------- frames and density weights
 def test_frames_and_weights_are_stored_and_undone(blob):
-    from surfidx.container import unpack
+    from surfidx.codec.container import unpack
 
     e = Encoder(blob, level=4, density_weighting=True)
     assert e.tangent_weight == 0.5 and e.weight_field
@@ -191,7 +191,7 @@ def test_frames_and_weights_are_stored_and_undone(blob):
 
 
 def test_frames_and_weights_errors(blob):
-    from surfidx.container import Header, pack, unpack
+    from surfidx.codec.container import Header, pack, unpack
 
     for bad in (0, 1.5, -0.5, "half"):
         with pytest.raises(InputError, match=r"tangent_weight must be in \(0, 1\] or None"):
@@ -237,7 +237,7 @@ def test_cli_frames_options(tmp_path, blob):
 def test_real_model_psnr_floors_and_the_weightings_gain(models):
     """homer (6,244 surfels, level 7): measured PSNR_D2 with frames and density weights
     53.8 / 57.5 / 63.7 dB at 1.39 / 2 / 3.56 bits/surfel, without either 50.5 / 54.0 / 60.1."""
-    from surfidx.metrics import psnr_d2
+    from surfidx.geometry.metrics import psnr_d2
 
     s = read_surfels(models / "homer.obj")
     e = Encoder(s)
@@ -250,7 +250,7 @@ def test_real_model_psnr_floors_and_the_weightings_gain(models):
 
 
 def test_damaged_frame_anchors(blob):
-    from surfidx.container import pack, unpack
+    from surfidx.codec.container import pack, unpack
 
     header, stream = unpack(Encoder(blob, level=3).encode(4.0))
     assert len(header.anchors) == 3
@@ -287,7 +287,7 @@ def _forge(data: bytes, offset: int, fmt: str, *values) -> bytes:
     import struct
     import zlib
 
-    from surfidx.container import unpack
+    from surfidx.codec.container import unpack
 
     d = bytearray(data)
     struct.pack_into(fmt, d, offset, *values)
@@ -316,7 +316,7 @@ def test_decoded_values_out_of_range_are_refused(enc):
 
 def test_valid_streams_decode_within_the_documented_range(enc, blob):
     from surfidx.codec import MAX_EXTENT
-    from surfidx.container import unpack
+    from surfidx.codec.container import unpack
 
     for rate in (2.0, 8.0):
         values, header = decode_grid(enc.encode(rate))

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from surfidx import BitstreamError, InputError
-from surfidx.container import (FORMAT_VERSION, MAGIC, Header, header_size, pack, storable,
+from surfidx.codec.container import (FORMAT_VERSION, MAGIC, Header, header_size, pack, storable,
                                truncate, unpack)
 
 
@@ -245,7 +245,7 @@ def test_implausible_header_values_are_refused(offset, fmt, value, match):
 
 
 def test_grid_level_needs_a_file_that_can_justify_it():
-    from surfidx.container import min_file_bytes
+    from surfidx.codec.container import min_file_bytes
 
     assert [min_file_bytes(lv) for lv in (5, 7, 8, 9)] == [6, 81, 321, 1281]
     h = _header()
@@ -272,7 +272,7 @@ def test_pack_refuses_values_it_would_not_read():
 
 def test_one_plane_bound_for_anchors_and_zerotree():
     """The container's anchors and the zerotree's planes share one bound."""
-    from surfidx import container, zerotree
+    from surfidx.codec import container, zerotree
 
     assert zerotree._MAX_PLANE is container.MAX_PLANE
     assert container.min_file_bytes(9) == -(-(10 * 4 ** 9 + 2) // container.GRID_PER_BYTE)
@@ -280,7 +280,7 @@ def test_one_plane_bound_for_anchors_and_zerotree():
 
 @pytest.mark.parametrize("color", [True, False])
 def test_mask_section_round_trip(color):
-    from surfidx.container import region_code
+    from surfidx.codec.container import region_code
 
     h = _header(color)
     h.mask, h.regions = b"\x12\x34\x56", (0, region_code(0, 0), region_code(0, 1))
@@ -299,7 +299,7 @@ def test_mask_section_round_trip(color):
 
 
 def test_multi_part_container():
-    from surfidx.container import (is_multipart, pack_parts, parts_overhead, split_budget,
+    from surfidx.codec.container import (is_multipart, pack_parts, parts_overhead, split_budget,
                                    unpack_parts)
 
     a = pack(_header(False), bytes(range(200)))
@@ -328,7 +328,7 @@ def test_random_multi_part_garbage_never_crashes():
     import struct
     import zlib
 
-    from surfidx.container import FLAG_PARTS, unpack_parts
+    from surfidx.codec.container import FLAG_PARTS, unpack_parts
 
     rng = np.random.default_rng(1)
     for _ in range(200):

@@ -1,4 +1,4 @@
-"""surfidx.database and surfidx.search: schema, round trips, migrations, foreign files, queries."""
+"""surfidx.db.catalog and surfidx.db.search: schema, round trips, migrations, foreign files, queries."""
 
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ from hypothesis import strategies as st
 
 import surfidx
 from surfidx import DatabaseError, InputError
-from surfidx import database as dbmod
-from surfidx.database import SCHEMA_VERSION, Database, schema_sql
+from surfidx.db import catalog as dbmod
+from surfidx.db.catalog import SCHEMA_VERSION, Database, schema_sql
 from surfidx.pipeline import ProcessedModel
-from surfidx.search import SearchIndex, search, weighted_l2
+from surfidx.db.search import SearchIndex, search, weighted_l2
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -118,7 +118,7 @@ def test_built_package_finds_schema(tmp_path):
                           text=True)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (out / "surfidx" / "data" / "schema.sql").read_text() == schema_sql()
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); import surfidx.database as d; "
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); import surfidx.db.catalog as d; "
             "assert d.__file__.startswith(sys.argv[1]), d.__file__; "
             "print(len(d.schema_sql()))")
     proc = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True,
@@ -494,9 +494,9 @@ def test_weighted_l2_definition():
 
 
 def test_default_distance_is_descriptor_distance(db):
-    """The vectorised scan computes surfidx.descriptors.descriptor_distance for every model."""
-    descriptors = pytest.importorskip("surfidx.descriptors")
-    from surfidx.search import DEFAULT_SHAPE_WEIGHT
+    """The vectorised scan computes surfidx.describe.descriptors.descriptor_distance for every model."""
+    descriptors = pytest.importorskip("surfidx.describe.descriptors")
+    from surfidx.db.search import DEFAULT_SHAPE_WEIGHT
 
     models = [make_model(i, color=i % 2 == 0) for i in range(12)]
     for m in models:
@@ -566,10 +566,10 @@ def test_search_errors_and_empty(db):
 def test_package_exports_lazily():
     code = ("import sys, surfidx; assert 'sqlite_utils' not in sys.modules; "
             "from surfidx import Database, SearchIndex; "
-            "assert Database.__module__ == 'surfidx.store'; "
-            "assert SearchIndex.__module__ == 'surfidx.search'")
+            "assert Database.__module__ == 'surfidx.db.database'; "
+            "assert SearchIndex.__module__ == 'surfidx.db.search'")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
-    with pytest.raises(AttributeError, match="has no attribute 'nothing_here'"):
+    with pytest.raises(AttributeError, match="nothing_here"):
         surfidx.nothing_here
 
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from surfidx import TriangleMesh, read_surfels
-from surfidx.sphere._decimate import decimate
-from surfidx.sphere._surface import oriented_faces as _oriented_faces
+from surfidx.sphere.decimate import decimate
+from surfidx.sphere.surface import oriented_faces as _oriented_faces
 
 from conftest import icosphere_mesh
 
@@ -66,7 +66,7 @@ def test_prolong_is_exact_for_affine_values_on_a_flat_star():
     star = np.concatenate([[removed[i]], ring[ptr[i]:ptr[i + 1]]])
     vals = np.full((len(v), 1), np.nan)
     vals[:, 0] = 2.0 * flat[:, 0] - flat[:, 1] + 0.5
-    from surfidx.sphere._decimate import Hierarchy
+    from surfidx.sphere.decimate import Hierarchy
 
     one = Hierarchy(h.faces, np.setdiff1d(np.arange(len(v)), [removed[i]]),
                     [(removed[i:i + 1], kept[i:i + 1], np.array([0, ptr[i + 1] - ptr[i]]),
@@ -83,7 +83,7 @@ def test_embedded_prolongation_never_folds(seed):
     little the coarse map resembles the 3D shape the mean value weights come from (here the
     sphere under a bumpy surface's weights); the plain mean folds some stars of the same input
     (so the check can fail)."""
-    from surfidx.spherical import orientation
+    from surfidx.geometry.unitsphere import orientation
 
     rng = np.random.default_rng(seed)
     v, f = icosphere_mesh(4)
@@ -106,7 +106,7 @@ def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
     single-level map squeezes it (area distortion above the refusal limit); the embedded
     hierarchy maps it without a folded mesh triangle, within the limit."""
     from surfidx.io import read_model
-    from surfidx.sphere._multilevel import mesh_map
+    from surfidx.sphere.multilevel import mesh_map
     from surfidx.sphere.options import DEFAULT_OPTIONS
     from surfidx.sphere.quality import area_distortion
 
@@ -122,7 +122,7 @@ def test_shortest_first_is_the_stable_order_of_rounded_lengths(far):
     """The edges go shortest first by squared length rounded to 9 decimals relative to the mean,
     ties in edge order: exactly a stable argsort of those rounded values, whether the integer
     keys fit 63 bits or (100k edges, one a million times longer) the argsort itself runs."""
-    from surfidx.sphere._decimate import _shortest_first
+    from surfidx.sphere.decimate import _shortest_first
 
     rng = np.random.default_rng(3)
     p = np.round(rng.random((300, 3)), 2)            # a coarse lattice: many equal lengths

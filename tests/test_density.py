@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from surfidx import BitstreamError, InputError
-from surfidx.density import (MAX_FIELD_LEVEL, Q_MAX, Q_MIN, SURFELS_PER_FIELD_VERTEX,
+from surfidx.codec.density import (MAX_FIELD_LEVEL, Q_MAX, Q_MIN, SURFELS_PER_FIELD_VERTEX,
                              field_level, pack_field, relative_density, unpack_field,
                              vertex_scales, weight_field, weighting_gain)
-from surfidx.icosphere import icosphere, vertex_count
+from surfidx.geometry.icosphere import icosphere, vertex_count
 
 
 def _uniform_sphere(n, seed=0):
@@ -107,8 +107,8 @@ def test_errors():
 
 
 def test_impossible_and_out_of_range_fields_are_refused():
-    from surfidx.density import _N_CTX, _encode_residuals
-    from surfidx.entropy import new_encoder, new_models
+    from surfidx.codec.density import _N_CTX, _encode_residuals
+    from surfidx.codec.entropy import new_encoder, new_models
 
     with pytest.raises(BitstreamError, match="impossible code"):
         unpack_field(b"\x00\xff\xff\xff\xff\x00")

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.descriptors import DESCRIPTOR_VERSION, describe_grid, descriptor_distance
-from surfidx.icosphere import icosphere
+from surfidx.describe.descriptors import DESCRIPTOR_VERSION, describe_grid, descriptor_distance
+from surfidx.geometry.icosphere import icosphere
 
 
 def _shape(v):
@@ -40,7 +40,7 @@ def test_shape_measures_the_surface_not_the_sphere_sampling():
     """The same surface sampled through a different (non-uniform) sphere map: the area-weighted
     measure parts of the shape descriptor barely move, unlike the per-layer sphere energies (the
     ``layers`` kind and the shape vector's layers part, the parameterisation's view)."""
-    from surfidx.descriptors import LAYERS_LMAX, SHAPE_PARTS
+    from surfidx.describe.descriptors import LAYERS_LMAX, SHAPE_PARTS
 
     v = icosphere(6).vertices
     u = v * [1.0, 1.0, 2.5]
@@ -103,7 +103,7 @@ def test_bad_input():
 
 def test_spectral_part_is_the_sphere_laplacian_spectrum():
     """On the unit sphere the Laplace–Beltrami eigenvalues are l(l+1), multiplicity 2l+1."""
-    from surfidx.descriptors import SPECTRAL_K, _log_spectrum
+    from surfidx.describe.descriptors import SPECTRAL_K, _log_spectrum
 
     exact = np.concatenate([np.full(2 * l + 1, l * (l + 1.0)) for l in range(1, 7)])[:SPECTRAL_K]
     want = np.log(exact / np.arange(1, SPECTRAL_K + 1))
@@ -115,7 +115,7 @@ def test_spectral_part_is_the_sphere_laplacian_spectrum():
 def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
     """Bending a surface without stretching keeps its spectrum; a map squeezing grid points onto
     each other (zero-area triangles) still gives a finite descriptor."""
-    from surfidx.descriptors import _log_spectrum
+    from surfidx.describe.descriptors import _log_spectrum
 
     v = icosphere(4).vertices
     flat = v * [1.0, 1.0, 0.05]            # a thin disc, then bent around the x axis
@@ -140,7 +140,7 @@ def test_describe_grid_rejects_level_zero():
 def test_cotangent_laplacian_identities():
     """Symmetric, rows summing to 0, and x^T L x is the Dirichlet energy: for a linear function
     f = a.p on a closed surface, sum over triangles of area * |grad f|^2 restricted to the plane."""
-    from surfidx.mesh import cotangent_laplacian
+    from surfidx.geometry.mesh import cotangent_laplacian
 
     ico = icosphere(3)
     p = ico.vertices * [1.0, 1.5, 2.0]
@@ -166,8 +166,8 @@ def test_cotangent_laplacian_identities():
 def test_shape_vector_is_the_weighted_parts():
     """``shape`` is the parts side by side, each times its scale, the layers part last: the
     per-degree energies of the geometric KLT layers (:func:`_layers_part`)."""
-    from surfidx import descriptors as D
-    from surfidx.klt import KLT
+    from surfidx.describe import descriptors as D
+    from surfidx.codec.klt import KLT
 
     v = icosphere(5).vertices
     x = _shape(v)
@@ -187,7 +187,7 @@ def test_shape_vector_is_the_weighted_parts():
 def test_degree_energies_on_a_finer_grid():
     """A degree-2 function: its energy sits at degree 2, the same on the DH grid of its lmax and
     on a finer one."""
-    from surfidx.descriptors import _degree_energies
+    from surfidx.describe.descriptors import _degree_energies
 
     v = icosphere(5).vertices
     f = (v[:, 0] * v[:, 1])[:, None]           # a degree-2 harmonic
@@ -202,7 +202,7 @@ def test_descriptor_distance_is_the_search_distance():
     """descriptor_distance is weighted_l2 for one pair, with search's default shape weight."""
     import inspect
 
-    from surfidx import search
+    from surfidx.db import search
 
     rng = np.random.default_rng(3)
     a = {"shape": rng.random(20), "spectrum": rng.random(3), "texture": rng.random(6)}
@@ -231,7 +231,7 @@ def test_d2_draws_and_distances_are_numpys():
     """D2's kernels give what ``Generator.choice(p=w)`` and ``np.linalg.norm`` give, bit for
     bit: the inverse-CDF draws (with zero weights, ties at bucket edges and u = 0) and the
     pair distances."""
-    from surfidx.descriptors import _pair_distances, _search_right
+    from surfidx.describe.descriptors import _pair_distances, _search_right
 
     rng = np.random.default_rng(5)
     w = rng.random(3001) ** 4

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from surfidx import BitstreamError, InputError
-from surfidx.entropy import (FLUSH_BYTES, cost_bits, dec_bit, dec_init, decode_bits, enc_bit,
+from surfidx.codec.entropy import (FLUSH_BYTES, cost_bits, dec_bit, dec_init, decode_bits, enc_bit,
                              enc_flush, encode_bits, new_encoder, new_models)
 
 

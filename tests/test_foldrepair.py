@@ -5,10 +5,10 @@ import pytest
 
 from surfidx import TriangleMesh
 from surfidx.sphere import MapOptions
-from surfidx.sphere._foldrepair import repair_folds
-from surfidx.sphere._multilevel import mesh_map
-from surfidx.sphere._surface import oriented_faces as _oriented_faces
-from surfidx.spherical import folded_mask, hull_triangles, orientation as _orientation
+from surfidx.sphere.foldrepair import repair_folds
+from surfidx.sphere.multilevel import mesh_map
+from surfidx.sphere.surface import oriented_faces as _oriented_faces
+from surfidx.geometry.unitsphere import folded_mask, hull_triangles, orientation as _orientation
 
 from conftest import tube_mesh
 
@@ -56,7 +56,7 @@ def test_second_pass_never_adds_folds_or_inverts_the_mesh(tube_map):
     """The second repair pass (the unfolded Delaunay triangles kept embedded too) ends with at
     most the first pass's folds and every mesh triangle still counter-clockwise; without its
     search, the first pass's result is where it starts."""
-    from surfidx.sphere._repair import repair
+    from surfidx.sphere.repair import repair
 
     s, f, x = tube_map
     x1, (r1,), _ = repair(x, s, options=MapOptions(second_pass=False, realise=False), mesh=f)
@@ -87,7 +87,7 @@ def test_repair_leaves_a_fold_free_map_alone(sphere_surfels):
 def test_folded_mask_does_not_depend_on_the_listed_corner():
     """Triangles straight in 3D (the rows of a squeezed limb) are judged alike from any of
     their three cyclic listings: rounding in the cross product must not turn a fold over."""
-    from surfidx.spherical import against_normals
+    from surfidx.geometry.unitsphere import against_normals
 
     rng = np.random.default_rng(7)
     a, b = rng.normal(size=(500, 3)), rng.normal(size=(500, 3))
@@ -100,7 +100,7 @@ def test_folded_mask_does_not_depend_on_the_listed_corner():
 
 
 def test_smallest_first_keeps_each_triangles_cycle():
-    from surfidx.spherical import smallest_first
+    from surfidx.geometry.unitsphere import smallest_first
 
     t = np.array([[5, 2, 9], [2, 9, 5], [9, 5, 2], [3, 1, 2]])
     np.testing.assert_array_equal(smallest_first(t), [[2, 9, 5]] * 3 + [[1, 2, 3]])
@@ -119,7 +119,7 @@ def test_local_delaunay_update_equals_the_global_hull(seed):
     """Moving a few vertices, the locally updated triangulation is the convex hull of the moved
     map, and its folded mask that of the hull (random points: no cocircular ties); the count
     alone (:meth:`_Hull.folds_if_moved`) agrees."""
-    from surfidx.sphere._foldrepair import _Hull
+    from surfidx.sphere.foldrepair import _Hull
 
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(2000, 3))
@@ -151,7 +151,7 @@ def test_local_update_holds_where_circles_are_small(k):
     circle only up to rounding (a few 1e-10 of the radius), so the test of the circles against
     the map's points skips the corners; testing them too refuses the local update, which falls
     back to the global hull."""
-    from surfidx.sphere._foldrepair import _Hull
+    from surfidx.sphere.foldrepair import _Hull
 
     rng = np.random.default_rng(k)
     x = np.vstack([rng.normal(size=(500, 3)), [0, 0, 1] + 1e-3 * rng.normal(size=(1500, 3))])
@@ -174,7 +174,7 @@ def test_local_update_holds_where_circles_are_small(k):
 def test_random_search_removes_folds_deterministically(tube_map):
     """The final random search (run when the move rounds leave few folds) keeps only moves that
     lower the fold count and invert no mesh triangle, and is seeded."""
-    from surfidx.sphere._foldrepair import _Hull, _Mesh, _search
+    from surfidx.sphere.foldrepair import _Hull, _Mesh, _search
 
     s, f, x = tube_map
     results = []
@@ -193,8 +193,8 @@ def test_search_trial_moves_by_its_share_of_the_edge_length(tube_map):
     """A search trial moves the vertex along the tangent part of its random direction by the
     drawn share of its mean mesh-edge length on the sphere, and is refused exactly when one of
     the vertex's mesh triangles would turn over (against the orientation of the whole map)."""
-    from surfidx.sphere._foldrepair import _Mesh, _trial_move
-    from surfidx.spherical import corner_orientation
+    from surfidx.sphere.foldrepair import _Mesh, _trial_move
+    from surfidx.geometry.unitsphere import corner_orientation
 
     s, f, x = tube_map
     mesh = _Mesh(f, len(x))
@@ -233,7 +233,7 @@ def test_parameterize_reports_the_repair(tube_map):
 def test_blocked_move_is_halved_then_undone(sphere_surfels):
     """A move past a neighbour inverts mesh triangles: it is halved until none is inverted, or
     undone when halving is not allowed."""
-    from surfidx.sphere._foldrepair import _Mesh
+    from surfidx.sphere.foldrepair import _Mesh
 
     s = sphere_surfels
     f = _oriented_faces(s)

@@ -85,7 +85,7 @@ def test_mutated_files(tmp_path, kind):
 
 
 def test_reseal_recomputes_lengths_and_checksums(stream_seeds):
-    from surfidx.container import unpack
+    from surfidx.codec.container import unpack
 
     for data in stream_seeds:
         assert fuzz._reseal(data) == data

@@ -16,7 +16,7 @@ from plyfile import PlyData
 
 from surfidx import FileFormatError, InputError, SurfelSet, TopologyError, TriangleMesh, read_surfels
 from surfidx.cli import cli
-from surfidx.geodesics import (GeodesicPath, GeodesicSolver, farthest_point_landmarks,
+from surfidx.geometry.geodesics import (GeodesicPath, GeodesicSolver, farthest_point_landmarks,
                                geodesic_distances, geodesic_path)
 from surfidx.render import read_polyline
 

@@ -8,8 +8,8 @@ from conftest import icosphere_mesh
 from scipy.spatial import cKDTree
 
 from surfidx import SurfelSet, TopologyError, TriangleMesh
-from surfidx._errors import InputError
-from surfidx.graph import SphereOfInfluenceGraph, neighbour_radii, sphere_of_influence_graph
+from surfidx.errors import InputError
+from surfidx.geometry.graph import SphereOfInfluenceGraph, neighbour_radii, sphere_of_influence_graph
 
 
 def _sphere(level=3, centre=(0.0, 0.0, 0.0)):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, Icosphere, choose_level, icosphere,
+from surfidx.geometry.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, Icosphere, choose_level, icosphere,
                                vertex_count)
 
 LEVELS = range(0, 6)
@@ -222,7 +222,7 @@ def test_choose_level():
 
 
 def test_level_of_count_inverts_vertex_count():
-    from surfidx.icosphere import level_of_count
+    from surfidx.geometry.icosphere import level_of_count
 
     for level in range(MAX_LEVEL + 1):
         assert level_of_count(vertex_count(level)) == level
@@ -235,7 +235,7 @@ def test_icosphere_imports_without_scipy():
     import subprocess
     import sys
 
-    code = "import sys, surfidx.icosphere, surfidx.container; print('scipy' in sys.modules)"
+    code = "import sys, surfidx.geometry.icosphere, surfidx.codec.container; print('scipy' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 
@@ -245,7 +245,7 @@ def test_subdivided_half_edges_match_a_sort(level):
     """A subdivided level's twins follow from the coarser level's without a sort: each is the
     reversed half-edge (an involution swapping tail and head), the same the sort finds; the edges
     are the lo -> hi half-edges in lexicographic order, each half-edge numbered by its edge."""
-    from surfidx.icosphere import _twins_by_sorting
+    from surfidx.geometry.icosphere import _twins_by_sorting
 
     ico = icosphere(level)
     he = ico._half_edges
@@ -261,7 +261,7 @@ def test_spherical_triangle_areas_of_a_grid_are_blocked_without_changing_a_bit()
     """Over more triangles than one block, ``triangle_areas`` gives each triangle the value of
     the whole-array formula to the bit; a grid's areas are positive and sum to 4π, and its
     vertex areas (a third of each incident triangle's) too."""
-    from surfidx.spherical import _BLOCK, triangle_areas
+    from surfidx.geometry.unitsphere import _BLOCK, triangle_areas
 
     ico = icosphere(6)
     pts, tri = ico.vertices, ico.faces

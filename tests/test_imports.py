@@ -87,11 +87,11 @@ def _cycles(graph):
 def test_the_graph_sees_the_imports():
     """The graph finds module-level, relative, aliased and function-level imports."""
     graph = _graph()
-    assert "surfidx.spherical" in graph["surfidx.resample"]           # module level, relative
-    assert "surfidx.sphere" in graph["surfidx.codec"]                 # aliased
+    assert "surfidx.geometry.unitsphere" in graph["surfidx.codec.resample"]           # module level, relative
+    assert "surfidx.sphere.options" in graph["surfidx.codec.encoder"]  # aliased
     assert "surfidx.codec" in graph["surfidx.pipeline"]               # inside a function
-    assert "surfidx.sphere.options" in graph["surfidx.sphere._tutte"]
-    assert "surfidx.sphere" in graph["surfidx.cli._sphere"]
+    assert "surfidx.sphere.options" in graph["surfidx.sphere.tutte"]
+    assert "surfidx.sphere" in graph["surfidx.cli.sphere"]
 
 
 def test_the_cycle_finder_finds_a_cycle():
@@ -101,11 +101,11 @@ def test_the_cycle_finder_finds_a_cycle():
 
 def test_sphere_stage_has_no_import_cycle():
     """The spherical map, the sphere geometry, the resampling and the grid: acyclic."""
-    own = ("surfidx.sphere", "surfidx.spherical", "surfidx.resample", "surfidx.icosphere")
+    own = ("surfidx.sphere", "surfidx.geometry.unitsphere", "surfidx.codec.resample", "surfidx.geometry.icosphere")
     graph = _graph()
     sub = {v: {w for w in ws if w.startswith(own)} for v, ws in graph.items()
            if v.startswith(own)}
-    assert "surfidx.sphere._tutte" in sub
+    assert "surfidx.sphere.tutte" in sub
     cycles = _cycles(sub)
     assert not cycles, f"import cycles: {[sorted(c) for c in cycles]}"
 
@@ -117,22 +117,40 @@ def test_no_import_cycle_at_all():
 
 
 def test_the_command_modules_import_the_group_not_the_package():
-    """The click group lives in ``cli/_group.py``; the package imports the command modules."""
+    """The click group lives in ``cli/group.py``; the package imports the command modules."""
     graph = _graph()
-    for m in ("_codec", "_convert", "_db", "_geodesic", "_sphere", "_view"):
-        assert "surfidx.cli._group" in graph[f"surfidx.cli.{m}"]
+    for m in ("codec", "convert", "db", "geodesic", "sphere", "view"):
+        assert "surfidx.cli.group" in graph[f"surfidx.cli.{m}"]
         assert "surfidx.cli" not in graph[f"surfidx.cli.{m}"]
         assert f"surfidx.cli.{m}" in graph["surfidx.cli"]
+
+
+def _lazy_packages():
+    """Package name -> the names its ``__init__.pyi`` exports and the submodules they come from."""
+    out = {}
+    for stub in sorted((REPO / "surfidx").rglob("__init__.pyi")):
+        parts = list(stub.parent.relative_to(REPO).parts)
+        exports = {}
+        for node in ast.parse(stub.read_text()).body:
+            if isinstance(node, ast.ImportFrom):
+                for a in node.names:
+                    exports[a.asname or a.name] = node.module
+        out[".".join(parts)] = exports
+    return out
 
 
 def test_no_lazy_export_is_shadowed_by_its_submodule():
     """An export named as a submodule would turn into the module once that is imported."""
     import importlib
+    import pkgutil
 
-    import surfidx
-
-    for name, module in surfidx._LAZY.items():
-        assert name != module, name
-        importlib.import_module(f"surfidx.{module}")
-        assert getattr(surfidx, name) is getattr(importlib.import_module(f"surfidx.{module}"),
-                                                 name)
+    packages = _lazy_packages()
+    assert {"surfidx", "surfidx.codec", "surfidx.sphere", "surfidx.db"} <= set(packages)
+    for package, exports in packages.items():
+        pkg = importlib.import_module(package)
+        submodules = {m.name for m in pkgutil.iter_modules(pkg.__path__)}
+        for name, module in exports.items():
+            assert name not in submodules, f"{package}.{name} is also a submodule"
+            source = importlib.import_module(f"{package}.{module}")
+            assert getattr(pkg, name) is getattr(source, name), f"{package}.{name}"
+        assert set(exports) <= set(pkg.__all__) and set(exports) <= set(dir(pkg))

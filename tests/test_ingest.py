@@ -15,7 +15,7 @@ import pytest
 
 import ingest
 from surfidx import DatabaseError, InputError, SurfidxError
-from surfidx.database import Database
+from surfidx.db.catalog import Database
 from surfidx.pipeline import ProcessedModel, content_hash
 
 from test_database import tiny_png
@@ -412,9 +412,9 @@ def test_processed_model_records_the_mesh_conversion(tmp_path):
     """The stored parameters say how a mesh became surfels: bisection threshold, or sampling."""
     from conftest import icosphere_mesh
 
-    from surfidx.mesh import MAX_EDGE_RATIO
+    from surfidx.geometry.mesh import MAX_EDGE_RATIO
     from surfidx.pipeline import process_model
-    from surfidx.resample import PHONG_ALPHA, PHONG_SHARPNESS
+    from surfidx.codec.resample import PHONG_ALPHA, PHONG_SHARPNESS
 
     v, f = icosphere_mesh(3)
     path = tmp_path / "blob.off"
@@ -475,7 +475,7 @@ def _run_guarded(fn, seconds=120):
 
 
 def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
-    from surfidx.database import escape_name, storable_text, unescape_name
+    from surfidx.db.catalog import escape_name, storable_text, unescape_name
 
     root = tmp_path / "data"
     root.mkdir()

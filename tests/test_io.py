@@ -7,7 +7,7 @@ import pytest
 from plyfile import PlyData
 
 from surfidx import FileFormatError, InputError, SurfelSet, TriangleMesh, read_mesh, read_surfels, write_ply
-from surfidx.mesh import MAX_EDGE_RATIO, sample_texture
+from surfidx.geometry.mesh import MAX_EDGE_RATIO, sample_texture
 
 
 def test_igea_tristrips_give_outward_surfels(models):
@@ -72,7 +72,7 @@ def test_bisection_makes_surfels_represent_large_faces(models):
     """The reason for bisection: on falconstatue's flat base the corner surfels are tilted by the
     sides; points of the true surface then lie far off their nearest surfel's plane (D2 of an
     exact surface sample against the surfels 47 dB per vertex, over 69 dB after bisection)."""
-    from surfidx.metrics import psnr_d2
+    from surfidx.geometry.metrics import psnr_d2
 
     m = read_mesh(models / "falconstatue.obj")
     exact = m.to_surfels(samples=200_000, seed=1)
@@ -217,7 +217,7 @@ def test_binary_ply_faces_read_alike_as_triangles_or_as_lists(tmp_path, quads):
 
 def test_point_cloud_mixed_orientation_is_made_consistent():
     from surfidx import points_to_surfels
-    from surfidx.pointcloud import estimate_normals, orient_normals
+    from surfidx.geometry.pointcloud import estimate_normals, orient_normals
 
     from conftest import icosphere_mesh
 

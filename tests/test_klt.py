@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from surfidx import TOL, BitstreamError, InputError
-from surfidx.klt import KLT
+from surfidx.codec.klt import KLT
 
 
 def _layers(n=2000, k=6, seed=0):

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from surfidx import TOL, InputError, SurfelSet, read_surfels
-from surfidx.metrics import Reference, evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
+from surfidx.geometry.metrics import Reference, evaluate, hausdorff, psnr_d1, psnr_d2, psnr_luma
 
 
 # ---------------------------------------------------------------------- independent reference
@@ -243,7 +243,7 @@ def test_a_reference_probes_large_sets_in_blocks_with_the_same_answers():
     or everywhere) gives psnr_d2's numbers to the bit, and ``psnr_d2_at_least`` the comparison's
     answer for floors just around the value, far above it (where the blocks stop early),
     far below it and beyond float range."""
-    from surfidx.metrics import _PROBE_BLOCK as _BLOCK
+    from surfidx.geometry.metrics import _PROBE_BLOCK as _BLOCK
 
     rng = np.random.default_rng(5)
     ref = sphere_points(2000, rng)

@@ -7,9 +7,10 @@ import pytest
 
 from surfidx import InputError, SurfelSet, TopologyError, TriangleMesh, read_surfels
 from surfidx.codec import Encoder
-from surfidx.resample import locate_surfels
+from surfidx.codec.resample import locate_surfels
+from surfidx.geometry.unitsphere import hull_triangles
 from surfidx.sphere import (METHODS, MapOptions, SphericalMap, area_distortion, count_folds,
-                            hull_triangles, parameterize, sparse_sampling)
+                            parameterize, sparse_sampling)
 
 from conftest import EXAMPLES, icosphere_mesh, tube_mesh
 
@@ -95,7 +96,7 @@ def test_area_balancing_grows_limbs():
 def test_squeezed_tutte_start_is_untangled_before_balancing():
     """A tube 80 girths long: the Tutte start squeezes its far end below the floating-point floor
     (inverted triangles), which balancing alone cannot start from; it is untangled first."""
-    from surfidx.sphere._tutte import tutte_map
+    from surfidx.sphere.tutte import tutte_map
 
     s = TriangleMesh(*tube_mesh(m=100), name="tube").to_surfels()
     route = dict(iterations=0, gamma=1.0)
@@ -109,8 +110,8 @@ def test_squeezed_tutte_start_is_untangled_before_balancing():
 def test_centring_takes_newton_steps():
     """The Möbius normalisation of a map pushed far off centre (uneven weights too) puts the
     weighted centre of mass at the origin within a few Newton steps, inverting no triangle."""
-    from surfidx.sphere._tutte import centre
-    from surfidx.spherical import mobius, orientation
+    from surfidx.sphere.tutte import centre
+    from surfidx.geometry.unitsphere import mobius, orientation
 
     v, f = icosphere_mesh(3)
     rng = np.random.default_rng(4)
@@ -127,7 +128,7 @@ def test_mobius_normalised(sphere_surfels):
     # area-weighted centre of mass of the vertices at the origin (canonical up to a rotation)
     s = sphere_surfels.transformed(translation=[0.3, 0.0, 0.0])
     m = parameterize(s, stress=False, iterations=0)
-    from surfidx.sphere._surface import areas3, oriented_faces
+    from surfidx.sphere.surface import areas3, oriented_faces
 
     f = oriented_faces(s)
     va = np.bincount(f.ravel(), np.repeat(areas3(s.positions, f), 3), minlength=len(s))
@@ -228,8 +229,8 @@ def horse(models):
 @pytest.mark.slow
 def test_horse_full_size(horse):
     """Legs and head keep their share of the sphere: the grid resampling leaves no holes."""
-    from surfidx.icosphere import choose_level
-    from surfidx.resample import grid_to_surfels, resample
+    from surfidx.geometry.icosphere import choose_level
+    from surfidx.codec.resample import grid_to_surfels, resample
     from scipy.spatial import cKDTree
 
     s, m = horse
@@ -260,8 +261,8 @@ def test_scorpion_folds_after_realisation(models):
     realisation remove at least nine in ten. The count is the one counted afresh from the
     points, the resampling loses at most ``TOL.realise_loss`` dB, and convex flips alone never
     do better on the same map. A few minutes: left out by default (``-m long``)."""
-    from surfidx.sphere._circlepattern import lower_folds
-    from surfidx.sphere._repair import ResamplingCheck
+    from surfidx.sphere.circlepattern import lower_folds
+    from surfidx.sphere.repair import ResamplingCheck
 
     s = read_surfels(models / "scorpion.obj")
     x = parameterize(s, stress=False, options=MapOptions(realise=False)).points
@@ -279,8 +280,8 @@ def test_scorpion_folds_after_realisation(models):
 def test_resampling_check_refuses_a_map_that_resamples_worse(models):
     """The check of a fold realisation: the map it was made for passes (its own PSNR is the
     floor plus the allowed loss), a map with some surfels moved across the sphere does not."""
-    from surfidx._tolerance import TOL
-    from surfidx.sphere._repair import ResamplingCheck
+    from surfidx.tolerance import TOL
+    from surfidx.sphere.repair import ResamplingCheck
 
     s = read_surfels(models / "spot" / "spot_triangulated.obj")
     x = parameterize(s, stress=False).points
@@ -301,7 +302,7 @@ def test_realisation_removes_the_folds_the_repair_leaves_on_homer(models):
     """With the fold repair cut to one round and no search, Homer keeps folded Delaunay
     triangles; flips and their Delaunay realisation remove them, and resampling still
     interpolates in the mesh's own faces."""
-    from surfidx.resample import map_triangles
+    from surfidx.codec.resample import map_triangles
 
     s = read_surfels(models / "homer.obj")
     m = parameterize(s, stress=False, options=MapOptions(repair_rounds=1, second_pass=False,
@@ -344,7 +345,7 @@ def test_finest_level_stops_on_its_step_count():
 def test_single_level_steps_bound_steps_times_vertices():
     """The single-level balancing's step count falls with the vertex count, so its cost is
     bounded at any size."""
-    from surfidx.sphere._tutte import single_level_steps
+    from surfidx.sphere.tutte import single_level_steps
 
     o = MapOptions()
     assert single_level_steps(64, o) == o.single_level_max_steps == 3000
@@ -377,7 +378,7 @@ def test_level_that_cannot_be_untangled_falls_back_to_single_level():
 def test_level_that_fails_is_retried_with_another_hierarchy(monkeypatch):
     """A hierarchy whose level cannot be untangled is built again to the next coarsest size of
     ``coarse_ladder`` before the single-level map is tried (the failure is injected)."""
-    import surfidx.sphere._multilevel as M
+    import surfidx.sphere.multilevel as M
 
     ladder = MapOptions().coarse_ladder
     tried = []
@@ -434,7 +435,7 @@ def test_point_cloud_folds_are_repaired_on_its_own_delaunay_triangulation():
 def _failing_proxy_maps(monkeypatch, failing):
     """Make the first ``failing`` proxy maps report a fallback (an injected failure); returns
     the list that collects the mapped proxies' sizes."""
-    import surfidx.sphere._cloud as C
+    import surfidx.sphere.cloud as C
 
     sizes = []
     real = C.mesh_map
@@ -554,7 +555,7 @@ def test_repair_switches_are_options():
 
 def test_grid_level_is_choose_level_of_the_map():
     """The default grid level of a map: one rule (icosphere.choose_level) for codec and CLI."""
-    from surfidx.icosphere import choose_level
+    from surfidx.geometry.icosphere import choose_level
 
     s = TriangleMesh(*icosphere_mesh(2)).to_surfels()
     m = parameterize(s, stress=False)
@@ -581,5 +582,5 @@ def test_method_names_and_options_import_without_the_stages():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["('tutte',", "'mds')", "False", "False"]
     import surfidx.sphere as S
-    with pytest.raises(AttributeError, match="has no attribute 'nothing'"):
+    with pytest.raises(AttributeError, match="nothing"):
         S.nothing

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from surfidx import SurfelSet, TriangleMesh
-from surfidx._errors import InputError, TopologyError
+from surfidx.errors import InputError, TopologyError
 from surfidx.sphere.proxy import MIN_POINTS, closest_points, proxy_mesh, transfer
 
 

@@ -14,8 +14,8 @@ from conftest import icosphere_mesh
 from surfidx import DatabaseError, InputError, TriangleMesh
 from surfidx.cli import cli
 from surfidx.codec import Encoder, decode_grid
-from surfidx.database import Database
-from surfidx.descriptors import describe_grid, descriptor_params
+from surfidx.db.catalog import Database
+from surfidx.describe.descriptors import describe_grid, descriptor_params
 from surfidx.pipeline import ProcessedModel, describe_stream, redescribe
 
 
@@ -140,8 +140,8 @@ def test_redescribe_stops_on_a_database_that_cannot_be_written(encoded, tmp_path
 def test_queries_refuse_the_previous_descriptor_version_until_redescribed(encoded, tmp_path):
     """Vectors of the previous descriptor version, even of the same dimensions, are never ranked
     beside this version's: the search refuses the mix, ``redescribe`` updates the old ones."""
-    from surfidx.descriptors import DESCRIPTOR_VERSION
-    from surfidx.search import SearchIndex
+    from surfidx.describe.descriptors import DESCRIPTOR_VERSION
+    from surfidx.db.search import SearchIndex
 
     (_, s0, n0), (_, s1, n1) = encoded
     with Database(tmp_path / "v.db") as db:

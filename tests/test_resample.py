@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from surfidx import InputError, SurfelSet, read_surfels
-from surfidx.icosphere import icosphere
+from surfidx.geometry.icosphere import icosphere
 from surfidx.sphere import parameterize
-from surfidx.spherical import map_points
-from surfidx.spherical import orientation as _orientation
-from surfidx.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, locate_grid,
+from surfidx.geometry.unitsphere import map_points
+from surfidx.geometry.unitsphere import orientation as _orientation
+from surfidx.codec.resample import (grid_to_mesh, grid_to_surfels, layer_names, locate, locate_grid,
                               map_triangles, resample)
 
 
@@ -173,8 +173,8 @@ def test_sharpened_lift_follows_the_surfel_disks():
     """On the bundled spot (a coarse mesh, flat faces between its vertex disks) the sharpened
     weights bring grid points closer to the tangent plane of their nearest surfel, the error
     PSNR_D2 measures: issue #4's floor of 70 dB is met (measured 72.0; plain Phong 69.4)."""
-    from surfidx.icosphere import choose_level
-    from surfidx.metrics import evaluate
+    from surfidx.geometry.icosphere import choose_level
+    from surfidx.geometry.metrics import evaluate
 
     s = read_surfels(Path(__file__).parents[1] / "examples" / "models" / "spot"
                      / "spot_triangulated.obj")
@@ -234,7 +234,7 @@ def test_resample_checks_points(sphere_surfels):
 
 def test_degenerate_triangle_never_contains_a_query():
     """Sites on one great circle (a zero-volume triangle) are skipped by the walk, not divided by."""
-    from surfidx.resample import _bary
+    from surfidx.codec.resample import _bary
 
     a, b = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
     mid = (a + b) / np.sqrt(2.0)
@@ -244,8 +244,8 @@ def test_degenerate_triangle_never_contains_a_query():
 
 def test_locate_grid_equals_locate():
     """The coarse-to-fine walk finds the same triangles as the KD-tree-started one."""
-    from surfidx.icosphere import icosphere
-    from surfidx.resample import locate_grid
+    from surfidx.geometry.icosphere import icosphere
+    from surfidx.codec.resample import locate_grid
 
     rng = np.random.default_rng(3)
     p = rng.normal(size=(3000, 3))
@@ -275,8 +275,8 @@ def test_sites_in_one_hemisphere_still_locate_every_query():
 def test_triangle_neighbours_by_vertex_edges_equal_the_sorted_edges():
     """The directed-edge walk finds the twins the edge sort finds, on a hull, on a mesh's own
     faces and with an open edge; a directed edge listed twice goes to the sort."""
-    from surfidx.resample import _neighbors, _neighbors_sorted
-    from surfidx.spherical import hull_triangles
+    from surfidx.codec.resample import _neighbors, _neighbors_sorted
+    from surfidx.geometry.unitsphere import hull_triangles
 
     from conftest import icosphere_mesh
 
@@ -290,7 +290,7 @@ def test_hull_of_the_same_points_is_remembered_as_a_copy():
     """A remembered hull is the one qhull gives, and changing a returned one changes nothing."""
     from scipy.spatial import ConvexHull
 
-    from surfidx.spherical import hull_triangles
+    from surfidx.geometry.unitsphere import hull_triangles
 
     pts = _random_sites(3000)
     first = hull_triangles(pts)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from surfidx._sparse import SPDSolver, spd_factor
+from surfidx.geometry.sparse import SPDSolver, spd_factor
 
 
 def _laplacian(rng, i, j, m, extra=0.0):
@@ -78,7 +78,7 @@ def test_order_cuts_the_fill_of_a_mesh_laplacian():
     SuperLU's own column order gives (the reason for the module)."""
     from scipy.sparse.linalg import splu
 
-    from surfidx.icosphere import icosphere
+    from surfidx.geometry.icosphere import icosphere
 
     ico = icosphere(5)
     n = ico.n_vertices

@@ -14,11 +14,11 @@ import warnings
 import numpy as np
 import pytest
 
-from surfidx.descriptors import _texture_vector, describe_grid
-from surfidx.icosphere import choose_level
+from surfidx.describe.descriptors import _texture_vector, describe_grid
+from surfidx.geometry.icosphere import choose_level
 from surfidx.io import read_mesh
-from surfidx.mesh import TriangleMesh
-from surfidx.resample import resample
+from surfidx.geometry.mesh import TriangleMesh
+from surfidx.codec.resample import resample
 from surfidx.sphere import parameterize
 
 TEXTURED = {"spot": ("spot/spot_triangulated.obj", "spot/spot_texture.png"),

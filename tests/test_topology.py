@@ -15,7 +15,7 @@ from conftest import icosphere_mesh, torus_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_mesh
 from surfidx.topology import (ClosedSurface, RepairOptions, analyse, close_surface,
                               split_parts)
-from surfidx.topology._analyse import boundary_loops
+from surfidx.topology.analysis import boundary_loops
 
 # ---------------------------------------------------------------------------- synthetic models
 
@@ -544,8 +544,8 @@ def test_closed_cow_maps(models):
 
 
 def test_mask_round_trip_and_size():
-    from surfidx.icosphere import Icosphere
-    from surfidx.topology._mask import decode_mask, encode_mask
+    from surfidx.geometry.icosphere import Icosphere
+    from surfidx.codec.mask import decode_mask, encode_mask
     rng = np.random.default_rng(0)
     noise = rng.random(642) < 0.3
     assert np.array_equal(decode_mask(encode_mask(noise, 3), 3), noise)
@@ -560,7 +560,7 @@ def test_mask_round_trip_and_size():
 
 def test_mask_errors():
     from surfidx import BitstreamError
-    from surfidx.topology._mask import decode_mask, encode_mask
+    from surfidx.codec.mask import decode_mask, encode_mask
     with pytest.raises(InputError, match="one entry per vertex of the level-2 grid \\(162\\)"):
         encode_mask(np.zeros(100, bool), 2)
     with pytest.raises(InputError, match="bits must be 0 or 1"):

@@ -12,12 +12,12 @@ from click.testing import CliRunner
 
 from conftest import torus_mesh
 from surfidx import BitstreamError, InputError, SurfelSet, TriangleMesh
-from surfidx import container
+from surfidx.codec import container
 from surfidx.cli import cli
 from surfidx.codec import (Encoder, PartsEncoder, decode, decode_grid, decode_parts, encode_parts,
                            max_file_bytes, stream_summary)
 from surfidx.topology import analyse, close_surface
-from surfidx.topology._restore import (closed_surfels, grid_regions, mask_regions, regions_at,
+from surfidx.codec.restore import (closed_surfels, grid_regions, mask_regions, regions_at,
                                        zip_loops)
 
 
@@ -96,7 +96,7 @@ def test_closed_model_has_no_mask_and_writes_version_3(ball):
 
 
 def test_mask_regions_anchor_and_join_patches():
-    from surfidx.icosphere import icosphere
+    from surfidx.geometry.icosphere import icosphere
 
     g = icosphere(3)
     lab = np.full(g.n_vertices, -1)
@@ -114,7 +114,7 @@ def test_mask_regions_anchor_and_join_patches():
 def test_mask_regions_keep_touching_patches_apart():
     """A large patch with a one-vertex patch beside it and an anchor beside both: three regions,
     the large patch giving up its vertices beside the others and staying one region."""
-    from surfidx.icosphere import icosphere
+    from surfidx.geometry.icosphere import icosphere
 
     g = icosphere(3)
     lab = np.full(g.n_vertices, -1)
@@ -200,7 +200,7 @@ def test_handle_and_hole_together():
 
 
 def test_real_surface_stays_close_to_the_input(holes3):
-    from surfidx.metrics import psnr_d2
+    from surfidx.geometry.metrics import psnr_d2
 
     v, f = _sphere_with_holes([0, 5, 9])
     with warnings.catch_warnings():
@@ -450,7 +450,7 @@ def test_too_coarse_a_grid_still_decodes_manifold():
 
 
 def test_more_new_errors(holes3):
-    from surfidx.resample import grid_patches
+    from surfidx.codec.resample import grid_patches
 
     with pytest.raises(InputError, match="at most 4096 parts"):
         PartsEncoder([None] * 4097)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from surfidx import TOL, InputError
-from surfidx.icosphere import icosphere
-from surfidx.wavelets import (_measure_level_norms, forward, inverse, level_norms,
+from surfidx.geometry.icosphere import icosphere
+from surfidx.codec.wavelets import (_measure_level_norms, forward, inverse, level_norms,
                               scaling_integrals)
 
 
@@ -257,7 +257,7 @@ def test_frames_bad_input():
 
 # ---------------------------------------------------------------- closed-loop frames
 def _anchored_setup(level=5, k=3):
-    from surfidx.wavelets import choose_anchors
+    from surfidx.codec.wavelets import choose_anchors
 
     x = _bumpy(level, k)
     scales = level_norms(level)[icosphere(level).level_of] * (1 + icosphere(level).vertices[:, 0]
@@ -269,8 +269,8 @@ def _anchored_setup(level=5, k=3):
 
 @pytest.mark.parametrize("k", [3, 6])
 def test_anchored_frames_reconstruct_exactly_and_anchors_descend(k):
-    from surfidx.wavelets import forward_anchored, inverse_anchored
-    from surfidx.zerotree import quantize_to_plane
+    from surfidx.codec.wavelets import forward_anchored, inverse_anchored
+    from surfidx.codec.zerotree import quantize_to_plane
 
     level = 5
     x, scales, step, anchors = _anchored_setup(level, k)
@@ -289,8 +289,8 @@ def test_anchored_frames_reconstruct_exactly_and_anchors_descend(k):
 def test_anchored_frames_agree_with_the_encoder_wherever_the_anchor_was_decoded():
     """A decoder with the anchor planes of some levels computes those levels' frames exactly as
     the encoder did: its synthesis equals one given the encoder's own anchors for them."""
-    from surfidx.wavelets import forward_anchored, inverse_anchored
-    from surfidx.zerotree import anchor_values, decode as zdecode, encode as zencode, \
+    from surfidx.codec.wavelets import forward_anchored, inverse_anchored
+    from surfidx.codec.zerotree import anchor_values, decode as zdecode, encode as zencode, \
         quantize_to_plane
 
     level = 5

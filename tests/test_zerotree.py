@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from surfidx import BitstreamError, InputError
-from surfidx.icosphere import icosphere
-from surfidx.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared, forest,
+from surfidx.geometry.icosphere import icosphere
+from surfidx.codec.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared, forest,
                               pack_header, prepare, unpack_header)
 
 
@@ -316,8 +316,8 @@ def test_150k_nodes_fill_the_budget_and_decode():
 
 
 def test_anchor_values_match_the_encoder_once_the_plane_is_decoded():
-    from surfidx.icosphere import icosphere
-    from surfidx.zerotree import anchor_values, quantize_to_plane
+    from surfidx.geometry.icosphere import icosphere
+    from surfidx.codec.zerotree import anchor_values, quantize_to_plane
 
     ico = icosphere(4)
     rng = np.random.default_rng(5)
@@ -345,7 +345,7 @@ def test_anchor_values_match_the_encoder_once_the_plane_is_decoded():
 
 
 def test_top_bit_is_the_bit_length_less_one():
-    from surfidx.zerotree import _top_bit
+    from surfidx.codec.zerotree import _top_bit
 
     values = [0, 1, 2, 3] + [(1 << b) + d for b in range(2, 62) for d in (-1, 0, 1)]
     assert [_top_bit(v) for v in values] == [v.bit_length() - 1 for v in values]

@@ -1,8 +1,8 @@
 -- surfidx model database: the one source of truth of the schema (current schema version 3).
 --
--- surfidx.database creates a new database by executing this file in one transaction and then
--- setting PRAGMA user_version to surfidx.database.SCHEMA_VERSION and PRAGMA application_id to
--- surfidx.database.APPLICATION_ID (the bytes SFDX, the mark of a surfidx file: it is checked
+-- surfidx.db.catalog creates a new database by executing this file in one transaction and then
+-- setting PRAGMA user_version to surfidx.db.catalog.SCHEMA_VERSION and PRAGMA application_id to
+-- surfidx.db.catalog.APPLICATION_ID (the bytes SFDX, the mark of a surfidx file: it is checked
 -- before anything is written to a file, and set on the next write in files made before it
 -- existed). Older databases are brought here by the migration functions in surfidx/database.py
 -- (_MIGRATIONS), which must produce the same tables as this file. This file is package data
@@ -11,7 +11,7 @@
 -- Plain tables with readable column names, foreign keys and indexes, so that the file can be
 -- browsed as it is with sqlite-utils or Datasette. Times are ISO 8601 UTC text, JSON is text,
 -- descriptor vectors are float32 little-endian BLOBs. Names and paths from file names are stored
--- through surfidx.database.escape_name (a byte that is not UTF-8 as a backslash, x and two hex
+-- through surfidx.db.catalog.escape_name (a byte that is not UTF-8 as a backslash, x and two hex
 -- digits, lossless). Statements must not contain semicolons inside comments or strings (the file
 -- is split on statement boundaries).
 --
@@ -47,7 +47,7 @@ CREATE TABLE models (
 );
 CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
 -- Names are unique: a model whose file stem is taken is named after its parent folder, and
--- when that is taken too, STEM-2, STEM-3, ... (surfidx.database.Database.add).
+-- when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Database.add).
 CREATE UNIQUE INDEX models_name ON models (name);
 
 -- The compressed asset of a model: one container file holding the embedded bitstream, and its

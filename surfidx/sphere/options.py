@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .._errors import InputError
-from .._validate import check_option_fields
+from ..errors import InputError
+from ..validate import check_option_fields
 
 __all__ = ["MapOptions", "DEFAULT_OPTIONS", "METHODS", "STAGES"]
 
@@ -106,7 +106,7 @@ class MapOptions:
         unfolded triangles kept embedded too (their neighbourhoods propose other moves).
     realise : bool
         Where folds remain, choose the triangulation by edge flips and realise it as the
-        Delaunay triangulation of moved points (:mod:`surfidx.sphere._circlepattern`).
+        Delaunay triangulation of moved points (:mod:`surfidx.sphere.circlepattern`).
     realise_rounds : int
         Most flip-and-realise rounds.
     flip_ladder : tuple of (bool, float)

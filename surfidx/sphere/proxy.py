@@ -19,15 +19,15 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
+from ..jit import njit
 from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .._errors import InputError, TopologyError
-from .._validate import as_array, check_positive_int
-from ..mesh import TriangleMesh
-from ..surfels import SurfelSet
+from ..errors import InputError, TopologyError
+from ..validate import as_array, check_positive_int
+from ..geometry.mesh import TriangleMesh
+from ..geometry.surfels import SurfelSet
 
 __all__ = ["proxy_mesh", "transfer", "closest_points", "auto_resolution", "MAX_RESOLUTION",
            "MIN_POINTS"]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import InputError
-from .._validate import as_array
-from ..mesh import vertex_area_shares
-from ..spherical import folded_mask, hull_triangles, map_points, triangle_areas
-from ..surfels import SurfelSet
-from ._surface import areas3
+from ..errors import InputError
+from ..validate import as_array
+from ..geometry.mesh import vertex_area_shares
+from ..geometry.unitsphere import folded_mask, hull_triangles, map_points, triangle_areas
+from ..geometry.surfels import SurfelSet
+from .surface import areas3
 
 __all__ = ["count_folds", "area_distortion", "sparse_sampling", "landmark_stress",
            "SPARSE_QUANTILE"]
@@ -36,7 +36,7 @@ def count_folds(surfels: SurfelSet, sphere_points, *, triangles=None) -> tuple[i
         The surfels' positions on the unit sphere.
     triangles : (m, 3) int64, optional
         The hull of ``sphere_points`` when already computed
-        (:func:`surfidx.spherical.hull_triangles`), or other triangles to measure on.
+        (:func:`surfidx.geometry.unitsphere.hull_triangles`), or other triangles to measure on.
 
     Returns
     -------
@@ -96,7 +96,7 @@ def sparse_sampling(surfels: SurfelSet, sphere_points, *, triangles=None,
     ``n a_i / 4π`` over the ``n`` surfels: a grid of ``N`` points gives the sparsest-mapped
     ``quantile`` share of the surfels fewer than ``N / n`` times this many grid points each.
     1 for a map that spreads the surfels evenly; the grid level depends on it
-    (:func:`surfidx.icosphere.choose_level`).
+    (:func:`surfidx.geometry.icosphere.choose_level`).
 
     Parameters
     ----------

@@ -1,0 +1,159 @@
+"""``surfidx encode`` and ``surfidx decode``."""
+
+from __future__ import annotations
+
+import click
+
+from ..sphere.options import METHODS
+from .common import (command_errors, echo_json, input_options, output_format_option, plain,
+                      progress_options, stage_progress)
+from .group import cli
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="The .sfz file to write.")
+@click.option("--bits-per-surfel", "bits", type=float, required=True,
+              help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes.")
+@click.option("--no-color", is_flag=True, help="Code geometry only.")
+@click.option("--level", type=click.IntRange(0, 9), default=None,
+              help="Icosahedral grid level (default: chosen from the surfel count).")
+@click.option("--method", type=click.Choice(METHODS), default=METHODS[0],
+              help="Spherical map: fold-free Tutte with area balancing, or the original MDS.")
+@click.option("--tangent-weight", type=float, default=None,
+              help="Weight in (0, 1] of the tangential geometry details in local frames "
+                   "(default 0.5).")
+@click.option("--no-frames", is_flag=True, help="Code x, y, z details as they are (no local frames).")
+@click.option("--density-weighting/--no-density-weighting", default=None,
+              help="Weight coefficients by the input's surfel density on the sphere (default: "
+                   "when the estimated gain is at least 1 dB).")
+@input_options
+@progress_options
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
+@command_errors
+def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
+           density_weighting, texture, samples, quiet, verbose, as_json):
+    """Encode a model into an embedded .sfz bitstream.
+
+    A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model: holes
+    capped, handles cut, pinches split, tiny pieces dropped); the virtual patches are coded as
+    a mask, so decoding gives back the open (or genus-g) surface, and each piece is one part of
+    the file."""
+    from ..codec import TANGENT_WEIGHT, PartsEncoder, stream_summary
+    from ..io import read_model, write_atomic
+    from ..progress import report
+    from .common import allow_outside_textures
+
+    if no_frames and tangent_weight is not None:
+        raise click.UsageError("--tangent-weight and --no-frames exclude each other")
+    tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
+    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+        report(progress, "read", 0, 1)
+        model = read_model(input, texture=texture, samples=samples,
+                           allow_outside_textures=allow_outside_textures())
+        report(progress, "read", 1, 1)
+        parts = list(model.parts)
+        fps = [model.face_patch(i) for i in range(len(parts))]
+        dropped = model.parts_dropped
+        pe = PartsEncoder(parts, level=level, color=False if no_color else None, method=method,
+                          tangent_weight=tw, density_weighting=density_weighting,
+                          progress=progress, face_patches=fps)
+        data = pe.encode(bits, progress=progress)
+        report(progress, "write", 0, 1)
+        write_atomic(output, lambda tmp: tmp.write_bytes(data))
+    summary = stream_summary(data)
+    enc = pe.encoders[0]
+    n = pe.n_surfels
+    out = {"output": str(output), "surfels": n, "bytes": len(data),
+           "bits_per_surfel": 8.0 * len(data) / n,
+           "level": enc.level if len(parts) == 1 else [e.level for e in pe.encoders],
+           "color": enc.color, "folded": sum(e.sphere_map.folded for e in pe.encoders),
+           "tangent_weight": enc.tangent_weight,
+           "density_weighted": any(bool(e.weight_field) for e in pe.encoders),
+           "seconds": enc.setup_seconds if len(parts) == 1 else
+           [e.setup_seconds for e in pe.encoders],
+           "parts": len(parts), "dropped_parts": dropped, "holes": sum(summary["holes"]),
+           "cuts": sum(summary["cuts"]), "mask_bytes": sum(summary["mask_bytes"]),
+           "mask_share": summary["mask_share"]}
+    if as_json:
+        echo_json(out)
+    else:
+        lv = enc.level if len(parts) == 1 else "/".join(str(e.level) for e in pe.encoders)
+        extra = ""
+        if len(parts) > 1 or out["mask_bytes"]:
+            extra = (f"; {len(parts)} part{'s' if len(parts) > 1 else ''}, {out['holes']} "
+                     f"holes, {out['cuts']} cuts, mask {out['mask_bytes']} bytes")
+        click.echo(f"{output}: {len(data)} bytes, {out['bits_per_surfel']:.3f} bits/surfel "
+                   f"({n} surfels, grid level {lv}{', colour' if enc.color else ''}{extra})")
+
+
+#: Help of the options shared by ``decode`` and ``get``.
+LEVEL_HELP = ("Grid level of the output (default: the level whose vertex count is closest to the "
+              "input's surfel count; lower: fewer surfels).")
+MAX_SURFELS_HELP = ("Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
+                    "grid); --level gives fewer.")
+OUTPUT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
+               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
+               "stream, truncated to --bits-per-surfel).")
+
+
+def output_summary(out: dict) -> str:
+    """The one line ``decode`` and ``get`` print about what they wrote."""
+    rate = ("full rate" if out.get("bits_per_surfel") is None
+            else f"{out['bits_per_surfel']:g} bits/surfel")
+    if out["format"] == "sfz":
+        return f"{out['output']}: {out['bytes']:,} bytes of stream at {rate}"
+    what = f"{out['surfels']:,} surfels"
+    if out.get("faces") is not None:
+        what = f"mesh of {out['surfels']:,} vertices and {out['faces']:,} faces"
+    level = "" if out.get("level") is None else f", grid level {out['level']}"
+    return f"{out['output']}: {what} ({out['format'].upper()}{level}) at {rate}"
+
+
+@cli.command()
+@click.argument("input", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help=OUTPUT_HELP)
+@output_format_option
+@click.option("--bits-per-surfel", "bits", type=click.FloatRange(min=0, min_open=True),
+              default=None, help="Decode (or keep, for .sfz) only the prefix of the embedded "
+                                 "stream that fits this rate.")
+@click.option("--mesh/--surfels", "mesh", default=None,
+              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
+                   "surfels for PLY).")
+@click.option("--level", type=int, default=None, help=LEVEL_HELP)
+@click.option("--max-surfels", type=click.IntRange(min=1), default=None, help=MAX_SURFELS_HELP)
+@click.option("--keep-virtual", is_flag=True,
+              help="Keep the virtual patches topology repair added (the closed surface as "
+                   "coded); by default they are dropped and handle cuts zipped again.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def decode(input, output, fmt, bits, mesh, level, max_surfels, keep_virtual, as_json):
+    """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
+    lower rate as a .sfz."""
+    from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
+    from ..codec.container import part_surfels, truncate, unpack_parts
+    from ..io import output_format, write_atomic, write_model
+    from ..pipeline import output_level
+
+    fmt = output_format(output, fmt, allowed=("ply", "obj", "glb", "sfz"))
+    data = read_sfz(input)
+    out = {"input": str(input), "output": str(output), "format": fmt, "bits_per_surfel": bits}
+    if fmt == "sfz":
+        n = sum(part_surfels(p, path=input) for p in unpack_parts(data, path=input))
+        cut = data if bits is None else truncate(data, max_file_bytes(bits, n), path=input)
+        write_atomic(output, lambda tmp: tmp.write_bytes(cut))
+        out["bytes"] = len(cut)
+    else:
+        level = output_level(data, path=input) if level is None else level
+        as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
+        model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
+                        max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
+                        keep_virtual=keep_virtual)
+        write_model(model, output, format=fmt)
+        out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
+                    "faces": len(model.faces) if as_mesh else None})
+    if as_json:
+        echo_json(out)
+    else:
+        click.echo(plain(output_summary(out)))

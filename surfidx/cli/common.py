@@ -1,0 +1,232 @@
+"""Shared CLI helpers: error mapping, JSON output, input options."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import re
+import sqlite3
+import sys
+import warnings
+
+import click
+import numpy as np
+
+from ..errors import SurfidxError
+
+__all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
+           "outside_textures_option", "output_format_option", "progress_options",
+           "stage_progress", "reading"]
+
+#: The arguments that name the file a command reads, for errors found after reading.
+_INPUT_ARGS = ("input", "example", "reference")
+
+_NAMED = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
+_UNSAFE = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
+
+
+def _escape(m) -> str:
+    c = m.group()
+    if c in _NAMED:
+        return _NAMED[c]
+    o = ord(c)
+    if 0xDC80 <= o <= 0xDCFF:                       # an undecodable byte (os.fsdecode)
+        return f"\\x{o - 0xDC00:02x}"
+    return f"\\x{o:02x}" if o < 0x100 else f"\\u{o:04x}"
+
+
+def plain(text) -> str:
+    """``text`` safe for a terminal line: control characters (C0, DEL, C1: ANSI escape
+    sequences, newlines, tabs), line and paragraph separators, bidirectional overrides and lone
+    surrogates are written as backslash escapes (``\\n``, ``\\x1b``, ``\\u202e``); every other
+    character is kept. Plain-text output goes through it; ``--json`` output does not (it is
+    exact)."""
+    text = str(text)
+    return _UNSAFE.sub(_escape, text) if _UNSAFE.search(text) else text
+
+
+_NOT_FOR_USERS = (DeprecationWarning, ResourceWarning)
+"""Warning categories the CLI does not print (Python's default filters hide them too)."""
+
+
+def command_errors(func):
+    """Map library errors to ``click.ClickException`` (one line, exit 1), and OS errors too.
+
+    An error that names no file (a :class:`~surfidx.TopologyError` or
+    :class:`~surfidx.InputError` found after reading) is prefixed with the command's ``input``
+    (or ``example``, ``reference``) argument, if any. The line goes through :func:`plain` (names
+    with control characters stay on one line); an ``sqlite3`` error the library did not map is
+    one line too. With ``--json`` (an ``as_json`` argument) the error is printed on stdout as
+    ``{"error": "..."}`` (exact, not escaped) and the exit status is 1. A closed pipe
+    (``surfidx ls | head``) ends the command quietly (click's handling of ``EPIPE``).
+
+    Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format;
+    :data:`_NOT_FOR_USERS` (deprecations, and resource warnings, which the garbage collector
+    may raise during a command for objects that are not the command's) are not shown.
+    """
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        as_json = bool(kwargs.get("as_json"))
+
+        def fail(text):
+            if as_json:
+                echo_json({"error": text})
+                raise click.exceptions.Exit(1)
+            raise click.ClickException(plain(text))
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                out = func(*args, **kwargs)
+                sys.stdout.flush()                  # a closed pipe shows here, not at exit
+                return out
+            except SurfidxError as exc:
+                # a problem found after reading names no file: name the input it concerns
+                src = next((kwargs[a] for a in _INPUT_ARGS if kwargs.get(a) is not None), None)
+                named = exc.path is not None or src is None
+                fail(str(exc) if named else f"{src}: {exc}")
+            except sqlite3.Error as exc:
+                fail(f"SQLite error ({exc})")
+            except MemoryError:
+                fail("out of memory; try a smaller input or level")
+            except BrokenPipeError:
+                raise                               # click's main ends quietly on EPIPE
+            except OSError as exc:
+                where = f"{exc.filename}: " if exc.filename else ""
+                fail(f"{where}{exc.strerror or exc}")
+            finally:
+                seen = set()
+                for w in caught:
+                    msg = str(w.message)
+                    if msg not in seen and not issubclass(w.category, _NOT_FOR_USERS):
+                        seen.add(msg)
+                        click.echo(f"warning: {plain(msg)}", err=True)
+
+    return wrapper
+
+
+def _default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def echo_json(obj) -> None:
+    """Print ``obj`` as indented JSON (numpy scalars and arrays converted)."""
+    click.echo(json.dumps(obj, indent=2, default=_default))
+
+
+_OUTSIDE = "surfidx.allow_outside_textures"
+
+
+def outside_textures_option(func):
+    """The ``--allow-outside-textures`` flag (part of :func:`input_options`): kept in the click
+    context for :func:`read_input`, so the command does not take it as an argument."""
+    @functools.wraps(func)
+    def wrapper(*args, allow_outside_textures=False, **kwargs):
+        ctx = click.get_current_context(silent=True)
+        if ctx is not None:
+            ctx.meta[_OUTSIDE] = bool(allow_outside_textures)
+        return func(*args, **kwargs)
+
+    return click.option(
+        "--allow-outside-textures", is_flag=True,
+        help="Use a texture (or glTF buffer) that the model names outside its folder (absolute "
+             "path or '..'); by default it is skipped with a warning.")(wrapper)
+
+
+def allow_outside_textures() -> bool:
+    """Whether the running command was given ``--allow-outside-textures``."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.meta.get(_OUTSIDE))
+
+
+def input_options(func):
+    """The ``--texture``, ``--samples`` and ``--allow-outside-textures`` options every command
+    that reads a model takes (the last is read by :func:`read_input` from the context)."""
+    func = outside_textures_option(func)
+    func = click.option("--samples", type=click.IntRange(min=4), default=None,
+                        help="Sample N surfels uniformly over a mesh instead of one per vertex.")(func)
+    func = click.option("--texture", type=click.Path(dir_okay=False), default=None,
+                        help="Texture image for an OBJ whose UVs name none.")(func)
+    return func
+
+
+def output_format_option(func):
+    """``--format``: the output format when the suffix does not say it."""
+    return click.option("--format", "fmt", type=click.Choice(["ply", "obj", "glb", "sfz"],
+                                                            case_sensitive=False),
+                        default=None,
+                        help="Output format (default: from the output's suffix: .ply, .obj, "
+                             ".glb, .sfz).")(func)
+
+
+def read_input(path, texture=None, samples=None, allow_outside=None):
+    """Read a model file as surfels (the library's :func:`surfidx.read_surfels`), with the
+    command's ``--allow-outside-textures`` unless ``allow_outside`` says otherwise."""
+    from ..io import read_surfels
+
+    allow = allow_outside_textures() if allow_outside is None else bool(allow_outside)
+    return read_surfels(path, texture=texture, samples=samples, allow_outside_textures=allow)
+
+
+def progress_options(func):
+    """``--quiet`` and ``--verbose``: the stage display on stderr (:func:`stage_progress`)."""
+    func = click.option("-v", "--verbose", is_flag=True,
+                        help="Print the wall and CPU time of each stage on stderr.")(func)
+    return click.option("-q", "--quiet", is_flag=True,
+                        help="Show no stage progress on stderr (shown when stderr is a "
+                             "terminal).")(func)
+
+
+def _stderr_is_terminal(stream) -> bool:
+    """Whether ``stream`` is a terminal; the click context object's ``"terminal"`` key, when
+    set, says so instead (``cli.main(args, obj={"terminal": True})``, for tests and embedding
+    applications)."""
+    ctx = click.get_current_context(silent=True)
+    obj = ctx.find_root().obj if ctx is not None else None
+    if isinstance(obj, dict) and "terminal" in obj:
+        return bool(obj["terminal"])
+    isatty = getattr(stream, "isatty", None)
+    return bool(isatty is not None and isatty())
+
+
+@contextlib.contextmanager
+def stage_progress(*, quiet: bool, verbose: bool):
+    """The progress callback of a command (a :class:`surfidx.progress.StageLog` on stderr), or
+    None: the running stage on one line when stderr is a terminal and not ``quiet``; the
+    per-stage times when the command ends, with ``verbose``.
+
+    Raises
+    ------
+    click.UsageError
+        Both ``quiet`` and ``verbose``.
+    """
+    from ..progress import StageLog
+
+    if quiet and verbose:
+        raise click.UsageError("--quiet and --verbose exclude each other")
+    stream = click.get_text_stream("stderr")
+    live = not quiet and _stderr_is_terminal(stream)
+    if not (live or verbose):
+        yield None
+        return
+    log = StageLog(stream, live=live, verbose=verbose)
+    try:
+        yield log
+    finally:
+        log.close()
+
+
+def reading(progress, path, texture=None, samples=None):
+    """:func:`read_input`, reported to ``progress`` as the ``read`` stage."""
+    from ..progress import report
+
+    report(progress, "read", 0, 1)
+    surfels = read_input(path, texture, samples)
+    report(progress, "read", 1, 1)
+    return surfels

@@ -1,0 +1,503 @@
+"""``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors``, ``redescribe``, ``rm``,
+``rename``, ``tag`` and ``untag``: the model database, each a thin layer over a
+:class:`surfidx.Database` method.
+
+The model processor (``surfidx.pipeline.process_model``) and the stream decoder
+(``surfidx.codec.decode``) are imported when a command needs them; tests (and embedding
+applications) inject others through the click context object:
+``cli.main(args, obj={"processor": fn, "decoder": fn})`` (and ``"describer"``, the query's
+:func:`surfidx.pipeline.describe_model`).
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import click
+
+from ..errors import DatabaseError, InputError, SurfidxError
+from ..db.ann import DEFAULT_THRESHOLD
+from ..db.search import DEFAULT_SHAPE_WEIGHT
+from .group import cli
+from .common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
+                      output_format_option, plain, progress_options, stage_progress)
+
+__all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
+           "parse_model_ref", "rm", "rename", "tag", "untag"]
+
+_DB_HELP = "Database file (default surfidx.db, or $SURFIDX_DB)."
+
+
+def _db_option(func):
+    return click.option("--db", "db_path", default="surfidx.db", envvar="SURFIDX_DB",
+                        show_default=False, type=click.Path(dir_okay=False), help=_DB_HELP)(func)
+
+
+def _injected(key):
+    ctx = click.get_current_context(silent=True)
+    obj = ctx.find_root().obj if ctx is not None else None
+    return obj.get(key) if isinstance(obj, dict) else None
+
+
+def _processor():
+    from ingest import resolve_processor
+
+    return resolve_processor(_injected("processor"))
+
+
+def _decoder():
+    decoder = _injected("decoder")
+    if decoder is not None:
+        return decoder
+    try:
+        from ..codec import decode
+    except ImportError as exc:
+        raise SurfidxError(f"the stream decoder surfidx.codec.decode is not available ({exc})") \
+            from exc
+    return decode
+
+
+def parse_model_ref(text: str):
+    """``"id:12"`` or ``"12"`` → 12 (an id); anything else is a model name (str)."""
+    m = re.fullmatch(r"(?:id:)?(\d+)", text.strip())
+    if m:
+        return int(m.group(1))
+    if text.startswith("id:"):
+        raise InputError(f"{text!r} is not a model id; write id:N with an integer N")
+    return text
+
+
+def _open(db_path, *, readonly=True):
+    """The database of a command: read-only (``ls``, ``show``, ``query``, ``get``, ``errors``:
+    never written, a missing or empty file is an error), or for writing an existing one."""
+    from ..db.database import Database
+
+    return Database(db_path, create=False, readonly=readonly)
+
+
+def _fmt(v, spec=".2f"):
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return format(v, spec)
+    return str(v)
+
+
+def _table(rows, columns):
+    """Print rows (dicts) as a fixed-width table with the given (key, header) columns (cells
+    through :func:`plain`: a name holding a newline or an escape sequence stays in its cell)."""
+    cells = [[plain(_fmt(r.get(k))) for k, _ in columns] for r in rows]
+    widths = [max([len(h)] + [len(c[i]) for c in cells]) for i, (_, h) in enumerate(columns)]
+    click.echo("  ".join(h.ljust(w) for (_, h), w in zip(columns, widths)).rstrip())
+    for c in cells:
+        click.echo("  ".join(v.ljust(w) for v, w in zip(c, widths)).rstrip())
+
+
+# ---------------------------------------------------------------------- ingest
+@cli.command("ingest")
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
+@_db_option
+@click.option("-j", "--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes (of the local pool, or of --scheduler local); default: "
+                   "as many as the machine's cores.")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run the per-model work on a Dask cluster: tcp://HOST:PORT of a running "
+                   "`dask scheduler`, or 'local' to start one with --workers worker processes "
+                   "(needs surfidx[distributed]).")
+@click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
+              help="With --scheduler: times a model whose worker died is re-run before it is "
+                   "recorded as failed.")
+@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=8.0,
+              show_default=True, help="Coding rate of the stored streams.")
+@click.option("--name", default=None,
+              help="Name of the stored model (one file only; default: the file's stem, or when "
+                   "another model has it the parent folder's name, then STEM-2, STEM-3...).")
+@click.option("--tag", "tags", multiple=True, help="Tag every stored model (repeatable).")
+@outside_textures_option
+@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@command_errors
+def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, name, tags,
+                   no_progress, as_json):
+    """Process model files and folders (recursively) into the database.
+
+    Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
+    ingest resumes it. A file that fails is recorded (see `surfidx errors`) and the run goes on;
+    so is a file that is not a regular file (a FIFO, a device, a link to one), skipped unread.
+    An OBJ with UVs but no texture named gets <stem>_texture.png, <stem>.png or the folder's only
+    PNG. With --scheduler the models are processed on a Dask cluster's workers (which need the
+    package and read access to the paths); this process alone writes the database.
+    Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ and PTS files; a folder
+    with none is an error. The exit status is 1 when any file failed (what could be stored is).
+    Without --workers, as many worker processes run as the machine has cores; the progress bar
+    moves within each model as its stages finish (per model with --scheduler).
+    """
+    import ingest
+
+    # ingest.run (what Database.ingest runs for files) opens the database itself, after every
+    # argument and the scheduler were checked: a bad call leaves no new file behind
+    summary = ingest.run(list(paths), db=db_path, workers=workers,
+                         bits_per_surfel=bits_per_surfel, processor=_processor(),
+                         progress=not no_progress, scheduler=scheduler, retries=retries,
+                         name=name, tags=list(tags),
+                         allow_outside_textures=allow_outside_textures())
+    if as_json:
+        echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
+                   "failed": summary.failed, "ids": summary.ids, "seconds": summary.seconds,
+                   "errors": [{"path": p, "error": e} for p, e in summary.errors],
+                   "skips": [{"path": p, "reason": r} for p, r in summary.skips]})
+        if summary.failed:
+            raise click.exceptions.Exit(1)
+        return
+    for path, message in summary.skips:
+        click.echo(plain(f"skipped: {path}: {message}"), err=True)
+    for path, message in summary.errors:
+        line = message if message.startswith(path) else f"{path}: {message}"
+        click.echo(plain(f"failed: {line}"), err=True)
+    click.echo(plain(f"{db_path}: {summary}"))
+    if summary.failed:
+        raise click.ClickException(f"{summary.failed} file(s) failed (the others were stored); "
+                                   "see `surfidx errors`")
+
+
+# ---------------------------------------------------------------------- query
+@cli.command()
+@click.argument("example")
+@_db_option
+@click.option("-k", "k", type=click.IntRange(min=1), default=10, show_default=True,
+              help="Number of results.")
+@click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=DEFAULT_SHAPE_WEIGHT,
+              show_default=True,
+              help="Weight w of shape against texture distance (1 = shape only).")
+@click.option("--sheet", type=click.Path(dir_okay=False),
+              help="Also draw the query and its results side by side into this PNG.")
+@click.option("--include-self", is_flag=True,
+              help="Keep the query model itself among the results when it is stored.")
+@click.option("--exact", is_flag=True,
+              help="Scan every stored model instead of using the approximate index (which "
+                   f"is used from {DEFAULT_THRESHOLD:,} stored models on; its results are "
+                   "re-ranked by the exact distance).")
+@outside_textures_option
+@progress_options
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def query(example, db_path, k, shape_weight, sheet, include_self, exact, quiet, verbose, as_json):
+    """Find the stored models most similar to EXAMPLE.
+
+    EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
+    or stored), a stored model's NAME, or id:N. The query model itself is left out of the
+    results when it is stored (--include-self keeps it). Distance: w*|shape difference| +
+    (1-w)*|texture difference| when both have colour, else the shape difference alone (shape:
+    the shape descriptor with the KLT spectrum appended). A model file's stages are shown on
+    stderr when it is a terminal (--quiet: never; --verbose: their times).
+    """
+    with _open(db_path) as db, stage_progress(quiet=quiet, verbose=verbose) as progress:
+        # a model file is described by surfidx.pipeline.describe_model (imported then), or
+        # by the processor or describer the context object injects
+        ex = db._example(example, processor=_injected("processor"),
+                         describer=_injected("describer"), thumbnail=bool(sheet),
+                         progress=progress, allow_outside_textures=allow_outside_textures())
+        label, qthumb = ex["name"], ex["thumbnail"]
+        if progress is not None:
+            progress("search", 0, 1)
+        rows = db.query(example, k=k, shape_weight=shape_weight, include_self=include_self,
+                        exact=exact, _example=ex)
+        if sheet:
+            thumbs = [db.get_thumbnail(r["id"]) for r in rows]
+            _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])
+    if as_json:
+        echo_json({"results": rows})
+        return
+    for rank, r in enumerate(rows, 1):
+        r["rank"] = rank
+        r["distance_s"] = f"{r['distance']:.6g}"
+    _table(rows, [("rank", "rank"), ("id", "id"), ("name", "name"), ("distance_s", "distance"),
+                  ("source", "source")])
+    if sheet:
+        click.echo(plain(f"{sheet}: query and {len(rows)} results"), err=True)
+
+
+def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
+    """Draw the query thumbnail and the results' thumbnails in a grid, captioned."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    def picture(png):
+        try:
+            im = Image.open(io.BytesIO(png))
+            im.load()
+            im = im.convert("RGB")
+        except Exception:
+            im = Image.new("RGB", (tile, tile), (200, 200, 200))
+        im.thumbnail((tile, tile))
+        return im
+
+    items = [(picture(query_item[1]), ["query", str(query_item[0])])]
+    for rank, (row, png) in enumerate(results, 1):
+        items.append((picture(png), [f"#{rank} id {row['id']} d={row['distance']:.4g}",
+                                     str(row["name"])]))
+    font = ImageFont.load_default()
+    cap = 30
+    ncols = min(cols, len(items))
+    nrows = (len(items) + ncols - 1) // ncols
+    sheet = Image.new("RGB", (ncols * tile, nrows * (tile + cap)), "white")
+    draw = ImageDraw.Draw(sheet)
+    for n, (im, lines) in enumerate(items):
+        x, y = (n % ncols) * tile, (n // ncols) * (tile + cap)
+        sheet.paste(im, (x + (tile - im.width) // 2, y + (tile - im.height) // 2))
+        if n == 0:
+            draw.rectangle([x, y, x + tile - 1, y + tile + cap - 1], outline=(200, 0, 0), width=2)
+        for j, text in enumerate(lines):
+            draw.text((x + 4, y + tile + 2 + 13 * j), text[:26], fill="black", font=font)
+    sheet.save(out, format="PNG")
+
+
+# ---------------------------------------------------------------------- get
+@cli.command()
+@click.argument("model")
+@_db_option
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="File to write, its format from the suffix (or --format): .ply (surfels, or "
+                   "a mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz "
+                   "(the stored stream, truncated to --bits-per-surfel).")
+@output_format_option
+@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Serve only this rate's prefix of the stream (default: all of it).")
+@click.option("--level", type=int, default=None,
+              help="Grid level of the output (default: the level whose vertex count is closest "
+                   "to the input's surfel count; lower: fewer surfels).")
+@click.option("--mesh/--surfels", "mesh", default=None,
+              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
+                   "surfels for PLY).")
+@click.option("--max-surfels", type=click.IntRange(min=1), default=None,
+              help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
+                   "grid); --level gives fewer.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, as_json):
+    """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
+    .sfz, optionally at a lower rate."""
+    from .codec import output_summary
+
+    with _open(db_path) as db:
+        out = db.export(parse_model_ref(model), output, format=fmt,
+                        bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
+                        max_surfels=max_surfels,
+                        decoder=None if (fmt or Path(output).suffix).lower().endswith("sfz")
+                        else _decoder())
+    if as_json:
+        echo_json(out)
+        return
+    click.echo(plain(f"{output_summary(out)} (model {out['id']}, {out['name']})"))
+
+
+# ---------------------------------------------------------------------- ls, show, errors
+@cli.command()
+@_db_option
+@click.option("--errors", "show_errors", is_flag=True, help="List ingest failures instead.")
+@click.option("--tag", "tags", multiple=True, help="Only models with this tag (repeatable: all).")
+@click.option("--name-like", default=None,
+              help="Only models whose name matches this SQL LIKE pattern (%: any text).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def ls(db_path, show_errors, tags, name_like, as_json):
+    """List the stored models (or, with --errors, the ingest failures)."""
+    if show_errors:
+        return _print_errors(db_path, None, as_json)
+    with _open(db_path) as db:
+        rows = db.list_models(tag=list(tags) or None, name_like=name_like)
+    if as_json:
+        echo_json({"models": rows})
+        return
+    for r in rows:
+        r["tags_s"] = ",".join(r["tags"]) or None
+    _table(rows, [("id", "id"), ("name", "name"), ("tags_s", "tags"), ("n_surfels", "surfels"),
+                  ("has_color", "colour"), ("bytes", "bytes"), ("bits_per_surfel", "bits/surfel"),
+                  ("psnr_d1", "PSNR D1"), ("psnr_y", "PSNR Y"), ("source", "source")])
+
+
+@cli.command()
+@click.argument("model")
+@_db_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def show(model, db_path, as_json):
+    """One model's record, asset figures and descriptors, and the last ingest run's errors."""
+    with _open(db_path) as db:
+        rec = db.get_model(parse_model_ref(model))
+        run = db.last_run()
+        run_errors = db.errors(run["id"]) if run else []
+    rec["bbox_min"], rec["bbox_max"] = rec["bbox"][0].tolist(), rec["bbox"][1].tolist()
+    del rec["bbox"]
+    out = {"model": rec, "last_run": None if run is None else {**run, "errors": run_errors}}
+    if as_json:
+        echo_json(out)
+        return
+    for key in ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min",
+                "bbox_max", "ingested_at"):
+        val = rec[key]
+        if isinstance(val, list):
+            val = " ".join(f"{x:.6g}" for x in val)
+        click.echo(f"{key:16s} {plain(val)}")
+    click.echo(f"{'params':16s} {plain(echo_params(rec['params']))}")
+    asset = rec["asset"] or {}
+    for key in ("format_version", "bits_per_surfel", "bytes", "psnr_d1", "psnr_d2", "psnr_y"):
+        click.echo(f"{key:16s} {_fmt(asset.get(key), '.4g')}")
+    kinds = ", ".join(f"{k} ({d})" for k, d in rec["descriptors"].items()) or "-"
+    click.echo(f"{'descriptors':16s} {plain(kinds)}")
+    click.echo(f"{'topology':16s} {plain(topology_line(rec.get('topology')))}")
+    if run is not None:
+        click.echo(f"{'last run':16s} {run['id']} {run['status']}: stored {run['stored']}, "
+                   f"skipped {run['skipped']}, failed {run['failed']}")
+        for e in run_errors:
+            click.echo(plain(f"  failed {e['path']}: {e['error']}"))
+
+
+def topology_line(topology) -> str:
+    """What topology repair added to a model, in one line (``stored as read`` when nothing)."""
+    if not topology:
+        return "stored as read (one closed genus-0 piece)"
+    t = topology
+    parts = f"{t.get('parts', 1)} part{'s' if t.get('parts', 1) != 1 else ''}"
+    if t.get("parts_dropped"):
+        parts += f" ({t['parts_dropped']} tiny dropped)"
+    return (f"{parts}; holes filled {t.get('holes_filled', 0)}, handles cut "
+            f"{t.get('handles_cut', 0)}, pinched vertices split {t.get('pinched_vertices', 0)}; "
+            f"virtual {100 * float(t.get('virtual_area_share', 0.0)):.2f} % of the area "
+            f"({t.get('virtual_surfels', 0)} surfels)")
+
+
+def echo_params(params) -> str:
+    """``params`` as compact JSON text."""
+    import json
+
+    return json.dumps(params, sort_keys=True, default=str)
+
+
+@cli.command()
+@_db_option
+@click.option("--run", "run_id", type=int, default=None, help="Only this run's failures.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def errors(db_path, run_id, as_json):
+    """List the files ingest runs could not store, with their error messages."""
+    _print_errors(db_path, run_id, as_json)
+
+
+def _print_errors(db_path, run_id, as_json):
+    with _open(db_path) as db:
+        if run_id is not None and all(r["id"] != run_id for r in db.runs()):
+            raise DatabaseError(f"no ingest run with id {run_id}", path=db_path)
+        rows = db.errors(run_id)
+    if as_json:
+        echo_json({"errors": rows})
+        return
+    if not rows:
+        click.echo("no ingest failures")
+        return
+    _table(rows, [("run_id", "run"), ("at", "at"), ("path", "path"), ("error", "error")])
+
+
+@cli.command("redescribe")
+@_db_option
+@click.option("--all", "everything", is_flag=True,
+              help="Recompute every model, not only those with outdated descriptors.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def redescribe_command(db_path, everything, as_json):
+    """Recompute stored descriptors from the stored assets (after an upgrade changed them)."""
+    from ..pipeline import redescribe
+
+    with _open(db_path, readonly=False) as db:
+        out = redescribe(db, everything=everything)
+    if as_json:
+        echo_json(out)
+    else:
+        click.echo(f"redescribed {out['redescribed']}, up to date {out['current']}, "
+                   f"failed {len(out['failed'])}")
+        for mid, msg in out["failed"].items():
+            click.echo(plain(f"  failed id {mid}: {msg}"))
+    if out["failed"]:
+        raise click.ClickException(f"{len(out['failed'])} model(s) could not be redescribed")
+
+
+# ---------------------------------------------------------------------- rm, rename, tag, untag
+@cli.command()
+@click.argument("models", nargs=-1, required=True)
+@_db_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def rm(models, db_path, as_json):
+    """Remove stored models (ID, id:ID or NAME, several at once) with their assets, descriptors,
+    thumbnails and tags; none is removed when one is not found."""
+    with _open(db_path, readonly=False) as db:
+        removed = db.remove(*[parse_model_ref(m) for m in models])
+    if as_json:
+        echo_json({"removed": removed})
+        return
+    for r in removed:
+        click.echo(plain(f"removed model {r['id']} ({r['name']})"))
+
+
+@cli.command()
+@click.argument("model")
+@click.argument("new_name")
+@_db_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@command_errors
+def rename(model, new_name, db_path, as_json):
+    """Give a stored model (ID, id:ID or NAME) another name (names are unique)."""
+    with _open(db_path, readonly=False) as db:
+        out = db.rename(parse_model_ref(model), new_name)
+    if as_json:
+        echo_json(out)
+        return
+    click.echo(plain(f"model {out['id']}: {out['old_name']} -> {out['name']}"))
+
+
+def _tag_command(name, method, verb):
+    @cli.command(name, help=f"{method.capitalize()} a stored model (ID, id:ID or NAME): "
+                            f"{'add' if method == 'tag' else 'remove'} the TAGS given.")
+    @click.argument("model")
+    @click.argument("tags", nargs=-1, required=True)
+    @_db_option
+    @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+    @command_errors
+    def command(model, tags, db_path, as_json):
+        with _open(db_path, readonly=False) as db:
+            mid = db.resolve(parse_model_ref(model))
+            changed = getattr(db, method)(mid, list(tags))
+            now = db.tags(mid)
+        if as_json:
+            echo_json({"id": mid, verb: changed, "tags": now})
+            return
+        click.echo(plain(f"model {mid}: {verb} {changed}; tags: {', '.join(now) or '-'}"))
+
+    return command
+
+
+tag = _tag_command("tag", "tag", "added")
+untag = _tag_command("untag", "untag", "removed")
+
+
+# ---------------------------------------------------------------------- datasette
+@cli.command("datasette-metadata")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Write it to this file instead of printing it.")
+@command_errors
+def datasette_metadata_command(output):
+    """Print the Datasette metadata of a surfidx database (titles, model names as the labels of
+    model_id, browsing views). Use: surfidx datasette-metadata -o meta.json; datasette
+    surfidx.db --metadata meta.json (thumbnails as images with datasette-render-images)."""
+    import json
+
+    from ..db.catalog import datasette_metadata
+    from ..io import write_atomic
+
+    text = json.dumps(datasette_metadata(), indent=2) + "\n"
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    write_atomic(output, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    click.echo(plain(f"{output}: Datasette metadata"))

@@ -1,0 +1,845 @@
+"""The spherical wavelet codec: map → icosahedral resampling → KLT → lifted butterfly wavelets →
+zerotree + arithmetic coding → ``.sfz`` container, and back.
+
+One embedded stream holds all layers; any prefix decodes to a coarser model, so a stored asset is
+served at a lower rate by truncation (:func:`decode` with ``bits_per_surfel``). Rates are bits per
+*input* surfel with the whole file counted: a file encoded at ``B`` bits/surfel is at most
+``ceil(B · n / 8)`` bytes.
+
+Units. Before the KLT, geometry is divided by the input's bounding-box diagonal (the PSNR peak) and
+colour by 255 and multiplied by :data:`COLOR_WEIGHT`; the zerotree coder spends bits where the
+(normalised) wavelet coefficients are largest, so this weight sets the split of bits between
+geometry and texture; ``benchmarks/color_weight.py`` measures the split at several weights and
+rates.
+
+Two weightings fit the coder's uniform thresholds to point-to-plane distortion over the input:
+
+* **local frames** (:func:`surfidx.codec.wavelets.forward` with ``frames=True``): the geometry details
+  are coded as normal and tangential components, the tangential ones multiplied by
+  :data:`TANGENT_WEIGHT`: a tangential error moves a point along the surface, which costs
+  point-to-plane distortion far less than a normal one. The frames are closed-loop
+  (:func:`surfidx.codec.wavelets.forward_anchored`): computed from the coarse surface quantised to a
+  per-level anchor bit plane stored in the header, which a decoder that has that plane
+  reproduces exactly;
+* **density weights** (:mod:`surfidx.codec.density`): coefficients where the map squeezes many input
+  surfels into little of the sphere count more; the field is stored in the header, and used only
+  when its estimated gain is worth its bytes.
+
+Topology. Surfels with virtual patches (:attr:`surfidx.SurfelSet.patch`, added by
+:func:`surfidx.topology.close_surface` to close holes and handle cuts) are coded as the closed
+surface plus a mask of the grid vertices that sample a virtual patch and a table saying, per
+connected virtual region, whether it closes a hole or one side of a cut (format version 4; both
+in the header, counted against the rate and never truncated). :func:`decode` drops the virtual
+region again and zips each cut's two boundary loops together
+(:mod:`surfidx.codec.restore`), so the decoded mesh has the input's holes and genus. A model
+of several pieces is one file of several part streams (:class:`PartsEncoder`); a rate is split
+across the parts in proportion to their input surfels (:func:`surfidx.codec.container.split_budget`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import container, density, wavelets, zerotree
+from ..errors import BitstreamError, InputError
+from ..validate import check_positive_int
+from ..geometry.icosphere import MAX_LEVEL, icosphere, vertex_count
+from .klt import KLT
+from .resample import grid_patches, locate_surfels, resample
+from ..sphere.options import METHODS as MAP_METHODS
+from ..geometry.surfels import SurfelSet
+
+__all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
+           "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
+           "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
+           "encode_parts", "decode_parts", "stream_summary"]
+
+CODEC_VERSION = container.FORMAT_VERSION
+COLOR_WEIGHT = 0.02
+"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
+
+It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
+colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
+both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
+of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
+"""
+
+TANGENT_WEIGHT = 0.5
+"""Weight of the tangential geometry components in local frames (see the module docstring)."""
+
+_PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
+
+MAX_SURFELS = vertex_count(MAX_LEVEL)
+"""Default of :func:`decode`'s ``max_surfels``: the level-9 grid (2,621,442 surfels), the finest
+the encoder uses. A stream that would decode to more is refused before decoding; decode it at a
+coarser ``level``, or raise the limit."""
+
+MAX_EXTENT = 1e6
+"""Decoded values lie within this many weighted units of the KLT mean (for geometry:
+bounding-box diagonals of the model's centre; for colour: ``color_weight`` · value / 255, at most
+:data:`MAX_COLOR_WEIGHT`); anything else, or a non-finite value, is a damaged stream."""
+
+MAX_COLOR_WEIGHT = 1e3
+"""Largest ``color_weight`` the encoder takes (so colours stay within :data:`MAX_EXTENT`)."""
+
+MAX_COEFFICIENT = 1e12
+"""Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
+encoder's are below 1e8 (level norms up to 371 at level 9, density weights up to 64)."""
+
+
+@functools.lru_cache(maxsize=MAX_LEVEL + 1)
+def _grid_forest(level: int):
+    """The zerotree forest of the level-``level`` grid, checked once per process (as
+    :func:`surfidx.geometry.icosphere.icosphere` builds the grid once)."""
+    ico = icosphere(level)
+    return zerotree.forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
+
+
+def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
+    """Largest file size in bytes for a rate: ``ceil(bits_per_surfel · n_surfels / 8)``."""
+    if not (isinstance(bits_per_surfel, (int, float, np.floating)) and bits_per_surfel > 0
+            and math.isfinite(bits_per_surfel)):
+        raise InputError(f"bits_per_surfel must be a positive number, got {bits_per_surfel!r}")
+    return int(math.ceil(float(bits_per_surfel) * n_surfels / 8.0 - 1e-9))
+
+
+class Encoder:
+    """Expensive set-up once (map, resampling, transforms), then :meth:`encode` at any rate.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        A closed genus-0 surface (mesh input for the default map).
+    level : int, optional
+        Icosahedral grid level; default the map's ``grid_level``
+        (:func:`surfidx.geometry.icosphere.choose_level` of the surfel count and the map's sparse sampling).
+    color : bool, optional
+        Code colour (default: when the surfels have it).
+    method : {"tutte", "mds"}
+        Spherical map (:func:`surfidx.parameterize.parameterize`).
+    color_weight : float
+        Weight of colour against geometry (see the module docstring).
+    sphere_map : SphericalMap, optional
+        A map computed earlier for these surfels (skips the mapping).
+    tangent_weight : float or None
+        Code the geometry details in local frames with this weight in (0, 1] on their tangential
+        components; None codes x, y, z details as they are.
+    density_weighting : bool, optional
+        Weight coefficients by the input's surfel density on the sphere (:mod:`surfidx.codec.density`);
+        default: when :func:`surfidx.codec.density.weighting_gain` reaches
+        :data:`surfidx.codec.density.MIN_GAIN_DB`.
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries of
+        the set-up: the map's (:func:`surfidx.sphere.parameterize`), ``"resample"``,
+        ``"transform"``. It changes nothing in the result.
+    face_patch : (m,) int, optional
+        Patch of each of ``surfels.faces`` (-1: the scan's), for virtual faces whose corners are
+        all scan vertices (:func:`surfidx.codec.resample.grid_patches`; default: a face is virtual
+        when a corner is). ``surfidx.codec.restore.closed_surfels`` gives it.
+
+    Attributes
+    ----------
+    grid : (n_grid, 3 or 6) float64
+        Resampled layers (x, y, z [, r, g, b]).
+    coeffs : (n_grid, k) float64
+        Normalised wavelet coefficients of the KLT layers.
+    klt : KLT
+    sphere_map : SphericalMap
+    level : int
+    tangent_weight : float or None
+        The tangent weight the container stores (float32-rounded), None without local frames.
+    weight_field : bytes
+        The stored density-weight field (empty when unweighted).
+    anchors : tuple of int
+        The stored anchor bit plane of each level's local frames (empty without frames).
+    density_gain : float
+        :func:`surfidx.codec.density.weighting_gain` of the field, in dB (computed either way).
+    mask : bytes
+        The coded virtual-region mask (empty: no virtual patch; the stream is version 3).
+    regions : tuple of int
+        Region-table codes (:func:`surfidx.codec.container.region_code`) of the mask's regions.
+    virtual_share : float
+        Share of the grid's vertices in the mask.
+    setup_seconds : dict of str -> float
+    """
+
+    def __init__(self, surfels: SurfelSet, *, level: int | None = None, color: bool | None = None,
+                 method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None,
+                 tangent_weight: float | None = TANGENT_WEIGHT,
+                 density_weighting: bool | None = None, progress=None, face_patch=None):
+        from ..progress import report
+        from ..sphere import parameterize
+
+        if not isinstance(surfels, SurfelSet):
+            raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
+        if method not in MAP_METHODS:
+            raise InputError(f"method must be one of {', '.join(MAP_METHODS)}, got {method!r}")
+        if color is None:
+            color = surfels.has_color
+        if color and not surfels.has_color:
+            raise InputError("color=True but the surfels have no colour")
+        if not (0 < color_weight <= MAX_COLOR_WEIGHT):
+            raise InputError(f"color_weight must be a positive number up to "
+                             f"{MAX_COLOR_WEIGHT:g}, got {color_weight!r}")
+        if tangent_weight is not None:
+            tw = float(np.float32(tangent_weight)) if isinstance(
+                tangent_weight, (int, float, np.floating)) else math.nan
+            if not 0 < tw <= 1:
+                raise InputError(f"tangent_weight must be in (0, 1] or None, got "
+                                 f"{tangent_weight!r}")
+            tangent_weight = tw  # the value the container stores
+        self.n_surfels = len(surfels)
+        self.color = bool(color)
+        t = {}
+        t0 = time.perf_counter()
+        if sphere_map is None:
+            sphere_map = parameterize(surfels, method=method, stress=False, progress=progress)
+        self.sphere_map = sphere_map
+        t["map"] = time.perf_counter() - t0
+        self.level = sphere_map.grid_level if level is None else level
+        t0 = time.perf_counter()
+        report(progress, "resample", 0, 1)
+        location = sphere_map.location(self.level)
+        if location is None:
+            location = locate_surfels(surfels, sphere_map.points, self.level)
+        grid = resample(surfels, sphere_map.points, self.level, color=self.color,
+                        location=location)
+        self.grid = grid
+        self.mask, self.regions, self.virtual_share = b"", (), 0.0
+        if surfels.patch is not None:
+            self._code_mask(surfels, sphere_map.points, location, face_patch)
+        t["resample"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        report(progress, "transform", 0, 1)
+        k = self.grid.shape[1]
+        diag = surfels.diagonal
+        weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
+        stored = np.float32(weights)
+        if not np.all((stored >= 1.0 / container.MAX_WEIGHT)
+                      & (stored <= container.MAX_WEIGHT)):
+            raise InputError(f"the model's bounding-box diagonal {diag:.3g} and colour weight "
+                             f"{color_weight:.3g} must give unit weights in "
+                             f"[{1 / container.MAX_WEIGHT:g}, {container.MAX_WEIGHT:g}]; "
+                             "rescale the model")
+        area = icosphere(self.level).vertex_areas()
+        frames = tangent_weight is not None
+        # local frames need the geometry layers to be a rotation of x, y, z alone
+        fit = KLT.fit(self.grid, weights=weights, sample_weights=area,
+                      groups=(3, k - 3) if frames and k > 3 else None)
+        if not np.all(np.abs(fit.mean) <= container.MAX_MEAN):
+            raise InputError(f"the model's centre lies more than {container.MAX_MEAN:g} "
+                             "bounding-box diagonals from the origin; move it closer")
+        # the values the container stores (float16 basis): encoder and decoder use the same
+        self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
+                       eigenvalues=fit.eigenvalues)
+        self.tangent_weight = tangent_weight
+        raw = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True)
+        scales = wavelets.level_norms(self.level)[icosphere(self.level).level_of]
+        plain = raw * scales[:, None]   # forward(..., normalized=True)
+        flevel = density.field_level(self.n_surfels, self.level)
+        field = density.weight_field(sphere_map.points, flevel)
+        self.density_gain = density.weighting_gain(field, flevel)
+        if density_weighting is None:
+            density_weighting = self.density_gain >= density.MIN_GAIN_DB
+        self.weight_field = density.pack_field(field, flevel) if density_weighting else b""
+        if density_weighting:
+            dscale = density.vertex_scales(field, flevel, self.level)
+            plain *= dscale[:, None]
+            scales = scales * dscale
+        # local frames never lengthen a geometry detail vector: bound the top by the lengths
+        top = max(float(np.sqrt(np.einsum("ij,ij->i", plain[:, :3], plain[:, :3])).max()),
+                  float(np.abs(plain[:, 3:]).max()) if k > 3 else 0.0)
+        if not top > 0:
+            raise InputError("the resampled model is constant; nothing to code")
+        self.step = float(np.float32(top * 2.0 ** -_PLANES))
+        self.anchors = ()
+        self.coeffs = plain
+        if frames:
+            self.anchors = tuple(int(a) for a in
+                                 wavelets.choose_anchors(plain, self.level, self.step))
+            self.coeffs = wavelets.forward_anchored(raw, self.level,
+                                                    tangent_weight=tangent_weight, scales=scales,
+                                                    step=self.step, anchors=self.anchors)
+        self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
+            else 0
+        t["transform"] = time.perf_counter() - t0
+        report(progress, "transform", 1, 1)
+        self.setup_seconds = t
+        self._zerotree = None   # zerotree.prepare's, at the first encode
+
+    def _code_mask(self, surfels, sphere_points, location, face_patch):
+        """The virtual-region mask and region table (:mod:`surfidx.codec.restore`)."""
+        from scipy.spatial import cKDTree
+
+        from .mask import encode_mask
+        from .restore import mask_regions
+
+        patches = grid_patches(surfels, sphere_points, self.level, face_patch=face_patch,
+                               location=location)
+        P = len(surfels.patch_cut)
+        anchors = np.full(P, -1, np.int64)
+        missing = np.setdiff1d(np.arange(P), patches)
+        if len(missing):   # a patch below the grid's spacing still gets its grid vertex
+            pts = np.asarray(sphere_points, np.float64)
+            fp = None if face_patch is None else np.asarray(face_patch, np.int64)
+            where = {}
+            for p in missing:
+                own = np.flatnonzero(surfels.patch == p)
+                if len(own):
+                    where[int(p)] = pts[own[0]]
+                elif fp is not None and (fp == p).any():
+                    c = pts[surfels.faces[np.flatnonzero(fp == p)[0]]].mean(axis=0)
+                    where[int(p)] = c / max(np.linalg.norm(c), 1e-300)
+            if where:
+                _, near = cKDTree(icosphere(self.level).vertices).query(
+                    np.array(list(where.values())))
+                anchors[list(where)] = near
+        bits, codes = mask_regions(patches, self.level, surfels.patch_cut, anchors=anchors)
+        if bits.any():
+            self.mask = encode_mask(bits, self.level)
+            self.regions = codes
+            self.virtual_share = float(bits.mean())
+
+    def _prepared(self):
+        """The coefficients quantised on the grid's forest (:func:`surfidx.codec.zerotree.prepare`),
+        made at the first :meth:`encode` and kept: each rate then only codes."""
+        if self._zerotree is None:
+            self._zerotree = zerotree.prepare(self.coeffs, _grid_forest(self.level), None, None,
+                                              step=self.step, final_plane=0)
+        return self._zerotree
+
+    def header_bytes(self) -> int:
+        """Bytes of the container header for this model (the virtual-region mask included)."""
+        return container.header_size(
+            self.coeffs.shape[1], zerotree.HEADER_SIZE, frames=self.tangent_weight is not None,
+            anchors=len(self.anchors),
+            field_bytes=len(self.weight_field) if self.weight_field else None,
+            mask_bytes=len(self.mask) if self.mask else None, regions=len(self.regions))
+
+    def lowest_bytes(self) -> int:
+        """The smallest file this model's container can be."""
+        return max(self.header_bytes() + 4, container.min_file_bytes(self.level))
+
+    def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
+        """Encode at a rate.
+
+        Parameters
+        ----------
+        bits_per_surfel : float
+            Target rate; the file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+        progress : callable, optional
+            ``progress("code", done, 1)`` as the coding starts and ends (:mod:`surfidx.progress`).
+
+        Returns
+        -------
+        bytes
+            A complete ``.sfz`` container.
+
+        Raises
+        ------
+        InputError
+            When the rate cannot even hold the header and a minimal stream.
+        """
+        return self.encode_bytes(max_file_bytes(bits_per_surfel, self.n_surfels),
+                                 progress=progress, rate=bits_per_surfel)
+
+    def encode_bytes(self, max_bytes: int, *, progress=None, rate=None) -> bytes:
+        """Encode into a file of at most ``max_bytes`` bytes (see :meth:`encode`)."""
+        budget = int(max_bytes) - self.header_bytes()
+        smallest = self.lowest_bytes()
+        if budget < smallest - self.header_bytes():
+            lowest = 8.0 * smallest / self.n_surfels
+            asked = f"{rate} bits/surfel" if rate is not None else f"{max_bytes} bytes"
+            raise InputError(f"{asked} cannot hold the header; the lowest rate for this model "
+                             f"is {lowest:.3g} bits/surfel ({smallest} bytes)")
+        if progress is not None:
+            progress("code", 0, 1)
+        stream, zh = zerotree.encode_prepared(self._prepared(), max_bytes=budget)
+        # a stream that finished every plane early may be shorter than the grid's smallest
+        # container: pad it with zero bytes, which the decoder reads past the end anyway
+        stream += bytes(max(0, container.min_file_bytes(self.level) - self.header_bytes()
+                            - len(stream)))
+        header = container.Header(
+            n_surfels=self.n_surfels, level=self.level, color=self.color, lifted=True,
+            mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
+            coder=zerotree.pack_header(zh), map_method=self.map_method,
+            tangent_weight=self.tangent_weight, weight_field=self.weight_field,
+            anchors=self.anchors, mask=self.mask, regions=self.regions)
+        out = container.pack(header, stream)
+        if progress is not None:
+            progress("code", 1, 1)
+        return out
+
+
+def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = None,
+           color: bool | None = None, method: str = "tutte",
+           tangent_weight: float | None = TANGENT_WEIGHT,
+           density_weighting: bool | None = None, face_patch=None) -> bytes:
+    """One-call encoding (see :class:`Encoder`)."""
+    return Encoder(surfels, level=level, color=color, method=method,
+                   tangent_weight=tangent_weight, density_weighting=density_weighting,
+                   face_patch=face_patch).encode(bits_per_surfel)
+
+
+class PartsEncoder:
+    """Several parts (the pieces of one model) coded as one multi-part file.
+
+    Expensive set-up once (one :class:`Encoder` per part), then :meth:`encode` at any rate.
+
+    Parameters
+    ----------
+    parts : sequence of SurfelSet
+        One closed genus-0 surface per part (virtual patches allowed), at least one.
+    level : int, optional
+        Grid level of every part (default: each part's map's).
+    color : bool, optional
+        Code colour (default: when every part has it).
+    method : {"tutte", "mds"}
+    progress : callable, optional
+        Passed to each part's :class:`Encoder`.
+    face_patches : sequence, optional
+        Each part's ``face_patch`` (:class:`Encoder`), or None.
+    **options
+        Further :class:`Encoder` options (``tangent_weight``, ``density_weighting``,
+        ``color_weight``).
+
+    Attributes
+    ----------
+    encoders : list of Encoder
+    n_surfels : int
+        Input surfels of all parts: the rate denominator.
+
+    Notes
+    -----
+    A file of one part is exactly that part's :meth:`Encoder.encode`. With several, the bytes a
+    rate allows, less the outer header, are split in proportion to the parts' input surfels
+    (:func:`surfidx.codec.container.split_budget`), and :func:`surfidx.codec.container.truncate` splits a
+    lower rate the same way, so every part of a truncated file is a prefix of its stream.
+    """
+
+    def __init__(self, parts, *, level: int | None = None, color: bool | None = None,
+                 method: str = "tutte", progress=None, face_patches=None, **options):
+        parts = list(parts)
+        if not parts:
+            raise InputError("PartsEncoder needs at least one part")
+        if len(parts) > container.MAX_PARTS:
+            raise InputError(f"a file holds at most {container.MAX_PARTS} parts, got "
+                             f"{len(parts)}; drop the tiny pieces (surfidx.topology.split_parts)")
+        if not all(isinstance(p, SurfelSet) for p in parts):
+            raise InputError("parts must be SurfelSets")
+        if color is None:
+            color = all(p.has_color for p in parts)
+        fps = [None] * len(parts) if face_patches is None else list(face_patches)
+        if len(fps) != len(parts):
+            raise InputError(f"face_patches has {len(fps)} entries for {len(parts)} parts")
+        self.encoders = [Encoder(p, level=level, color=color, method=method, progress=progress,
+                                 face_patch=fp, **options) for p, fp in zip(parts, fps)]
+        self.n_surfels = sum(e.n_surfels for e in self.encoders)
+
+    def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
+        """Encode all parts at a rate over their total input surfels.
+
+        Parameters
+        ----------
+        bits_per_surfel : float
+            The whole file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+
+        Returns
+        -------
+        bytes
+
+        Raises
+        ------
+        InputError
+            When a part's share of the rate cannot hold its header.
+        """
+        max_bytes = max_file_bytes(bits_per_surfel, self.n_surfels)
+        if len(self.encoders) == 1:
+            return self.encoders[0].encode(bits_per_surfel, progress=progress)
+        budgets = container.split_budget(max_bytes, [e.n_surfels for e in self.encoders])
+        out = []
+        for i, (e, b) in enumerate(zip(self.encoders, budgets)):
+            if b < e.lowest_bytes():
+                need = 8.0 * (e.lowest_bytes() * self.n_surfels / e.n_surfels
+                              + container.parts_overhead(len(self.encoders))) / self.n_surfels
+                raise InputError(f"{bits_per_surfel} bits/surfel leaves part {i} "
+                                 f"({e.n_surfels} surfels) {b} bytes, below its smallest "
+                                 f"container ({e.lowest_bytes()} bytes); use at least "
+                                 f"{need:.3g} bits/surfel")
+            out.append(e.encode_bytes(b, progress=progress))
+        return container.pack_parts(out)
+
+
+def encode_parts(parts, *, bits_per_surfel: float, level: int | None = None,
+                 color: bool | None = None, method: str = "tutte", progress=None,
+                 **options) -> bytes:
+    """One-call multi-part encoding (see :class:`PartsEncoder`)."""
+    return PartsEncoder(parts, level=level, color=color, method=method, progress=progress,
+                        **options).encode(bits_per_surfel)
+
+
+def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,
+                max_surfels: int = MAX_SURFELS, path=None):
+    """Decode a container to its grid layers.
+
+    Parameters
+    ----------
+    data : bytes
+        A ``.sfz`` container.
+    bits_per_surfel : float, optional
+        Decode only the prefix that fits this rate (over the header's input surfel count).
+    max_surfels : int
+        Refuse, before decoding, a stream whose grid has more vertices than this.
+    path : str, optional
+        File name for messages.
+
+    Returns
+    -------
+    values : (10·4^L + 2, 3 or 6) float64
+        Finite, within :data:`MAX_EXTENT` weighted units of the KLT mean.
+    header : surfidx.codec.container.Header
+
+    Raises
+    ------
+    BitstreamError
+        Damaged, truncated or foreign data, implausible header values, or decoded values that
+        are not finite or out of range.
+    InputError
+        A rate below what the header needs, or a grid larger than ``max_surfels``.
+    """
+    header, stream = container.unpack(data, path=path)
+    checked = check_header(header, path=path)
+    _check_surfels(header.level, header.level, max_surfels, path)
+    return _decode_values(data, header, stream, bits_per_surfel, path, checked), header
+
+
+def _check_surfels(level: int, stream_level: int, max_surfels, path) -> None:
+    """Refuse (cheaply, before decoding) an output grid of more than ``max_surfels`` vertices."""
+    limit = check_positive_int(max_surfels, "max_surfels")
+    if vertex_count(level) <= limit:
+        return
+    fits = [lv for lv in range(stream_level + 1) if vertex_count(lv) <= limit]
+    hint = (f"decode at a coarser level (level={fits[-1]}: {vertex_count(fits[-1]):,} surfels) "
+            "or raise max_surfels") if fits else "raise max_surfels"
+    raise InputError(f"the stream decodes to {vertex_count(level):,} surfels at grid level "
+                     f"{level}, more than max_surfels = {limit:,}; {hint}", path=path)
+
+
+def check_header(header, *, path=None):
+    """The cheap checks of a container header that :func:`surfidx.codec.container.unpack` leaves to
+    the codec, before anything is allocated: the coder header and its largest coefficient
+    (:data:`MAX_COEFFICIENT`), the grid level, the density-weight field, the local frames'
+    anchors and KLT basis.
+
+    Parameters
+    ----------
+    header : surfidx.codec.container.Header
+    path : str, optional
+
+    Returns
+    -------
+    coder : dict
+        The zerotree header.
+    klt : KLT
+    field : (values, level) or None
+        The density-weight field.
+
+    Raises
+    ------
+    BitstreamError
+        Naming ``path``, for any implausible value.
+    """
+    try:
+        zh = zerotree.unpack_header(header.coder)
+    except BitstreamError as exc:
+        raise BitstreamError(exc.reason, path=path) from None
+    if not zh["step"] * 2.0 ** (zh["top_plane"] + 1) <= MAX_COEFFICIENT:
+        raise BitstreamError(f"corrupt header (coder step {zh['step']:.3g} at top plane "
+                             f"{zh['top_plane']}: coefficients up to "
+                             f"{zh['step'] * 2.0 ** (zh['top_plane'] + 1):.3g}, beyond "
+                             f"{MAX_COEFFICIENT:g})", path=path)
+    if not 0 <= header.level <= MAX_LEVEL:
+        raise BitstreamError(f"grid level {header.level} is out of range", path=path)
+    field = None
+    if header.weight_field:
+        field = density.unpack_field(header.weight_field, path=path)
+        if field[1] > header.level:
+            raise BitstreamError(f"corrupt header (density-weight field level {field[1]} above "
+                                 f"the grid level {header.level})", path=path)
+    frames = header.tangent_weight is not None
+    if frames and header.layers > 3 and (np.any(np.asarray(header.basis)[:3, 3:] != 0)
+                                         or np.any(np.asarray(header.basis)[3:, :3] != 0)):
+        raise BitstreamError("corrupt header (local frames with a KLT basis that mixes geometry "
+                             "and colour)", path=path)
+    if frames and (len(header.anchors) != header.level or not header.lifted
+                   or any(b > a for a, b in zip(header.anchors, header.anchors[1:]))):
+        raise BitstreamError(f"corrupt header (frame anchors {list(header.anchors)} for grid "
+                             f"level {header.level})", path=path)
+    try:
+        klt = KLT.from_arrays(header.mean, header.basis, header.weights)
+    except InputError as exc:
+        raise BitstreamError(f"corrupt KLT header ({exc.reason})", path=path) from None
+    return zh, klt, field
+
+
+def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.ndarray:
+    """The grid values of an unpacked container whose header ``check_header`` passed (see
+    :func:`decode_grid`)."""
+    if bits_per_surfel is not None:
+        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
+        if keep < 4:
+            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
+                             "file (header plus 4 bytes)")
+        stream = stream[:keep]
+    zh, klt, field = checked
+    frames = header.tangent_weight is not None
+    k = header.layers
+    ico = icosphere(header.level)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(header.level), None, None,
+                                header=zh, planes=True)
+    scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
+    if field is not None:
+        scales = scales * density.vertex_scales(*field, header.level)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if frames:
+            c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
+                                          scales=scales, anchors=header.anchors,
+                                          anchor_values=lambda a, rows: zerotree.anchor_values(
+                                              planes, a, rows=rows, layers=3))
+        else:
+            c = wavelets.inverse(w / scales[:, None], header.level, lifted=header.lifted)
+        values = klt.inverse(c)
+        spread = np.abs(values * np.asarray(header.weights, np.float64)
+                        - np.asarray(header.mean, np.float64))
+    if not np.all(np.isfinite(values)):
+        raise BitstreamError("decoding produced non-finite values: the file is damaged",
+                             path=path)
+    if not np.all(spread <= MAX_EXTENT):
+        raise BitstreamError(f"decoding produced values {float(spread.max()):.3g} weighted units "
+                             f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
+                             path=path)
+    return values
+
+
+def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
+           level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
+           keep_virtual: bool = False):
+    """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
+
+    Parameters
+    ----------
+    data : bytes
+        A ``.sfz`` container (one part or several).
+    bits_per_surfel : float, optional
+        Serve the embedded stream at this lower rate (of a multi-part file: over all its parts'
+        input surfels, split as :func:`surfidx.codec.container.truncate` does).
+    mesh : bool
+        Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
+    level : int, optional
+        Return the decoded surface on the grid of this level (0 … the stream's level; default:
+        the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
+        ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
+        vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
+        grid is coarser than ``level`` is decoded at its own.
+    max_surfels : int
+        Refuse, before decoding, to return more surfels than this (default :data:`MAX_SURFELS`;
+        all parts together); a coarser ``level`` returns fewer.
+    path : str, optional
+    keep_virtual : bool
+        Return the closed surface as coded. By default a stream with a virtual-region mask
+        decodes to the real surface only: the grid faces over each virtual region are dropped
+        and each handle cut's two boundary loops zipped together again
+        (:mod:`surfidx.codec.restore`), so the mesh has the input's holes and genus;
+        surfels keep the grid vertices of the kept faces (with the faces). At a coarser
+        ``level`` the topology stays as long as the virtual regions stay apart on that grid
+        (on the smallest grids, a few dozen vertices, nearby holes merge).
+
+    Returns
+    -------
+    SurfelSet or TriangleMesh
+        All parts of a multi-part file together (concatenated in part order).
+
+    Raises
+    ------
+    InputError
+        A level outside 0 … the stream's level, or more than ``max_surfels`` surfels.
+    BitstreamError
+        See :func:`decode_grid`; a damaged virtual-region mask or region table.
+    """
+    parts = decode_parts(data, bits_per_surfel=bits_per_surfel, mesh=mesh, level=level,
+                         max_surfels=max_surfels, path=path, keep_virtual=keep_virtual)
+    if len(parts) == 1:
+        return parts[0]
+    return _concatenate(parts, mesh=mesh, name=Path(path).stem if path else None)
+
+
+def _concatenate(parts, *, mesh, name):
+    from ..geometry.mesh import TriangleMesh
+
+    if mesh:
+        verts = [p.vertices for p in parts]
+        off = np.cumsum([0] + [len(v) for v in verts[:-1]])
+        faces = np.vstack([p.faces + o for p, o in zip(parts, off)])
+        cols = [p.vertex_colors for p in parts]
+        col = np.vstack(cols) if all(c is not None for c in cols) else None
+        return TriangleMesh(np.vstack(verts), faces, vertex_colors=col, name=name)
+    off = np.cumsum([0] + [len(p) for p in parts[:-1]])
+    cols = [p.colors for p in parts]
+    faces = [None if p.faces is None else p.faces + o for p, o in zip(parts, off)]
+    return SurfelSet(np.vstack([p.positions for p in parts]),
+                     np.vstack([p.normals for p in parts]),
+                     np.concatenate([p.radii for p in parts]),
+                     np.vstack(cols) if all(c is not None for c in cols) else None,
+                     faces=np.vstack(faces) if all(f is not None for f in faces) else None,
+                     name=name)
+
+
+def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
+                 level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
+                 keep_virtual: bool = False) -> list:
+    """Decode every part of a container on its own (see :func:`decode`).
+
+    Returns
+    -------
+    list of SurfelSet or TriangleMesh
+        One per part (a single-part file gives a list of one).
+    """
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    unpacked = [container.unpack(b, path=path) for b in blobs]
+    if bits_per_surfel is not None and len(blobs) > 1:
+        total = sum(h.n_surfels for h, _ in unpacked)
+        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
+        blobs = container.unpack_parts(data, path=path)
+        unpacked = [container.unpack(b, path=path) for b in blobs]
+        bits_per_surfel = None
+    checked = [check_header(h, path=path) for h, _ in unpacked]
+    if level is not None and not (isinstance(level, (int, np.integer))
+                                  and not isinstance(level, bool)
+                                  and 0 <= level <= max(h.level for h, _ in unpacked)):
+        raise InputError(f"level must be an integer from 0 to the stream's grid level "
+                         f"{max(h.level for h, _ in unpacked)}, got {level!r}")
+    levels = [h.level if level is None else min(int(level), h.level) for h, _ in unpacked]
+    limit = check_positive_int(max_surfels, "max_surfels")
+    if len(blobs) == 1:
+        _check_surfels(levels[0], unpacked[0][0].level, limit, path)
+    elif sum(vertex_count(lv) for lv in levels) > limit:
+        raise InputError(f"the {len(blobs)} parts decode to "
+                         f"{sum(vertex_count(lv) for lv in levels):,} surfels, more than "
+                         f"max_surfels = {limit:,}; decode at a coarser level or raise "
+                         "max_surfels", path=path)
+    name = Path(path).stem if path else None
+    out = []
+    for blob, (header, stream), chk, lv in zip(blobs, unpacked, checked, levels):
+        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk)
+        out.append(_model(values, header, lv, mesh=mesh, keep_virtual=keep_virtual, name=name,
+                          path=path))
+    return out
+
+
+def _regions(header, out_level, path):
+    """The virtual regions of a stream at the output level (:mod:`surfidx.codec.restore`)."""
+    from .mask import decode_mask
+    from .restore import check_regions, grid_regions, regions_at
+
+    try:
+        bits = decode_mask(header.mask, header.level)
+    except BitstreamError as exc:
+        raise BitstreamError(exc.reason, path=path) from None
+    count, region = grid_regions(bits, header.level)
+    check_regions(header.regions, count, path=path)
+    return regions_at(region, header.regions, header.level, out_level)
+
+
+def _model(values, header, out_level, *, mesh, keep_virtual, name, path):
+    from ..geometry.mesh import TriangleMesh
+    from .resample import grid_to_mesh, grid_to_surfels
+    from .restore import restore
+
+    values = values[:vertex_count(out_level)]
+    if not header.mask or keep_virtual:
+        return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
+    region, codes = _regions(header, out_level, path)
+    r = restore(values[:, :3], out_level, region, codes)
+    if mesh:
+        col = None if values.shape[1] < 6 else np.clip(
+            np.round(values[r.vertices, 3:6]), 0, 255).astype(np.uint8)
+        return TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
+    s = grid_to_surfels(values, name=name)
+    v = r.vertices
+    return SurfelSet(s.positions[v], s.normals[v], s.radii[v],
+                     None if s.colors is None else s.colors[v], faces=r.faces, name=name)
+
+
+def stream_summary(data: bytes, *, path=None) -> dict:
+    """What a file holds, without decoding its streams (the masks are decoded: cheap).
+
+    Parameters
+    ----------
+    data : bytes
+    path : str, optional
+
+    Returns
+    -------
+    dict
+        ``version`` (of the file: 4 for a multi-part file or a part with a mask, else the
+        part's), ``bytes``, ``parts``, ``surfels`` (all parts), and per part (lists in part
+        order): ``part_surfels``, ``part_bytes``, ``levels``, ``holes`` and ``cuts`` (virtual
+        regions closing a hole, handle cuts by their two sides), ``mask_bytes`` (the mask section
+        with its region table), ``virtual_share`` (share of the grid's vertices in the mask);
+        and ``mask_share``: all mask sections' bytes over the file's.
+
+    Raises
+    ------
+    BitstreamError
+        As :func:`surfidx.codec.container.unpack_parts` and :func:`surfidx.codec.container.unpack`.
+    """
+    from .mask import decode_mask
+
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    out = {"version": data[4] if len(data) > 4 else None, "bytes": len(data),
+           "parts": len(blobs), "part_surfels": [], "part_bytes": [], "levels": [], "holes": [],
+           "cuts": [], "mask_bytes": [], "virtual_share": []}
+    for b in blobs:
+        h, _ = container.unpack(b, path=path)
+        out["part_surfels"].append(h.n_surfels)
+        out["part_bytes"].append(len(b))
+        out["levels"].append(h.level)
+        codes = [container.region_cut(c) for c in h.regions]
+        out["holes"].append(sum(1 for k, _ in codes if k < 0))
+        out["cuts"].append(len({k for k, _ in codes if k >= 0}))
+        out["mask_bytes"].append(6 + len(h.mask) + 2 * len(h.regions) if h.mask else 0)
+        share = 0.0
+        if h.mask:
+            if h.level > MAX_LEVEL:
+                raise BitstreamError(f"grid level {h.level} is out of range", path=path)
+            try:
+                share = float(decode_mask(h.mask, h.level).mean())
+            except BitstreamError as exc:
+                raise BitstreamError(exc.reason, path=path) from None
+        out["virtual_share"].append(share)
+    out["surfels"] = sum(out["part_surfels"])
+    out["mask_share"] = sum(out["mask_bytes"]) / max(len(data), 1)
+    return out
+
+
+def read_sfz(path) -> bytes:
+    """Read a ``.sfz`` file's bytes, with a clear error when it is missing."""
+    from ..errors import FileFormatError
+
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError("no such file", path=p)
+    if not p.is_file():
+        raise FileFormatError("is not a regular file", path=p)
+    try:
+        with open(p, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise FileFormatError(f"cannot read ({exc.strerror or exc})", path=p) from None

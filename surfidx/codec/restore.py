@@ -1,0 +1,673 @@
+"""The codec's side of topology repair: the virtual region on the grid, and dropping it again.
+
+Encoder side: the grid vertices that sample a virtual patch (:func:`surfidx.codec.resample.grid_patches`)
+become the mask of :mod:`.mask`; its connected regions (through grid edges, ordered by their
+smallest grid vertex) each get a code (:func:`surfidx.codec.container.region_code`: a hole of the
+input, or a side of a handle cut) in the container's region table. :func:`mask_regions` makes
+each patch one region: a patch the grid misses gets the real grid vertex nearest one of its
+surfels with no patch beside it, two patches on neighbouring grid vertices are moved apart (the
+larger gives up its vertices beside the smaller), and a patch the grid splits is joined along
+shortest grid paths that pass beside no other patch.
+
+Decoder side (:func:`restore`): the grid faces over each region are dropped as one clean disk, and
+the two boundary loops of each cut are zipped together again, so that the decoded mesh has the
+input's boundary loops and genus:
+
+1. a face is dropped with a region when at least two of its corners are in it;
+2. repeated until nothing changes: each region keeps only its largest edge-connected piece of
+   faces (a region left without a face takes the star of its smallest vertex, or one face of it
+   where the star would touch another region); pieces of the kept surface cut off from its
+   largest piece join the region around them; a vertex where the kept surface is pinched (more
+   than two of its boundary edges) gives its whole star to the region holding it, or back to the
+   kept surface where two regions meet there (so two holes closer together than the grid's
+   spacing decode as two);
+3. the kept surface's boundary loops are assigned to regions by the dropped faces beside them;
+   the loops of the two sides of cut ``k`` (one loop each) are matched by arc length at the best
+   cyclic offset and the strip between them triangulated (one triangle per loop edge, advancing
+   along whichever loop's next vertex comes first). The second loop is walked against its own
+   boundary direction: the only direction in which the strip's faces are wound consistently with
+   both sides (the surface stays orientable).
+
+At a coarser output level the regions are those of the coarse grid's prefix of the mask, labelled
+from the regions of the stream's level; a region with no coarse vertex takes the coarse ancestor
+of its smallest vertex (first edge parents), so every hole and cut side survives.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from ..errors import BitstreamError, InputError
+from ..geometry.icosphere import icosphere, vertex_count
+
+__all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surfels",
+           "RestoredMesh", "check_regions", "zip_loops"]
+
+_MAX_ROUNDS = 64   # clean-up rounds of the dropped regions (each round only grows them)
+
+
+@lru_cache(maxsize=2)
+def _grid_graph(level: int):
+    """The grid's vertex adjacency (read only: callers derive new matrices from it)."""
+    g = icosphere(level)
+    n = g.n_vertices
+    ptr, nb = np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices)
+    rows = np.repeat(np.arange(n), np.diff(ptr))
+    return sp.csr_matrix((np.ones(len(nb), np.int8), (rows, nb)), shape=(n, n))
+
+
+def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
+    """Connected regions of the set grid vertices, numbered by their smallest vertex.
+
+    Parameters
+    ----------
+    bits : (10·4^level + 2,) bool
+    level : int
+
+    Returns
+    -------
+    count : int
+    region : (n,) int64
+        Region of each grid vertex, -1 where the bit is not set.
+    """
+    bits = np.asarray(bits, bool)
+    region = np.full(len(bits), -1, np.int64)
+    on = np.flatnonzero(bits)
+    if not len(on):
+        return 0, region
+    g = _grid_graph(level)[on][:, on]
+    count, lab = connected_components(g, directed=False)
+    first = np.full(count, len(bits), np.int64)
+    np.minimum.at(first, lab, on)
+    rank = np.empty(count, np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(count)
+    region[on] = rank[lab]
+    return count, region
+
+
+def mask_regions(patches, level: int, patch_cut, *, anchors=None):
+    """The mask bits and region table of the grid's patch labels.
+
+    Parameters
+    ----------
+    patches : (n,) int
+        Patch each grid vertex samples (-1 real; :func:`surfidx.codec.resample.grid_patches`).
+    level : int
+    patch_cut : (P,) int
+        Cut of each patch (-1: a hole), as :attr:`surfidx.SurfelSet.patch_cut`.
+    anchors : (P,) int, optional
+        A grid vertex for each patch (-1: none), made virtual when the patch has no grid
+        vertex (a patch smaller than the grid's spacing).
+
+    Returns
+    -------
+    bits : (n,) bool
+    codes : tuple of int
+        :func:`surfidx.codec.container.region_code` of each region (regions by smallest vertex).
+    """
+    from .container import region_code
+
+    lab = np.array(patches, np.int64)
+    cut = np.asarray(patch_cut, np.int64)
+    P = len(cut)
+    if anchors is not None:
+        for p in range(P):
+            a = int(anchors[p])
+            if a >= 0 and not (lab == p).any():
+                _place(lab, level, p, a)
+    _separate(lab, level, P)
+    graph = None
+    for p in _split_patches(lab, level):   # joined along shortest grid paths
+        # through real vertices with no other patch beside them (weight 1 into each), so the
+        # path keeps the patches apart; joining p changes no other patch's vertices
+        fenced = _beside_others(lab, level, p)
+        while True:
+            on = lab == p
+            count, region = grid_regions(on, level)
+            if count <= 1:
+                break
+            graph = _grid_graph(level).astype(np.float64) if graph is None else graph
+            free = ((lab < 0) & ~fenced) | on
+            w = graph.multiply(free[None, :].astype(np.float64)).tocsr()
+            w.eliminate_zeros()
+            src = np.flatnonzero(region == 0)
+            dist, pred, _ = dijkstra(w, indices=src, min_only=True, return_predecessors=True)
+            others = np.flatnonzero(region > 0)
+            reach = others[np.isfinite(dist[others])]
+            if not len(reach):
+                break
+            v = int(reach[np.argmin(dist[reach])])
+            while v >= 0 and region[v] != 0:
+                lab[v] = p
+                v = int(pred[v])
+    bits = lab >= 0
+    count, region = grid_regions(bits, level)
+    codes = []
+    for r in range(count):
+        ps = lab[region == r]
+        p = int(np.bincount(ps).argmax())
+        k = int(cut[p])
+        if k < 0:
+            codes.append(region_code(-1))
+        else:   # side 0: the cut's patch of smaller index
+            sides = np.flatnonzero(cut == k)
+            s = int(p != sides[0])
+            codes.append(region_code(k, s))
+    return bits, tuple(codes)
+
+
+def _separate(lab, level: int, P: int) -> None:
+    """Keep different patches off neighbouring grid vertices, in place: of two neighbours in
+    different patches, the vertex of the patch with more grid vertices (of equal counts, the
+    higher index) becomes real, unless it is its patch's last one. Regions are the connected
+    pieces of the mask, so two touching patches would be coded as one hole; a real vertex
+    between them keeps them two (the decoder's clean-up keeps such a vertex real)."""
+    g = _grid_graph(level).tocoo()
+    u, v = g.row, g.col
+    meet = (lab[u] >= 0) & (lab[v] >= 0) & (lab[u] != lab[v])
+    if not meet.any():
+        return
+    size = np.bincount(lab[lab >= 0], minlength=P)
+    u, v = u[meet], v[meet]
+    pu, pv = lab[u], lab[v]
+    bigger_u = (size[pu] > size[pv]) | ((size[pu] == size[pv]) & (pu > pv))
+    drop, other = np.where(bigger_u, u, v), np.where(bigger_u, v, u)
+    gone = np.unique(drop)
+    left = size - np.bincount(lab[gone], minlength=P)
+    flip = left[lab[drop]] <= 0     # the bigger patch would vanish: the smaller gives way
+    drop[flip] = other[flip]
+    gone = np.unique(drop)
+    left = size - np.bincount(lab[gone], minlength=P)
+    lab[gone[left[lab[gone]] > 0]] = -1     # both would vanish: they stay, and meet
+
+
+def _place(lab, level: int, p: int, a: int) -> None:
+    """Give patch ``p`` (on no grid vertex) the grid vertex nearest ``a`` in grid hops (of
+    equal hops, the smallest index) that is real and has no patch beside it, in place; ``a``
+    itself when none within 3 hops is (and it is real)."""
+    g = _grid_graph(level)
+    taken = lab >= 0
+    near = _beside_others(lab, level, p)    # p has no vertex yet: beside any patch
+    ring, seen = np.array([a]), {a}
+    for _ in range(4):
+        ok = ring[~taken[ring] & ~near[ring]]
+        if len(ok):
+            lab[int(ok.min())] = p
+            return
+        nxt = np.unique(g[ring].indices)
+        ring = np.array([x for x in nxt.tolist() if x not in seen], np.int64)
+        seen.update(ring.tolist())
+        if not len(ring):
+            break
+    if lab[a] < 0:
+        lab[a] = p
+
+
+def _beside_others(lab, level: int, p: int) -> np.ndarray:
+    """(n,) bool: grid vertices with a neighbour in a patch other than ``p``."""
+    other = ((lab >= 0) & (lab != p)).astype(np.int8)
+    return (_grid_graph(level) @ other) > 0
+
+
+def _split_patches(lab, level: int) -> np.ndarray:
+    """Patches whose grid vertices form more than one component (through edges of the grid
+    whose two ends sample the same patch), in increasing order."""
+    on = np.flatnonzero(lab >= 0)
+    if not len(on):
+        return np.zeros(0, np.int64)
+    g = _grid_graph(level)[on][:, on].tocoo()
+    same = lab[on][g.row] == lab[on][g.col]
+    sub = sp.coo_matrix((np.ones(int(same.sum())), (g.row[same], g.col[same])),
+                        shape=(len(on), len(on)))
+    _, comp = connected_components(sub, directed=False)
+    pairs = np.unique(np.stack([lab[on], comp], axis=1), axis=0)
+    count = np.bincount(pairs[:, 0])
+    return np.flatnonzero(count > 1)
+
+
+def check_regions(codes, count: int, *, path=None) -> None:
+    """Refuse a region table that does not fit the decoded mask (:class:`BitstreamError`)."""
+    from .container import region_cut
+
+    if len(codes) != count:
+        raise BitstreamError(f"bad region table: it lists {len(codes)} regions, the decoded "
+                             f"virtual-region mask has {count}; the file is damaged", path=path)
+    for c in codes:
+        k, _ = region_cut(c)
+        if k >= len(codes):
+            raise BitstreamError(f"bad region table: region code {c} names cut {k} in a table "
+                                 f"of {len(codes)} regions; the file is damaged", path=path)
+
+
+def regions_at(region, codes, level: int, out_level: int):
+    """The regions of the level-``out_level`` prefix of a level-``level`` mask.
+
+    Parameters
+    ----------
+    region : (10·4^level + 2,) int64
+        :func:`grid_regions` of the stream's mask.
+    codes : sequence of int
+        Code of each region.
+    level, out_level : int
+
+    Returns
+    -------
+    region : (10·4^out_level + 2,) int64
+    codes : tuple of int
+    """
+    if out_level == level:
+        return region, tuple(codes)
+    n_out = vertex_count(out_level)
+    fine = icosphere(level)
+    parents = np.asarray(fine.edge_parents)
+    lab = np.array(region[:n_out], np.int64)
+    for r in range(len(codes)):
+        if (lab == r).any():
+            continue
+        v = int(np.flatnonzero(region == r).min())
+        while v >= n_out:
+            v = int(parents[v, 0])
+        if lab[v] < 0:
+            lab[v] = r
+    count, coarse = grid_regions(lab >= 0, out_level)
+    out = []
+    for c in range(count):
+        out.append(codes[int(lab[coarse == c].min())])
+    return coarse, tuple(out)
+
+
+# --------------------------------------------------------------------------- decoder side
+def _face_adjacency(faces, n):
+    """Across each face edge (corner j's opposite edge): the neighbouring face (-1: none)."""
+    m = len(faces)
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]]).astype(np.int64)
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]]).astype(np.int64)
+    key, twin = a * n + b, b * n + a
+    order = np.argsort(key)
+    pos = np.minimum(np.searchsorted(key[order], twin), len(key) - 1)
+    ok = key[order][pos] == twin
+    nbr = np.full(3 * m, -1, np.int64)
+    nbr[ok] = order[pos[ok]] % m
+    return nbr.reshape(3, m).T
+
+
+def _components(mask, nbr):
+    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count."""
+    idx = np.flatnonzero(mask)
+    lab = np.full(len(mask), -1, np.int64)
+    if not len(idx):
+        return lab, 0
+    pos = np.full(len(mask), -1, np.int64)
+    pos[idx] = np.arange(len(idx))
+    rows = np.repeat(np.arange(len(idx)), 3)
+    cols = pos[np.maximum(nbr[idx].ravel(), 0)]
+    ok = (nbr[idx].ravel() >= 0) & (cols >= 0)
+    g = sp.coo_matrix((np.ones(int(ok.sum())), (rows[ok], cols[ok])),
+                      shape=(len(idx), len(idx)))
+    count, c = connected_components(g, directed=False)
+    lab[idx] = c
+    return lab, count
+
+
+def _largest(lab, count):
+    sizes = np.bincount(lab[lab >= 0], minlength=count)
+    return int(np.argmax(sizes))   # ties: the component of the smallest face (labels in order)
+
+
+def _face_regions(faces, region):
+    r = region[faces]
+    out = np.full(len(faces), -1, np.int64)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        same = (r[:, i] == r[:, j]) & (r[:, i] >= 0) & (out < 0)
+        out[same] = r[same, i]
+    many = ((r >= 0).sum(axis=1) >= 2) & (out < 0)     # corners in different regions
+    out[many] = np.where(r[many] >= 0, r[many], np.iinfo(np.int64).max).min(axis=1)
+    return out
+
+
+@lru_cache(maxsize=2)
+def _grid_faces(level: int):
+    """The grid's faces, their adjacency (:func:`_face_adjacency`) and each vertex's faces
+    (a vertex-by-face CSR matrix); read only."""
+    g = icosphere(level)
+    faces = np.asarray(g.faces, np.int64)
+    n = g.n_vertices
+    rows = np.repeat(np.arange(len(faces)), 3)
+    star = sp.csr_matrix((np.ones(3 * len(faces), bool), (faces.ravel(), rows)),
+                         shape=(n, len(faces)))
+    # the grid is closed: the i-th smallest half-edge key is the twin of the i-th smallest twin
+    m = len(faces)
+    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
+    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
+    nbr = np.empty(3 * m, np.int64)
+    nbr[np.argsort(b * n + a, kind="stable")] = np.argsort(a * n + b, kind="stable") % m
+    return faces, nbr.reshape(3, m).T.copy(), star
+
+
+def _clean(level, region, n_regions):
+    """Per-face region (-1 kept) after the clean-up rounds of the module docs."""
+    faces, nbr, star = _grid_faces(level)
+    n = star.shape[0]
+    label = _face_regions(faces, region)
+    first_vertex = np.full(n_regions, n, np.int64)
+    on = region >= 0
+    np.minimum.at(first_vertex, region[on], np.flatnonzero(on))
+    for _ in range(_MAX_ROUNDS):
+        before = label.copy()
+        for r in range(n_regions):
+            mine = label == r
+            if mine.any():
+                lab, count = _components(mine, nbr)
+                if count > 1:
+                    big = _largest(lab, count)
+                    label[mine & (lab != big)] = -1
+            else:
+                s = star[first_vertex[r]].indices
+                s = s[label[s] < 0]
+                # beside another region, the whole star would make one hole of the two: one
+                # face of it that touches no other region (by a corner) is the hole then
+                corner = faces[s]
+                u = np.unique(corner)
+                busy = np.asarray(star[u] @ (label >= 0).astype(np.int8)).ravel() > 0
+                busy |= on[u] & (region[u] != r)
+                clash = busy[np.searchsorted(u, corner)].any(axis=1)
+                if clash.any() and not clash.all():
+                    s = s[~clash][:1]
+                label[s] = r
+        kept = label < 0
+        lab, count = _components(kept, nbr)
+        if count > 1:
+            big = _largest(lab, count)
+            for c in range(count):
+                if c == big:
+                    continue
+                isl = np.flatnonzero(lab == c)
+                around = label[nbr[isl].ravel()]
+                around = around[around >= 0]
+                if len(around):
+                    label[isl] = np.bincount(around).argmax()
+        # pinched vertices of the kept surface: more than two boundary edges
+        kept = label < 0
+        kf = np.flatnonzero(kept)
+        edge_free = (nbr[kf] < 0) | ~kept[np.maximum(nbr[kf], 0)]
+        # boundary edge opposite corner j: vertices (j+1, j+2)
+        ends = np.stack([faces[kf][:, [1, 2, 0]], faces[kf][:, [2, 0, 1]]], axis=2)
+        bverts = ends[edge_free].ravel()
+        deg = np.bincount(bverts, minlength=n)
+        for v in np.flatnonzero(deg > 2):
+            s = star[v].indices
+            held = label[s][label[s] >= 0]
+            if len(np.unique(held)) > 1:
+                label[s] = -1      # two regions meet: their faces at v stay, keeping them apart
+            elif len(held):
+                label[s] = held[0]
+        if np.array_equal(before, label):
+            break
+    return label
+
+
+def _boundary_loops(faces, nbr, label):
+    """Directed boundary loops of the kept faces (``label < 0``) of a grid without pinches:
+    vertex lists following the faces' winding, and each loop's edges' dropped neighbours'
+    labels."""
+    n = int(faces.max()) + 1
+    kf = np.flatnonzero(label < 0)
+    across = nbr[kf]
+    free = label[across] >= 0
+    f_idx, corner = np.nonzero(free)
+    u = faces[kf[f_idx], (corner + 1) % 3]
+    v = faces[kf[f_idx], (corner + 2) % 3]
+    lab = label[across[f_idx, corner]]
+    nxt = np.full(n, -1, np.int64)
+    nxt[u] = v
+    elab = np.full(n, -1, np.int64)
+    elab[u] = lab
+    seen = np.zeros(n, bool)
+    loops = []
+    for start in u:
+        if seen[start]:
+            continue
+        loop = []
+        w = int(start)
+        while w >= 0 and not seen[w]:
+            seen[w] = True
+            loop.append(w)
+            w = int(nxt[w])
+        loop = np.array(loop, np.int64)
+        loops.append((loop, elab[loop]))
+    return loops
+
+
+def _edge_keys(faces, n):
+    """Distinct undirected edge keys ``min·n + max`` of ``faces``."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    return np.unique(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+
+
+def _loop_keys(loop, n):
+    nxt = np.roll(loop, -1)
+    return np.minimum(loop, nxt) * n + np.maximum(loop, nxt)
+
+
+def _arc(P):
+    seg = np.linalg.norm(np.roll(P, -1, axis=0) - P, axis=1)
+    total = seg.sum()
+    s = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    return (s / total if total > 0 else np.arange(len(P)) / len(P)), total
+
+
+def zip_loops(positions, a, b, *, samples: int = 64):
+    """Triangles joining loop ``a`` (in its boundary direction) to loop ``b`` (its boundary
+    direction too; walked backwards), matched by arc length at the best cyclic offset.
+
+    Parameters
+    ----------
+    positions : (n, 3) float64
+    a, b : (m,) and (k,) int64
+        Vertex loops as the faces' winding gives them (:func:`_boundary_loops`).
+    samples : int
+        Arc-length samples the offset is chosen on.
+
+    Returns
+    -------
+    (m + k, 3) int64
+    """
+    b = b[::-1]
+    sa, _ = _arc(positions[a])
+    sb, _ = _arc(positions[b])
+    u = (np.arange(samples) + 0.5) / samples
+    A = np.stack([np.interp(u, sa, positions[a][:, d], period=1.0) for d in range(3)], axis=1)
+    # B sampled from each possible start vertex j: parameter sb[j] + u
+    t = (sb[None, :] + u[:, None]) % 1.0
+    cost = np.zeros(len(b))
+    for d in range(3):
+        Bd = np.interp(t.ravel(), sb, positions[b][:, d], period=1.0).reshape(t.shape)
+        cost += ((Bd - A[:, d][:, None]) ** 2).sum(axis=0)
+    j0 = int(np.argmin(cost))
+    b = np.roll(b, -j0)
+    tb = (sb - sb[j0]) % 1.0
+    tb = np.roll(tb, -j0)
+    m, k = len(a), len(b)
+    out = []
+    i = j = 0
+    while i < m or j < k:
+        na = sa[i + 1] if i + 1 < m else 1.0
+        nb = tb[j + 1] if j + 1 < k else 1.0
+        if j == k or (i < m and na <= nb):
+            out.append((a[(i + 1) % m], a[i], b[j % k]))
+            i += 1
+        else:
+            out.append((b[j], b[(j + 1) % k], a[i % m]))
+            j += 1
+    return np.array(out, np.int64)
+
+
+class RestoredMesh:
+    """The real surface of a decoded grid.
+
+    Attributes
+    ----------
+    vertices : (v,) int64
+        The grid vertices it keeps (indices into the grid).
+    faces : (f, 3) int64
+        Its faces, indexing ``vertices`` (kept grid faces, then the cuts' strips).
+    zipped : int
+        Cuts whose two loops were zipped together.
+    unzipped : int
+        Cuts that could not be (not one loop on each side); they stay two holes.
+    """
+
+    def __init__(self, vertices, faces, zipped, unzipped):
+        self.vertices, self.faces, self.zipped, self.unzipped = vertices, faces, zipped, unzipped
+
+
+def restore(positions, level: int, region, codes) -> RestoredMesh:
+    """Drop the virtual regions of a decoded grid surface and zip the cuts (module docs).
+
+    Parameters
+    ----------
+    positions : (10·4^level + 2, 3) float64
+        Decoded grid positions.
+    level : int
+    region : (n,) int64
+        Region of each grid vertex (-1 real): :func:`regions_at`.
+    codes : sequence of int
+        Region codes (:func:`surfidx.codec.container.region_code`).
+
+    Returns
+    -------
+    RestoredMesh
+    """
+    from .container import region_cut
+
+    faces, nbr, star = _grid_faces(level)
+    n = star.shape[0]
+    label = _clean(level, np.asarray(region, np.int64), len(codes))
+    kept = faces[label < 0]
+    strips = []
+    zipped = unzipped = 0
+    if len(kept):
+        by_side = {}
+        for lp, labs in _boundary_loops(faces, nbr, label):
+            labs = labs[labs >= 0]
+            if not len(labs):
+                continue
+            r = int(np.bincount(labs).argmax())
+            k, s = region_cut(codes[r])
+            if k >= 0:
+                by_side.setdefault(k, {}).setdefault(s, []).append(lp)
+        taken = np.zeros(n, bool)
+        strip_keys = np.zeros(0, np.int64)
+        for k in sorted(by_side):
+            sides = by_side[k]
+            ok = len(sides.get(0, ())) == 1 and len(sides.get(1, ())) == 1
+            if ok:
+                a, b = sides[0][0], sides[1][0]
+                ok = not (taken[a].any() or taken[b].any() or np.intersect1d(a, b).size)
+            if ok:
+                strip = zip_loops(positions, a, b)
+                # a strip edge the kept mesh (or an earlier strip) has already, e.g. across a
+                # band one face wide between the loops, would be an edge of three faces: the
+                # cut stays open instead. Only kept faces at the loops' vertices can hold one.
+                near = np.unique(star[np.concatenate([a, b])].indices)
+                near = near[label[near] < 0]
+                inner = _edge_keys(strip, n)
+                inner = np.setdiff1d(inner, np.concatenate([_loop_keys(a, n),
+                                                            _loop_keys(b, n)]))
+                have = np.concatenate([_edge_keys(faces[near], n), strip_keys])
+                ok = not np.isin(inner, have).any()
+            if ok:
+                strips.append(strip)
+                strip_keys = np.concatenate([strip_keys, inner])
+                taken[a] = taken[b] = True
+                zipped += 1
+            else:
+                unzipped += 1
+        missing = {region_cut(c)[0] for c in codes if region_cut(c)[0] >= 0} - set(by_side)
+        unzipped += len(missing)
+    allf = np.vstack([kept] + strips) if strips else kept
+    used = np.unique(allf)
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return RestoredMesh(used, remap[allf], zipped, unzipped)
+
+
+# --------------------------------------------------------------------------- closed surfaces
+def closed_surfels(closed, *, colors=None, name=None):
+    """The surfels of a :class:`surfidx.topology.ClosedSurface`, with its patches, for the codec.
+
+    One surfel per used vertex, in order (:meth:`surfidx.TriangleMesh.to_surfels` without
+    bisection): the
+    virtual vertices carry the patch of a virtual face around them, and ``patch_cut`` names the
+    cut each patch closes (:func:`surfidx.topology.patch_cuts`).
+
+    Parameters
+    ----------
+    closed : ClosedSurface
+    colors : (k, 3) uint8, optional
+        Colours of the piece's input vertices (those given to ``close_surface``): copies take
+        their original's, virtual vertices the nearest scan vertex's.
+    name : str, optional
+
+    Returns
+    -------
+    surfels : SurfelSet
+    face_patch : (m,) int64
+        Patch of each of ``surfels.faces`` (for :class:`surfidx.codec.Encoder`'s
+        ``face_patch``), -1 for the scan's faces.
+
+    """
+    import warnings
+
+    from ..geometry.mesh import TriangleMesh
+    from ..geometry.surfels import SurfelSet
+    from ..topology.patches import patch_cuts
+
+    V, F = closed.vertices, closed.faces
+    if colors is not None:
+        from scipy.spatial import cKDTree
+
+        origin = np.asarray(closed.vertex_origin)
+        real = np.flatnonzero(origin >= 0)
+        col = np.zeros((len(V), 3), np.uint8)
+        col[real] = np.asarray(colors)[origin[real]]
+        virt = np.flatnonzero(origin < 0)
+        if len(virt):
+            _, near = cKDTree(V[real]).query(V[virt])
+            col[virt] = col[real[near]]
+        colors = col
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = TriangleMesh(V, F, vertex_colors=colors, name=name).to_surfels(max_edge_ratio=None)
+    used = np.unique(F)          # the surfels are the used vertices, in order
+    n = len(V)
+    fp = np.asarray(closed.patch, np.int64)
+    vpatch = np.full(n, -1, np.int64)
+    virt = np.flatnonzero(fp >= 0)
+    for j in range(3):
+        vpatch[F[virt, j]] = np.maximum(vpatch[F[virt, j]], fp[virt])
+    vpatch[~closed.virtual_vertices] = -1
+    P = int(fp.max()) + 1 if len(virt) else 0
+    patch_cut = patch_cuts(closed)
+    vpatch = vpatch[used]
+    # the surfels' faces are the mesh's non-degenerate ones: match them by corners
+    sf = s.faces
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    F = remap[F]
+    n = len(used)
+    key_all = np.sort(F, axis=1) @ np.array([n * n, n, 1], np.int64)
+    key_s = np.sort(sf, axis=1) @ np.array([n * n, n, 1], np.int64)
+    order = np.argsort(key_all)
+    pos = np.minimum(np.searchsorted(key_all[order], key_s), len(F) - 1)
+    face_patch = np.where(key_all[order][pos] == key_s, fp[order][pos], -1)
+    # a patch without virtual vertex (a tiny hole's) is known by face_patch only
+    vp, pc = (None, None) if P == 0 else (vpatch, patch_cut)
+    out = SurfelSet(s.positions, s.normals, s.radii, s.colors, faces=sf, name=name,
+                    patch=vp, patch_cut=pc)
+    return out, face_patch
+

@@ -1,0 +1,405 @@
+"""The one Python API of a model database: :class:`Database` (``surfidx.Database``) is
+:class:`surfidx.db.catalog.Database` with the calls the database commands make: :meth:`ingest`
+(files, folders, models in memory), :meth:`query`, :meth:`get`, :meth:`get_sfz`,
+:meth:`export` (besides the store's own ``remove``, ``rename``, ``tag``, ``untag``,
+``list_models``).
+
+>>> db = surfidx.Database.open("shapes.db")                             # doctest: +SKIP
+>>> db.ingest(["scans/"])                  # as many workers as cores                                     # doctest: +SKIP
+>>> db.query("bunny", k=5)                                               # doctest: +SKIP
+>>> db.export("bunny", "bunny.glb", bits_per_surfel=2)                   # doctest: +SKIP
+
+It lives beside :mod:`surfidx.db.catalog` (which :mod:`ingest` writes through) so that neither
+imports the other's callers.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DatabaseError, InputError, SurfidxError
+from .catalog import Database as _Store, is_storage_failure
+
+__all__ = ["Database"]
+
+_THUMBNAIL_SIZE = 192      # of a query example's thumbnail (as process_model's default)
+
+
+def _describer(describer=None):
+    """``describer``, or :func:`surfidx.pipeline.describe_model` when None (imported now).
+
+    Raises
+    ------
+    SurfidxError
+        ``surfidx.pipeline.describe_model`` is not available.
+    """
+    if describer is not None:
+        return describer
+    try:
+        from ..pipeline import describe_model
+    except ImportError as exc:
+        raise SurfidxError(f"the model describer surfidx.pipeline.describe_model is not "
+                           f"available ({exc})") from exc
+    return describe_model
+
+
+class Database(_Store):
+    """A surfidx model database with the one-call API (see the module notes); opened as
+    :class:`surfidx.db.catalog.Database` is (``Database.open(path)``, ``readonly=``...)."""
+
+    def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float = 8.0, name=None,
+               tags=(), processor=None, progress: bool = False,
+               allow_outside_textures: bool = False, **options):
+        """Process and store models: files, folders (recursively) or models in memory.
+
+        Parameters
+        ----------
+        models : str, os.PathLike, model in memory, or a sequence of them
+            Files and folders as for ``surfidx ingest`` (:func:`ingest.run`: resumable, skipping
+            what is stored), and models in memory (a ``SurfelSet``, ``(vertices, faces[,
+            colours])``, a ``trimesh.Trimesh``: :func:`surfidx.io.as_surfels`), processed here.
+        workers : int, optional
+            Worker processes for the files (default: as many as the machine's cores,
+            :func:`ingest.run`).
+        bits_per_surfel : float
+            Full rate of the stored streams.
+        name : str, optional
+            Name of the model, when ``models`` is one file or one model (must be free).
+        tags : str or sequence of str
+            Tags given to every model stored.
+        processor : callable, optional
+            As for :func:`ingest.run` (default :func:`surfidx.pipeline.process_model`).
+        progress : bool
+            A progress bar on stderr.
+        allow_outside_textures : bool
+            As for :func:`surfidx.read_surfels`.
+        **options
+            Further keywords of :func:`ingest.run` (``scheduler``, ``retries``, ``batch``...).
+
+        Returns
+        -------
+        ingest.IngestSummary
+            ``stored``, ``skipped``, ``failed``, ``ids``, ``errors`` (``(path, message)``).
+
+        Raises
+        ------
+        InputError
+            ``name`` with several models, a path that does not exist, a folder holding no
+            supported file.
+        DatabaseError
+            The database cannot be written (the run stops).
+        """
+        import ingest as _ingest
+
+        from ..geometry.surfels import SurfelSet
+
+        items = [models] if isinstance(models, (str, os.PathLike, tuple, np.ndarray,
+                                                SurfelSet)) or not hasattr(models, "__iter__") \
+            or type(models).__module__.startswith("trimesh") else list(models)
+        paths = [m for m in items if isinstance(m, (str, os.PathLike))]
+        memory = [m for m in items if not isinstance(m, (str, os.PathLike))]
+        if name is not None and len(items) != 1:
+            raise InputError(f"name= names one model; {len(items)} were given")
+        tags = [] if not tags else self._tags_of(tags)
+        summary = None
+        if paths:
+            summary = _ingest.run(paths, db=self, workers=workers,
+                                  bits_per_surfel=bits_per_surfel, processor=processor,
+                                  progress=progress, name=name, tags=tags,
+                                  allow_outside_textures=allow_outside_textures, **options)
+        if memory:
+            proc = _ingest.resolve_processor(processor)
+            run = summary or _ingest.IngestSummary(run_id=self.start_run(
+                ["<memory>"], workers=1, bits_per_surfel=bits_per_surfel))
+            for i, model in enumerate(memory):
+                label = f"<memory model {i}>"
+                try:
+                    processed = proc(model, bits_per_surfel=bits_per_surfel,
+                                     **({"name": name} if name is not None else {}))
+                    if self.has_hash(processed.content_hash):
+                        run.skipped += 1
+                        continue
+                    with self.transaction():
+                        mid = self.add(processed, exact_name=name is not None)
+                        if tags:
+                            self.tag(mid, tags)
+                    run.ids.append(mid)
+                    run.stored += 1
+                except SurfidxError as exc:
+                    if is_storage_failure(exc):
+                        raise
+                    run.failed += 1
+                    run.errors.append((label, str(exc)))
+                    self.record_error(run.run_id, label, str(exc))
+            self.finish_run(run.run_id, stored=run.stored, skipped=run.skipped,
+                            failed=run.failed)
+            summary = run
+        if summary is None:
+            raise InputError("give at least one model file, folder or model to ingest")
+        return summary
+
+    def _example(self, model, *, processor=None, describer=None, texture=None,
+                 allow_outside_textures: bool = False, thumbnail: bool = True,
+                 progress=None) -> dict:
+        """The query example: ``{"id", "name", "descriptors", "thumbnail", "has_color"}``
+        (``id`` is the stored model's, or None).
+
+        A file or a model in memory is described by ``processor`` when one is given (a whole
+        ingest's work, :func:`surfidx.pipeline.process_model`'s signature), else by
+        ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
+        describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
+        ``progress`` goes to the describer (:mod:`surfidx.progress`)."""
+        ref = model
+        if isinstance(model, str):
+            text = model.strip()
+            if re.fullmatch(r"(?:id:)?\d+", text) and not Path(model).is_file():
+                ref = int(text.removeprefix("id:"))
+            elif text.startswith("id:"):
+                raise InputError(f"{model!r} is not a model id; write id:N with an integer N")
+            elif Path(model).is_file():
+                ref = Path(model)
+            else:
+                try:
+                    ref = int(self.resolve(model))
+                except DatabaseError:
+                    raise InputError("no such model file, and no stored model has this name",
+                                     path=model) from None
+        if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
+            rec = self.get_model(int(ref))
+            return {"id": rec["id"], "name": rec["name"], "has_color": rec["has_color"],
+                    "descriptors": self.get_descriptors(rec["id"]),
+                    "thumbnail": self.get_thumbnail(rec["id"])}
+        import ingest as _ingest    # a model file or one in memory: not for a stored model
+
+        extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+        if processor is not None:
+            proc = functools.partial(processor, bits_per_surfel=8.0)
+        else:
+            proc = functools.partial(_describer(describer),
+                                     thumbnail_size=_THUMBNAIL_SIZE if thumbnail else None,
+                                     **({"progress": progress} if progress is not None else {}))
+        try:
+            if isinstance(ref, os.PathLike):
+                if not Path(ref).is_file():
+                    raise InputError("no such model file", path=ref)
+                tex = texture if texture is not None else _ingest.find_texture(ref)
+                processed = proc(str(ref), texture=tex, **extra)
+            else:
+                processed = proc(ref, **extra)
+        except SurfidxError as exc:
+            if exc.path is None and isinstance(ref, os.PathLike):
+                raise type(exc)(exc.reason, path=ref) from exc
+            raise
+        row = self.conn.execute("SELECT id FROM models WHERE content_hash = ?",
+                                (str(processed.content_hash),)).fetchone()
+        vectors = processed.descriptors
+        vectors = getattr(vectors, "vectors", vectors)       # a DescriptorSet, or a dict
+        return {"id": None if row is None else int(row[0]), "name": processed.name,
+                "has_color": processed.has_color, "descriptors": dict(vectors),
+                "thumbnail": processed.thumbnail}
+
+    def query(self, model, *, k: int = 10, shape_weight: float | None = None,
+              include_self: bool = False, processor=None, describer=None, texture=None,
+              allow_outside_textures: bool = False, exact: bool = False, progress=None,
+              _example: dict | None = None) -> list:
+        """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
+
+        Parameters
+        ----------
+        model : int, str, os.PathLike or model in memory
+            A stored model's id (``12`` or ``"id:12"``) or name, a model file or a model in
+            memory (mapped, resampled and described as an ingest would, by
+            :func:`surfidx.pipeline.describe_model`; nothing is coded or stored).
+        k : int
+            Number of results.
+        shape_weight : float, optional
+            Weight of shape against texture distance (default
+            :data:`surfidx.db.search.DEFAULT_SHAPE_WEIGHT`).
+        include_self : bool
+            Keep the query model itself among the results when it is stored (by default it is
+            left out).
+        processor : callable, optional
+            Describe a file or model in memory by this ingest processor's whole work instead
+            (a ``ProcessedModel``, as for :meth:`ingest`).
+        describer : callable, optional
+            Instead of :func:`surfidx.pipeline.describe_model` (same signature).
+        texture, allow_outside_textures
+            For a file or a model in memory (as for :meth:`ingest`).
+        progress : callable, optional
+            ``progress(stage, done, total)`` while a file or model in memory is described
+            (:mod:`surfidx.progress`).
+        exact : bool
+            Scan every stored model, never the approximate index (:mod:`surfidx.db.ann`, used from
+            :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models on).
+
+        Returns
+        -------
+        list of dict
+            ``{"id", "name", "source", "distance"}``, nearest first.
+
+        Raises
+        ------
+        InputError
+            Neither a file nor a stored model, or a bad ``k``.
+        DatabaseError
+            No such stored model.
+        """
+        from .search import DEFAULT_SHAPE_WEIGHT, SearchIndex
+
+        ex = _example if _example is not None else self._example(
+            model, processor=processor, describer=describer, texture=texture,
+            allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress)
+        descriptors = dict(ex["descriptors"])
+        if not ex["has_color"]:
+            descriptors.pop("texture", None)
+        k = int(k)
+        if k < 1:
+            raise InputError(f"k must be at least 1, got {k}")
+        drop = None if include_self else ex["id"]
+        ids, dist = self._search_index(SearchIndex, exact=exact).query(
+            descriptors, k=k + (drop is not None),
+            shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
+        rows = []
+        for i, d in zip(ids.tolist(), dist.tolist()):
+            if i == drop or len(rows) == k:
+                continue
+            rec = self.conn.execute("SELECT name, source FROM models WHERE id = ?",
+                                    (i,)).fetchone()
+            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
+        return rows
+
+    def _search_index(self, make, *, exact: bool):
+        """The search of :meth:`query`: an index on the approximate path is kept for the next
+        query (opening its graphs costs ~0.1 s per million models; it follows changes of the
+        database itself, :meth:`SearchIndex.still_approximate`); the exact scan is set up per
+        query (its matrices are not followed)."""
+        kept = self.__dict__.get("_kept_search")
+        if not exact and kept is not None and kept.still_approximate():
+            return kept
+        index = make(self, exact=exact)
+        if not exact:
+            self.__dict__["_kept_search"] = index if index.approximate else None
+        return index
+
+    def get_sfz(self, model, *, bits_per_surfel: float | None = None) -> bytes:
+        """A stored model's stream as a ``.sfz`` file, truncated to ``bits_per_surfel`` (over
+        the stored input surfel count; default: all of it).
+
+        Raises
+        ------
+        InputError
+            A rate whose budget does not hold the header.
+        DatabaseError
+            No such model.
+        """
+        from ..codec import max_file_bytes
+        from ..codec.container import truncate
+
+        mid = self.resolve(model)
+        stream = self.get_stream(mid)
+        if bits_per_surfel is None:
+            return stream
+        n = self.conn.execute("SELECT n_surfels FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        return truncate(stream, max_file_bytes(bits_per_surfel, int(n)),
+                        path=f"model {mid}")
+
+    def get(self, model, *, bits_per_surfel: float | None = None, level: int | None = None,
+            mesh: bool = False, max_surfels: int | None = None, decoder=None):
+        """Decode a stored model.
+
+        Parameters
+        ----------
+        model : int or str
+            Id or name.
+        bits_per_surfel : float, optional
+            Serve the stream truncated to this rate (default: all of it).
+        level : int, optional
+            Grid level of the output; default the level whose vertex count is closest to the
+            stored input's surfel count (:func:`surfidx.pipeline.output_level`).
+        mesh : bool
+            A :class:`~surfidx.TriangleMesh` on the grid instead of surfels.
+        max_surfels : int, optional
+            As for :func:`surfidx.codec.decode`.
+        decoder : callable, optional
+            Instead of :func:`surfidx.codec.decode`.
+
+        Returns
+        -------
+        SurfelSet or TriangleMesh
+            Named after the model.
+        """
+        from ..pipeline import output_level
+
+        mid = self.resolve(model)
+        stream = self.get_stream(mid)
+        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        if level is None:
+            level = output_level(stream)
+        options = {} if level is None else {"level": level}
+        if mesh:
+            options["mesh"] = True
+        if max_surfels is not None:
+            options["max_surfels"] = max_surfels
+        if decoder is None:
+            from ..codec import decode as decoder
+
+            options["path"] = f"model {mid}"
+        out = decoder(stream, bits_per_surfel=bits_per_surfel, **options)
+        out.name = name
+        return out
+
+    def export(self, model, path, *, format: str | None = None,
+               bits_per_surfel: float | None = None, level: int | None = None,
+               mesh: bool | None = None, max_surfels: int | None = None, text: bool = False,
+               decoder=None) -> dict:
+        """Write a stored model to a file: PLY, OBJ, GLB (decoded) or SFZ (the stream).
+
+        Parameters
+        ----------
+        model : int or str
+        path : str or os.PathLike
+        format : {"ply", "obj", "glb", "sfz"}, optional
+            Default from the suffix of ``path``; another suffix is an error.
+        bits_per_surfel, level, max_surfels, decoder
+            As for :meth:`get` (``sfz``: the stream truncated to the rate).
+        mesh : bool, optional
+            Decode to the grid mesh (default for OBJ and GLB) or to surfels (default for PLY).
+        text : bool
+            ASCII PLY.
+
+        Returns
+        -------
+        dict
+            ``id``, ``name``, ``output``, ``format``, ``bytes`` (sfz) or ``surfels``
+            (and ``faces`` for a mesh), ``level``, ``bits_per_surfel``.
+        """
+        from ..io import output_format, write_atomic, write_model
+
+        fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
+        mid = self.resolve(model)
+        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        out = {"id": mid, "name": name, "output": str(path), "format": fmt,
+               "bits_per_surfel": bits_per_surfel}
+        if fmt == "sfz":
+            data = self.get_sfz(mid, bits_per_surfel=bits_per_surfel)
+            write_atomic(path, lambda tmp: tmp.write_bytes(data))
+            out["bytes"] = len(data)
+            return out
+        from ..pipeline import output_level
+
+        if level is None:
+            level = output_level(self.get_stream(mid))
+        as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
+        decoded = self.get(mid, bits_per_surfel=bits_per_surfel, level=level, mesh=as_mesh,
+                           max_surfels=max_surfels, decoder=decoder)
+        write_model(decoded, path, format=fmt, text=text)
+        n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
+        out.update({"surfels": int(n), "level": level})
+        if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:
+            out["faces"] = int(len(decoded.faces))
+        return out

@@ -1,0 +1,555 @@
+"""Fold-free distortion balancing and untangling of a spherical mesh embedding.
+
+Two energies of the piecewise-linear map from the 3D triangles to the chord triangles of the sphere
+(scaled to the surface's area), with ``J`` a triangle's Jacobian, ``det = a_t / A_t`` the ratio of
+its image area to its 3D area and ``D_t = ½ Σ_i cot α_i |q_j − q_k|² = A_t ‖J_t‖²`` (cotangents
+of its 3D angles):
+
+* symmetric Dirichlet ``Σ A (‖J‖² + ‖J⁻¹‖²) = Σ D (1 + (A / a)²)`` (Smith & Schaefer 2015;
+  Rabinovich et al. 2017): 4 per unit area for an isometry;
+* conformal-plus-area ``Σ A (‖J‖² / det + λ (det + 1 / det))`` (Garanzha et al. 2021): smallest
+  for a similarity of unit area ratio; λ weighs area against angle preservation.
+
+Both grow without bound as an image triangle degenerates, so a line search that rejects inverted
+triangles keeps every iterate fold-free. L-BFGS over the unnormalised positions ``y`` with
+``x = y / |y|``. :func:`untangle` replaces ``det`` in the second energy by
+``chi(det, eps) = (det + sqrt(eps² + det²)) / 2``, finite for inverted triangles, and shrinks
+``eps`` as the energy falls: a folded map becomes fold-free.
+"""
+
+from __future__ import annotations
+
+from ..jit import numba
+import numpy as np
+
+__all__ = ["balance", "untangle"]
+
+
+def _cotangents(p, f, *, max_cot: float = 4.0):
+    """Cotangents of each triangle's corner angles and its 3D area.
+
+    Near-degenerate triangles (a cotangent beyond ``max_cot``: an angle under 14° or over 166°)
+    have an ill-conditioned Jacobian that stalls the optimisation; their shape (not their area)
+    is blended halfway towards the equilateral triangle, twice if needed. Edge-length vectors of
+    triangles form a convex cone, so the blend is always a valid triangle.
+    """
+    a, b, c = p[f[:, 0]], p[f[:, 1]], p[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    floor = max(float(np.median(area)) * 1e-8, 1e-300)
+    lens = np.column_stack([np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1),
+                            np.linalg.norm(b - a, axis=1)])   # edge opposite corner k
+
+    def cots(ln):
+        s = 0.5 * ln.sum(axis=1)
+        heron = np.sqrt(np.clip(s * (s - ln[:, 0]) * (s - ln[:, 1]) * (s - ln[:, 2]), 0, None))
+        ar = np.maximum(heron, floor)
+        sq = ln ** 2
+        tot = sq.sum(axis=1)[:, None]
+        return (tot - 2 * sq) / (4 * ar[:, None])
+
+    cot = cots(lens)
+    for _ in range(2):
+        bad = np.abs(cot).max(axis=1) > max_cot
+        if not bad.any():
+            break
+        eq = np.sqrt(4 * np.maximum(area[bad], floor) / np.sqrt(3.0))
+        lens[bad] = 0.5 * lens[bad] + 0.5 * eq[:, None]
+        cot = cots(lens)
+    # a sliver's image must not shrink to nothing either: its target area is floored at 1 % of
+    # the median (a degenerate 3D triangle otherwise pins the line search at a barrier)
+    return cot, np.maximum(area, 0.01 * float(np.median(area)))
+
+
+@numba.njit(cache=True)
+def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cover - compiled
+    """Energy and gradient. ``eps < 0``: the symmetric Dirichlet energy (infinite when a triangle
+    inverts). ``eps >= 0``: ``(D + lam A (det² + 1)) / chi(det, eps)`` (Garanzha et al. 2021),
+    ``A (‖J‖² / det + lam (det + 1 / det))`` at ``eps = 0``, finite for inverted triangles
+    when ``eps > 0``. ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge lengths / 2).
+    Corners ``a, b, c`` of a triangle; its edge vectors ``w = c - b``, ``x = a - c``,
+    ``z = b - a`` lie opposite corners 0, 1, 2."""
+    n = y.shape[0]
+    q = np.empty((n, 3))
+    for i in range(n):
+        r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
+        for c in range(3):
+            q[i, c] = radius * (y[i, c] / r)
+    g = np.zeros((n, 3))
+    e = 0.0
+    for t in range(f.shape[0]):
+        i0, i1, i2 = f[t, 0], f[t, 1], f[t, 2]
+        a0, a1, a2 = q[i0, 0], q[i0, 1], q[i0, 2]
+        b0, b1, b2 = q[i1, 0], q[i1, 1], q[i1, 2]
+        e0, e1, e2 = q[i2, 0], q[i2, 1], q[i2, 2]
+        u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
+        v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
+        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+        s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
+        # signed area projected on the tangent plane at the centroid direction u: it vanishes
+        # when the corners fall on one great circle (where the plain area |c|/2 does not)
+        sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
+        ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+        if ar <= 0.0 and eps <= 0.0:
+            return np.inf, g
+        w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
+        x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
+        z0, z1, z2 = u0, u1, u2
+        ct0, ct1, ct2 = cot[t, 0], cot[t, 1], cot[t, 2]   # cotangents at corners 0, 1, 2
+        d = 0.5 * ct0 * (w0 * w0 + w1 * w1 + w2 * w2)
+        d += 0.5 * ct1 * (x0 * x0 + x1 * x1 + x2 * x2)
+        d += 0.5 * ct2 * (z0 * z0 + z1 * z1 + z2 * z2)
+        if eps < 0.0:
+            r2 = (area3[t] / ar) ** 2
+            e += d * (1.0 + r2)
+            k1 = 1.0 + r2
+            k2 = -2.0 * d * r2 / ar
+        else:
+            det = ar / area3[t]
+            root = np.sqrt(eps * eps + det * det)
+            # (det + root) / 2 without cancellation where det < 0
+            chi = 0.5 * (det + root) if det >= 0.0 else 0.5 * eps * eps / (root - det)
+            if chi <= 0.0:
+                return np.inf, g
+            et = (d + lam * area3[t] * (det * det + 1.0)) / chi
+            e += et
+            k1 = 1.0 / chi
+            k2 = 2.0 * lam * det / chi - et / chi * 0.5 * (1.0 + det / root) / area3[t]
+        if grad:
+            # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|, (q_l - q_j) the
+            # edge opposite corner k; dD / d q_k: its two edges, weighted by the far cotangents
+            cu = c0 * n0 + c1 * n1 + c2 * n2
+            h0 = 0.5 * (c0 - cu * n0) / sl
+            h1 = 0.5 * (c1 - cu * n1) / sl
+            h2 = 0.5 * (c2 - cu * n2) / sl
+            rk1, rk2 = radius * k1, radius * k2
+            g[i0, 0] += rk1 * (ct1 * x0 - ct2 * z0) + rk2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
+            g[i0, 1] += rk1 * (ct1 * x1 - ct2 * z1) + rk2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
+            g[i0, 2] += rk1 * (ct1 * x2 - ct2 * z2) + rk2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
+            g[i1, 0] += rk1 * (ct2 * z0 - ct0 * w0) + rk2 * (0.5 * (n1 * x2 - n2 * x1) + h0)
+            g[i1, 1] += rk1 * (ct2 * z1 - ct0 * w1) + rk2 * (0.5 * (n2 * x0 - n0 * x2) + h1)
+            g[i1, 2] += rk1 * (ct2 * z2 - ct0 * w2) + rk2 * (0.5 * (n0 * x1 - n1 * x0) + h2)
+            g[i2, 0] += rk1 * (ct0 * w0 - ct1 * x0) + rk2 * (0.5 * (n1 * z2 - n2 * z1) + h0)
+            g[i2, 1] += rk1 * (ct0 * w1 - ct1 * x1) + rk2 * (0.5 * (n2 * z0 - n0 * z2) + h1)
+            g[i2, 2] += rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
+    if grad:        # the gradient with respect to y (x = y / |y|)
+        for i in range(n):
+            r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
+            x0, x1, x2 = y[i, 0] / r, y[i, 1] / r, y[i, 2] / r
+            dot = g[i, 0] * x0 + g[i, 1] * x1 + g[i, 2] * x2
+            g[i, 0] = (g[i, 0] - dot * x0) / r
+            g[i, 1] = (g[i, 1] - dot * x1) / r
+            g[i, 2] = (g[i, 2] - dot * x2) / r
+    return e, g
+
+
+def _dot(a, b):
+    """Dot product of two long vectors without BLAS (threaded BLAS dot products of this size
+    are far slower on a loaded machine)."""
+    return float(np.einsum("i,i->", a, b))
+
+
+class _Energy:
+    def __init__(self, p, f, *, max_cot: float = 4.0):
+        self.f = np.ascontiguousarray(f, dtype=np.int64)
+        self.cot, self.area3 = _cotangents(p, f, max_cot=max_cot)
+        self.radius = float(np.sqrt(self.area3.sum() / (4 * np.pi)))
+        self.n = len(p)
+        self.eps = -1.0     # < 0: symmetric Dirichlet; >= 0: the untangling energy
+        self.lam = 0.5
+
+    def dets(self, y):
+        """Each triangle's ratio of image to 3D area (negative: inverted), ``(m,)``."""
+        x = y / np.linalg.norm(y, axis=1)[:, None] * self.radius
+        a, b, c = x[self.f[:, 0]], x[self.f[:, 1]], x[self.f[:, 2]]
+        s = a + b + c
+        ar = 0.5 * np.einsum("ij,ij->i", np.cross(b - a, c - a), s) / np.linalg.norm(s, axis=1)
+        return ar / self.area3
+
+    def min_det(self, y):
+        """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
+        return float(self.dets(y).min())
+
+    def restrict(self, faces):
+        """The same energy over the triangles selected by the mask ``faces`` (their 3D shapes,
+        radius and settings kept), on their vertices renumbered; returns it and those vertices
+        ``(k,)`` in the original numbering."""
+        verts = np.unique(self.f[faces])
+        local = np.full(self.n, -1, dtype=np.int64)
+        local[verts] = np.arange(len(verts))
+        sub = _Energy.__new__(_Energy)
+        sub.f = np.ascontiguousarray(local[self.f[faces]])
+        sub.cot, sub.area3 = self.cot[faces], self.area3[faces]
+        sub.radius, sub.n, sub.eps, sub.lam = self.radius, len(verts), self.eps, self.lam
+        return sub, verts
+
+    def preconditioner(self, *, shift: float, keep=None):
+        """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
+        mesh (the Hessian of the energy's Dirichlet part at an isometry: the accelerated
+        quadratic proxy of Kovalsky et al. 2016). Updates spread over whole limbs instead of
+        creeping one ring per step. It depends on the 3D mesh alone: a proxy weighted by the
+        start map's area ratios reaches the stop in fewer steps, but where it stops then depends
+        on the start, and copies of a model get less alike descriptors."""
+        import scipy.sparse as sp
+
+        from ..geometry.sparse import spd_factor
+        from ..geometry.mesh import cotangent_laplacian
+
+        lap = cotangent_laplacian(self.f, self.cot, self.n)
+        lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
+        if keep is not None:        # the rows and columns of the free vertices only
+            lap = lap.tocsr()[keep][:, keep]
+        lap = lap.tocsr()
+        lu = spd_factor(lap)
+
+        def solve(r):
+            return lu.solve(r.reshape(-1, 3)).ravel(order="C")
+
+        def apply(r):
+            return np.asarray(lap @ r.reshape(-1, 3)).ravel()
+
+        return solve, apply
+
+    def __call__(self, y, *, grad: bool = True):
+        e, g = _energy_kernel(np.ascontiguousarray(y), self.f, self.cot, self.area3,
+                              self.radius, grad, self.eps, self.lam)
+        if not np.isfinite(e):
+            return np.inf, None
+        return e, (g if grad else None)
+
+
+def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
+            tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
+            lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
+    """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
+    spherical embedding.
+
+    Parameters
+    ----------
+    x : (n, 3) float64
+        Unit vectors, a fold-free embedding of the mesh (every face counter-clockwise seen from
+        outside).
+    p : (n, 3) float64
+        The surface's 3D positions.
+    f : (m, 3) int64
+        Faces, counter-clockwise seen from outside.
+    iterations : int
+        Stop after this many L-BFGS steps (a count, never the clock: the result is the same on
+        every machine at any load).
+    memory : int
+        L-BFGS history length.
+    tol, patience : float, int
+        Stop when ``patience`` steps in a row lower the energy by less than the fraction ``tol``.
+    precondition : bool
+        Precondition L-BFGS with the 3D cotangent Laplacian (plus ``shift`` times its mean
+        diagonal): the accelerated quadratic proxy of Kovalsky, Galun & Lipman (2016).
+    lam : float, optional
+        None: the symmetric Dirichlet energy. A number: the conformal-plus-area energy
+        ``Σ A (‖J‖² / det + lam (det + 1 / det))`` (Garanzha et al. 2021 with ``eps = 0``),
+        ``det`` the ratio of image to 3D area: ``lam`` weighs area against angle preservation.
+        Both grow without bound as a triangle degenerates.
+    max_cot : float
+        3D triangles with a cotangent beyond this are treated as fatter (see ``_cotangents``);
+        ``inf`` keeps every triangle's shape.
+
+    Returns
+    -------
+    x : (n, 3) float64
+        The balanced embedding, still fold-free.
+    info : dict
+        ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``.
+    """
+    energy = _Energy(p, f, max_cot=max_cot)
+    if lam is not None:
+        energy.eps, energy.lam = 0.0, float(lam)
+    total = energy.area3.sum()
+    y = np.array(x, dtype=np.float64)
+    e0, _ = energy(y, grad=False)
+    if not np.isfinite(e0):
+        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0}
+    if precondition:
+        solve, apply = energy.preconditioner(shift=shift)
+    else:
+        solve = apply = _identity
+    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience)
+    x = y / np.linalg.norm(y, axis=1)[:, None]
+    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
+
+
+def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
+             lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
+             eps_max: float = 0.1, lift: bool = False, patch_rings: tuple = None):
+    """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
+
+    Minimises ``Σ A (‖J‖² + lam (det² + 1)) / chi(det, eps)``, ``chi(d, eps) = (d + sqrt(eps² +
+    d²)) / 2``, a regularisation of a shape-and-area energy that stays finite on inverted
+    triangles, by rounds of preconditioned L-BFGS while ``eps`` shrinks with the energy's progress
+    (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
+    toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
+    The vertices within ``patch_rings[0]`` edges of an inverted triangle are untangled first,
+    the others held (when they are fewer than half); where that patch stays tangled (a triangle
+    still inverted after :data:`_PATCH_PATIENCE` rounds), the wider patches of ``patch_rings``
+    in turn; the whole map only if they all fail.
+
+    Parameters
+    ----------
+    x : (n, 3) float64
+        Unit vectors, a map of the mesh that may fold (globally oriented like the faces).
+    p : (n, 3) float64
+    f : (m, 3) int64
+    rounds, inner : int
+        Most ``eps`` rounds, L-BFGS steps in each.
+    precondition : bool
+        As in :func:`balance` (without it, a large prolonged map untangles several times
+        slower).
+    lift : bool
+        Also work on a fold-free map whose smallest area ratio is below ``_DET_GOAL`` (an
+        embedding squeezed that far pins :func:`balance`'s line search at its barrier).
+    patch_rings : tuple of int, optional
+        The widths (rings of vertices around the inverted triangles) of the patches tried in
+        turn; default :data:`_PATCH_RINGS`.
+
+    Returns
+    -------
+    x : (n, 3) float64
+    info : dict
+        ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted), ``rounds``,
+        and ``patch`` (the width in rings) when a patch did it.
+    """
+    energy = _Energy(p, f)
+    energy.lam = float(lam)
+    y = np.array(x, dtype=np.float64)
+    dets = energy.dets(y)
+    mindet = float(dets.min())
+    if mindet > (_DET_GOAL if lift else 0.0):
+        return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
+    options = dict(rounds=rounds, inner=inner, memory=memory,
+                   precondition=precondition, shift=shift, eps_max=eps_max)
+    # first only the vertices near the inverted triangles (a prolongation folds a few percent of
+    # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
+    for rings in _PATCH_RINGS if patch_rings is None else patch_rings:
+        free = _near_inverted(energy, y, rings=rings, below=_DET_GOAL if lift else 0.0)
+        if free.mean() >= 0.5:
+            break
+        patch = _Patch(energy, y, free)
+        z, done = _untangle_rounds(patch, y[free], patience=_PATCH_PATIENCE, **options)
+        if done > 0:
+            y[free] = z
+            return _untangled(energy, y, rounds=done, patch=rings)
+    z, done = _untangle_rounds(energy, y, **options)
+    out = _untangled(energy, z, rounds=abs(done))
+    if out[1]["inverted"] > np.count_nonzero(dets <= 0):
+        # the map shrank toward a point (nothing on the sphere holds its scale): the map as
+        # given, with its few inverted triangles, is the better one
+        return _untangled(energy, y, rounds=abs(done))
+    return out
+
+
+def _untangled(energy, y, **info):
+    """:func:`untangle`'s result: unit vectors, and ``min_det`` and the count of ``inverted``
+    triangles beside ``info``."""
+    dets = energy.dets(y)
+    return y / np.linalg.norm(y, axis=1)[:, None], {
+        "min_det": float(dets.min()), "inverted": int(np.count_nonzero(dets <= 0)), **info}
+
+
+_PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
+# in turn: a patch's held border can pin a fold that one twice as wide lets go (frag_115's
+# finest level), at a fraction of the whole map's cost
+_PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
+# the next: on the shared and retrieval models, every patch that untangled had none left by the
+# 28th round (d041's 69 vertices; the others by the 13th), and frag_115's 4-ring patch, pinned
+# by its held border, kept 4 to the 60th
+_DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
+                   # left at 1e-8 pins the balancing's line search at its barrier)
+
+
+def _near_inverted(energy, y, *, rings: int, below: float = 0.0):
+    """Vertices within ``rings`` edges of a triangle whose area ratio is at most ``below``
+    (0: an inverted one)."""
+    import scipy.sparse as sp
+
+    f, n = energy.f, energy.n
+    mark = np.zeros(n)
+    mark[f[energy.dets(y) <= below].ravel()] = 1.0
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    adj = adj + adj.T
+    for _ in range(rings):
+        mark = mark + adj @ mark
+    return mark > 0
+
+
+class _Patch:
+    """The energy of the triangles around the ``free`` vertices as a function of those vertices
+    alone, the others held where they are (same interface as :class:`_Energy`)."""
+
+    def __init__(self, energy, y, free):
+        self.base, verts = energy.restrict(free[energy.f].any(axis=1))
+        self.free = free[verts]
+        self.y = np.array(y[verts])
+
+    eps = property(lambda self: self.base.eps, lambda self, v: setattr(self.base, "eps", v))
+
+    def _full(self, z):
+        self.y[self.free] = z
+        return self.y
+
+    def __call__(self, z, *, grad: bool = True):
+        e, g = self.base(self._full(z), grad=grad)
+        return e, (g[self.free] if g is not None else None)
+
+    def min_det(self, z):
+        return self.base.min_det(self._full(z))
+
+    def preconditioner(self, *, shift: float):
+        return self.base.preconditioner(shift=shift, keep=np.flatnonzero(self.free))
+
+
+def _untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
+                     eps_max, patience=None):
+    """The eps rounds of :func:`untangle` on ``energy``; returns the positions and the rounds
+    taken (negative when it stopped with triangles still inverted). With ``patience``, it
+    stops after that many rounds while a triangle is still inverted."""
+    y = np.array(y, dtype=np.float64)
+    mindet = energy.min_det(y)
+    solve, apply = energy.preconditioner(shift=shift) if precondition else (_identity, _identity)
+    # on the sphere no fixed boundary stops a collapse: eps stays small against the typical
+    # area ratio (1), so the barrier of the triangles that are not inverted keeps working
+    eps = min(float(np.sqrt(1e-12 + 0.04 * min(mindet, 0.0) ** 2)), eps_max)
+    k = 0
+    for k in range(1, rounds + 1):
+        if mindet > _DET_GOAL:
+            break
+        energy.eps = eps
+        e_prev, _ = energy(y, grad=False)
+        y, e, _ = _lbfgs(energy, y, solve, apply, inner, memory, 0.0,
+                         stop=lambda z: energy.min_det(z) > _DET_GOAL)
+        mindet = energy.min_det(y)
+        if patience is not None and k >= patience and mindet <= 0:
+            break
+        sigma = max(1.0 - e / e_prev, 0.1)
+        mu = (1.0 - sigma) * 0.5 * (mindet + np.sqrt(eps * eps + mindet * mindet))
+        eps = min(max(2.0 * np.sqrt(mu * (mu - mindet)), 1e-10), eps_max) if mindet < mu else 1e-10
+    energy.eps = -1.0
+    return y, (k if mindet > 0 else -k)
+
+
+def _identity(r):
+    return r
+
+
+@numba.njit(cache=True)
+def _history_back(d, s, y, rho, order, alpha):  # pragma: no cover - compiled
+    """The two-loop recursion's first loop, newest pair first: ``alpha_k = rho_k s_kᵀd``,
+    ``d -= alpha_k y_k``, in place. ``order``: the rows of ``s``, ``y`` oldest first."""
+    for j in range(len(order) - 1, -1, -1):
+        k = order[j]
+        a = 0.0
+        for i in range(d.shape[0]):
+            a += s[k, i] * d[i]
+        a *= rho[k]
+        alpha[k] = a
+        for i in range(d.shape[0]):
+            d[i] -= a * y[k, i]
+
+
+@numba.njit(cache=True)
+def _history_forth(d, s, y, rho, order, alpha):  # pragma: no cover - compiled
+    """The second loop, oldest pair first: ``d += s_k (alpha_k - rho_k y_kᵀd)``, in place."""
+    for j in range(len(order)):
+        k = order[j]
+        b = 0.0
+        for i in range(d.shape[0]):
+            b += y[k, i] * d[i]
+        b = alpha[k] - rho[k] * b
+        for i in range(d.shape[0]):
+            d[i] += b * s[k, i]
+
+
+class _History:
+    """The last ``memory`` L-BFGS pairs ``(s, y)`` in two ring buffers, oldest first."""
+
+    def __init__(self, memory: int, size: int):
+        self.s = np.empty((max(memory, 1), size))
+        self.y = np.empty((max(memory, 1), size))
+        self.rho = np.empty(max(memory, 1))
+        self.alpha = np.empty(max(memory, 1))
+        self.order = np.empty(0, dtype=np.int64)
+        self.memory = memory
+
+    def __len__(self):
+        return len(self.order)
+
+    def clear(self):
+        self.order = np.empty(0, dtype=np.int64)
+
+    def push(self, s, y):
+        if self.memory < 1:
+            return
+        if len(self.order) < self.memory:
+            k = len(self.order)
+            self.order = np.append(self.order, k)
+        else:
+            k = int(self.order[0])
+            self.order = np.append(self.order[1:], k)
+        self.s[k], self.y[k] = s, y
+        self.rho[k] = 1.0 / _dot(y, s)
+
+    def direction(self, g, solve, apply):
+        """``-H g``: the two-loop recursion with initial inverse Hessian ``γ P⁻¹``."""
+        d = -g
+        _history_back(d, self.s, self.y, self.rho, self.order, self.alpha)
+        d = solve(d)
+        if len(self.order):
+            k = int(self.order[-1])
+            d *= _dot(self.s[k], apply(self.s[k])) / _dot(self.s[k], self.y[k])
+        else:
+            d *= 1e-3 / max(np.abs(d).max(), 1e-300)
+        _history_forth(d, self.s, self.y, self.rho, self.order, self.alpha)
+        return d
+
+
+def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=None):
+    """L-BFGS on the sphere, initial inverse Hessian ``γ P⁻¹`` (``solve`` applies ``P⁻¹``,
+    ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a fold-rejecting
+    backtracking line search."""
+    e, g = energy(y)
+    hist = _History(memory, g.size)
+    steps = 0
+    last = 1.0
+    stalls = 0
+    for _ in range(max(iterations, 0)):
+        d = hist.direction(g.ravel(), solve, apply)
+        slope = _dot(g.ravel(), d)
+        if slope >= 0:  # not a descent direction: restart from the gradient
+            hist.clear()
+            d = hist.direction(g.ravel(), solve, apply)
+            slope = _dot(g.ravel(), d)
+        step = min(1.0, 4.0 * last)
+        while step > 1e-12:         # the gradient only where a point is accepted
+            y2 = y + step * d.reshape(-1, 3)
+            e2, _ = energy(y2, grad=False)
+            if e2 <= e + 1e-4 * step * slope:
+                e2, g2 = energy(y2)
+                break
+            step *= 0.5
+        else:
+            if not len(hist):       # even the scaled gradient step fails: converged
+                break
+            hist.clear()            # a stale curvature model: restart from the gradient
+            last = 1.0
+            continue
+        last = step
+        s = (y2 - y).ravel()
+        yk = (g2 - g).ravel()
+        rel = (e - e2) / e
+        r = np.linalg.norm(y2, axis=1)[:, None]   # stay on the sphere: the energy is invariant
+        y, e, g = y2 / r, e2, g2 * r               # along the radius, its gradient scales by r
+        steps += 1
+        if _dot(s, yk) > 1e-12 * _dot(s, s):
+            hist.push(s, yk)
+        stalls = stalls + 1 if rel < tol else 0
+        if stalls >= patience or (stop is not None and stop(y)):
+            break
+    return y, e, steps

@@ -1,0 +1,260 @@
+"""The spherical map's entry point: :func:`parameterize` routes a surfel set through the stages
+(see :mod:`surfidx.sphere`) and returns a :class:`SphericalMap` with its quality figures and the
+records of the stages that ran."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import InputError, TopologyError
+from ..validate import check_positive_int
+from ..geometry.icosphere import choose_level
+from ..progress import report
+from ..geometry.unitsphere import hull_triangles, map_points
+from ..geometry.surfels import SurfelSet
+from .cloud import cloud_map
+from .mds import geodesics, mds_map
+from .multilevel import mesh_map
+from .repair import repair
+from .surface import check_surfels, has_faces, oriented_faces
+from .options import DEFAULT_OPTIONS, METHODS, MapOptions
+from .quality import _area_distortion, _count_folds, _sparse_sampling, landmark_stress
+
+__all__ = ["parameterize", "SphericalMap", "Stage"]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """The record of one stage of a map.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`STAGES`: ``"multilevel"`` (the coarse-to-fine map), ``"single_level"``
+        (the single-level map, a fallback for a mesh), ``"proxy"`` (a point cloud's proxy
+        mesh), ``"repair"`` (fold repair and second pass), ``"realise"`` (realised flips),
+        ``"mds"``.
+    figures : mapping of str to int, float or str
+        Its counts and figures (read-only), e.g. ``levels``, ``balance_steps``,
+        ``folds_repaired``.
+    """
+
+    name: str
+    figures: Mapping
+
+    @classmethod
+    def of(cls, name: str, figures: dict) -> "Stage":
+        """The record of stage ``name`` with a read-only copy of ``figures``."""
+        return cls(name, MappingProxyType(dict(figures)))
+
+
+@dataclass(frozen=True)
+class SphericalMap:
+    """A map of surfels onto the unit sphere, its quality figures and the stages that ran.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+        Unit vectors, one per surfel, in surfel order.
+    method : str
+        ``"tutte"`` or ``"mds"``.
+    folded : int
+        Folded triangles of the spherical Delaunay triangulation (convex hull) of ``points``.
+    triangles : int
+        Triangles of that triangulation.
+    landmark_stress : float
+        Normalised stress ``sqrt(sum (r*theta - d)^2 / sum d^2)`` of landmark geodesic distances
+        ``d`` against great-circle angles ``theta`` (best scale ``r``); NaN when not computed.
+    area_distortion : float
+        Area-weighted RMS of ``log(spherical area share / 3D area share)`` over hull triangles.
+    seconds : float
+        Wall time of the mapping (a figure only: no stage depends on time).
+    stages : tuple of Stage
+        The stages that ran, in order.
+    sparse_sampling : float
+        :func:`surfidx.sphere.sparse_sampling` of the map: how densely an even grid on the sphere samples the
+        sparsest-mapped surfels, relative to their count (1 for an even map); it sets the grid
+        level with the surfel count (:func:`surfidx.geometry.icosphere.choose_level`).
+    located : tuple or None
+        ``(level, location)``: where the vertices of the level-``level`` grid lie in the map
+        (:func:`surfidx.codec.resample.locate_surfels` of these points), when the fold realisation's
+        check found that already; :meth:`location` hands it on, so the codec does not locate
+        the grid twice.
+    """
+
+    points: np.ndarray
+    method: str
+    folded: int
+    triangles: int
+    landmark_stress: float
+    area_distortion: float
+    seconds: float
+    stages: tuple = ()
+    sparse_sampling: float = 1.0
+    located: tuple | None = field(default=None, repr=False, compare=False)
+
+    def location(self, level: int):
+        """:func:`surfidx.codec.resample.locate_surfels` of this map at grid level ``level`` when it is
+        known already (:attr:`located`), else None."""
+        if self.located is not None and self.located[0] == level:
+            return self.located[1]
+        return None
+
+    @property
+    def grid_level(self) -> int:
+        """The icosahedral grid level for these surfels: :func:`surfidx.geometry.icosphere.choose_level`
+        of the surfel count and this map's :attr:`sparse_sampling` (the codec's and the CLI's
+        default level)."""
+        return choose_level(len(self.points), sparse_sampling=self.sparse_sampling)
+
+    @property
+    def fold_fraction(self) -> float:
+        """Share of folded hull triangles."""
+        return self.folded / max(self.triangles, 1)
+
+    @property
+    def fallback(self) -> bool:
+        """Whether a mesh (or a point cloud's proxy) got the single-level map because no
+        hierarchy could be untangled."""
+        return self.stage("single_level") is not None
+
+    def stage(self, name: str):
+        """The :class:`Stage` record called ``name``, or None when that stage did not run."""
+        return next((s for s in self.stages if s.name == name), None)
+
+    @property
+    def info(self) -> Mapping:
+        """The figures of every stage in one read-only mapping (later stages win a shared key)."""
+        out = {}
+        for s in self.stages:
+            out.update(s.figures)
+        return MappingProxyType(out)
+
+    def figures(self) -> dict:
+        """The figures as a plain dict (for JSON and tables): the map's and its stages'."""
+        return {"method": self.method, "surfels": len(self.points), "folded": self.folded,
+                "triangles": self.triangles, "fold_fraction": self.fold_fraction,
+                "landmark_stress": self.landmark_stress,
+                "area_distortion": self.area_distortion, "seconds": self.seconds,
+                "sparse_sampling": self.sparse_sampling, "fallback": self.fallback,
+                "stages": [s.name for s in self.stages], **self.info}
+
+
+def _route_stage(figures: dict, fallback: bool) -> Stage:
+    return Stage.of("single_level" if fallback else "multilevel", figures)
+
+
+def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
+                 landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
+                 balance: bool = True, stress: bool = True,
+                 options: MapOptions | None = None, progress=None) -> SphericalMap:
+    """Map surfels to the unit sphere.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        A closed genus-0 surface. Method ``"tutte"`` maps the mesh faces (``surfels.faces``); a
+        point cloud (no faces) is mapped through a closed proxy mesh reconstructed from the
+        oriented surfels (:func:`surfidx.sphere.proxy.proxy_mesh`).
+    method : {"tutte", "mds"}
+        ``"tutte"``: fold-free Tutte embedding with area balancing (default); ``"mds"``: the
+        original spherical MDS of landmark geodesics.
+    seed : int
+        Seed of the landmark choice.
+    landmarks : int
+        Landmarks for the stress figure and for ``"mds"``.
+    iterations : int
+        Most area-reweighting iterations (``"tutte"``) or CG iterations / 10 (``"mds"``).
+    gamma : float
+        Exponent of the area reweighting, in (0, 2].
+    balance : bool
+        Untangle and balance the distortion at each level (False: the Tutte start, a level
+        whose prolongation folds falls back to the single-level map; for tests and
+        comparisons).
+    stress : bool
+        Compute the landmark stress figure (geodesics from ``landmarks`` sources).
+    options : MapOptions, optional
+        Switches and tuning of the stages (default: ``MapOptions()``).
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries:
+        ``"map"`` (for a mesh, once per level of the multilevel map as it is done, coarsest
+        first), ``"repair"``, ``"figures"``. It changes nothing in the map.
+
+    Returns
+    -------
+    SphericalMap
+
+    Raises
+    ------
+    InputError
+        Unknown method, bad options, too few surfels.
+    TopologyError
+        Several pieces, holes, pinched vertices, genus > 0, inconsistent winding (for a point
+        cloud: a proxy surface that is not one closed genus-0 piece); a fallback map that
+        squeezes parts of the surface to nothing (area distortion above
+        ``options.max_area_distortion``).
+    """
+    surfels = check_surfels(surfels)
+    if method not in METHODS:
+        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    check_positive_int(landmarks, "landmarks", minimum=4)
+    check_positive_int(iterations, "iterations", minimum=0)
+    if not (0 < float(gamma) <= 2):
+        raise InputError(f"gamma must lie in (0, 2], got {gamma!r}")
+    if options is None:
+        options = DEFAULT_OPTIONS
+    elif not isinstance(options, MapOptions):
+        raise InputError(f"options must be a MapOptions, got {type(options).__name__}")
+    t0 = time.perf_counter()
+    report(progress, "map", 0, 1)
+    lm = dist = None
+    fallback = False
+    route = dict(iterations=iterations, gamma=float(gamma), balance=bool(balance))
+    if method == "tutte" and has_faces(surfels):
+        f = oriented_faces(surfels)
+        pts, figures, fallback = mesh_map(surfels, faces=f, options=options, progress=progress,
+                                          **route)
+        stages = [_route_stage(figures, fallback)]
+        report(progress, "repair", 0, 1)
+        pts, repaired, located = repair(pts, surfels, options=options, mesh=f)
+    elif method == "tutte":
+        pts, figures, fallback, proxy = cloud_map(surfels, options=options, **route)
+        stages = [Stage.of("proxy", proxy), _route_stage(figures, fallback)]
+        report(progress, "repair", 0, 1)
+        pts, repaired, located = repair(pts, surfels, options=options)
+    else:
+        if has_faces(surfels):
+            oriented_faces(surfels)  # topology check before mapping
+        pts, figures, lm, dist = mds_map(surfels, options=options, landmarks=landmarks,
+                                         seed=seed, maxiter=max(10 * iterations, 10))
+        stages, repaired, located = [Stage.of("mds", figures)], [], None
+    stages += [Stage.of(name, figs) for name, figs in repaired]
+    seconds = time.perf_counter() - t0
+    report(progress, "figures", 0, 1)
+    tri = hull_triangles(pts)
+    on_sphere = map_points(surfels, pts)      # checked once for the three figures
+    folded, total = _count_folds(surfels, tri)
+    ad = _area_distortion(surfels.positions, on_sphere, tri)
+    if fallback and ad > options.max_area_distortion:
+        cloud = not has_faces(surfels)
+        what = "its proxy surface" if cloud else "the mesh"
+        raise TopologyError(
+            f"the spherical map squeezes parts of the surface to nothing (area distortion "
+            f"{ad:.1f}; maps that resample well stay below {options.max_area_distortion:g}): no "
+            f"level of {what} could be untangled, so the grid would miss those parts; thin or "
+            "touching parts are the usual cause" + (": mesh the scan, or sample it more densely"
+                                                    if cloud else ""))
+    sparse = _sparse_sampling(on_sphere, tri)
+    st = float("nan")
+    if stress:
+        if lm is None:
+            lm, dist = geodesics(surfels, min(landmarks, len(surfels)), seed)
+        st = landmark_stress(pts, lm, dist)
+    report(progress, "figures", 1, 1)
+    return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse,
+                        located)
