@@ -422,7 +422,7 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     defaulted = workers is None
     workers = default_workers() if defaulted else check_positive_int(workers, "workers")

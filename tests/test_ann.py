@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from surfidx.db import ann
 from surfidx.errors import DatabaseError, InputError
-from surfidx.db.catalog import Database, utc_now
+from surfidx.db import Database
+from surfidx.db.catalog import utc_now
 from surfidx.db.search import SearchIndex
 
 DIM, TEX = 40, 12

@@ -120,6 +120,19 @@ def test_query_by_name_leaves_itself_out(real, tmp_path):
             db.query("id:x")
 
 
+def test_a_described_example_is_queried_as_its_model(real):
+    """``Database.example`` describes once (the CLI draws its thumbnail on a contact sheet and
+    queries with it); the same results as a query by the model itself."""
+    from surfidx.db import QueryExample
+
+    root, path = real
+    with surfidx.Database.open(path, readonly=True) as db:
+        ex = db.example("ball")
+        assert isinstance(ex, QueryExample) and ex.name == "ball" and ex.id is not None
+        assert ex.thumbnail[:8] == b"\x89PNG\r\n\x1a\n"
+        assert db.query(ex, k=3, include_self=True) == db.query("ball", k=3, include_self=True)
+
+
 def test_api_with_stub_processor(tmp_path):
     root = make_tree(tmp_path / "data", 3, extra={"bad.ply": "FAIL"})
     with surfidx.Database.open(tmp_path / "s.db") as db:

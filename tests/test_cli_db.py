@@ -13,7 +13,7 @@ from PIL import Image
 from surfidx import SurfelSet, read_surfels
 from surfidx.cli import cli
 from surfidx.cli.db import parse_model_ref
-from surfidx.db.catalog import Database
+from surfidx.db import Database
 
 from test_ingest import fake_processor, make_tree
 

@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 import surfidx
 from surfidx import DatabaseError, InputError
 from surfidx.db import catalog as dbmod
-from surfidx.db.catalog import SCHEMA_VERSION, Database, schema_sql
+from surfidx.db import Database
+from surfidx.db.catalog import SCHEMA_VERSION, schema_sql
 from surfidx.pipeline import ProcessedModel
 from surfidx.db.search import SearchIndex, search, weighted_l2
 

@@ -15,7 +15,7 @@ import pytest
 
 import ingest
 from surfidx import DatabaseError, InputError, SurfidxError
-from surfidx.db.catalog import Database
+from surfidx.db import Database
 from surfidx.pipeline import ProcessedModel, content_hash
 
 from test_database import tiny_png

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 import ingest
 from surfidx.cli import cli
-from surfidx.db.catalog import Database
+from surfidx.db import Database
 from surfidx.pipeline import describe_model, process_model
 from surfidx.progress import STAGES, StageLog, stage_fraction
 

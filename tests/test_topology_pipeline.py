@@ -262,7 +262,7 @@ def test_describe_model_equals_process_model(torus_processed):
 
 
 def test_database_records_what_was_added(tmp_path, torus_processed):
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     with Database(tmp_path / "t.db") as db:
         mid = db.add(torus_processed)
@@ -278,7 +278,7 @@ def test_database_records_what_was_added(tmp_path, torus_processed):
 def test_database_refuses_a_bad_topology_record(tmp_path, torus_processed):
     import dataclasses
 
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     with Database(tmp_path / "t.db") as db:
         bad = dataclasses.replace(torus_processed, topology=dict(torus_processed.topology,
@@ -342,7 +342,7 @@ def test_cli_show_prints_the_topology_record(tmp_path, torus_processed):
     from click.testing import CliRunner
 
     from surfidx.cli import cli
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     path = tmp_path / "t.db"
     with Database(path) as db:
@@ -379,7 +379,7 @@ def test_topology_line():
 
 def test_ingest_records_an_unstorable_file_and_goes_on(tmp_path):
     import ingest
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     vm, fm = moebius(40)
     write_obj(tmp_path / "strip.obj", vm, fm)
@@ -398,7 +398,7 @@ def test_cli_query_of_an_unstorable_file_is_one_line(tmp_path):
     from click.testing import CliRunner
 
     from surfidx.cli import cli
-    from surfidx.db.catalog import Database
+    from surfidx.db import Database
 
     vm, fm = moebius(40)
     p = write_obj(tmp_path / "strip.obj", vm, fm)

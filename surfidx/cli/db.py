@@ -196,14 +196,14 @@ def query(example, db_path, k, shape_weight, sheet, include_self, exact, quiet, 
     with _open(db_path) as db, stage_progress(quiet=quiet, verbose=verbose) as progress:
         # a model file is described by surfidx.pipeline.describe_model (imported then), or
         # by the processor or describer the context object injects
-        ex = db._example(example, processor=_injected("processor"),
-                         describer=_injected("describer"), thumbnail=bool(sheet),
-                         progress=progress, allow_outside_textures=allow_outside_textures())
-        label, qthumb = ex["name"], ex["thumbnail"]
+        ex = db.example(example, processor=_injected("processor"),
+                        describer=_injected("describer"), thumbnail=bool(sheet),
+                        progress=progress, allow_outside_textures=allow_outside_textures())
+        label, qthumb = ex.name, ex.thumbnail
         if progress is not None:
             progress("search", 0, 1)
-        rows = db.query(example, k=k, shape_weight=shape_weight, include_self=include_self,
-                        exact=exact, _example=ex)
+        rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
+                        exact=exact)
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])

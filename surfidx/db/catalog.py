@@ -51,7 +51,7 @@ import json
 import os
 import re
 import sqlite3
-from dataclasses import dataclass, field
+
 from importlib import resources
 from pathlib import Path
 
@@ -60,9 +60,9 @@ import numpy as np
 from ..errors import DatabaseError, InputError, SurfidxError
 from ..validate import as_array
 
-__all__ = ["Database", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
+__all__ = ["Catalog", "QUALITY_KEYS", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
            "escape_name", "unescape_name", "storable_text", "is_storage_failure",
-           "datasette_metadata", "ProcessedModel"]
+           "datasette_metadata"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
 #: delete triggers that do not depend on the client's foreign-key setting, browsing views;
@@ -83,69 +83,10 @@ _TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs
 #: transaction :meth:`Database._migrate` opens and must leave the tables ``schema.sql`` creates.
 _MIGRATIONS: list = []
 
-_QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
+QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
 _MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min_x",
                   "bbox_min_y", "bbox_min_z", "bbox_max_x", "bbox_max_y", "bbox_max_z",
                   "ingested_at", "params")
-
-
-@dataclass
-class ProcessedModel:
-    """Everything the database stores for one model (picklable, numpy + bytes only).
-
-    Attributes
-    ----------
-    name : str
-        Model name (file stem).
-    source : str
-        Path the model was read from (as given, resolved to absolute).
-    content_hash : str
-        SHA-256 hex of the model file's bytes and of its texture image's bytes, if any.
-    n_surfels : int
-        Surfels of the input (the rate denominator).
-    has_color : bool
-    bbox : (2, 3) float64
-        Minimum and maximum corner of the input's bounding box.
-    stream : bytes
-        The compressed asset: a complete container file holding the embedded bitstream.
-    format_version : int
-        Bitstream container format version of ``stream``.
-    rate : float
-        Bits per input surfel of ``stream`` (whole file counted).
-    quality : dict of str -> float or None
-        ``psnr_d1``, ``psnr_d2``, ``psnr_y`` (None without colour) of ``stream`` decoded at full
-        rate against the input.
-    descriptors : dict of str -> (d,) float32
-        Descriptor vectors by kind (``"shape"``, ``"texture"``, ``"spectrum"``).
-    thumbnail : bytes
-        PNG image of the decoded model.
-    params : dict
-        JSON-serialisable parameters that produced the record (grid level, map method, codec
-        version, descriptor lmax and normalisation, ...).
-    timings : dict of str -> float
-        Seconds per stage.
-    topology : dict or None
-        What topology repair added (:meth:`surfidx.io.Model.summary`: ``parts``,
-        ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
-        ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
-        for a model stored as it was read.
-    """
-
-    name: str
-    source: str
-    content_hash: str
-    n_surfels: int
-    has_color: bool
-    bbox: np.ndarray
-    stream: bytes
-    format_version: int
-    rate: float
-    quality: dict
-    descriptors: dict
-    thumbnail: bytes
-    params: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
-    topology: dict | None = None
 
 
 def schema_sql() -> str:
@@ -446,7 +387,7 @@ def _to_json(value, name: str) -> str:
 
 
 @_map_sqlite_errors
-class Database:
+class Catalog:
     """A surfidx model database (an SQLite file), built on ``sqlite_utils.Database``.
 
     Parameters
@@ -789,7 +730,7 @@ class Database:
 
         Parameters
         ----------
-        model : ProcessedModel
+        model : surfidx.pipeline.ProcessedModel
         exact_name : bool
             Store ``model.name`` or fail; by default a name another model has is replaced by
             the model's parent folder's name, or else ``NAME-2``, ``NAME-3``, ... (the first
@@ -878,7 +819,7 @@ class Database:
                "ingested_at": utc_now(), "params": _to_json(params, f"model {name!r} params")}
         quality = dict(model.quality or {})
         q = []
-        for key in _QUALITY_KEYS:
+        for key in QUALITY_KEYS:
             v = quality.get(key)
             q.append(None if v is None or not np.isfinite(float(v)) else float(v))
         stream = bytes(model.stream)
@@ -1265,7 +1206,7 @@ class Database:
         a = conn.execute("SELECT format_version, bits_per_surfel, bytes, psnr_d1, psnr_d2, psnr_y "
                          "FROM assets WHERE model_id = ?", (model_id,)).fetchone()
         rec["asset"] = None if a is None else dict(zip(
-            ("format_version", "bits_per_surfel", "bytes", *_QUALITY_KEYS), a))
+            ("format_version", "bits_per_surfel", "bytes", *QUALITY_KEYS), a))
         rec["descriptors"] = dict(conn.execute(
             "SELECT kind, dimension FROM descriptors WHERE model_id = ? ORDER BY kind",
             (model_id,)).fetchall())
@@ -1321,21 +1262,6 @@ class Database:
                     "SELECT kind, vector FROM descriptors WHERE model_id = ? ORDER BY kind",
                     (model_id,))}
 
-    def load(self, id_or_name):
-        """Read a stored model back as a :class:`ProcessedModel`.
-
-        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
-        """
-        rec = self.get_model(id_or_name)
-        a = rec["asset"]
-        return ProcessedModel(
-            name=rec["name"], source=rec["source"], content_hash=rec["content_hash"],
-            n_surfels=rec["n_surfels"], has_color=rec["has_color"], bbox=rec["bbox"],
-            stream=self.get_stream(rec["id"]), format_version=a["format_version"],
-            rate=a["bits_per_surfel"], quality={k: a[k] for k in _QUALITY_KEYS},
-            descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
-            params=rec["params"], timings={})
-
     def list_models(self, *, tag=None, name_like: str | None = None) -> list:
         """The models, by id, with their asset figures and tags (no blobs).
 
@@ -1355,7 +1281,7 @@ class Database:
             ``psnr_y``, ``tags`` (sorted list).
         """
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
-                "bits_per_surfel", "bytes", *_QUALITY_KEYS)
+                "bits_per_surfel", "bytes", *QUALITY_KEYS)
         where, args = [], []
         for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
             where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")

@@ -1,5 +1,5 @@
 """The one Python API of a model database: :class:`Database` (``surfidx.Database``) is
-:class:`surfidx.db.catalog.Database` with the calls the database commands make: :meth:`ingest`
+:class:`surfidx.db.catalog.Catalog` with the calls the database commands make: :meth:`ingest`
 (files, folders, models in memory), :meth:`query`, :meth:`get`, :meth:`get_sfz`,
 :meth:`export` (besides the store's own ``remove``, ``rename``, ``tag``, ``untag``,
 ``list_models``).
@@ -18,16 +18,40 @@ from __future__ import annotations
 import functools
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import DatabaseError, InputError, SurfidxError
-from .catalog import Database as _Store, is_storage_failure
+from .catalog import Catalog, is_storage_failure
 
-__all__ = ["Database"]
+__all__ = ["Database", "QueryExample"]
 
 _THUMBNAIL_SIZE = 192      # of a query example's thumbnail (as process_model's default)
+
+
+@dataclass(frozen=True)
+class QueryExample:
+    """A query's example, described: what :meth:`Database.query` compares with the stored models.
+
+    Attributes
+    ----------
+    id : int or None
+        The stored model's id when the example is stored (by id, name or content hash).
+    name : str
+    has_color : bool
+    descriptors : dict of str -> (d,) float32
+        Descriptor vectors by kind, as an ingest stores them.
+    thumbnail : bytes or None
+        PNG of the example (a stored model's thumbnail, or one drawn of a file's surfels).
+    """
+
+    id: int | None
+    name: str
+    has_color: bool
+    descriptors: dict
+    thumbnail: bytes | None = None
 
 
 def _describer(describer=None):
@@ -48,9 +72,9 @@ def _describer(describer=None):
     return describe_model
 
 
-class Database(_Store):
+class Database(Catalog):
     """A surfidx model database with the one-call API (see the module notes); opened as
-    :class:`surfidx.db.catalog.Database` is (``Database.open(path)``, ``readonly=``...)."""
+    :class:`surfidx.db.catalog.Catalog` is (``Database.open(path)``, ``readonly=``...)."""
 
     def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float = 8.0, name=None,
                tags=(), processor=None, progress: bool = False,
@@ -143,11 +167,31 @@ class Database(_Store):
             raise InputError("give at least one model file, folder or model to ingest")
         return summary
 
-    def _example(self, model, *, processor=None, describer=None, texture=None,
-                 allow_outside_textures: bool = False, thumbnail: bool = True,
-                 progress=None) -> dict:
-        """The query example: ``{"id", "name", "descriptors", "thumbnail", "has_color"}``
-        (``id`` is the stored model's, or None).
+    def load(self, id_or_name):
+        """Read a stored model back as a :class:`surfidx.pipeline.ProcessedModel`.
+
+        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
+        """
+        from ..pipeline import ProcessedModel
+        from .catalog import QUALITY_KEYS
+
+        rec = self.get_model(id_or_name)
+        a = rec["asset"]
+        return ProcessedModel(
+            name=rec["name"], source=rec["source"], content_hash=rec["content_hash"],
+            n_surfels=rec["n_surfels"], has_color=rec["has_color"], bbox=rec["bbox"],
+            stream=self.get_stream(rec["id"]), format_version=a["format_version"],
+            rate=a["bits_per_surfel"], quality={k: a[k] for k in QUALITY_KEYS},
+            descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
+            params=rec["params"], timings={})
+
+    def example(self, model, *, processor=None, describer=None, texture=None,
+                allow_outside_textures: bool = False, thumbnail: bool = True,
+                progress=None) -> QueryExample:
+        """Describe a query's example once, for :meth:`query` (and a contact sheet's thumbnail).
+
+        ``model`` is what :meth:`query` takes: a stored model's id or name, a model file, or a
+        model in memory.
 
         A file or a model in memory is described by ``processor`` when one is given (a whole
         ingest's work, :func:`surfidx.pipeline.process_model`'s signature), else by
@@ -171,9 +215,9 @@ class Database(_Store):
                                      path=model) from None
         if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
             rec = self.get_model(int(ref))
-            return {"id": rec["id"], "name": rec["name"], "has_color": rec["has_color"],
-                    "descriptors": self.get_descriptors(rec["id"]),
-                    "thumbnail": self.get_thumbnail(rec["id"])}
+            return QueryExample(id=rec["id"], name=rec["name"], has_color=rec["has_color"],
+                                descriptors=self.get_descriptors(rec["id"]),
+                                thumbnail=self.get_thumbnail(rec["id"]))
         import ingest as _ingest    # a model file or one in memory: not for a stored model
 
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
@@ -199,22 +243,23 @@ class Database(_Store):
                                 (str(processed.content_hash),)).fetchone()
         vectors = processed.descriptors
         vectors = getattr(vectors, "vectors", vectors)       # a DescriptorSet, or a dict
-        return {"id": None if row is None else int(row[0]), "name": processed.name,
-                "has_color": processed.has_color, "descriptors": dict(vectors),
-                "thumbnail": processed.thumbnail}
+        return QueryExample(id=None if row is None else int(row[0]), name=processed.name,
+                            has_color=processed.has_color, descriptors=dict(vectors),
+                            thumbnail=processed.thumbnail)
 
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, describer=None, texture=None,
-              allow_outside_textures: bool = False, exact: bool = False, progress=None,
-              _example: dict | None = None) -> list:
+              allow_outside_textures: bool = False, exact: bool = False,
+              progress=None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
         ----------
-        model : int, str, os.PathLike or model in memory
+        model : int, str, os.PathLike, model in memory or QueryExample
             A stored model's id (``12`` or ``"id:12"``) or name, a model file or a model in
             memory (mapped, resampled and described as an ingest would, by
-            :func:`surfidx.pipeline.describe_model`; nothing is coded or stored).
+            :func:`surfidx.pipeline.describe_model`; nothing is coded or stored), or an
+            example :meth:`example` described already.
         k : int
             Number of results.
         shape_weight : float, optional
@@ -251,16 +296,16 @@ class Database(_Store):
         """
         from .search import DEFAULT_SHAPE_WEIGHT, SearchIndex
 
-        ex = _example if _example is not None else self._example(
+        ex = model if isinstance(model, QueryExample) else self.example(
             model, processor=processor, describer=describer, texture=texture,
             allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress)
-        descriptors = dict(ex["descriptors"])
-        if not ex["has_color"]:
+        descriptors = dict(ex.descriptors)
+        if not ex.has_color:
             descriptors.pop("texture", None)
         k = int(k)
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
-        drop = None if include_self else ex["id"]
+        drop = None if include_self else ex.id
         ids, dist = self._search_index(SearchIndex, exact=exact).query(
             descriptors, k=k + (drop is not None),
             shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
