@@ -125,7 +125,7 @@ class ProcessedModel:
     timings : dict of str -> float
         Seconds per stage.
     topology : dict or None
-        What topology repair added (:meth:`surfidx.io.Model.summary`: ``parts``,
+        What topology repair added (:meth:`surfidx.topology.Model.summary`: ``parts``,
         ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
         ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
         for a model stored as it was read.

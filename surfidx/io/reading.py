@@ -69,7 +69,8 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
         Missing, unreadable, empty, truncated or corrupt file, an unknown format, or a texture
         image that is damaged or larger than :data:`~surfidx.io.limits.MAX_TEXTURE_PIXELS`.
     InputError
-        Valid file with unusable values (NaN coordinates or beyond :data:`~surfidx.io.limits.MAX_COORDINATE`, too
+        Valid file with unusable values (NaN coordinates or beyond
+        :data:`~surfidx.io.limits.MAX_COORDINATE`, too
         few points, points or faces that hold no surface).
 
     Warns

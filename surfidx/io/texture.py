@@ -20,7 +20,8 @@ def read_texture(path, *, _source: str = "") -> np.ndarray:
     """Read a texture image as (h, w, 3) uint8.
 
     Only PNG, JPEG, BMP, TGA, TIFF, GIF, WebP and PPM images of at most
-    :data:`~surfidx.io.limits.MAX_TEXTURE_PIXELS` pixels are read; the size is checked before decoding.
+    :data:`~surfidx.io.limits.MAX_TEXTURE_PIXELS` pixels are read; the size is checked before
+    decoding.
 
     Raises
     ------

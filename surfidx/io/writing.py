@@ -63,7 +63,8 @@ def write_model(model, path, *, format: str | None = None, text: bool = False) -
 
     Notes
     -----
-    The writer is the format's (:data:`~surfidx.io.registry.WRITERS`). OBJ holds ``v x y z r g b`` (colours 0..1) and ``vn`` lines, and ``f`` lines when the model
+    The writer is the format's (:data:`~surfidx.io.registry.WRITERS`). OBJ holds
+    ``v x y z r g b`` (colours 0..1) and ``vn`` lines, and ``f`` lines when the model
     has faces; GLB (written by trimesh) a mesh with vertex colours and normals, or a point cloud
     for surfels without faces. Both are read by trimesh, Blender and MeshLab.
     """
