@@ -62,8 +62,10 @@ SHARED = ROOT.parent / "shared" / "data"
 #: attribute ``Class.method`` is patched on the class; a function is patched in every loaded
 #: ``surfidx`` module that holds it (``from .x import f`` binds the name there).
 STAGES = (
-    ("surfidx.io", "read_surfels", "read"),
-    ("surfidx.io", "read_model", "read"),
+    ("surfidx.io.reading", "read_surfels", "read"),
+    ("surfidx.io.reading", "read_geometry", "read"),
+    ("surfidx.io.models", "read_model", "read"),
+    ("surfidx.topology.model", "repair_model", "read"),
     ("surfidx.geometry.graph", "sphere_of_influence_graph", "graph"),
     ("surfidx.geometry.geodesics", "GeodesicSolver.__init__", "geodesics"),
     ("surfidx.sphere.multilevel", "mesh_map", "map.multilevel"),

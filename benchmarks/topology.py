@@ -24,7 +24,7 @@ five real models), everything through the ingest path as it is:
 
 * before (:func:`surfidx.topology.analysis` of the file's mesh): holes, genus (largest piece),
   pieces;
-* what the repair added (:func:`surfidx.io.read_model`'s :meth:`~surfidx.io.Model.summary`):
+* what the repair added (:func:`surfidx.io.read_model`'s :meth:`~surfidx.topology.Model.summary`):
   holes filled, handles cut, pinched vertices split, parts kept (dropped), virtual share of the
   area;
 * CPU time (``time.process_time``) of the repair (analyse + split_parts + close_surface +

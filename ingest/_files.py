@@ -167,9 +167,9 @@ def _texture_lines(path: Path):
 def _obj_needs_texture(path: Path) -> bool:
     """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``
     image, parsed as :func:`surfidx.io.read_mesh` parses them."""
-    from surfidx.io import _mtl_texture_name, _obj_statements
+    from surfidx.io.obj import mtl_texture_name, obj_statements
 
-    st = _obj_statements(_texture_lines(path), keys=("vt", "mtllib"))
+    st = obj_statements(_texture_lines(path), keys=("vt", "mtllib"))
     if not st["vt"]:
         return False
     for lib in st["mtllib"]:
@@ -177,7 +177,7 @@ def _obj_needs_texture(path: Path) -> bool:
             text = _read_regular(path.parent / lib).decode("utf-8", "replace")
         except OSError:
             continue
-        if _mtl_texture_name(text) is not None:
+        if mtl_texture_name(text) is not None:
             return False
     return True
 

@@ -12,9 +12,8 @@ from .geometry.graph import SphereOfInfluenceGraph
 from .geometry.geodesics import (GeodesicSolver, GeodesicPath, geodesic_distances, geodesic_path,
                                  farthest_point_landmarks)
 from .geometry.metrics import evaluate, psnr_d1, psnr_d2, psnr_luma, hausdorff
-from .io import (read_surfels, read_mesh, read_model, write_ply, write_model, as_surfels,
-                 join_surfels, Model)
-from .topology import RepairOptions
+from .io import read_surfels, read_mesh, read_model, write_ply, write_model, as_surfels
+from .topology import RepairOptions, Model, join_surfels, repair_model
 from .sphere import MapOptions, parameterize, SphericalMap
 from .codec import Encoder, encode, decode
 from .codec.klt import KLT

@@ -53,7 +53,7 @@ class ProcessedModel:
     timings : dict of str -> float
         Seconds per stage.
     topology : dict or None
-        What topology repair added (:meth:`surfidx.io.Model.summary`: ``parts``,
+        What topology repair added (:meth:`surfidx.topology.Model.summary`: ``parts``,
         ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
         ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
         for a model stored as it was read.
@@ -167,15 +167,23 @@ def combine_descriptors(sets, weights):
 
 
 def _read(timings, progress, path, texture, samples, allow_outside_textures):
-    """:func:`surfidx.io.read_model` timed as the ``read`` stage; when anything was repaired, the
-    CPU seconds of the reading and the repair together in ``timings["read_cpu"]``."""
+    """The model read (:func:`surfidx.io.read_geometry`) and repaired to closed genus-0 parts
+    (:func:`surfidx.topology.repair_model`), together timed as the ``read`` stage (``repair`` is
+    the map's fold repair); when anything was repaired, the CPU seconds of the reading and the
+    repair together in ``timings["read_cpu"]``."""
     import time
 
-    from .io import read_model
+    from .io import read_geometry
+    from .topology import repair_model
+
+    def read_and_repair():
+        geometry = read_geometry(path, texture=texture, samples=samples,
+                                 allow_outside_textures=allow_outside_textures)
+        return repair_model(geometry, samples=samples,
+                            path=Path(path) if isinstance(path, (str, os.PathLike)) else None)
 
     cpu = time.process_time()
-    model = _timed(timings, "read", progress, read_model, path, texture=texture, samples=samples,
-                   allow_outside_textures=allow_outside_textures)
+    model = _timed(timings, "read", progress, read_and_repair)
     if model.repaired:
         timings["read_cpu"] = time.process_time() - cpu
     return model
@@ -216,7 +224,8 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
         Any file :func:`surfidx.read_surfels` reads, or a model in memory
         (:func:`surfidx.io.as_surfels`: a ``SurfelSet``, ``(vertices, faces[, colours])``, a
         ``trimesh.Trimesh``...): its source is then ``"<memory>"`` and its content hash that of
-        its surfels (:func:`surfidx.io.model_hash`). It is read by :func:`surfidx.io.read_model`:
+        its surfels (:func:`surfidx.io.model_hash`). It is read by
+        :func:`surfidx.io.read_geometry` and repaired by :func:`surfidx.topology.repair_model`:
         a closed genus-0 mesh as it is (the stream and descriptors of a plain read), any other
         mesh repaired into closed genus-0 parts whose virtual patches the stream codes as a mask
         (one part per piece, tiny pieces dropped with a warning); the descriptors describe the
@@ -333,7 +342,7 @@ class DescribedModel:
     timings : dict of str -> float
         Wall seconds per stage (figures only).
     topology : dict or None
-        What the topology repair added (:meth:`surfidx.io.Model.summary`); None when the model
+        What the topology repair added (:meth:`surfidx.topology.Model.summary`); None when the model
         was taken as it is.
     """
 
@@ -356,11 +365,12 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     """Read, map, resample and describe one model: what a query by example computes, nothing
     else (no coding, decoding, quality figures).
 
-    It reads (:func:`surfidx.io.read_model`, repairing as ingest does), maps and resamples as
-    :func:`process_model` does (the map without the stress figure, the grid at the encoder's
-    level: ``level``, else the map's ``grid_level``; colour when the surfels have it; each part
-    on its own, combined by :func:`combine_descriptors`), so with the same arguments its
-    descriptors are bit-equal to ``process_model(...).descriptors``.
+    It reads and repairs (:func:`surfidx.io.read_geometry`, :func:`surfidx.topology.repair_model`,
+    as ingest does), maps and resamples as :func:`process_model` does (the map without the
+    stress figure, the grid at the encoder's level: ``level``, else the map's ``grid_level``;
+    colour when the surfels have it; each part on its own, combined by
+    :func:`combine_descriptors`), so with the same arguments its descriptors are bit-equal to
+    ``process_model(...).descriptors``.
 
     Parameters
     ----------

@@ -128,7 +128,7 @@ def test_collinear_points_and_off_variants(tmp_path):
 def test_unreadable_input_is_one_line(tmp_path, monkeypatch):
     import builtins
 
-    import surfidx.io as sio
+    import surfidx.io.limits
 
     p = _icosphere_obj(tmp_path)
     real_open = builtins.open
@@ -138,7 +138,7 @@ def test_unreadable_input_is_one_line(tmp_path, monkeypatch):
             raise PermissionError(13, "Permission denied", str(file))
         return real_open(file, *args, **kwargs)
 
-    monkeypatch.setattr(sio, "open", refusing_open, raising=False)
+    monkeypatch.setattr(surfidx.io.limits, "open", refusing_open, raising=False)
     for args in (["info", str(p)], ["convert", str(p), "-o", str(tmp_path / "o.ply")]):
         _one_line_error(CliRunner().invoke(cli, args), "m.obj: cannot read (Permission denied)")
 

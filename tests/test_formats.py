@@ -134,8 +134,10 @@ def test_xyz_and_pts(tmp_path):
 
 
 def test_text_point_files_are_bounded(tmp_path, monkeypatch):
+    import surfidx.io.limits as limits
+
     (tmp_path / "big.xyz").write_text("0 0 0\n" * 10)
-    monkeypatch.setattr(sio, "MAX_TEXT_BYTES", 20)
+    monkeypatch.setattr(limits, "MAX_TEXT_BYTES", 20)
     with pytest.raises(FileFormatError, match="big.xyz: text point file of 60 bytes exceeds"):
         read_surfels(tmp_path / "big.xyz")
 

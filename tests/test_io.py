@@ -453,12 +453,12 @@ def test_texture_bomb_is_a_clean_error(tmp_path):
 
 
 def test_texture_over_the_limit_and_damaged(tmp_path, monkeypatch):
-    import surfidx.io as sio
+    import surfidx.io.limits as limits
 
     _png(tmp_path / "t.png", (8, 4))
     p = _tex_obj(tmp_path, "map_Kd t.png")
     assert read_surfels(p).has_color
-    monkeypatch.setattr(sio, "MAX_TEXTURE_PIXELS", 31)
+    monkeypatch.setattr(limits, "MAX_TEXTURE_PIXELS", 31)
     with pytest.raises(FileFormatError, match="t.png: texture image of 8 × 4 pixels exceeds the "
                                               "limit of 31 pixels"):
         read_surfels(p)
@@ -502,7 +502,8 @@ def test_unreadable_file_is_a_clean_error(tmp_path, monkeypatch, name, content):
     """We run as root, where permissions do not stop reading: fake the refusal at open."""
     import builtins
 
-    import surfidx.io as sio
+    import surfidx.io.limits
+    import surfidx.io.ply
 
     p = _write(tmp_path, name, content)
     real_open = builtins.open
@@ -512,7 +513,8 @@ def test_unreadable_file_is_a_clean_error(tmp_path, monkeypatch, name, content):
             raise PermissionError(13, "Permission denied", str(file))
         return real_open(file, *args, **kwargs)
 
-    monkeypatch.setattr(sio, "open", refusing_open, raising=False)
+    for module in (surfidx.io.limits, surfidx.io.ply):     # the modules that open files
+        monkeypatch.setattr(module, "open", refusing_open, raising=False)
     with pytest.raises(FileFormatError, match=f"{name}: cannot read \\(Permission denied\\)"):
         read_surfels(p)
 
@@ -607,9 +609,9 @@ def _strips(*rows):
 
 
 def test_tristrips_alternate_winding_and_drop_degenerate_triangles():
-    from surfidx.io import _faces_from_strips
+    from surfidx.io.ply import faces_from_strips
 
-    faces = _faces_from_strips(_strips([0, 1, 2, 3, -1, 4, 5, 6, 6, 7, 8], [9]), "s.ply")
+    faces = faces_from_strips(_strips([0, 1, 2, 3, -1, 4, 5, 6, 6, 7, 8], [9]), "s.ply")
     # strip 1: (0 1 2), odd (1 2 3) -> (2 1 3); strip 2: (4 5 6), then degenerate windows
     # (5 6 6) (6 6 7) dropped, (6 7 8) is the 4th window (odd) -> (7 6 8), then (7 8 9)
     # even, the strip going on across the list rows
@@ -618,7 +620,7 @@ def test_tristrips_alternate_winding_and_drop_degenerate_triangles():
 
 
 def test_tristrips_without_a_triangle_are_refused():
-    from surfidx.io import _faces_from_strips
+    from surfidx.io.ply import faces_from_strips
 
     with pytest.raises(FileFormatError, match="tristrips hold no triangle"):
-        _faces_from_strips(_strips([0, 1, -1, 2, 3, -1]), "s.ply")
+        faces_from_strips(_strips([0, 1, -1, 2, 3, -1]), "s.ply")

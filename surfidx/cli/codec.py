@@ -36,10 +36,10 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
            density_weighting, texture, samples, quiet, verbose, as_json):
     """Encode a model into an embedded .sfz bitstream.
 
-    A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model: holes
-    capped, handles cut, pinches split, tiny pieces dropped); the virtual patches are coded as
-    a mask, so decoding gives back the open (or genus-g) surface, and each piece is one part of
-    the file."""
+    A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model, that is
+    surfidx.topology.repair_model: holes capped, handles cut, pinches split, tiny pieces
+    dropped); the virtual patches are coded as a mask, so decoding gives back the open (or
+    genus-g) surface, and each piece is one part of the file."""
     from ..codec import TANGENT_WEIGHT, PartsEncoder, stream_summary
     from ..io import read_model, write_atomic
     from ..progress import report
