@@ -60,17 +60,7 @@ __all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIG
            "encode_parts", "decode_parts", "stream_summary"]
 
 CODEC_VERSION = container.FORMAT_VERSION
-COLOR_WEIGHT = 0.02
-"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
-
-It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
-colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
-both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
-of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
-"""
-
-TANGENT_WEIGHT = 0.5
-"""Weight of the tangential geometry components in local frames (see the module docstring)."""
+from .options import COLOR_WEIGHT, MAX_COLOR_WEIGHT, TANGENT_WEIGHT  # noqa: E402
 
 _PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
 
@@ -83,9 +73,6 @@ MAX_EXTENT = 1e6
 """Decoded values lie within this many weighted units of the KLT mean (for geometry:
 bounding-box diagonals of the model's centre; for colour: ``color_weight`` · value / 255, at most
 :data:`MAX_COLOR_WEIGHT`); anything else, or a non-finite value, is a damaged stream."""
-
-MAX_COLOR_WEIGHT = 1e3
-"""Largest ``color_weight`` the encoder takes (so colours stay within :data:`MAX_EXTENT`)."""
 
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
