@@ -42,7 +42,7 @@ DEFAULT_RATES = (1.0, 2.0, 4.0, 8.0)
 SETUP_STEPS = (
     ("locate", codec, "locate_surfels"),
     ("resample", codec, "resample"),
-    ("mask", codec.Encoder, "_code_mask"),
+    ("mask", codec, "_code_mask"),
     ("klt fit", KLT, "fit"),
     ("klt forward", KLT, "forward"),
     ("wavelets", wavelets, "forward"),
