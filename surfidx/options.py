@@ -101,6 +101,29 @@ class ProcessOptions:
             raise InputError(f"not valid {suffix[1:].upper()} ({exc})", path=p) from None
         return cls.from_dict(d, path=p)
 
+    @classmethod
+    def resolve(cls, options=None, *, bits_per_surfel=None, samples=None, level=None,
+                method=None, thumbnail_size=None, lmax=None) -> "ProcessOptions":
+        """``options`` (default ``ProcessOptions()``) with the pipeline's keywords that are
+        given (not None) put in: what :func:`surfidx.pipeline.process_model` uses.
+
+        Raises
+        ------
+        InputError
+            ``options`` is not a ProcessOptions, a keyword's value is out of range.
+        """
+        from .sphere.options import METHODS
+
+        if options is None:
+            options = cls()
+        elif not isinstance(options, cls):
+            raise InputError(f"options must be a ProcessOptions, got {type(options).__name__}")
+        if method is not None and method not in METHODS:
+            raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+        return options.updated(**{"codec.bits_per_surfel": bits_per_surfel, "samples": samples,
+                                  "codec.level": level, "map.method": method,
+                                  "thumbnail_size": thumbnail_size, "describe.lmax": lmax})
+
     def updated(self, **changes) -> "ProcessOptions":
         """A copy with dotted settings changed, None values ignored
         (``updated(**{"codec.bits_per_surfel": 4.0})``): command-line flags over a file."""

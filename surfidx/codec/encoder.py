@@ -164,6 +164,8 @@ class Prepared:
         Normalised (and, with frames, anchored) wavelet coefficients of the KLT layers.
     step : float
         Quantisation step of the finest bit plane.
+    color_weight : float
+        Weight of colour against geometry.
     tangent_weight : float or None
         Float32-rounded, as the container stores it; None without local frames.
     weight_field : bytes
@@ -192,6 +194,7 @@ class Prepared:
     klt: KLT
     coeffs: np.ndarray
     step: float
+    color_weight: float
     tangent_weight: float | None
     weight_field: bytes
     density_gain: float
@@ -205,10 +208,13 @@ class Prepared:
     def report(self) -> dict:
         """What the codec says about itself for a model's stored params: its version, grid
         level, map method, folded triangles, the weights it used."""
+        from .resample import PHONG_ALPHA, PHONG_SHARPNESS
+
         return {"codec_version": CODEC_VERSION, "grid_level": int(self.level),
                 "map_method": self.sphere_map.method, "folded": int(self.sphere_map.folded),
-                "tangent_weight": self.tangent_weight,
-                "density_weighted": bool(self.weight_field)}
+                "color_weight": float(self.color_weight), "tangent_weight": self.tangent_weight,
+                "density_weighted": bool(self.weight_field),
+                "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS}}
 
     def header_bytes(self) -> int:
         """Bytes of the container header for this model (the virtual-region mask included)."""
@@ -340,7 +346,8 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
     t["transform"] = time.perf_counter() - t0
     report(progress, "transform", 1, 1)
     return Prepared(n_surfels=n_surfels, level=level, color=bool(color), sphere_map=sphere_map,
-                    grid=grid, klt=klt, coeffs=coeffs, step=step, tangent_weight=tangent_weight,
+                    grid=grid, klt=klt, coeffs=coeffs, step=step, color_weight=color_weight,
+                    tangent_weight=tangent_weight,
                     weight_field=weight_field, density_gain=density_gain, anchors=anchors,
                     mask=mask, regions=regions, virtual_share=virtual_share,
                     map_method=map_method, seconds=t)
