@@ -46,6 +46,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
     from dataclasses import replace
 
     from ..codec import PartsEncoder, stream_summary
+    from ..codec.encoder import codec_options
     from ..io import read_model, write_atomic
     from ..options import ProcessOptions
     from ..progress import report
@@ -60,8 +61,8 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
                                   method=method)
     if no_frames:
         opts = replace(opts, codec=replace(opts.codec, tangent_weight=None))
-    elif tangent_weight is not None:
-        opts = opts.updated(**{"codec.tangent_weight": tangent_weight})
+    elif tangent_weight is not None:     # checked with the encoder's own message
+        opts = replace(opts, codec=codec_options(opts.codec, tangent_weight=tangent_weight))
     if no_color:
         opts = opts.updated(**{"codec.color": False})
     bits = opts.codec.bits_per_surfel
