@@ -29,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import surfidx.codec as codec  # noqa: E402
+import surfidx.codec.encoder as codec_encoder  # noqa: E402
 from surfidx.codec import density, wavelets  # noqa: E402
 from surfidx.codec import PartsEncoder, decode, decode_grid  # noqa: E402
 from surfidx.io import read_model  # noqa: E402
@@ -40,9 +41,9 @@ DEFAULT_RATES = (1.0, 2.0, 4.0, 8.0)
 
 # the Encoder's set-up steps: (label, owner, attribute) of the functions it calls
 SETUP_STEPS = (
-    ("locate", codec, "locate_surfels"),
-    ("resample", codec, "resample"),
-    ("mask", codec.Encoder, "_code_mask"),
+    ("locate", codec_encoder, "locate_surfels"),
+    ("resample", codec_encoder, "resample"),
+    ("mask", codec_encoder, "_code_mask"),
     ("klt fit", KLT, "fit"),
     ("klt forward", KLT, "forward"),
     ("wavelets", wavelets, "forward"),

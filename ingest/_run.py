@@ -349,8 +349,8 @@ class IngestSummary:
         return (f"run {self.run_id}: stored {self.stored}, skipped {self.skipped}, "
                 f"failed {self.failed} in {self.seconds:.1f} s")
 
-def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, processor=None,
-        progress: bool = True, executor=None, batch: int = 8,
+def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None = None,
+        options=None, processor=None, progress: bool = True, executor=None, batch: int = 8,
         flush_seconds: float = 2.0, scheduler=None, retries: int = 2, name: str | None = None,
         tags=(), allow_outside_textures: bool = False) -> IngestSummary:
     """Ingest model files and folders into a database, skipping models already stored.
@@ -366,8 +366,11 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
         cores (:func:`default_workers`), or 1 when the processor cannot be sent to worker
         processes (not picklable). With ``scheduler="local"`` the LocalCluster's workers;
         ignored with a running cluster (its workers are used).
-    bits_per_surfel : float
-        Coding rate passed to the processor.
+    bits_per_surfel : float, optional
+        Coding rate passed to the processor (default ``options.codec.bits_per_surfel``).
+    options : surfidx.options.ProcessOptions, optional
+        Every setting of the processing; passed (with ``bits_per_surfel`` put in) to a
+        processor that takes ``options=``, as :func:`surfidx.pipeline.process_model` does.
     processor : callable, optional
         ``processor(path, *, bits_per_surfel, texture) -> ProcessedModel``; default
         ``surfidx.pipeline.process_model``. With ``workers > 1`` it must be picklable (a
@@ -427,9 +430,18 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
     defaulted = workers is None
     workers = default_workers() if defaulted else check_positive_int(workers, "workers")
     batch = check_positive_int(batch, "batch")
-    bits_per_surfel = float(bits_per_surfel)
-    if not bits_per_surfel > 0:
-        raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
+    from surfidx.options import ProcessOptions
+
+    if options is not None and not isinstance(options, ProcessOptions):
+        raise InputError(f"options must be a ProcessOptions, got {type(options).__name__}")
+    if bits_per_surfel is not None:
+        bits_per_surfel = float(bits_per_surfel)
+        if not bits_per_surfel > 0:
+            raise InputError(f"bits_per_surfel must be positive, got {bits_per_surfel}")
+        if options is not None:
+            options = options.updated(**{"codec.bits_per_surfel": bits_per_surfel})
+    else:
+        bits_per_surfel = (ProcessOptions() if options is None else options).codec.bits_per_surfel
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
     files = discover(paths)
     if name is not None and len(files) != 1:
@@ -455,8 +467,8 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float = 8.0, 
         if not isinstance(db, Database):
             db = stack.enter_context(Database(db))
         return _ingest(files, [str(p) for p in paths], db=db, workers=workers,
-                       bits_per_surfel=bits_per_surfel, processor=processor, progress=progress,
-                       executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
+                       bits_per_surfel=bits_per_surfel, options=options, processor=processor,
+                       progress=progress, executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
                        tags=[tags] if isinstance(tags, str) else list(tags),
                        allow_outside_textures=allow_outside_textures)
 
@@ -491,8 +503,8 @@ class _BarMoves:
         self._move()
 
 
-def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, executor, batch,
-            flush_seconds, name, tags, allow_outside_textures) -> IngestSummary:
+def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, progress, executor,
+            batch, flush_seconds, name, tags, allow_outside_textures) -> IngestSummary:
     """The run of :func:`run` on its checked arguments: ``files`` found once by
     :func:`discover`, ``db`` open, ``executor`` None or ready."""
     from surfidx.db.catalog import escape_name, is_storage_failure, storable_text
@@ -589,7 +601,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, processor, progress, 
                        bar_format=fmt)
         moved.bar = bar
         fn = functools.partial(process_task, processor=processor,
-                               bits_per_surfel=bits_per_surfel,
+                               bits_per_surfel=bits_per_surfel, options=options,
                                allow_outside_textures=allow_outside_textures, stages=sender)
         results = executor(fn, tasks)
         try:

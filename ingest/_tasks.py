@@ -78,18 +78,18 @@ def resolve_processor(processor=None):
     return process_model
 
 
-def accepts_progress(processor) -> bool:
-    """Whether ``processor`` names a ``progress`` parameter (as
-    :func:`surfidx.pipeline.process_model` does): only such a processor is given one."""
+def accepts_progress(processor, parameter: str = "progress") -> bool:
+    """Whether ``processor`` names a ``progress`` parameter (or ``parameter``), as
+    :func:`surfidx.pipeline.process_model` does: only such a processor is given one."""
     import inspect
 
     try:
-        return "progress" in inspect.signature(processor).parameters
+        return parameter in inspect.signature(processor).parameters
     except (TypeError, ValueError):
         return False
 
 
-def process_task(task: Task, *, processor, bits_per_surfel: float,
+def process_task(task: Task, *, processor, bits_per_surfel: float, options=None,
                  allow_outside_textures: bool = False, stages=None) -> Outcome:
     """Run the processor on one task, catching its errors (the per-model function of every
     executor; picklable when ``processor`` is a module-level function).
@@ -97,13 +97,16 @@ def process_task(task: Task, *, processor, bits_per_surfel: float,
     ``processor(path, bits_per_surfel=B, texture=T)`` must return a
     ``surfidx.pipeline.ProcessedModel``; its ``content_hash`` is set to the task's so that a re-run
     recognises the model. With ``allow_outside_textures`` the processor also gets
-    ``allow_outside_textures=True``. With ``stages``, a callable ``stages(path, stage, done,
+    ``allow_outside_textures=True``; with ``options`` (a ``surfidx.options.ProcessOptions``) a
+    processor that names an ``options`` parameter also gets ``options=``. With ``stages``, a callable ``stages(path, stage, done,
     total)``, a processor that takes ``progress=`` (:func:`accepts_progress`) gets one that
     reports its stage events with the task's path. ``KeyboardInterrupt`` and ``SystemExit``
     propagate.
     """
     t0 = time.perf_counter()
     extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+    if options is not None and accepts_progress(processor, "options"):
+        extra["options"] = options
     if stages is not None and accepts_progress(processor):
         extra["progress"] = functools.partial(stages, task.path)
     try:

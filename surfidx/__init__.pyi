@@ -18,6 +18,9 @@ from .sphere import MapOptions, parameterize, SphericalMap
 from .codec import Encoder, encode, decode
 from .codec.klt import KLT
 from .describe import describe_grid, DescriptorSet
+from .codec.options import CodecOptions
+from .describe.options import DescribeOptions
+from .options import ProcessOptions
 from .pipeline import process_model, describe_model, ProcessedModel
 from .db import Database, SearchIndex
 

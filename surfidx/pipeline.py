@@ -166,7 +166,7 @@ def combine_descriptors(sets, weights):
     return DescriptorSet(vectors=vectors, params=dict(sets[0].params, parts=len(sets)))
 
 
-def _read(timings, progress, path, texture, samples, allow_outside_textures):
+def _read(timings, progress, path, texture, samples, allow_outside_textures, repair):
     """The model read (:func:`surfidx.io.read_geometry`) and repaired to closed genus-0 parts
     (:func:`surfidx.topology.repair_model`), together timed as the ``read`` stage (``repair`` is
     the map's fold repair); when anything was repaired, the CPU seconds of the reading and the
@@ -179,7 +179,7 @@ def _read(timings, progress, path, texture, samples, allow_outside_textures):
     def read_and_repair():
         geometry = read_geometry(path, texture=texture, samples=samples,
                                  allow_outside_textures=allow_outside_textures)
-        return repair_model(geometry, samples=samples,
+        return repair_model(geometry, samples=samples, options=repair,
                             path=Path(path) if isinstance(path, (str, os.PathLike)) else None)
 
     cpu = time.process_time()
@@ -212,8 +212,9 @@ def _timed(timings, stage, progress, fn, *args, **kwargs):
     return out
 
 
-def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: int | None = None,
-                  level: int | None = None, method: str = "tutte", thumbnail_size: int = 192,
+def process_model(path, *, options=None, bits_per_surfel: float | None = None, texture=None,
+                  samples: int | None = None, level: int | None = None,
+                  method: str | None = None, thumbnail_size: int | None = None,
                   lmax: int | None = None, allow_outside_textures: bool = False,
                   name: str | None = None, progress=None) -> ProcessedModel:
     """Read, map, encode, evaluate, describe and draw one model.
@@ -231,20 +232,25 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
         (one part per piece, tiny pieces dropped with a warning); the descriptors describe the
         closed surface, all parts together (:func:`combine_descriptors`), the quality figures
         compare the decoded real surface with the scan's own surfels.
-    bits_per_surfel : float
-        Full rate of the stored asset (lower rates are served by truncation).
+    options : surfidx.options.ProcessOptions, optional
+        Every setting of the repair, map, codec and descriptors (default ``ProcessOptions()``);
+        the keywords below, when given, override its fields.
+    bits_per_surfel : float, optional
+        Full rate of the stored asset (``options.codec.bits_per_surfel``; lower rates are served
+        by truncation).
     texture : str or os.PathLike, optional
         Texture image for an OBJ that names none.
     samples : int, optional
-        Sample this many surfels uniformly over a mesh instead of one per vertex.
+        Sample this many surfels uniformly over a mesh instead of one per vertex
+        (``options.samples``).
     level : int, optional
-        Grid level (default from the surfel count).
-    method : {"tutte", "mds"}
-        Spherical map.
-    thumbnail_size : int
-        Thumbnail width and height in pixels.
+        Grid level (``options.codec.level``; default from the surfel count).
+    method : {"tutte", "mds"}, optional
+        Spherical map (``options.map.method``).
+    thumbnail_size : int, optional
+        Thumbnail width and height in pixels (``options.thumbnail_size``).
     lmax : int, optional
-        Largest SH degree of the descriptors (default :data:`surfidx.describe.descriptors.DEFAULT_LMAX`).
+        Largest SH degree of the descriptors (``options.describe.lmax``).
     allow_outside_textures : bool
         Use a texture an OBJ's MTL names outside the model's folder
         (:func:`surfidx.read_surfels`).
@@ -263,7 +269,10 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
         Its thumbnail looks along the model's smallest principal axis
         (:func:`surfidx.render.principal_basis`); ``topology`` says what the repair added (None
         for a model stored as read); ``n_surfels`` counts every coded surfel, virtual included
-        (the rate's denominator).
+        (the rate's denominator); ``params`` are the options as used (``options.to_dict()``),
+        what the codec reports of each part (:meth:`surfidx.codec.encoder.Prepared.report`:
+        grid level, map method, folds, weights), the descriptors' conventions and
+        ``provenance`` (:func:`surfidx.numerics.provenance`).
 
     Raises
     ------
@@ -274,47 +283,50 @@ def process_model(path, *, bits_per_surfel: float = 8.0, texture=None, samples: 
     """
     import time
 
-    from .codec import CODEC_VERSION, COLOR_WEIGHT, PartsEncoder, decode
-    from .describe.descriptors import DEFAULT_LMAX, describe_grid
+    from .codec import CODEC_VERSION, PartsEncoder, decode
+    from .describe.descriptors import describe_grid
     from .geometry.mesh import MAX_EDGE_RATIO
     from .geometry.metrics import evaluate
+    from .numerics import provenance
+    from .options import ProcessOptions
     from .render import render
-    from .codec.resample import PHONG_ALPHA, PHONG_SHARPNESS
 
+    opts = ProcessOptions.resolve(options, bits_per_surfel=bits_per_surfel, samples=samples,
+                                  level=level, method=method, thumbnail_size=thumbnail_size,
+                                  lmax=lmax)
+    samples, size = opts.samples, opts.thumbnail_size
     timings = {}
-    model = _read(timings, progress, path, texture, samples, allow_outside_textures)
+    model = _read(timings, progress, path, texture, samples, allow_outside_textures,
+                  opts.repair)
     surfels = model.surfels
     # one part: exactly Encoder's stream (PartsEncoder of one part is that part's Encoder)
-    pe = PartsEncoder(list(model.parts), level=level, method=method, progress=progress,
+    pe = PartsEncoder(list(model.parts), options=opts.codec, map_options=opts.map,
+                      progress=progress,
                       face_patches=[model.face_patch(i) for i in range(len(model.parts))])
     encoders = list(pe.encoders)
     for e in encoders:
         for k, v in e.setup_seconds.items():
             timings[k] = timings.get(k, 0.0) + v
     t0 = time.perf_counter()
-    stream = pe.encode(bits_per_surfel, progress=progress)
+    stream = pe.encode(opts.codec.bits_per_surfel, progress=progress)
     timings["encode"] = time.perf_counter() - t0
     decoded = _timed(timings, "decode", progress, decode, stream)
     q = _timed(timings, "evaluate", progress, evaluate, _reference(model), decoded)
     quality = {k: q[k] for k in ("psnr_d1", "psnr_d2", "psnr_y")}
-    lm = DEFAULT_LMAX if lmax is None else lmax
     desc = _timed(timings, "describe", progress, lambda: combine_descriptors(
-        [describe_grid(e.grid, e.level, lmax=lm) for e in encoders],
+        [describe_grid(e.grid, e.level, lmax=opts.describe.lmax) for e in encoders],
         [len(p) for p in model.parts]))
     thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-        render(decoded, width=thumbnail_size, height=thumbnail_size, view="principal")))
-    enc = encoders[0]
+        render(decoded, width=size, height=size, view="principal")))
+    reports = [e.prepared.report() for e in encoders]
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
-    params = {"codec_version": CODEC_VERSION, "grid_level": enc.level, "map_method": method,
-              "color_weight": COLOR_WEIGHT, "samples": samples,
-              "tangent_weight": enc.tangent_weight, "density_weighted": bool(enc.weight_field),
+    params = {**opts.to_dict(), **reports[0],
+              "folded": int(sum(r["folded"] for r in reports)),
               "max_edge_ratio": MAX_EDGE_RATIO if from_mesh else None,
-              "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS},
               "texture": None if texture is None else str(texture),
-              "folded": int(sum(int(e.sphere_map.folded) for e in encoders)),
-              "descriptors": desc.params}
+              "descriptors": desc.params, "provenance": provenance()}
     if len(encoders) > 1:
-        params["part_levels"] = [int(e.level) for e in encoders]
+        params["part_levels"] = [int(r["grid_level"]) for r in reports]
     label, source, digest = _identity(path, surfels, texture, name)
     return ProcessedModel(
         name=str(label), source=source, content_hash=digest, n_surfels=len(surfels),
@@ -358,10 +370,11 @@ class DescribedModel:
     topology: dict | None = None
 
 
-def describe_model(path, *, texture=None, samples: int | None = None, level: int | None = None,
-                   method: str = "tutte", lmax: int | None = None,
-                   allow_outside_textures: bool = False, name: str | None = None,
-                   thumbnail_size: int | None = None, progress=None) -> DescribedModel:
+def describe_model(path, *, options=None, texture=None, samples: int | None = None,
+                   level: int | None = None, method: str | None = None,
+                   lmax: int | None = None, allow_outside_textures: bool = False,
+                   name: str | None = None, thumbnail_size: int | None = None,
+                   progress=None) -> DescribedModel:
     """Read, map, resample and describe one model: what a query by example computes, nothing
     else (no coding, decoding, quality figures).
 
@@ -376,6 +389,9 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     ----------
     path : str or os.PathLike, or a model in memory
         As for :func:`process_model`.
+    options : surfidx.options.ProcessOptions, optional
+        As for :func:`process_model` (its repair, map, codec level and describe settings are
+        used; its ``thumbnail_size`` is not: a query draws no thumbnail unless asked).
     texture, samples, level, method, lmax, allow_outside_textures, name
         As for :func:`process_model`.
     thumbnail_size : int, optional
@@ -396,22 +412,23 @@ def describe_model(path, *, texture=None, samples: int | None = None, level: int
     """
     import time
 
-    from .errors import InputError
-    from .describe.descriptors import DEFAULT_LMAX, describe_grid
+    from .describe.descriptors import describe_grid
+    from .options import ProcessOptions
     from .render import render
     from .codec.resample import resample
-    from .sphere import METHODS, parameterize
+    from .sphere import parameterize
 
-    if method not in METHODS:
-        raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    opts = ProcessOptions.resolve(options, samples=samples, level=level, method=method,
+                                  lmax=lmax)
+    samples, level, lm = opts.samples, opts.codec.level, opts.describe.lmax
     timings = {}
-    model = _read(timings, progress, path, texture, samples, allow_outside_textures)
+    model = _read(timings, progress, path, texture, samples, allow_outside_textures,
+                  opts.repair)
     surfels = model.surfels
-    lm = DEFAULT_LMAX if lmax is None else lmax
     sets, levels = [], []
     for part in model.parts:
         t0 = time.perf_counter()
-        sphere_map = parameterize(part, method=method, stress=False, progress=progress)
+        sphere_map = parameterize(part, stress=False, options=opts.map, progress=progress)
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,

@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["as_array", "check_positive_int", "check_option_fields"]
+__all__ = ["as_array", "check_positive_int", "check_option_fields", "option"]
 
 
 def as_array(value, name: str, *, dtype=np.float64, shape=None, finite: bool = True,
@@ -94,13 +94,42 @@ asks for."""
 
 def check_option_fields(options) -> None:
     """Raise :class:`InputError` unless every ``bool``, ``int`` and ``float`` field of the frozen
-    options dataclass ``options`` holds a value of its type (numbers >= 0, finite); other fields
-    are the class's own to check."""
+    options dataclass ``options`` holds a value of its type (numbers >= 0, finite; ``X | None``
+    fields may also hold None), and within the range its ``metadata`` declares (``min``,
+    ``max``, ``min_open``, ``choices``); other fields are the class's own to check."""
     from dataclasses import fields
 
     for f in fields(options):
         value = getattr(options, f.name)
-        check = _FIELD_CHECKS.get(f.type)
+        kind = str(f.type)
+        optional = kind.endswith(" | None")
+        if optional:
+            if value is None:
+                continue
+            kind = kind[:-len(" | None")]
+        check = _FIELD_CHECKS.get(kind)
+        what = f"{type(options).__name__}.{f.name}"
         if check is not None and not check[0](value):
-            raise InputError(f"{type(options).__name__}.{f.name} must be {check[1]}, "
+            raise InputError(f"{what} must be {check[1]}{' or None' if optional else ''}, "
                              f"got {value!r}")
+        meta = f.metadata
+        if "choices" in meta and value not in meta["choices"]:
+            raise InputError(f"{what} must be one of {', '.join(map(repr, meta['choices']))}, "
+                             f"got {value!r}")
+        lo, hi = meta.get("min"), meta.get("max")
+        if lo is not None and (value <= lo if meta.get("min_open") else value < lo):
+            raise InputError(f"{what} must be {'above' if meta.get('min_open') else 'at least'} "
+                             f"{lo:g}, got {value!r}")
+        if hi is not None and value > hi:
+            raise InputError(f"{what} must be at most {hi:g}, got {value!r}")
+
+
+def option(default, *, min=None, max=None, min_open: bool = False, choices=None):
+    """A dataclass field with its allowed range declared beside it (read by
+    :func:`check_option_fields`): ``min`` (exclusive with ``min_open``), ``max``, ``choices``."""
+    from dataclasses import field
+
+    meta = {k: v for k, v in (("min", min), ("max", max), ("choices", choices)) if v is not None}
+    if min_open:
+        meta["min_open"] = True
+    return field(default=default, metadata=meta)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from ..sphere.options import METHODS
-from .common import (command_errors, echo_json, input_options, output_format_option, plain,
-                      progress_options, stage_progress)
+from .common import (command_errors, echo_json, input_options, options_file_option,
+                      output_format_option, plain, progress_options, stage_progress)
 from .group import cli
 
 
@@ -14,13 +14,15 @@ from .group import cli
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The .sfz file to write.")
-@click.option("--bits-per-surfel", "bits", type=float, required=True,
-              help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes.")
+@click.option("--bits-per-surfel", "bits", type=float, default=None,
+              help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes "
+                   "(required unless the --options file sets codec.bits_per_surfel).")
 @click.option("--no-color", is_flag=True, help="Code geometry only.")
 @click.option("--level", type=click.IntRange(0, 9), default=None,
               help="Icosahedral grid level (default: chosen from the surfel count).")
-@click.option("--method", type=click.Choice(METHODS), default=METHODS[0],
-              help="Spherical map: fold-free Tutte with area balancing, or the original MDS.")
+@click.option("--method", type=click.Choice(METHODS), default=None,
+              help="Spherical map: fold-free Tutte with area balancing (default), or the "
+                   "original MDS.")
 @click.option("--tangent-weight", type=float, default=None,
               help="Weight in (0, 1] of the tangential geometry details in local frames "
                    "(default 0.5).")
@@ -29,36 +31,52 @@ from .group import cli
               help="Weight coefficients by the input's surfel density on the sphere (default: "
                    "when the estimated gain is at least 1 dB).")
 @input_options
+@options_file_option
 @progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
 @command_errors
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, quiet, verbose, as_json):
+           density_weighting, texture, samples, options, quiet, verbose, as_json):
     """Encode a model into an embedded .sfz bitstream.
 
     A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model, that is
     surfidx.topology.repair_model: holes capped, handles cut, pinches split, tiny pieces
     dropped); the virtual patches are coded as a mask, so decoding gives back the open (or
     genus-g) surface, and each piece is one part of the file."""
-    from ..codec import TANGENT_WEIGHT, PartsEncoder, stream_summary
+    from dataclasses import replace
+
+    from ..codec import PartsEncoder, stream_summary
+    from ..codec.encoder import codec_options
     from ..io import read_model, write_atomic
+    from ..options import ProcessOptions
     from ..progress import report
     from .common import allow_outside_textures
 
     if no_frames and tangent_weight is not None:
         raise click.UsageError("--tangent-weight and --no-frames exclude each other")
-    tw = None if no_frames else (TANGENT_WEIGHT if tangent_weight is None else tangent_weight)
+    if bits is None and options is None:
+        raise click.UsageError("Missing option '--bits-per-surfel' (or an --options file, "
+                               "whose codec.bits_per_surfel is used).")
+    opts = ProcessOptions.resolve(options, bits_per_surfel=bits, samples=samples, level=level,
+                                  method=method)
+    if no_frames:
+        opts = replace(opts, codec=replace(opts.codec, tangent_weight=None))
+    elif tangent_weight is not None:     # checked with the encoder's own message
+        opts = replace(opts, codec=codec_options(opts.codec, tangent_weight=tangent_weight))
+    if no_color:
+        opts = opts.updated(**{"codec.color": False})
+    bits = opts.codec.bits_per_surfel
     with stage_progress(quiet=quiet, verbose=verbose) as progress:
         report(progress, "read", 0, 1)
-        model = read_model(input, texture=texture, samples=samples,
+        model = read_model(input, texture=texture, samples=opts.samples, options=opts.repair,
                            allow_outside_textures=allow_outside_textures())
         report(progress, "read", 1, 1)
         parts = list(model.parts)
         fps = [model.face_patch(i) for i in range(len(parts))]
         dropped = model.parts_dropped
-        pe = PartsEncoder(parts, level=level, color=False if no_color else None, method=method,
-                          tangent_weight=tw, density_weighting=density_weighting,
-                          progress=progress, face_patches=fps)
+        pe = PartsEncoder(parts, options=opts.codec, map_options=opts.map,
+                          density_weighting=density_weighting, progress=progress,
+                          face_patches=fps)
         data = pe.encode(bits, progress=progress)
         report(progress, "write", 0, 1)
         write_atomic(output, lambda tmp: tmp.write_bytes(data))

@@ -230,3 +230,21 @@ def reading(progress, path, texture=None, samples=None):
     surfels = read_input(path, texture, samples)
     report(progress, "read", 1, 1)
     return surfels
+
+
+def options_file_option(func):
+    """``--options FILE``: a ``.json`` or ``.toml`` :class:`surfidx.options.ProcessOptions` file,
+    handed to the command as ``options`` (None without it; the command's own flags override
+    its values)."""
+    @functools.wraps(func)
+    def wrapper(*args, options_file=None, **kwargs):
+        from ..options import ProcessOptions
+
+        options = None if options_file is None else ProcessOptions.load(options_file)
+        return func(*args, options=options, **kwargs)
+
+    return click.option(
+        "--options", "options_file", type=click.Path(dir_okay=False), default=None,
+        metavar="FILE",
+        help="Processing options (.json or .toml: repair, map, codec, describe tables); "
+             "flags given override them.")(wrapper)

@@ -20,7 +20,9 @@ import click
 from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
 from ..db.search import DEFAULT_SHAPE_WEIGHT
+from ..codec.options import DEFAULT_BITS_PER_SURFEL
 from .group import cli
+from .common import options_file_option
 from .common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
                       output_format_option, plain, progress_options, stage_progress)
 
@@ -109,8 +111,10 @@ def _table(rows, columns):
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --scheduler: times a model whose worker died is re-run before it is "
                    "recorded as failed.")
-@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=8.0,
-              show_default=True, help="Coding rate of the stored streams.")
+@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Coding rate of the stored streams (default: the options file's, else "
+                   f"{DEFAULT_BITS_PER_SURFEL:g}).")
+@options_file_option
 @click.option("--name", default=None,
               help="Name of the stored model (one file only; default: the file's stem, or when "
                    "another model has it the parent folder's name, then STEM-2, STEM-3...).")
@@ -119,8 +123,8 @@ def _table(rows, columns):
 @click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @command_errors
-def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, name, tags,
-                   no_progress, as_json):
+def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, options, name,
+                   tags, no_progress, as_json):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
@@ -139,7 +143,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     # ingest.run (what Database.ingest runs for files) opens the database itself, after every
     # argument and the scheduler were checked: a bad call leaves no new file behind
     summary = ingest.run(list(paths), db=db_path, workers=workers,
-                         bits_per_surfel=bits_per_surfel, processor=_processor(),
+                         bits_per_surfel=bits_per_surfel, options=options,
+                         processor=_processor(),
                          progress=not no_progress, scheduler=scheduler, retries=retries,
                          name=name, tags=list(tags),
                          allow_outside_textures=allow_outside_textures())
@@ -180,10 +185,12 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
                    f"is used from {DEFAULT_THRESHOLD:,} stored models on; its results are "
                    "re-ranked by the exact distance).")
 @outside_textures_option
+@options_file_option
 @progress_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def query(example, db_path, k, shape_weight, sheet, include_self, exact, quiet, verbose, as_json):
+def query(example, db_path, k, shape_weight, sheet, include_self, exact, options, quiet, verbose,
+          as_json):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
@@ -198,7 +205,8 @@ def query(example, db_path, k, shape_weight, sheet, include_self, exact, quiet, 
         # by the processor or describer the context object injects
         ex = db.example(example, processor=_injected("processor"),
                         describer=_injected("describer"), thumbnail=bool(sheet),
-                        progress=progress, allow_outside_textures=allow_outside_textures())
+                        progress=progress, allow_outside_textures=allow_outside_textures(),
+                        options=options)
         label, qthumb = ex.name, ex.thumbnail
         if progress is not None:
             progress("search", 0, 1)

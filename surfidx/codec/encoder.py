@@ -41,6 +41,8 @@ from __future__ import annotations
 import functools
 import math
 import time
+from dataclasses import dataclass
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
 
 import numpy as np
@@ -54,23 +56,14 @@ from .resample import grid_patches, locate_surfels, resample
 from ..sphere.options import METHODS as MAP_METHODS
 from ..geometry.surfels import SurfelSet
 
-__all__ = ["Encoder", "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
+__all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "codec_options",
+           "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary"]
 
 CODEC_VERSION = container.FORMAT_VERSION
-COLOR_WEIGHT = 0.02
-"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
-
-It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
-colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
-both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
-of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
-"""
-
-TANGENT_WEIGHT = 0.5
-"""Weight of the tangential geometry components in local frames (see the module docstring)."""
+from .options import COLOR_WEIGHT, MAX_COLOR_WEIGHT, TANGENT_WEIGHT  # noqa: E402
 
 _PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions
 
@@ -83,9 +76,6 @@ MAX_EXTENT = 1e6
 """Decoded values lie within this many weighted units of the KLT mean (for geometry:
 bounding-box diagonals of the model's centre; for colour: ``color_weight`` · value / 255, at most
 :data:`MAX_COLOR_WEIGHT`); anything else, or a non-finite value, is a damaged stream."""
-
-MAX_COLOR_WEIGHT = 1e3
-"""Largest ``color_weight`` the encoder takes (so colours stay within :data:`MAX_EXTENT`)."""
 
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
@@ -108,210 +98,123 @@ def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
     return int(math.ceil(float(bits_per_surfel) * n_surfels / 8.0 - 1e-9))
 
 
-class Encoder:
-    """Expensive set-up once (map, resampling, transforms), then :meth:`encode` at any rate.
+_UNSET = object()
+"""A keyword not given (``tangent_weight=None`` means "no local frames")."""
 
-    Parameters
-    ----------
-    surfels : SurfelSet
-        A closed genus-0 surface (mesh input for the default map).
-    level : int, optional
-        Icosahedral grid level; default the map's ``grid_level``
-        (:func:`surfidx.geometry.icosphere.choose_level` of the surfel count and the map's sparse sampling).
-    color : bool, optional
-        Code colour (default: when the surfels have it).
-    method : {"tutte", "mds"}
-        Spherical map (:func:`surfidx.parameterize.parameterize`).
-    color_weight : float
-        Weight of colour against geometry (see the module docstring).
-    sphere_map : SphericalMap, optional
-        A map computed earlier for these surfels (skips the mapping).
-    tangent_weight : float or None
-        Code the geometry details in local frames with this weight in (0, 1] on their tangential
-        components; None codes x, y, z details as they are.
-    density_weighting : bool, optional
-        Weight coefficients by the input's surfel density on the sphere (:mod:`surfidx.codec.density`);
-        default: when :func:`surfidx.codec.density.weighting_gain` reaches
-        :data:`surfidx.codec.density.MIN_GAIN_DB`.
-    progress : callable, optional
-        ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries of
-        the set-up: the map's (:func:`surfidx.sphere.parameterize`), ``"resample"``,
-        ``"transform"``. It changes nothing in the result.
-    face_patch : (m,) int, optional
-        Patch of each of ``surfels.faces`` (-1: the scan's), for virtual faces whose corners are
-        all scan vertices (:func:`surfidx.codec.resample.grid_patches`; default: a face is virtual
-        when a corner is). ``surfidx.codec.restore.closed_surfels`` gives it.
 
-    Attributes
-    ----------
-    grid : (n_grid, 3 or 6) float64
-        Resampled layers (x, y, z [, r, g, b]).
-    coeffs : (n_grid, k) float64
-        Normalised wavelet coefficients of the KLT layers.
-    klt : KLT
-    sphere_map : SphericalMap
-    level : int
-    tangent_weight : float or None
-        The tangent weight the container stores (float32-rounded), None without local frames.
-    weight_field : bytes
-        The stored density-weight field (empty when unweighted).
-    anchors : tuple of int
-        The stored anchor bit plane of each level's local frames (empty without frames).
-    density_gain : float
-        :func:`surfidx.codec.density.weighting_gain` of the field, in dB (computed either way).
-    mask : bytes
-        The coded virtual-region mask (empty: no virtual patch; the stream is version 3).
-    regions : tuple of int
-        Region-table codes (:func:`surfidx.codec.container.region_code`) of the mask's regions.
-    virtual_share : float
-        Share of the grid's vertices in the mask.
-    setup_seconds : dict of str -> float
+def codec_options(options=None, *, level=None, color=None, color_weight=None,
+                  tangent_weight=_UNSET, density_weighting=None):
+    """``options`` (default ``CodecOptions()``) with the keywords given (not None) put in, each
+    checked with the encoder's own message first.
+
+    Returns
+    -------
+    CodecOptions
     """
+    from .options import CodecOptions
 
-    def __init__(self, surfels: SurfelSet, *, level: int | None = None, color: bool | None = None,
-                 method: str = "tutte", color_weight: float = COLOR_WEIGHT, sphere_map=None,
-                 tangent_weight: float | None = TANGENT_WEIGHT,
-                 density_weighting: bool | None = None, progress=None, face_patch=None):
-        from ..progress import report
-        from ..sphere import parameterize
-
-        if not isinstance(surfels, SurfelSet):
-            raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
-        if method not in MAP_METHODS:
-            raise InputError(f"method must be one of {', '.join(MAP_METHODS)}, got {method!r}")
-        if color is None:
-            color = surfels.has_color
-        if color and not surfels.has_color:
-            raise InputError("color=True but the surfels have no colour")
-        if not (0 < color_weight <= MAX_COLOR_WEIGHT):
+    if options is None:
+        options = CodecOptions()
+    elif not isinstance(options, CodecOptions):
+        raise InputError(f"options must be a CodecOptions, got {type(options).__name__}")
+    given = {}
+    if color_weight is not None:
+        if not (isinstance(color_weight, (int, float, np.floating))
+                and 0 < color_weight <= MAX_COLOR_WEIGHT):
             raise InputError(f"color_weight must be a positive number up to "
                              f"{MAX_COLOR_WEIGHT:g}, got {color_weight!r}")
+        given["color_weight"] = float(color_weight)
+    if tangent_weight is not _UNSET:
         if tangent_weight is not None:
             tw = float(np.float32(tangent_weight)) if isinstance(
                 tangent_weight, (int, float, np.floating)) else math.nan
             if not 0 < tw <= 1:
                 raise InputError(f"tangent_weight must be in (0, 1] or None, got "
                                  f"{tangent_weight!r}")
-            tangent_weight = tw  # the value the container stores
-        self.n_surfels = len(surfels)
-        self.color = bool(color)
-        t = {}
-        t0 = time.perf_counter()
-        if sphere_map is None:
-            sphere_map = parameterize(surfels, method=method, stress=False, progress=progress)
-        self.sphere_map = sphere_map
-        t["map"] = time.perf_counter() - t0
-        self.level = sphere_map.grid_level if level is None else level
-        t0 = time.perf_counter()
-        report(progress, "resample", 0, 1)
-        location = sphere_map.location(self.level)
-        if location is None:
-            location = locate_surfels(surfels, sphere_map.points, self.level)
-        grid = resample(surfels, sphere_map.points, self.level, color=self.color,
-                        location=location)
-        self.grid = grid
-        self.mask, self.regions, self.virtual_share = b"", (), 0.0
-        if surfels.patch is not None:
-            self._code_mask(surfels, sphere_map.points, location, face_patch)
-        t["resample"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        report(progress, "transform", 0, 1)
-        k = self.grid.shape[1]
-        diag = surfels.diagonal
-        weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
-        stored = np.float32(weights)
-        if not np.all((stored >= 1.0 / container.MAX_WEIGHT)
-                      & (stored <= container.MAX_WEIGHT)):
-            raise InputError(f"the model's bounding-box diagonal {diag:.3g} and colour weight "
-                             f"{color_weight:.3g} must give unit weights in "
-                             f"[{1 / container.MAX_WEIGHT:g}, {container.MAX_WEIGHT:g}]; "
-                             "rescale the model")
-        area = icosphere(self.level).vertex_areas()
-        frames = tangent_weight is not None
-        # local frames need the geometry layers to be a rotation of x, y, z alone
-        fit = KLT.fit(self.grid, weights=weights, sample_weights=area,
-                      groups=(3, k - 3) if frames and k > 3 else None)
-        if not np.all(np.abs(fit.mean) <= container.MAX_MEAN):
-            raise InputError(f"the model's centre lies more than {container.MAX_MEAN:g} "
-                             "bounding-box diagonals from the origin; move it closer")
-        # the values the container stores (float16 basis): encoder and decoder use the same
-        self.klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
-                       eigenvalues=fit.eigenvalues)
-        self.tangent_weight = tangent_weight
-        raw = wavelets.forward(self.klt.forward(self.grid), self.level, lifted=True)
-        scales = wavelets.level_norms(self.level)[icosphere(self.level).level_of]
-        plain = raw * scales[:, None]   # forward(..., normalized=True)
-        flevel = density.field_level(self.n_surfels, self.level)
-        field = density.weight_field(sphere_map.points, flevel)
-        self.density_gain = density.weighting_gain(field, flevel)
-        if density_weighting is None:
-            density_weighting = self.density_gain >= density.MIN_GAIN_DB
-        self.weight_field = density.pack_field(field, flevel) if density_weighting else b""
-        if density_weighting:
-            dscale = density.vertex_scales(field, flevel, self.level)
-            plain *= dscale[:, None]
-            scales = scales * dscale
-        # local frames never lengthen a geometry detail vector: bound the top by the lengths
-        top = max(float(np.sqrt(np.einsum("ij,ij->i", plain[:, :3], plain[:, :3])).max()),
-                  float(np.abs(plain[:, 3:]).max()) if k > 3 else 0.0)
-        if not top > 0:
-            raise InputError("the resampled model is constant; nothing to code")
-        self.step = float(np.float32(top * 2.0 ** -_PLANES))
-        self.anchors = ()
-        self.coeffs = plain
-        if frames:
-            self.anchors = tuple(int(a) for a in
-                                 wavelets.choose_anchors(plain, self.level, self.step))
-            self.coeffs = wavelets.forward_anchored(raw, self.level,
-                                                    tangent_weight=tangent_weight, scales=scales,
-                                                    step=self.step, anchors=self.anchors)
-        self.map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS \
-            else 0
-        t["transform"] = time.perf_counter() - t0
-        report(progress, "transform", 1, 1)
-        self.setup_seconds = t
-        self._zerotree = None   # zerotree.prepare's, at the first encode
+            tangent_weight = float(tangent_weight)
+        given["tangent_weight"] = tangent_weight
+    for k, v in (("level", level), ("color", color), ("density_weighting", density_weighting)):
+        if v is not None:
+            given[k] = int(v) if k == "level" and isinstance(v, np.integer) else v
+    if given:
+        from dataclasses import replace
 
-    def _code_mask(self, surfels, sphere_points, location, face_patch):
-        """The virtual-region mask and region table (:mod:`surfidx.codec.restore`)."""
-        from scipy.spatial import cKDTree
+        options = replace(options, **given)
+    return options
 
-        from .mask import encode_mask
-        from .restore import mask_regions
 
-        patches = grid_patches(surfels, sphere_points, self.level, face_patch=face_patch,
-                               location=location)
-        P = len(surfels.patch_cut)
-        anchors = np.full(P, -1, np.int64)
-        missing = np.setdiff1d(np.arange(P), patches)
-        if len(missing):   # a patch below the grid's spacing still gets its grid vertex
-            pts = np.asarray(sphere_points, np.float64)
-            fp = None if face_patch is None else np.asarray(face_patch, np.int64)
-            where = {}
-            for p in missing:
-                own = np.flatnonzero(surfels.patch == p)
-                if len(own):
-                    where[int(p)] = pts[own[0]]
-                elif fp is not None and (fp == p).any():
-                    c = pts[surfels.faces[np.flatnonzero(fp == p)[0]]].mean(axis=0)
-                    where[int(p)] = c / max(np.linalg.norm(c), 1e-300)
-            if where:
-                _, near = cKDTree(icosphere(self.level).vertices).query(
-                    np.array(list(where.values())))
-                anchors[list(where)] = near
-        bits, codes = mask_regions(patches, self.level, surfels.patch_cut, anchors=anchors)
-        if bits.any():
-            self.mask = encode_mask(bits, self.level)
-            self.regions = codes
-            self.virtual_share = float(bits.mean())
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """What :func:`prepare` makes of a model: everything a rate needs, nothing rate-dependent.
 
-    def _prepared(self):
-        """The coefficients quantised on the grid's forest (:func:`surfidx.codec.zerotree.prepare`),
-        made at the first :meth:`encode` and kept: each rate then only codes."""
-        if self._zerotree is None:
-            self._zerotree = zerotree.prepare(self.coeffs, _grid_forest(self.level), None, None,
-                                              step=self.step, final_plane=0)
-        return self._zerotree
+    Attributes
+    ----------
+    n_surfels : int
+        Input surfels (the rate's denominator).
+    level : int
+        Icosahedral grid level.
+    color : bool
+        Colour is coded.
+    sphere_map : surfidx.sphere.SphericalMap
+    grid : (n_grid, 3 or 6) float64
+        Resampled layers (x, y, z [, r, g, b]).
+    klt : KLT
+        As the container stores it (float16 basis).
+    coeffs : (n_grid, k) float64
+        Normalised (and, with frames, anchored) wavelet coefficients of the KLT layers.
+    step : float
+        Quantisation step of the finest bit plane.
+    color_weight : float
+        Weight of colour against geometry.
+    tangent_weight : float or None
+        Float32-rounded, as the container stores it; None without local frames.
+    weight_field : bytes
+        The stored density-weight field (empty when unweighted).
+    density_gain : float
+        :func:`surfidx.codec.density.weighting_gain` of the field, in dB.
+    anchors : tuple of int
+        Anchor bit plane of each level's local frames (empty without frames).
+    mask : bytes
+        The coded virtual-region mask (empty: no virtual patch).
+    regions : tuple of int
+        Region-table codes of the mask's regions.
+    virtual_share : float
+        Share of the grid's vertices in the mask.
+    map_method : int
+        Index of the map's method in :data:`MAP_METHODS` (the header's code).
+    seconds : dict of str -> float
+        Wall seconds of ``map``, ``resample`` and ``transform`` (figures only).
+    """
+
+    n_surfels: int
+    level: int
+    color: bool
+    sphere_map: object
+    grid: np.ndarray
+    klt: KLT
+    coeffs: np.ndarray
+    step: float
+    color_weight: float
+    tangent_weight: float | None
+    weight_field: bytes
+    density_gain: float
+    anchors: tuple
+    mask: bytes
+    regions: tuple
+    virtual_share: float
+    map_method: int
+    seconds: dict
+
+    def report(self) -> dict:
+        """What the codec says about itself for a model's stored params: its version, grid
+        level, map method, folded triangles, the weights it used."""
+        from .resample import PHONG_ALPHA, PHONG_SHARPNESS
+
+        return {"codec_version": CODEC_VERSION, "grid_level": int(self.level),
+                "map_method": self.sphere_map.method, "folded": int(self.sphere_map.folded),
+                "color_weight": float(self.color_weight), "tangent_weight": self.tangent_weight,
+                "density_weighted": bool(self.weight_field),
+                "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS}}
 
     def header_bytes(self) -> int:
         """Bytes of the container header for this model (the virtual-region mask included)."""
@@ -325,8 +228,318 @@ class Encoder:
         """The smallest file this model's container can be."""
         return max(self.header_bytes() + 4, container.min_file_bytes(self.level))
 
+
+def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=None,
+            progress=None, face_patch=None) -> Prepared:
+    """The rate-independent steps of the encoder: map, resample, mask, KLT, wavelets, density
+    weights, frame anchors.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        A closed genus-0 surface (mesh input for the default map).
+    options : CodecOptions, optional
+        The codec's settings (``bits_per_surfel`` is not used here).
+    map_options : surfidx.sphere.MapOptions, optional
+        The map's, passed to :func:`surfidx.sphere.parameterize`.
+    sphere_map : SphericalMap, optional
+        A map computed earlier for these surfels (skips the mapping).
+    progress : callable, optional
+        ``progress(stage, done, total)``: the map's stages, ``"resample"``, ``"transform"``.
+    face_patch : (m,) int, optional
+        Patch of each of ``surfels.faces`` (see :class:`Encoder`).
+
+    Returns
+    -------
+    Prepared
+
+    Raises
+    ------
+    InputError
+        Not a SurfelSet, colour asked of surfels without it, a model too far off the origin or
+        out of scale, a constant model.
+    """
+    from ..progress import report
+    from ..sphere import parameterize
+    from ..sphere.options import MapOptions
+
+    options = codec_options(options)
+    if not isinstance(surfels, SurfelSet):
+        raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
+    if map_options is None:
+        map_options = MapOptions()
+    color = surfels.has_color if options.color is None else options.color
+    if color and not surfels.has_color:
+        raise InputError("color=True but the surfels have no colour")
+    color_weight = options.color_weight
+    tangent_weight = options.tangent_weight
+    if tangent_weight is not None:
+        tangent_weight = float(np.float32(tangent_weight))  # the value the container stores
+    n_surfels = len(surfels)
+    t = {}
+    t0 = time.perf_counter()
+    if sphere_map is None:
+        sphere_map = parameterize(surfels, stress=False, options=map_options, progress=progress)
+    t["map"] = time.perf_counter() - t0
+    level = sphere_map.grid_level if options.level is None else options.level
+    t0 = time.perf_counter()
+    report(progress, "resample", 0, 1)
+    location = sphere_map.location(level)
+    if location is None:
+        location = locate_surfels(surfels, sphere_map.points, level)
+    grid = resample(surfels, sphere_map.points, level, color=bool(color), location=location)
+    mask, regions, virtual_share = b"", (), 0.0
+    if surfels.patch is not None:
+        mask, regions, virtual_share = _code_mask(surfels, sphere_map.points, location,
+                                                  face_patch, level)
+    t["resample"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    report(progress, "transform", 0, 1)
+    k = grid.shape[1]
+    diag = surfels.diagonal
+    weights = np.r_[np.full(3, 1.0 / diag), np.full(k - 3, color_weight / 255.0)]
+    stored = np.float32(weights)
+    if not np.all((stored >= 1.0 / container.MAX_WEIGHT)
+                  & (stored <= container.MAX_WEIGHT)):
+        raise InputError(f"the model's bounding-box diagonal {diag:.3g} and colour weight "
+                         f"{color_weight:.3g} must give unit weights in "
+                         f"[{1 / container.MAX_WEIGHT:g}, {container.MAX_WEIGHT:g}]; "
+                         "rescale the model")
+    area = icosphere(level).vertex_areas()
+    frames = tangent_weight is not None
+    # local frames need the geometry layers to be a rotation of x, y, z alone
+    fit = KLT.fit(grid, weights=weights, sample_weights=area,
+                  groups=(3, k - 3) if frames and k > 3 else None)
+    if not np.all(np.abs(fit.mean) <= container.MAX_MEAN):
+        raise InputError(f"the model's centre lies more than {container.MAX_MEAN:g} "
+                         "bounding-box diagonals from the origin; move it closer")
+    # the values the container stores (float16 basis): encoder and decoder use the same
+    klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
+              eigenvalues=fit.eigenvalues)
+    raw = wavelets.forward(klt.forward(grid), level, lifted=True)
+    scales = wavelets.level_norms(level)[icosphere(level).level_of]
+    plain = raw * scales[:, None]   # forward(..., normalized=True)
+    flevel = density.field_level(n_surfels, level)
+    field = density.weight_field(sphere_map.points, flevel)
+    density_gain = density.weighting_gain(field, flevel)
+    density_weighting = options.density_weighting
+    if density_weighting is None:
+        density_weighting = density_gain >= density.MIN_GAIN_DB
+    weight_field = density.pack_field(field, flevel) if density_weighting else b""
+    if density_weighting:
+        dscale = density.vertex_scales(field, flevel, level)
+        plain *= dscale[:, None]
+        scales = scales * dscale
+    # local frames never lengthen a geometry detail vector: bound the top by the lengths
+    top = max(float(np.sqrt(np.einsum("ij,ij->i", plain[:, :3], plain[:, :3])).max()),
+              float(np.abs(plain[:, 3:]).max()) if k > 3 else 0.0)
+    if not top > 0:
+        raise InputError("the resampled model is constant; nothing to code")
+    step = float(np.float32(top * 2.0 ** -_PLANES))
+    anchors = ()
+    coeffs = plain
+    if frames:
+        anchors = tuple(int(a) for a in wavelets.choose_anchors(plain, level, step))
+        coeffs = wavelets.forward_anchored(raw, level, tangent_weight=tangent_weight,
+                                           scales=scales, step=step, anchors=anchors)
+    map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS else 0
+    t["transform"] = time.perf_counter() - t0
+    report(progress, "transform", 1, 1)
+    return Prepared(n_surfels=n_surfels, level=level, color=bool(color), sphere_map=sphere_map,
+                    grid=grid, klt=klt, coeffs=coeffs, step=step, color_weight=color_weight,
+                    tangent_weight=tangent_weight,
+                    weight_field=weight_field, density_gain=density_gain, anchors=anchors,
+                    mask=mask, regions=regions, virtual_share=virtual_share,
+                    map_method=map_method, seconds=t)
+
+
+def _code_mask(surfels, sphere_points, location, face_patch, level):
+    """The virtual-region mask, region table and virtual share (:mod:`surfidx.codec.restore`)."""
+    from scipy.spatial import cKDTree
+
+    from .mask import encode_mask
+    from .restore import mask_regions
+
+    patches = grid_patches(surfels, sphere_points, level, face_patch=face_patch,
+                           location=location)
+    P = len(surfels.patch_cut)
+    anchors = np.full(P, -1, np.int64)
+    missing = np.setdiff1d(np.arange(P), patches)
+    if len(missing):   # a patch below the grid's spacing still gets its grid vertex
+        pts = np.asarray(sphere_points, np.float64)
+        fp = None if face_patch is None else np.asarray(face_patch, np.int64)
+        where = {}
+        for p in missing:
+            own = np.flatnonzero(surfels.patch == p)
+            if len(own):
+                where[int(p)] = pts[own[0]]
+            elif fp is not None and (fp == p).any():
+                c = pts[surfels.faces[np.flatnonzero(fp == p)[0]]].mean(axis=0)
+                where[int(p)] = c / max(np.linalg.norm(c), 1e-300)
+        if where:
+            _, near = cKDTree(icosphere(level).vertices).query(np.array(list(where.values())))
+            anchors[list(where)] = near
+    bits, codes = mask_regions(patches, level, surfels.patch_cut, anchors=anchors)
+    if bits.any():
+        return encode_mask(bits, level), codes, float(bits.mean())
+    return b"", (), 0.0
+
+
+def quantise(prepared: Prepared):
+    """The coefficients quantised on the grid's forest (:func:`surfidx.codec.zerotree.prepare`):
+    the part of coding shared by every rate."""
+    return zerotree.prepare(prepared.coeffs, _grid_forest(prepared.level), None, None,
+                            step=prepared.step, final_plane=0)
+
+
+def code(prepared: Prepared, bits_per_surfel: float, *, quantised=None, progress=None) -> bytes:
+    """A complete ``.sfz`` container of ``prepared`` at a rate.
+
+    Parameters
+    ----------
+    prepared : Prepared
+    bits_per_surfel : float
+        The file is at most ``ceil(bits_per_surfel · n_surfels / 8)`` bytes.
+    quantised : optional
+        :func:`quantise` of ``prepared``, when kept for several rates.
+    progress : callable, optional
+        ``progress("code", done, 1)`` as the coding starts and ends.
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    InputError
+        When the rate cannot even hold the header and a minimal stream.
+    """
+    return code_bytes(prepared, max_file_bytes(bits_per_surfel, prepared.n_surfels),
+                      quantised=quantised, progress=progress, rate=bits_per_surfel)
+
+
+def code_bytes(prepared: Prepared, max_bytes: int, *, quantised=None, progress=None,
+               rate=None) -> bytes:
+    """A container of at most ``max_bytes`` bytes (see :func:`code`)."""
+    p = prepared
+    budget = int(max_bytes) - p.header_bytes()
+    smallest = p.lowest_bytes()
+    if budget < smallest - p.header_bytes():
+        lowest = 8.0 * smallest / p.n_surfels
+        asked = f"{rate} bits/surfel" if rate is not None else f"{max_bytes} bytes"
+        raise InputError(f"{asked} cannot hold the header; the lowest rate for this model "
+                         f"is {lowest:.3g} bits/surfel ({smallest} bytes)")
+    if progress is not None:
+        progress("code", 0, 1)
+    if quantised is None:
+        quantised = quantise(p)
+    stream, zh = zerotree.encode_prepared(quantised, max_bytes=budget)
+    # a stream that finished every plane early may be shorter than the grid's smallest
+    # container: pad it with zero bytes, which the decoder reads past the end anyway
+    stream += bytes(max(0, container.min_file_bytes(p.level) - p.header_bytes() - len(stream)))
+    header = container.Header(
+        n_surfels=p.n_surfels, level=p.level, color=p.color, lifted=True,
+        mean=p.klt.mean, basis=p.klt.basis, weights=p.klt.weights,
+        coder=zerotree.pack_header(zh), map_method=p.map_method,
+        tangent_weight=p.tangent_weight, weight_field=p.weight_field,
+        anchors=p.anchors, mask=p.mask, regions=p.regions)
+    out = container.pack(header, stream)
+    if progress is not None:
+        progress("code", 1, 1)
+    return out
+
+
+class Encoder:
+    """Expensive set-up once (:func:`prepare`), then :meth:`encode` at any rate (:func:`code`).
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+        A closed genus-0 surface (mesh input for the default map).
+    options : CodecOptions, optional
+        The codec's settings; the keywords below, when given, override its fields.
+    map_options : surfidx.sphere.MapOptions, optional
+        The map's settings (:func:`surfidx.sphere.parameterize`).
+    level : int, optional
+        Icosahedral grid level; default the map's ``grid_level``.
+    color : bool, optional
+        Code colour (default: when the surfels have it).
+    method : {"tutte", "mds"}, optional
+        Spherical map (overrides ``map_options.method``).
+    color_weight : float, optional
+        Weight of colour against geometry (see the module docstring).
+    sphere_map : SphericalMap, optional
+        A map computed earlier for these surfels (skips the mapping).
+    tangent_weight : float or None, optional
+        Code the geometry details in local frames with this weight in (0, 1] on their tangential
+        components; None codes x, y, z details as they are.
+    density_weighting : bool, optional
+        Weight coefficients by the input's surfel density on the sphere
+        (:mod:`surfidx.codec.density`); default: when its estimated gain is worth it.
+    progress : callable, optional
+        ``progress(stage, done, total)`` at the stage boundaries of the set-up.
+    face_patch : (m,) int, optional
+        Patch of each of ``surfels.faces`` (-1: the scan's), for virtual faces whose corners are
+        all scan vertices (:func:`surfidx.codec.resample.grid_patches`).
+
+    Attributes
+    ----------
+    prepared : Prepared
+        The set-up; its fields are also attributes of the encoder (``grid``, ``coeffs``,
+        ``klt``, ``sphere_map``, ``level``, ``tangent_weight``, ``weight_field``, ``anchors``,
+        ``density_gain``, ``mask``, ``regions``, ``virtual_share``, ``step``, ``n_surfels``,
+        ``color``, ``map_method``).
+    options : CodecOptions
+        As used.
+    setup_seconds : dict of str -> float
+    """
+
+    def __init__(self, surfels: SurfelSet, *, options=None, map_options=None,
+                 level: int | None = None, color: bool | None = None, method: str | None = None,
+                 color_weight: float | None = None, sphere_map=None, tangent_weight=_UNSET,
+                 density_weighting: bool | None = None, progress=None, face_patch=None):
+        from dataclasses import replace
+
+        from ..sphere.options import MapOptions
+
+        if not isinstance(surfels, SurfelSet):
+            raise InputError(f"expected a SurfelSet, got {type(surfels).__name__}")
+        if method is not None and method not in MAP_METHODS:
+            raise InputError(f"method must be one of {', '.join(MAP_METHODS)}, got {method!r}")
+        map_options = MapOptions() if map_options is None else map_options
+        if method is not None:
+            map_options = replace(map_options, method=method)
+        if color and not surfels.has_color:
+            raise InputError("color=True but the surfels have no colour")
+        self.options = codec_options(options, level=level, color=color,
+                                     color_weight=color_weight, tangent_weight=tangent_weight,
+                                     density_weighting=density_weighting)
+        self.map_options = map_options
+        self.prepared = prepare(surfels, self.options, map_options=map_options,
+                                sphere_map=sphere_map, progress=progress, face_patch=face_patch)
+        for f in dataclass_fields(Prepared):
+            if f.name != "seconds":
+                setattr(self, f.name, getattr(self.prepared, f.name))
+        self.setup_seconds = dict(self.prepared.seconds)
+        self._zerotree = None   # quantise's, at the first encode
+
+    def _prepared(self):
+        """The quantised coefficients (:func:`quantise`), made at the first :meth:`encode` and
+        kept: each rate then only codes."""
+        if self._zerotree is None:
+            self._zerotree = quantise(self.prepared)
+        return self._zerotree
+
+    def header_bytes(self) -> int:
+        """Bytes of the container header for this model (the virtual-region mask included)."""
+        return self.prepared.header_bytes()
+
+    def lowest_bytes(self) -> int:
+        """The smallest file this model's container can be."""
+        return self.prepared.lowest_bytes()
+
     def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
-        """Encode at a rate.
+        """Encode at a rate (:func:`code`).
 
         Parameters
         ----------
@@ -350,40 +563,23 @@ class Encoder:
 
     def encode_bytes(self, max_bytes: int, *, progress=None, rate=None) -> bytes:
         """Encode into a file of at most ``max_bytes`` bytes (see :meth:`encode`)."""
-        budget = int(max_bytes) - self.header_bytes()
-        smallest = self.lowest_bytes()
-        if budget < smallest - self.header_bytes():
-            lowest = 8.0 * smallest / self.n_surfels
-            asked = f"{rate} bits/surfel" if rate is not None else f"{max_bytes} bytes"
-            raise InputError(f"{asked} cannot hold the header; the lowest rate for this model "
-                             f"is {lowest:.3g} bits/surfel ({smallest} bytes)")
-        if progress is not None:
-            progress("code", 0, 1)
-        stream, zh = zerotree.encode_prepared(self._prepared(), max_bytes=budget)
-        # a stream that finished every plane early may be shorter than the grid's smallest
-        # container: pad it with zero bytes, which the decoder reads past the end anyway
-        stream += bytes(max(0, container.min_file_bytes(self.level) - self.header_bytes()
-                            - len(stream)))
-        header = container.Header(
-            n_surfels=self.n_surfels, level=self.level, color=self.color, lifted=True,
-            mean=self.klt.mean, basis=self.klt.basis, weights=self.klt.weights,
-            coder=zerotree.pack_header(zh), map_method=self.map_method,
-            tangent_weight=self.tangent_weight, weight_field=self.weight_field,
-            anchors=self.anchors, mask=self.mask, regions=self.regions)
-        out = container.pack(header, stream)
-        if progress is not None:
-            progress("code", 1, 1)
-        return out
+        p = self.prepared
+        if int(max_bytes) - p.header_bytes() < p.lowest_bytes() - p.header_bytes():
+            return code_bytes(p, max_bytes, quantised=None, progress=progress, rate=rate)
+        return code_bytes(p, max_bytes, quantised=self._prepared(), progress=progress,
+                          rate=rate)
 
 
-def encode(surfels: SurfelSet, *, bits_per_surfel: float, level: int | None = None,
-           color: bool | None = None, method: str = "tutte",
-           tangent_weight: float | None = TANGENT_WEIGHT,
-           density_weighting: bool | None = None, face_patch=None) -> bytes:
-    """One-call encoding (see :class:`Encoder`)."""
-    return Encoder(surfels, level=level, color=color, method=method,
-                   tangent_weight=tangent_weight, density_weighting=density_weighting,
-                   face_patch=face_patch).encode(bits_per_surfel)
+def encode(surfels: SurfelSet, *, bits_per_surfel: float | None = None,
+           level: int | None = None, color: bool | None = None, method: str | None = None,
+           tangent_weight=_UNSET, density_weighting: bool | None = None, face_patch=None,
+           options=None, map_options=None) -> bytes:
+    """One-call encoding (see :class:`Encoder`); ``bits_per_surfel`` defaults to
+    ``options.bits_per_surfel``."""
+    e = Encoder(surfels, options=options, map_options=map_options, level=level, color=color,
+                method=method, tangent_weight=tangent_weight,
+                density_weighting=density_weighting, face_patch=face_patch)
+    return e.encode(e.options.bits_per_surfel if bits_per_surfel is None else bits_per_surfel)
 
 
 class PartsEncoder:
@@ -399,14 +595,14 @@ class PartsEncoder:
         Grid level of every part (default: each part's map's).
     color : bool, optional
         Code colour (default: when every part has it).
-    method : {"tutte", "mds"}
+    method : {"tutte", "mds"}, optional
     progress : callable, optional
         Passed to each part's :class:`Encoder`.
     face_patches : sequence, optional
         Each part's ``face_patch`` (:class:`Encoder`), or None.
-    **options
-        Further :class:`Encoder` options (``tangent_weight``, ``density_weighting``,
-        ``color_weight``).
+    **encoder_options
+        Further :class:`Encoder` keywords (``options``, ``map_options``, ``tangent_weight``,
+        ``density_weighting``, ``color_weight``).
 
     Attributes
     ----------
@@ -423,7 +619,8 @@ class PartsEncoder:
     """
 
     def __init__(self, parts, *, level: int | None = None, color: bool | None = None,
-                 method: str = "tutte", progress=None, face_patches=None, **options):
+                 method: str | None = None, progress=None, face_patches=None,
+                 **encoder_options):
         parts = list(parts)
         if not parts:
             raise InputError("PartsEncoder needs at least one part")
@@ -433,12 +630,15 @@ class PartsEncoder:
         if not all(isinstance(p, SurfelSet) for p in parts):
             raise InputError("parts must be SurfelSets")
         if color is None:
-            color = all(p.has_color for p in parts)
+            co = encoder_options.get("options")
+            color = co.color if co is not None and co.color is not None else \
+                all(p.has_color for p in parts)
         fps = [None] * len(parts) if face_patches is None else list(face_patches)
         if len(fps) != len(parts):
             raise InputError(f"face_patches has {len(fps)} entries for {len(parts)} parts")
         self.encoders = [Encoder(p, level=level, color=color, method=method, progress=progress,
-                                 face_patch=fp, **options) for p, fp in zip(parts, fps)]
+                                 face_patch=fp, **encoder_options)
+                         for p, fp in zip(parts, fps)]
         self.n_surfels = sum(e.n_surfels for e in self.encoders)
 
     def encode(self, bits_per_surfel: float, *, progress=None) -> bytes:
@@ -476,11 +676,11 @@ class PartsEncoder:
 
 
 def encode_parts(parts, *, bits_per_surfel: float, level: int | None = None,
-                 color: bool | None = None, method: str = "tutte", progress=None,
-                 **options) -> bytes:
+                 color: bool | None = None, method: str | None = None, progress=None,
+                 **encoder_options) -> bytes:
     """One-call multi-part encoding (see :class:`PartsEncoder`)."""
     return PartsEncoder(parts, level=level, color=color, method=method, progress=progress,
-                        **options).encode(bits_per_surfel)
+                        **encoder_options).encode(bits_per_surfel)
 
 
 def decode_grid(data: bytes, *, bits_per_surfel: float | None = None,

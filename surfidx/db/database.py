@@ -28,7 +28,6 @@ from .catalog import Catalog, is_storage_failure
 
 __all__ = ["Database", "QueryExample"]
 
-_THUMBNAIL_SIZE = 192      # of a query example's thumbnail (as process_model's default)
 
 
 @dataclass(frozen=True)
@@ -76,9 +75,9 @@ class Database(Catalog):
     """A surfidx model database with the one-call API (see the module notes); opened as
     :class:`surfidx.db.catalog.Catalog` is (``Database.open(path)``, ``readonly=``...)."""
 
-    def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float = 8.0, name=None,
-               tags=(), processor=None, progress: bool = False,
-               allow_outside_textures: bool = False, **options):
+    def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float | None = None,
+               options=None, name=None, tags=(), processor=None, progress: bool = False,
+               allow_outside_textures: bool = False, **run_options):
         """Process and store models: files, folders (recursively) or models in memory.
 
         Parameters
@@ -90,8 +89,10 @@ class Database(Catalog):
         workers : int, optional
             Worker processes for the files (default: as many as the machine's cores,
             :func:`ingest.run`).
-        bits_per_surfel : float
-            Full rate of the stored streams.
+        bits_per_surfel : float, optional
+            Full rate of the stored streams (default ``options.codec.bits_per_surfel``).
+        options : surfidx.options.ProcessOptions, optional
+            Every setting of the processing (:func:`surfidx.pipeline.process_model`).
         name : str, optional
             Name of the model, when ``models`` is one file or one model (must be free).
         tags : str or sequence of str
@@ -102,7 +103,7 @@ class Database(Catalog):
             A progress bar on stderr.
         allow_outside_textures : bool
             As for :func:`surfidx.read_surfels`.
-        **options
+        **run_options
             Further keywords of :func:`ingest.run` (``scheduler``, ``retries``, ``batch``...).
 
         Returns
@@ -130,12 +131,20 @@ class Database(Catalog):
         if name is not None and len(items) != 1:
             raise InputError(f"name= names one model; {len(items)} were given")
         tags = [] if not tags else self._tags_of(tags)
+        from ..options import ProcessOptions
+
+        if options is not None and not isinstance(options, ProcessOptions):
+            raise InputError(f"options must be a ProcessOptions, got {type(options).__name__}")
+        if bits_per_surfel is None:
+            bits_per_surfel = (options or ProcessOptions()).codec.bits_per_surfel
+        elif options is not None:
+            options = options.updated(**{"codec.bits_per_surfel": float(bits_per_surfel)})
         summary = None
         if paths:
             summary = _ingest.run(paths, db=self, workers=workers,
-                                  bits_per_surfel=bits_per_surfel, processor=processor,
-                                  progress=progress, name=name, tags=tags,
-                                  allow_outside_textures=allow_outside_textures, **options)
+                                  bits_per_surfel=bits_per_surfel, options=options,
+                                  processor=processor, progress=progress, name=name, tags=tags,
+                                  allow_outside_textures=allow_outside_textures, **run_options)
         if memory:
             proc = _ingest.resolve_processor(processor)
             run = summary or _ingest.IngestSummary(run_id=self.start_run(
@@ -143,8 +152,10 @@ class Database(Catalog):
             for i, model in enumerate(memory):
                 label = f"<memory model {i}>"
                 try:
-                    processed = proc(model, bits_per_surfel=bits_per_surfel,
-                                     **({"name": name} if name is not None else {}))
+                    extra = {"name": name} if name is not None else {}
+                    if options is not None and _ingest.accepts_progress(proc, "options"):
+                        extra["options"] = options
+                    processed = proc(model, bits_per_surfel=bits_per_surfel, **extra)
                     if self.has_hash(processed.content_hash):
                         run.skipped += 1
                         continue
@@ -187,7 +198,7 @@ class Database(Catalog):
 
     def example(self, model, *, processor=None, describer=None, texture=None,
                 allow_outside_textures: bool = False, thumbnail: bool = True,
-                progress=None) -> QueryExample:
+                progress=None, options=None) -> QueryExample:
         """Describe a query's example once, for :meth:`query` (and a contact sheet's thumbnail).
 
         ``model`` is what :meth:`query` takes: a stored model's id or name, a model file, or a
@@ -197,7 +208,8 @@ class Database(Catalog):
         ingest's work, :func:`surfidx.pipeline.process_model`'s signature), else by
         ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
         describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
-        ``progress`` goes to the describer (:mod:`surfidx.progress`)."""
+        ``progress`` goes to the describer (:mod:`surfidx.progress`), ``options`` (a
+        :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it."""
         ref = model
         if isinstance(model, str):
             text = model.strip()
@@ -220,12 +232,18 @@ class Database(Catalog):
                                 thumbnail=self.get_thumbnail(rec["id"]))
         import ingest as _ingest    # a model file or one in memory: not for a stored model
 
+        from ..codec.options import DEFAULT_BITS_PER_SURFEL
+        from ..options import DEFAULT_THUMBNAIL_SIZE
+
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
+        if options is not None and _ingest.accepts_progress(
+                processor if processor is not None else _describer(describer), "options"):
+            extra["options"] = options
         if processor is not None:
-            proc = functools.partial(processor, bits_per_surfel=8.0)
+            proc = functools.partial(processor, bits_per_surfel=DEFAULT_BITS_PER_SURFEL)
         else:
             proc = functools.partial(_describer(describer),
-                                     thumbnail_size=_THUMBNAIL_SIZE if thumbnail else None,
+                                     thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))
         try:
             if isinstance(ref, os.PathLike):
@@ -250,7 +268,7 @@ class Database(Catalog):
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, describer=None, texture=None,
               allow_outside_textures: bool = False, exact: bool = False,
-              progress=None) -> list:
+              progress=None, options=None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
@@ -278,6 +296,9 @@ class Database(Catalog):
         progress : callable, optional
             ``progress(stage, done, total)`` while a file or model in memory is described
             (:mod:`surfidx.progress`).
+        options : surfidx.options.ProcessOptions, optional
+            How a file or model in memory is read, mapped and described (as an ingest with
+            these options would).
         exact : bool
             Scan every stored model, never the approximate index (:mod:`surfidx.db.ann`, used from
             :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models on).
@@ -298,7 +319,8 @@ class Database(Catalog):
 
         ex = model if isinstance(model, QueryExample) else self.example(
             model, processor=processor, describer=describer, texture=texture,
-            allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress)
+            allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress,
+            options=options)
         descriptors = dict(ex.descriptors)
         if not ex.has_color:
             descriptors.pop("texture", None)

@@ -2,3 +2,4 @@
 
 from .descriptors import (DescriptorSet, describe_grid, descriptor_distance, descriptor_params,
                           DEFAULT_LMAX, SH_NORMALIZATION, DESCRIPTOR_VERSION)
+from .options import DescribeOptions

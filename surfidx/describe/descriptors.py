@@ -93,7 +93,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
            "DEFAULT_LMAX",
            "SH_NORMALIZATION", "DESCRIPTOR_VERSION"]
 
-DEFAULT_LMAX = 24
+from .options import DEFAULT_LMAX  # noqa: E402  (defined with DescribeOptions)
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
 DESCRIPTOR_VERSION = 7
 

@@ -30,17 +30,21 @@ PROXY_VARIANTS = ("reconstructed", "simplified", "coarser")
 
 
 def _mapped(v, f, name, options, route):
-    """The mesh map of the proxy ``(v, f)``: ``(x, figures, fell back)``."""
+    """The mesh map of the proxy ``(v, f)``: ``(x, figures, fell back)``; ``route`` holds
+    :func:`cloud_map`'s ``iterations``, ``gamma`` and ``balance``."""
     proxy = TriangleMesh(v, f, name=name).to_surfels()   # every proxy vertex is used
     return mesh_map(proxy, options=options, **route)
 
 
-def cloud_map(surfels: SurfelSet, *, options: MapOptions, **route):
+def cloud_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
+              balance: bool):
     """The map of a point cloud through its proxy mesh, before the repair.
 
     Returns the sphere points ``(n, 3)``, the figures of the proxy's map, whether it fell back,
     and the proxy's figures (``proxy_vertices``, ``proxy_faces``, ``proxy``: one of
-    :data:`PROXY_VARIANTS`). ``route`` holds ``iterations``, ``gamma`` and ``balance``."""
+    :data:`PROXY_VARIANTS`). ``iterations``, ``gamma`` and ``balance`` are
+    :func:`surfidx.sphere.parameterize`'s."""
+    route = dict(iterations=iterations, gamma=gamma, balance=balance)
     v, f = proxy_mesh(surfels)
     x, info, fallback = _mapped(v, f, surfels.name, options, route)
     variant = PROXY_VARIANTS[0]

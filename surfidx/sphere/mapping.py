@@ -5,7 +5,7 @@ records of the stages that ran."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Mapping
 
@@ -149,9 +149,9 @@ def _route_stage(figures: dict, fallback: bool) -> Stage:
     return Stage.of("single_level" if fallback else "multilevel", figures)
 
 
-def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
-                 landmarks: int = 32, iterations: int = 40, gamma: float = 0.15,
-                 balance: bool = True, stress: bool = True,
+def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | None = None,
+                 landmarks: int | None = None, iterations: int | None = None,
+                 gamma: float | None = None, balance: bool | None = None, stress: bool = True,
                  options: MapOptions | None = None, progress=None) -> SphericalMap:
     """Map surfels to the unit sphere.
 
@@ -161,25 +161,13 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         A closed genus-0 surface. Method ``"tutte"`` maps the mesh faces (``surfels.faces``); a
         point cloud (no faces) is mapped through a closed proxy mesh reconstructed from the
         oriented surfels (:func:`surfidx.sphere.proxy.proxy_mesh`).
-    method : {"tutte", "mds"}
-        ``"tutte"``: fold-free Tutte embedding with area balancing (default); ``"mds"``: the
-        original spherical MDS of landmark geodesics.
-    seed : int
-        Seed of the landmark choice.
-    landmarks : int
-        Landmarks for the stress figure and for ``"mds"``.
-    iterations : int
-        Most area-reweighting iterations (``"tutte"``) or CG iterations / 10 (``"mds"``).
-    gamma : float
-        Exponent of the area reweighting, in (0, 2].
-    balance : bool
-        Untangle and balance the distortion at each level (False: the Tutte start, a level
-        whose prolongation folds falls back to the single-level map; for tests and
-        comparisons).
+    method, seed, landmarks, iterations, gamma, balance : optional
+        Override the fields of the same names of ``options`` (:class:`MapOptions` holds their
+        defaults and meaning).
     stress : bool
         Compute the landmark stress figure (geodesics from ``landmarks`` sources).
     options : MapOptions, optional
-        Switches and tuning of the stages (default: ``MapOptions()``).
+        Method, switches and tuning of the stages (default: ``MapOptions()``).
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries:
         ``"map"`` (for a mesh, once per level of the multilevel map as it is done, coarsest
@@ -200,21 +188,32 @@ def parameterize(surfels: SurfelSet, *, method: str = "tutte", seed: int = 0,
         ``options.max_area_distortion``).
     """
     surfels = check_surfels(surfels)
-    if method not in METHODS:
+    if method is not None and method not in METHODS:
         raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    check_positive_int(landmarks, "landmarks", minimum=4)
-    check_positive_int(iterations, "iterations", minimum=0)
-    if not (0 < float(gamma) <= 2):
+    if landmarks is not None:
+        check_positive_int(landmarks, "landmarks", minimum=4)
+    if iterations is not None:
+        check_positive_int(iterations, "iterations", minimum=0)
+    if gamma is not None and not (0 < float(gamma) <= 2):
         raise InputError(f"gamma must lie in (0, 2], got {gamma!r}")
     if options is None:
         options = DEFAULT_OPTIONS
     elif not isinstance(options, MapOptions):
         raise InputError(f"options must be a MapOptions, got {type(options).__name__}")
+    given = dict(method=method, seed=seed, landmarks=landmarks, iterations=iterations,
+                 gamma=None if gamma is None else float(gamma),
+                 balance=None if balance is None else bool(balance))
+    given = {k: v for k, v in given.items() if v is not None}
+    if given:
+        options = replace(options, **given)
+    method, seed, landmarks = options.method, options.seed, options.landmarks
+    iterations = options.iterations
     t0 = time.perf_counter()
     report(progress, "map", 0, 1)
     lm = dist = None
     fallback = False
-    route = dict(iterations=iterations, gamma=float(gamma), balance=bool(balance))
+    route = dict(iterations=iterations, gamma=float(options.gamma),
+                 balance=bool(options.balance))
     if method == "tutte" and has_faces(surfels):
         f = oriented_faces(surfels)
         pts, figures, fallback = mesh_map(surfels, faces=f, options=options, progress=progress,

@@ -37,16 +37,18 @@ class Untangled(Exception):
     hierarchy, or falls back)."""
 
 
-def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=None, **route):
+def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
+             balance: bool, faces=None, progress=None):
     """The multilevel map for each coarsest size of ``options.coarse_ladder`` in turn, or the
     single-level map when every hierarchy fails; where that squeezes the surface beyond
     ``options.max_area_distortion`` (which :func:`surfidx.sphere.parameterize` refuses), the
     embedded hierarchy (``options.embedded_hierarchy``) instead.
 
-    Returns the map, its figures and whether it fell back to the single-level map. ``route``
-    holds ``iterations``, ``gamma`` and ``balance`` (:func:`surfidx.sphere.parameterize`);
+    Returns the map, its figures and whether it fell back to the single-level map.
+    ``iterations``, ``gamma`` and ``balance`` are :func:`surfidx.sphere.parameterize`'s;
     ``progress`` (a callback, :mod:`surfidx.progress`) gets ``("map", k, levels)`` as each level
     of a hierarchy is done, coarsest first."""
+    route = dict(iterations=iterations, gamma=gamma, balance=balance)
     f = oriented_faces(surfels) if faces is None else faces
     large = len(surfels) > options.large_level
     steps = options.final_steps_large if large else options.final_steps
@@ -59,7 +61,7 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, faces=None, progress=No
             continue
         return x, dict(info, coarse=coarse, retries=tries), False
     x, info = tutte_map(surfels, faces=f, options=options, **route)
-    if (options.embedded_hierarchy and route["balance"]
+    if (options.embedded_hierarchy and balance
             and area_distortion(surfels, x) > options.max_area_distortion):
         try:
             xe, info = multilevel_map(surfels, faces=f, steps=steps, coarse=ladder[0],

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 
 from ..errors import InputError
-from ..validate import check_option_fields
+from ..validate import check_option_fields, option
 
 __all__ = ["MapOptions", "DEFAULT_OPTIONS", "METHODS", "STAGES"]
 
@@ -32,6 +32,21 @@ class MapOptions:
 
     Attributes
     ----------
+    method : {"tutte", "mds"}
+        ``"tutte"``: fold-free Tutte embedding with area balancing; ``"mds"``: the original
+        spherical MDS of landmark geodesics.
+    seed : int
+        Seed of the landmark choice.
+    landmarks : int
+        Landmarks for the stress figure and for ``"mds"`` (at least 4).
+    iterations : int
+        Most area-reweighting iterations (``"tutte"``) or CG iterations / 10 (``"mds"``).
+    gamma : float
+        Exponent of the area reweighting, in (0, 2].
+    balance : bool
+        Untangle and balance the distortion at each level (False: the Tutte start, a level
+        whose prolongation folds falls back to the single-level map; for tests and
+        comparisons).
     coarse_ladder : tuple of int
         Coarsest sizes (vertices) of the multilevel hierarchy, tried in turn while a level cannot
         be untangled. A prolonged map of a few dozen vertices can fold so deeply (a thin frame,
@@ -120,6 +135,12 @@ class MapOptions:
         Gradient steps placing each non-landmark surfel in method ``"mds"``.
     """
 
+    method: str = option("tutte", choices=METHODS)
+    seed: int = 0
+    landmarks: int = option(32, min=4)
+    iterations: int = 40
+    gamma: float = option(0.15, min=0, min_open=True, max=2)
+    balance: bool = True
     coarse_ladder: tuple = (64, 256, 32)
     embedded_hierarchy: bool = True
     level_ratio: int = 4

@@ -1,0 +1,63 @@
+"""The codec's settings, in one frozen object: the rate of the stored stream and the weights
+that split its bits (:class:`CodecOptions`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..geometry.icosphere import MAX_LEVEL
+from ..validate import check_option_fields, option
+
+__all__ = ["CodecOptions", "COLOR_WEIGHT", "TANGENT_WEIGHT", "MAX_COLOR_WEIGHT",
+           "DEFAULT_BITS_PER_SURFEL"]
+
+DEFAULT_BITS_PER_SURFEL = 8.0
+"""Full rate of a stored stream, bits per input surfel (lower rates are served by truncation)."""
+
+COLOR_WEIGHT = 0.02
+"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
+
+It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
+colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
+both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
+of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
+"""
+
+TANGENT_WEIGHT = 0.5
+"""Weight of the tangential geometry components in local frames (see :mod:`surfidx.codec.encoder`)."""
+
+MAX_COLOR_WEIGHT = 1e3
+"""Largest ``color_weight`` the encoder takes (so colours stay within the decoder's extent)."""
+
+
+@dataclass(frozen=True)
+class CodecOptions:
+    """Settings of :class:`surfidx.codec.Encoder` and the rate of the stored stream.
+
+    Attributes
+    ----------
+    bits_per_surfel : float
+        Full rate of the stored stream (lower rates are served by truncation).
+    level : int or None
+        Icosahedral grid level (None: the map's ``grid_level``).
+    color : bool or None
+        Code colour (None: when the surfels have it).
+    color_weight : float
+        Weight of colour against geometry, in (0, :data:`MAX_COLOR_WEIGHT`].
+    tangent_weight : float or None
+        Weight in (0, 1] of the tangential components of local frames (None: x, y, z details,
+        no frames). The container stores it float32-rounded.
+    density_weighting : bool or None
+        Weight coefficients by the surfel density on the sphere (None: when its estimated gain
+        is worth it, :mod:`surfidx.codec.density`).
+    """
+
+    bits_per_surfel: float = option(DEFAULT_BITS_PER_SURFEL, min=0, min_open=True)
+    level: int | None = option(None, max=MAX_LEVEL)
+    color: bool | None = None
+    color_weight: float = option(COLOR_WEIGHT, min=0, min_open=True, max=MAX_COLOR_WEIGHT)
+    tangent_weight: float | None = option(TANGENT_WEIGHT, min=0, min_open=True, max=1)
+    density_weighting: bool | None = None
+
+    def __post_init__(self):
+        check_option_fields(self)

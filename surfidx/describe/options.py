@@ -1,0 +1,29 @@
+"""The descriptors' settings, in one frozen object (:class:`DescribeOptions`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..validate import check_option_fields, option
+
+__all__ = ["DescribeOptions", "DEFAULT_LMAX"]
+
+DEFAULT_LMAX = 24
+"""Largest spherical-harmonic degree of the ``layers`` and ``texture`` descriptor vectors."""
+
+
+@dataclass(frozen=True)
+class DescribeOptions:
+    """Settings of :func:`surfidx.describe.describe_grid` as the pipeline calls it.
+
+    Attributes
+    ----------
+    lmax : int
+        Largest spherical-harmonic degree of the ``layers``/``texture`` vectors (at least 1);
+        two models compare only when it is equal.
+    """
+
+    lmax: int = option(DEFAULT_LMAX, min=1)
+
+    def __post_init__(self):
+        check_option_fields(self)
