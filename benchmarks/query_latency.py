@@ -54,7 +54,8 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
-from surfidx.db.catalog import Database, utc_now
+from surfidx.db import Database
+from surfidx.db.catalog import utc_now
 from surfidx.db.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
 
 LABELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval" / "labels.csv"
