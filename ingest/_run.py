@@ -359,7 +359,7 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
     ----------
     paths : sequence of str or os.PathLike
         Model files and folders (see :func:`discover`).
-    db : surfidx.db.catalog.Database or str or os.PathLike
+    db : surfidx.db.catalog.Catalog or str or os.PathLike
         An open database, or the path of one (created when missing).
     workers : int, optional
         Worker processes; ``1`` processes in this process. Default: as many as the machine's

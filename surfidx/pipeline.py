@@ -518,7 +518,7 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
     everything : bool
         Recompute every model, not only those whose conventions differ from this surfidx's.
     lmax : int, optional

@@ -47,7 +47,7 @@ CREATE TABLE models (
 );
 CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
 -- Names are unique: a model whose file stem is taken is named after its parent folder, and
--- when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Database.add).
+-- when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Catalog.add).
 CREATE UNIQUE INDEX models_name ON models (name);
 
 -- The compressed asset of a model: one container file holding the embedded bitstream, and its

@@ -26,7 +26,7 @@ int64) and ``TOKEN-rows-KIND.npy`` (the stored vectors, float32, exactly as in t
 ``"texture"`` only the coloured models); ``TOKEN-digests.npz`` (a content digest per indexed
 model). The manifest names the files, the library and settings, the kinds, dimensions and
 conventions, and the database state the files reflect (:meth:`Database.index_state`: the
-``descriptor_generation`` counter that :class:`~surfidx.db.catalog.Database` increments with every
+``descriptor_generation`` counter that :class:`~surfidx.db.catalog.Catalog` increments with every
 change of a model or its descriptors, the schema version, the model count, the largest model id
 and descriptor rowid). A new or updated index is written to new files first and then the
 manifest is replaced (``os.replace``, atomic): a crash leaves the old manifest naming the old,
@@ -45,7 +45,7 @@ Before each query, :meth:`AnnIndex.query` checks that the database is still in t
 (``PRAGMA data_version`` and the generation counter, microseconds; the whole state when either
 moved) and catches up first when it is not, so the distances and the candidates are those of the
 rows stored at query time. A writer that changed models through
-:class:`~surfidx.db.catalog.Database` updates the index when it closes (:func:`update`).
+:class:`~surfidx.db.catalog.Catalog` updates the index when it closes (:func:`update`).
 Descriptors of one kind made with two conventions are refused as by
 :meth:`Database.descriptor_matrix`.
 """
@@ -618,7 +618,7 @@ def build(db, *, kinds=None, write: bool = True) -> AnnIndex:
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
     kinds : sequence of str, optional
         The descriptor kinds of the search (e.g. :data:`surfidx.db.search.DEFAULT_KINDS`; default
         :data:`BUILD_KINDS`); the first is required of every model that takes part.
@@ -686,7 +686,7 @@ def open_index(db, *, kinds=None, write: bool = True, state: dict | None = None)
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
         Read-only is fine: only the index folder is written.
     kinds : sequence of str, optional
         The descriptor kinds of the search (default: those of the index on disk, else
@@ -786,7 +786,7 @@ def update(db, *, kinds=None, write: bool = True):
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
     kinds : sequence of str, optional
         As in :func:`open_index`.
     write : bool

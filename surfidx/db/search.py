@@ -4,7 +4,7 @@ Two paths, one answer:
 
 * exact scan (below :data:`surfidx.db.ann.DEFAULT_THRESHOLD` stored models, or ``exact=True``): the
   stored vectors are read once into dense float32 matrices (built from
-  :meth:`surfidx.db.catalog.Database.descriptor_matrix`) and every query is one vectorised scan
+  :meth:`surfidx.db.catalog.Catalog.descriptor_matrix`) and every query is one vectorised scan
   followed by ``np.argpartition`` for the top ``k``;
 * approximate index (from the threshold on): faiss inverted-file indexes beside the database
   (:mod:`surfidx.db.ann`) give ``factor * k`` candidates by the shape vector (and as many by
@@ -126,7 +126,7 @@ class SearchIndex:
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
         Stays in use by the approximate path (candidate rows are read from it per query).
     kinds : sequence of str
         Descriptor kinds to load; the first (``"shape"``) is required of every model that takes
@@ -350,7 +350,7 @@ def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_
 
     Parameters
     ----------
-    db : surfidx.db.catalog.Database
+    db : surfidx.db.catalog.Catalog
     descriptors : dict of str -> (d_k,) array_like
         The query's descriptors, e.g. ``ProcessedModel.descriptors`` (drop ``"texture"`` when the
         query has no colour) or :meth:`Database.get_descriptors`.
