@@ -343,8 +343,8 @@ def test_read_only_database_ingest_is_one_line(filled, tmp_path, monkeypatch):
     root, db = filled
     (root / "new.ply").write_text("model new")
     before = _digest(db)
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda p, mode, t: real_connect(p, "ro", t))
     r = invoke(["ingest", root, "--db", db, "--no-progress"])
     _one_error_line(r, "cannot write: the database is read-only (attempt to write a readonly "
                        "database)")
@@ -358,7 +358,7 @@ def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, mon
     root.mkdir()
     for i in range(12):
         (root / f"m{i:02d}.ply").write_text(f"model {i}")
-    real_connect = dbmod._connect
+    real_connect = dbmod.connect
 
     def small(p, mode, t):
         conn = real_connect(p, mode, t)
@@ -371,7 +371,7 @@ def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, mon
         return m
 
     db = tmp_path / "full.db"
-    monkeypatch.setattr(dbmod, "_connect", small)
+    monkeypatch.setattr(dbmod, "connect", small)
     import ingest
 
     with pytest.raises(dbmod.DatabaseError, match="the disk is full"):

@@ -129,7 +129,7 @@ def test_built_package_finds_schema(tmp_path):
 
 def test_new_database_layout(db):
     assert db.schema_version == SCHEMA_VERSION
-    assert set(db.db.table_names()) == set(dbmod._TABLES) | {"tags", "model_topology"}
+    assert set(db.db.table_names()) == set(dbmod.TABLES) | {"tags", "model_topology"}
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
     meta = dict(db.conn.execute("SELECT key, value FROM meta"))
@@ -142,7 +142,7 @@ def test_new_database_layout(db):
                                                 "ingest_errors") for fk in db.db[t].foreign_keys}
     assert fks == {("assets", "models"), ("descriptors", "models"), ("thumbnails", "models"),
                    ("ingest_errors", "ingest_runs")}
-    assert len(dbmod._MIGRATIONS) == SCHEMA_VERSION - 1
+    assert len(dbmod.MIGRATIONS) == SCHEMA_VERSION - 1
 
 
 def test_reopen_keeps_data(tmp_path):
@@ -433,7 +433,7 @@ def test_migration_from_older_version(tmp_path, monkeypatch):
         conn.execute("ALTER TABLE models ADD COLUMN license TEXT NOT NULL DEFAULT 'unknown'")
 
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [to_v2])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [to_v2])
     with Database(path) as d:
         assert d.schema_version == 2
         assert d.conn.execute("SELECT name, license FROM models").fetchall() == [("old", "unknown")]
@@ -451,7 +451,7 @@ def test_failing_migration_leaves_file_unchanged(tmp_path, monkeypatch):
         conn.execute("SELECT * FROM no_such_table")
 
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [half])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [half])
     with pytest.raises(DatabaseError,
                        match=r"upgrading the schema to version 2 failed .*unchanged"):
         Database(path)
@@ -681,7 +681,7 @@ def test_readonly_open_of_an_older_schema(tmp_path, monkeypatch):
     path = tmp_path / "v1.db"
     _v1_database(path)
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [lambda conn: None])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [lambda conn: None])
     with pytest.raises(DatabaseError, match=r"schema version 1 is older than this surfidx's "
                                             r"\(2\) and a read-only open cannot upgrade it"):
         Database(path, readonly=True)
@@ -741,8 +741,8 @@ class _FakeConn:
 def test_every_sqlite_error_is_a_database_error(tmp_path, monkeypatch, error, message):
     path = tmp_path / "f.db"
     Database(path).close()
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda *a: _FakeConn(real_connect(*a), error))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda *a: _FakeConn(real_connect(*a), error))
     monkeypatch.setattr(_FakeConn, "armed", False)
     with Database(path) as d:
         _FakeConn.armed = True
@@ -759,8 +759,8 @@ def test_read_only_file_real_error(tmp_path, monkeypatch):
     path = tmp_path / "ro.db"
     Database(path).close()
     before = _digest(path)
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda p, mode, t: real_connect(p, "ro", t))
     with Database(path) as d:
         with pytest.raises(DatabaseError, match=r"ro\.db: cannot write: the database is read-only "
                                                 r"\(attempt to write a readonly database\)"):
@@ -772,14 +772,14 @@ def test_full_disk_real_error_rolls_back(tmp_path, monkeypatch):
     """SQLite's own SQLITE_FULL (max_page_count reached): the model is not stored, earlier
     ones stay whole, the file passes the integrity check."""
     path = tmp_path / "full.db"
-    real_connect = dbmod._connect
+    real_connect = dbmod.connect
 
     def small(p, mode, t):
         conn = real_connect(p, mode, t)
         conn.execute("PRAGMA max_page_count = 40")
         return conn
 
-    monkeypatch.setattr(dbmod, "_connect", small)
+    monkeypatch.setattr(dbmod, "connect", small)
     stored = 0
     with Database(path) as d:
         with pytest.raises(DatabaseError, match=r"full\.db: the disk is full \(database or disk "
@@ -870,7 +870,7 @@ def _real_v1_database(path):
     is not unique), holding two models of one name and rows a delete without foreign keys
     left behind."""
     conn = sqlite3.connect(path)
-    for stmt in dbmod._statements(schema_sql()):
+    for stmt in dbmod.split_statements(schema_sql()):
         code = "\n".join(ln for ln in stmt.splitlines() if not ln.strip().startswith("--"))
         if __import__("re").search(r"\b(tags|TRIGGER|VIEW|model_topology)\b", code):
             continue
