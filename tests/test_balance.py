@@ -9,11 +9,11 @@ from surfidx.sphere.balance import (PATCH_PATIENCE, Energy, near_inverted, Patch
 from surfidx.sphere.surface import oriented_faces
 from surfidx.sphere.tutte import tutte_map
 from surfidx.geometry.unitsphere import orientation as _orientation
-from test_parameterize import _limbs
+from helpers import limbs_surfels
 
 
 def _start():
-    s = _limbs()
+    s = limbs_surfels()
     f = oriented_faces(s)
     x, _ = tutte_map(s, options=MapOptions(), iterations=0, gamma=0.15, balance=False)
     return s.positions, f, x

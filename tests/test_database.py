@@ -22,18 +22,12 @@ from surfidx.db.catalog import SCHEMA_VERSION, Database, schema_sql
 from surfidx.pipeline import ProcessedModel
 from surfidx.db.search import SearchIndex, search, weighted_l2
 
+from helpers import damage_database, foreign_database, tiny_png
+
 REPO = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------- test doubles
-def tiny_png(seed: int = 0, size: int = 8) -> bytes:
-    """A small solid-colour PNG made with Pillow."""
-    from PIL import Image
-
-    rgb = tuple(int(c) for c in np.random.default_rng(seed).integers(0, 256, 3))
-    buf = io.BytesIO()
-    Image.new("RGB", (size, size), rgb).save(buf, format="PNG")
-    return buf.getvalue()
 
 
 def make_model(seed: int = 0, *, name=None, color: bool = True, shape_dim: int = 16,
@@ -578,16 +572,6 @@ def _digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def _foreign(path, *, user_version=0, application_id=0, tables=("meta", "models")):
-    conn = sqlite3.connect(path)
-    for t in tables:
-        conn.execute(f"CREATE TABLE {t} (key TEXT, value TEXT)")
-    conn.execute(f"PRAGMA user_version = {user_version}")
-    conn.execute(f"PRAGMA application_id = {application_id}")
-    conn.commit()
-    conn.close()
-
-
 def test_new_database_carries_the_application_id(db):
     assert db.conn.execute("PRAGMA application_id").fetchone()[0] == dbmod.APPLICATION_ID
     assert dbmod.APPLICATION_ID.to_bytes(4, "big") == b"SFDX"
@@ -595,7 +579,7 @@ def test_new_database_carries_the_application_id(db):
 
 def test_foreign_file_with_surfidx_table_names_is_refused_untouched(tmp_path):
     path = tmp_path / "other.db"
-    _foreign(path, user_version=1)                      # user_version 1, tables meta and models
+    foreign_database(path, user_version=1)                      # user_version 1, tables meta and models
     before = _digest(path)
     for kwargs in ({}, {"readonly": True}, {"create": False}):
         with pytest.raises(DatabaseError, match=r"other\.db: not a surfidx database \(it holds "
@@ -609,14 +593,14 @@ def test_foreign_file_with_surfidx_table_names_is_refused_untouched(tmp_path):
 
 def test_other_application_id_and_marker_without_schema(tmp_path):
     path = tmp_path / "app.db"
-    _foreign(path, application_id=0x12345678, tables=("things",))
+    foreign_database(path, application_id=0x12345678, tables=("things",))
     before = _digest(path)
     with pytest.raises(DatabaseError, match=r"application_id 0x12345678 is another "
                                             r"application's"):
         Database(path)
     assert _digest(path) == before
     path = tmp_path / "marked.db"
-    _foreign(path, application_id=dbmod.APPLICATION_ID, tables=())
+    foreign_database(path, application_id=dbmod.APPLICATION_ID, tables=())
     with pytest.raises(DatabaseError, match=r"carries surfidx's application id but no schema"):
         Database(path)
 
@@ -687,21 +671,12 @@ def test_readonly_open_of_an_older_schema(tmp_path, monkeypatch):
         Database(path, readonly=True)
 
 
-def _damage(path):
-    """Overwrite every page but the first (the header and the table list) with garbage."""
-    size = path.stat().st_size
-    rng = np.random.default_rng(7)
-    with open(path, "r+b") as fh:
-        fh.seek(4096)
-        fh.write(rng.integers(0, 256, size - 4096, dtype=np.uint8).tobytes())
-
-
 def test_damaged_file_is_one_database_error(tmp_path):
     path = tmp_path / "bad.db"
     with Database(path) as d:
         for i in range(8):
             d.add(make_model(i))
-    _damage(path)
+    damage_database(path)
     with pytest.raises(DatabaseError, match=r"bad\.db: the database file is damaged \(database "
                                             r"disk image is malformed\); restore it"):
         with Database(path, readonly=True) as d:
