@@ -45,6 +45,12 @@ _LOCK = threading.Lock()   # os.environ is changed around a child process start 
 
 
 def is_x86_64() -> bool:
+    """Whether this machine is x86-64 (``platform.machine()``).
+
+    Returns
+    -------
+    bool
+    """
     return platform.machine().lower() in ("x86_64", "amd64")
 
 

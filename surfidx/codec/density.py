@@ -182,6 +182,27 @@ def _residuals(q: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def encode_residuals(r, cls, buf, st, models):
+    """Code density residuals, each in the contexts of its class: zero flag, sign, then its
+    magnitude in unary (the coder allows values beyond ``[Q_MIN, Q_MAX]``).
+
+    Parameters
+    ----------
+    r : ndarray of int64, shape (n,)
+        The residuals.
+    cls : ndarray of int64, shape (n,)
+        The context class of each.
+    buf : ndarray of uint8
+        The output buffer.
+    st : ndarray
+        An encoder state (:func:`~surfidx.codec.entropy.new_encoder`).
+    models : ndarray
+        Models of :data:`N_CONTEXTS` contexts (:func:`~surfidx.codec.entropy.new_models`).
+
+    Returns
+    -------
+    int
+        The bytes written to ``buf``.
+    """
     for i in range(r.shape[0]):
         base = cls[i] * _PER_CLASS
         v = r[i]

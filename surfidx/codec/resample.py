@@ -63,6 +63,21 @@ def layer_names(has_color: bool) -> tuple[str, ...]:
 
 @numba.njit(cache=True)
 def barycentric(q, a, b, c):
+    """Barycentric coordinates of ``q`` in the triangle ``a, b, c`` (central projection onto the
+    chord plane), normalised to sum 1.
+
+    Parameters
+    ----------
+    q, a, b, c : ndarray of float64, shape (3,)
+        The query and the triangle's corners.
+
+    Returns
+    -------
+    l0, l1, l2 : float
+        The coordinates (all at least 0 inside); -1 each for a degenerate triangle.
+    s : float
+        Their sum before normalising (-1 for a degenerate triangle).
+    """
     # solve q = l0 a + l1 b + l2 c, then normalise (central projection onto the chord plane)
     m00, m01, m02 = a[0], b[0], c[0]
     m10, m11, m12 = a[1], b[1], c[1]

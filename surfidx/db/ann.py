@@ -111,6 +111,19 @@ def index_dir(db_path) -> Path:
 
 
 def index_files(man) -> list:
+    """The files of an index that a manifest names.
+
+    Parameters
+    ----------
+    man : dict
+        The index manifest.
+
+    Returns
+    -------
+    list of str
+        The graph files, the row files (ids and rows) of each kind and the digests file, relative
+        to the index folder.
+    """
     out = [g["file"] for g in man.get("graphs", {}).values()]
     for r in man.get("rows", {}).values():
         out += [r["ids"], r["rows"]]
@@ -652,6 +665,31 @@ class _Files(dict):
 
 
 def load_index(d: Path, man, *, view: bool):
+    """The graphs and rows of the index in folder ``d`` that manifest ``man`` describes.
+
+    Parameters
+    ----------
+    d : Path
+        The index folder.
+    man : dict
+        Its manifest.
+    view : bool
+        Map the files read-only for searches (the graphs are opened on first use) rather than
+        load them to be changed.
+
+    Returns
+    -------
+    graphs : dict
+        Graph name -> index (``view``: its file, opened by :func:`open_graph` on first use).
+    rows : dict
+        Kind -> ``(ids, rows)``: ``ndarray of int64, shape (count,)`` and
+        ``ndarray of float32, shape (count, dim)``.
+
+    Raises
+    ------
+    OSError
+        When a file is missing or does not match the manifest.
+    """
     ix = {}
     for name, f in man["graphs"].items():
         if view:

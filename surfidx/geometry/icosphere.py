@@ -92,6 +92,25 @@ def level_of_count(n: int) -> int | None:
 
 
 def check_level(level, name: str = "level") -> int:
+    """A grid level checked: an integer in ``[0, MAX_LEVEL]``.
+
+    Parameters
+    ----------
+    level : int
+        The level to check.
+    name : str
+        The argument's name in the error message.
+
+    Returns
+    -------
+    int
+        ``level`` as a Python int.
+
+    Raises
+    ------
+    InputError
+        When ``level`` is not an integer, negative or above :data:`MAX_LEVEL`.
+    """
     lev = check_positive_int(level, name, minimum=0)
     if lev > MAX_LEVEL:
         raise InputError(f"{name} must be at most {MAX_LEVEL} (grid of {vertex_count(MAX_LEVEL)} "
@@ -457,6 +476,19 @@ def icosphere(level: int) -> Icosphere:
 
 @functools.lru_cache(maxsize=MAX_LEVEL + 1)
 def level_vertex_areas(level: int) -> np.ndarray:
+    """The spherical area of each vertex of the level-``level`` grid (a third of each incident
+    triangle's), cached and read-only.
+
+    Parameters
+    ----------
+    level : int
+        A checked grid level (see :func:`check_level`).
+
+    Returns
+    -------
+    ndarray of float64, shape (vertex_count(level),)
+        The vertex areas; they sum to 4π.
+    """
     from .mesh import vertex_area_shares     # scipy: not needed to count vertices
 
     ico = icosphere(level)

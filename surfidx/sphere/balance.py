@@ -150,6 +150,19 @@ def _dot(a, b):
 
 
 class Energy:
+    """The energy of a spherical map of triangles ``f`` of the surface ``p`` and its gradient:
+    the symmetric Dirichlet energy, or the untangling energy once :attr:`eps` is set.
+
+    Parameters
+    ----------
+    p : ndarray of float64, shape (n, 3)
+        The surface's points.
+    f : ndarray of int, shape (m, 3)
+        Its triangles.
+    max_cot : float
+        Bound of the cotangent weights.
+    """
+
     def __init__(self, p, f, *, max_cot: float = 4.0):
         self.f = np.ascontiguousarray(f, dtype=np.int64)
         self.cot, self.area3 = _cotangents(p, f, max_cot=max_cot)

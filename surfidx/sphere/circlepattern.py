@@ -364,6 +364,20 @@ def mesh_edges(tri, n):
 
 
 def planar_angles(u, t):
+    """The signed corner angles of planar triangles.
+
+    Parameters
+    ----------
+    u : ndarray of float64, shape (n, 2)
+        Planar points.
+    t : ndarray of int, shape (m, 3)
+        Triangles.
+
+    Returns
+    -------
+    ndarray of float64, shape (m, 3)
+        The angle at each corner (negative in an inverted triangle).
+    """
     out = np.empty(t.shape)
     for k in range(3):
         a, b, c = u[t[:, k]], u[t[:, (k + 1) % 3]], u[t[:, (k + 2) % 3]]

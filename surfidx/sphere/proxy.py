@@ -184,6 +184,23 @@ def _merge_duplicates(v, f):
 
 
 def check_topology(v, f, *, genus0: bool):
+    """Check that a proxy surface is one closed, manifold, consistently oriented piece (of
+    genus 0 with ``genus0``).
+
+    Parameters
+    ----------
+    v : ndarray of float64, shape (n, 3)
+        The surface's vertices.
+    f : ndarray of int, shape (m, 3)
+        Its triangles.
+    genus0 : bool
+        Require genus 0.
+
+    Raises
+    ------
+    TopologyError
+        When the surface is not.
+    """
     topo = TriangleMesh(v, f).topology()
     if not topo.closed or topo.nonmanifold_vertices:
         raise TopologyError(
