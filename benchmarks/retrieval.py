@@ -295,10 +295,10 @@ def study_parts(rec):
     total = float(np.sum(geo.eigenvalues))
     g = geo.forward(x) / np.sqrt(total)
     shares = np.asarray(geo.eigenvalues) / total
-    parts = D._shape_parts(x, level, g)
-    parts["spectral_alt"] = D._log_spectrum(x, level, max_level=ALT_SPECTRAL_LEVEL)
+    parts = D.shape_parts(x, level, g)
+    parts["spectral_alt"] = D.log_spectrum(x, level, max_level=ALT_SPECTRAL_LEVEL)
     return {"parts": parts, "shares": shares,
-            "energies": {G: np.maximum(D._degree_energies(g, level, G), 0.0)
+            "energies": {G: np.maximum(D.degree_energies(g, level, G), 0.0)
                          for G in STUDY_GRIDS}}
 
 
@@ -586,7 +586,7 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
     """Texture invariance (similarity + resampled copies) and discrimination (recoloured) of
     the textured shared models: ``‖Δtexture‖`` over the median distance between differently
     coloured models (every model and recolouring of the table)."""
-    from surfidx.describe.descriptors import _texture_vector, describe_grid, descriptor_distance
+    from surfidx.describe.descriptors import texture_vector, describe_grid, descriptor_distance
 
     models = [n for n in TEXTURED if (MODELS / TEXTURED[n][0]).exists()]
     if not models:
@@ -600,16 +600,16 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
         grids, level, count = grid_of(meshes[n], method, other_texture=None if not others
                                       else meshes[others[0]].texture)
         full[n] = describe_grid(grids[0], level, lmax=lmax).vectors
-        coloured[n] = _texture_vector(grids[0][:, 3:], level, lmax)
+        coloured[n] = texture_vector(grids[0][:, 3:], level, lmax)
         for name, fn in RECOLOURINGS.items():
-            coloured[f"{n} {name}"] = _texture_vector(fn(grids[0][:, 3:]), level, lmax)
+            coloured[f"{n} {name}"] = texture_vector(fn(grids[0][:, 3:]), level, lmax)
         if len(grids) > 1:
-            coloured[f"{n} with {others[0]}'s texture"] = _texture_vector(grids[1][:, 3:],
+            coloured[f"{n} with {others[0]}'s texture"] = texture_vector(grids[1][:, 3:],
                                                                         level, lmax)
         rng = np.random.default_rng(seed)
         for k in range(n_copies):
             cg, clevel, ccount = grid_of(textured_copy(meshes[n], rng), method)
-            copies[(n, k)] = (_texture_vector(cg[0][:, 3:], clevel, lmax), level, clevel,
+            copies[(n, k)] = (texture_vector(cg[0][:, 3:], clevel, lmax), level, clevel,
                               count, ccount, describe_grid(cg[0], clevel, lmax=lmax).vectors)
     keys = list(coloured)
     pair = [float(np.linalg.norm(coloured[a] - coloured[b])) for i, a in enumerate(keys)

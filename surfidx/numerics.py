@@ -44,7 +44,13 @@ _BLAS_THREADS = "1"   # a threaded dot product sums in a thread-count-dependent 
 _LOCK = threading.Lock()   # os.environ is changed around a child process start only
 
 
-def _x86_64() -> bool:
+def is_x86_64() -> bool:
+    """Whether this machine is x86-64 (``platform.machine()``).
+
+    Returns
+    -------
+    bool
+    """
     return platform.machine().lower() in ("x86_64", "amd64")
 
 
@@ -59,7 +65,7 @@ def _numpy_names_levels() -> bool:
     return (major, minor) >= (2, 4)
 
 
-def _cpu_flags() -> frozenset[str] | None:
+def cpu_flags() -> frozenset[str] | None:
     """The CPU's feature flags from ``/proc/cpuinfo`` (Linux), or None where it cannot be read."""
     try:
         with open("/proc/cpuinfo", encoding="ascii", errors="replace") as f:
@@ -81,9 +87,9 @@ def portable_environment() -> dict[str, str]:
         in ``os.environ`` is left out). Reading it changes nothing.
     """
     env = {"OPENBLAS_NUM_THREADS": _BLAS_THREADS}
-    if _x86_64():
+    if is_x86_64():
         env["NPY_DISABLE_CPU_FEATURES"] = " ".join(_AVX512_TARGETS[_numpy_names_levels()])
-        flags = _cpu_flags()
+        flags = cpu_flags()
         if flags is not None and {"avx2", "fma"} <= flags:
             env["OPENBLAS_CORETYPE"] = _BLAS_CORE
     return {k: v for k, v in env.items() if k not in os.environ}
@@ -231,7 +237,7 @@ def numerics_profile() -> str:
         before surfidx on an AVX-512 machine. Streams and descriptors are the same bytes on
         every machine that computes in one profile.
     """
-    if not _x86_64():
+    if not is_x86_64():
         return f"native ({platform.machine() or 'unknown CPU'})"
     import numpy  # noqa: F401  (loads the feature table and numpy's OpenBLAS)
 

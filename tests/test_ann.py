@@ -170,7 +170,7 @@ def test_state_change_without_row_changes_rewrites_only_the_manifest(big):
     with Database(path, readonly=True) as db:
         before = SearchIndex(db, threshold=0).query(query_of(shape, tex, 7, colour=True), k=5)
     man = json.loads((d / "manifest.json").read_text())
-    stamps = {f: (d / f).stat().st_mtime_ns for f in ann._files(man)}
+    stamps = {f: (d / f).stat().st_mtime_ns for f in ann.index_files(man)}
     with Database(path) as db:
         db.descriptors_changed()
         db._index_dirty = False                # the next reader catches up
@@ -181,19 +181,19 @@ def test_state_change_without_row_changes_rewrites_only_the_manifest(big):
         assert now["state"] == db.index_state()
     assert {k: v for k, v in now.items() if k != "state"} == \
         {k: v for k, v in man.items() if k != "state"}
-    assert {f: (d / f).stat().st_mtime_ns for f in ann._files(now)} == stamps
+    assert {f: (d / f).stat().st_mtime_ns for f in ann.index_files(now)} == stamps
     assert sorted(p.name for p in d.iterdir()) == sorted([*stamps, "manifest.json"])
     np.testing.assert_array_equal(before[0], after[0])
     np.testing.assert_array_equal(before[1], after[1])
 
 
 def test_changes_lists_gone_and_changed_models():
-    gone, changed = ann._changes(np.array([1, 2, 3, 5], np.int64),
+    gone, changed = ann.index_changes(np.array([1, 2, 3, 5], np.int64),
                                  np.array([10, 20, 30, 50], np.uint64),
                                  np.array([2, 3, 4, 5], np.int64),
                                  np.array([20, 31, 40, 50], np.uint64))
     assert gone == [1] and changed == [3, 4]
-    gone, changed = ann._changes(np.zeros(0, np.int64), np.zeros(0, np.uint64),
+    gone, changed = ann.index_changes(np.zeros(0, np.int64), np.zeros(0, np.uint64),
                                  np.array([7], np.int64), np.array([1], np.uint64))
     assert gone == [] and changed == [7]
 
@@ -206,7 +206,7 @@ def test_mapped_index_searches_as_the_loaded_one(big):
     with Database(path, readonly=True) as db:
         ann.open_index(db)
         index = ann.open_index(db)
-        loaded, _ = ann._load(ann.index_dir(path), index.manifest, view=False)
+        loaded, _ = ann.load_index(ann.index_dir(path), index.manifest, view=False)
         full = loaded["shape"]
         assert full.nlist == ann.list_count(1500) == 38
         full.nprobe = ann.DEFAULT_PROBES
@@ -228,10 +228,10 @@ def test_index_file_not_matching_its_manifest_is_refused(big):
     d = ann.index_dir(path)
     g = man["graphs"]["shape"]
     with pytest.raises(OSError, match="is not of its manifest's size"):
-        ann._open_graph(d / g["file"], dict(g, bytes=g["bytes"] + 1), view=True)
+        ann.open_graph(d / g["file"], dict(g, bytes=g["bytes"] + 1), view=True)
     with pytest.raises(OSError, match="does not match its manifest"):
-        ann._open_graph(d / g["file"], dict(g, count=g["count"] + 1), view=True)
-    assert ann._open_graph(d / g["file"], g, view=False).ntotal == 1500
+        ann.open_graph(d / g["file"], dict(g, count=g["count"] + 1), view=True)
+    assert ann.open_graph(d / g["file"], g, view=False).ntotal == 1500
 
 
 def test_list_count_follows_the_square_root():
@@ -513,7 +513,7 @@ def test_ann_query_and_kinds_errors(big):
         with pytest.raises(InputError, match="cannot be 'texture'"):
             ann.build(db, kinds=("texture", "shape"))
     with pytest.raises(InputError, match="1100 values are too wide"):
-        ann._digest(np.zeros((2, 1100), np.float32))
+        ann.row_digest(np.zeros((2, 1100), np.float32))
 
 
 # ---------------------------------------------------------------------- at the threshold

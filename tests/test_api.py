@@ -23,8 +23,8 @@ from surfidx import DatabaseError, InputError
 from surfidx.cli import cli
 
 from conftest import REPO, icosphere_mesh
-from test_cli_db import OBJ
-from test_ingest import fake_processor, make_tree
+from helpers import OBJ
+from helpers import fake_processor, make_tree
 
 trimesh = pytest.importorskip("trimesh")
 

@@ -4,16 +4,16 @@ import numpy as np
 import pytest
 
 from surfidx.sphere import MapOptions
-from surfidx.sphere.balance import (_PATCH_PATIENCE, _Energy, _near_inverted, _Patch,
-                                     _untangle_rounds, balance, untangle)
+from surfidx.sphere.balance import (PATCH_PATIENCE, Energy, near_inverted, Patch,
+                                     untangle_rounds, balance, untangle)
 from surfidx.sphere.surface import oriented_faces
 from surfidx.sphere.tutte import tutte_map
 from surfidx.geometry.unitsphere import orientation as _orientation
-from test_parameterize import _limbs
+from helpers import limbs_surfels
 
 
 def _start():
-    s = _limbs()
+    s = limbs_surfels()
     f = oriented_faces(s)
     x, _ = tutte_map(s, options=MapOptions(), iterations=0, gamma=0.15, balance=False)
     return s.positions, f, x
@@ -24,7 +24,7 @@ def _start():
                               "untangling"])
 def test_gradient_matches_finite_differences(eps, lam):
     p, f, x = _start()
-    energy = _Energy(p, f)
+    energy = Energy(p, f)
     energy.eps, energy.lam = eps, lam
     e, g = energy(x)
     rng = np.random.default_rng(0)
@@ -41,7 +41,7 @@ def test_uniform_scaling_energy_is_exact():
     from conftest import icosphere_mesh
 
     v, f = icosphere_mesh(3)
-    energy = _Energy(v, f)
+    energy = Energy(v, f)
     e, _ = energy(v)
     r = energy.radius
     # areas are measured projected on the tangent plane at the centroid: equal to the chord
@@ -69,7 +69,7 @@ def test_preconditioner_solves_the_shifted_cotangent_laplacian():
     """The proxy Hessian annihilates nothing: L z + shift·mean(diag)·z = r for the returned z, and
     on a constant field (L·1 = 0) the solve is exactly the shift's inverse."""
     p, f, _ = _start()
-    energy = _Energy(p, f)
+    energy = Energy(p, f)
     solve, _ = energy.preconditioner(shift=1e-3)
     ones = np.ones(3 * len(p))
     z = solve(ones).reshape(-1, 3)
@@ -92,7 +92,7 @@ def test_preconditioning_lowers_energy_faster_on_limbs():
 def test_lbfgs_history_is_the_two_loop_recursion():
     """The ring-buffer history gives the textbook two-loop direction over the last ``memory``
     pairs, oldest dropped first."""
-    from surfidx.sphere.balance import _History
+    from surfidx.sphere.balance import History
 
     rng = np.random.default_rng(3)
     n, memory = 50, 4
@@ -100,7 +100,7 @@ def test_lbfgs_history_is_the_two_loop_recursion():
     for _ in range(7):
         s = rng.normal(size=n)
         pairs.append((s, 2.0 * s + 0.1 * rng.normal(size=n)))   # positive curvature
-    hist = _History(memory, n)
+    hist = History(memory, n)
     for s, y in pairs:
         hist.push(s, y)
     scale = rng.uniform(1, 2, size=n)
@@ -126,7 +126,7 @@ def test_conformal_area_energy_of_uniform_scaling_is_exact():
     from conftest import icosphere_mesh
 
     v, f = icosphere_mesh(3)
-    energy = _Energy(v, f)
+    energy = Energy(v, f)
     energy.eps, energy.lam = 0.0, 0.5
     e, _ = energy(v)
     r2 = energy.radius ** 2
@@ -179,16 +179,16 @@ def test_a_patch_still_inverted_after_its_patience_stops_there():
     the patience that :func:`untangle` gives a patch, it stops after that many."""
     p, f, x = _start()
     bad = _half_turn(x)
-    energy = _Energy(p, f)
+    energy = Energy(p, f)
     energy.lam = 0.5
-    free = _near_inverted(energy, bad, rings=1)
-    options = dict(rounds=2 * _PATCH_PATIENCE, inner=30, memory=8, precondition=True,
+    free = near_inverted(energy, bad, rings=1)
+    options = dict(rounds=2 * PATCH_PATIENCE, inner=30, memory=8, precondition=True,
                    shift=1e-3, eps_max=0.1)
-    _, done = _untangle_rounds(_Patch(energy, bad, free), bad[free], **options)
-    assert done == -2 * _PATCH_PATIENCE
-    _, done = _untangle_rounds(_Patch(energy, bad, free), bad[free], patience=_PATCH_PATIENCE,
+    _, done = untangle_rounds(Patch(energy, bad, free), bad[free], **options)
+    assert done == -2 * PATCH_PATIENCE
+    _, done = untangle_rounds(Patch(energy, bad, free), bad[free], patience=PATCH_PATIENCE,
                                **options)
-    assert done == -_PATCH_PATIENCE
+    assert done == -PATCH_PATIENCE
 
 
 def test_untangle_returns_a_fold_free_map_unchanged():
@@ -225,7 +225,7 @@ def test_untangle_never_returns_more_inverted_triangles_than_it_was_given(monkey
 
     def spy(x, p, f, **kw):
         y, info = untangle(x, p, f, **kw)
-        calls.append((int(np.count_nonzero(_Energy(p, f).dets(x) <= 0)), info["inverted"]))
+        calls.append((int(np.count_nonzero(Energy(p, f).dets(x) <= 0)), info["inverted"]))
         return y, info
 
     monkeypatch.setattr(tutte_module, "untangle", spy)

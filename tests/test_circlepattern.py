@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from surfidx.sphere.circlepattern import (_MIN_CORNER, _MIN_SPACING_RATIO, _NEWTON_STEPS,
-                                           _against,
-                                           _coherent_angles, _edges, _layout, _moebius_fit,
-                                           _planar_angles, _radii,
-                                           _spacing, anneal_flips, flip_folds, lower_folds,
+from surfidx.sphere.circlepattern import (MIN_CORNER, MIN_SPACING_RATIO, NEWTON_STEPS,
+                                           against,
+                                           coherent_angles, mesh_edges, layout, moebius_fit,
+                                           planar_angles, log_radii,
+                                           point_spacing, anneal_flips, flip_folds, lower_folds,
                                            realise)
 from surfidx.sphere import MapOptions
 from surfidx.geometry.unitsphere import against_normals as _folded, hull_triangles
@@ -55,11 +55,11 @@ def test_the_layout_keeps_its_angles_over_five_orders_of_scale():
     e1, e2 = u[t[:, 1]] - u[t[:, 0]], u[t[:, 2]] - u[t[:, 0]]
     cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
     t[cw] = t[cw][:, ::-1]
-    ang = _planar_angles(u, t)
+    ang = planar_angles(u, t)
     rho = np.log(np.linalg.norm(u[t[:, 1]] - u[t[:, 0]], axis=1) / (2 * np.sin(ang[:, 2])))
     assert np.ptp(rho) > 12 and ang.min() < 1e-3
-    z = _layout(t, ang, rho - rho[0], len(u) + 1, len(u))      # the last point: the pole
-    laid = _planar_angles(np.column_stack([z.real, z.imag]), t)
+    z = layout(t, ang, rho - rho[0], len(u) + 1, len(u))      # the last point: the pole
+    laid = planar_angles(np.column_stack([z.real, z.imag]), t)
     assert np.abs(laid - ang).max() < 1e-6
 
 
@@ -106,7 +106,7 @@ def test_a_flip_that_turns_a_triangle_over_is_realised_as_delaunay(points):
 
 
 def test_coherent_angles_meet_every_constraint_or_none(points):
-    """The corner angles given to Newton's method: at least _MIN_CORNER, π in every triangle,
+    """The corner angles given to Newton's method: at least MIN_CORNER, π in every triangle,
     2π around inner vertices, the boundary sums kept, at most the cap at every edge; None when
     the caps leave no room (they would force the triangles' angles below π)."""
     tri = hull_triangles(points)
@@ -114,22 +114,22 @@ def test_coherent_angles_meet_every_constraint_or_none(points):
     pole = 0
     inner = ~np.any(tri == pole, axis=1)
     t = tri[inner]
-    edges, opposite = _edges(tri, n)
+    edges, opposite = mesh_edges(tri, n)
     rng = np.random.default_rng(3)
     alpha = rng.uniform(-0.5, 2.0, t.shape)     # far from any angle system, some turned over
     ring = np.unique(tri[~inner])
     ring = ring[ring != pole]
     sums = np.full(len(ring), (len(ring) - 2) * np.pi / len(ring))   # a convex ring: 2π turning
     cap = np.full(len(edges), np.pi - 0.05)
-    a = _coherent_angles(alpha, t, n, ring, sums, opposite[inner], cap)
-    assert a is not None and a.min() >= _MIN_CORNER
+    a = coherent_angles(alpha, t, n, ring, sums, opposite[inner], cap)
+    assert a is not None and a.min() >= MIN_CORNER
     assert np.allclose(a.sum(axis=1), np.pi, atol=1e-9)
     vsum = np.bincount(t.ravel(), a.ravel(), minlength=n)
     inside = np.setdiff1d(np.arange(1, n), ring)
     assert np.allclose(vsum[inside], 2 * np.pi, atol=1e-9)
     assert np.allclose(vsum[ring], sums, atol=1e-9)
     assert (np.bincount(opposite[inner].ravel(), a.ravel(), minlength=len(edges)) <= cap).all()
-    assert _coherent_angles(alpha, t, n, ring, sums, opposite[inner], np.full(len(edges), 1.0)) \
+    assert coherent_angles(alpha, t, n, ring, sums, opposite[inner], np.full(len(edges), 1.0)) \
         is None
 
 
@@ -140,9 +140,9 @@ def test_moebius_fit_recovers_a_moebius_map():
     z = rng.standard_normal(200) + 1j * rng.standard_normal(200)
     a, b, c = 1.3 - 0.4j, 0.2 + 0.7j, 0.15 - 0.1j
     target = (a * z + b) / (c * z + 1)
-    out, far = _moebius_fit(z, target, z)
+    out, far = moebius_fit(z, target, z)
     assert np.abs(out - target).max() < 1e-9 and abs(far - a / c) < 1e-9
-    out, far = _moebius_fit(z, 2 * z + 1, z)            # a similarity: infinity stays
+    out, far = moebius_fit(z, 2 * z + 1, z)            # a similarity: infinity stays
     assert np.abs(out - (2 * z + 1)).max() < 1e-9 and abs(far) > 1e9
 
 
@@ -164,7 +164,7 @@ def test_a_single_triangle_is_judged_as_against_normals_judges_it():
     t[: len(t) // 2] = rng.integers(0, 300, (len(t) // 2, 3))
     t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
     rows = p.tolist(), normals.tolist()
-    got = [_against(*rows, tuple(r)) for r in t.tolist()]
+    got = [against(*rows, tuple(r)) for r in t.tolist()]
     assert got == _folded(p, normals, t).tolist()
     assert 0 < sum(got) < len(got)
 
@@ -189,7 +189,7 @@ def test_lower_folds_realises_the_flips(points, ellipsoid):
     assert info["rounds"] >= 1
     assert int(_folded(p, n, hull_triangles(y)).sum()) == info["folds"]
     # no point's neighbours crowd in by more than the bound (the grid must still sample it)
-    assert (_spacing(y) / _spacing(x)).min() >= _MIN_SPACING_RATIO
+    assert (point_spacing(y) / point_spacing(x)).min() >= MIN_SPACING_RATIO
     # a fold-free map is returned as it is
     z, info = lower_folds(points, p, n)
     assert info == {"folds_before": 0, "folds": 0, "rounds": 0, "refused": 0,
@@ -339,20 +339,20 @@ def _two_triangles(b0, b1, ts):
 
 def test_radii_solve_a_coherent_system():
     # coherent: (b0 - π) + (b1 - π) = -ts, so both angle sums can be π
-    rho, ok = _radii(*_two_triangles(1.6, 2 * np.pi - 3.1 - 1.6, 3.1))
+    rho, ok = log_radii(*_two_triangles(1.6, 2 * np.pi - 3.1 - 1.6, 3.1))
     assert ok and np.isfinite(rho).all()
 
 
 def test_radii_stop_when_the_line_search_finds_no_descent():
     # incoherent by 0.08 rad: Newton's method stalls (no accepted point on the lines of fresh
-    # steps); without the stop it ran all _NEWTON_STEPS, each evaluating the residual (two
+    # steps); without the stop it ran all NEWTON_STEPS, each evaluating the residual (two
     # half-angle calls) at least once
     from unittest import mock
 
     import surfidx.sphere.circlepattern as cp
 
-    with mock.patch.object(cp, "_half_angle", wraps=cp._half_angle) as half:
-        rho, ok = cp._radii(*_two_triangles(1.5, 1.6, 3.1))
+    with mock.patch.object(cp, "half_angle", wraps=cp.half_angle) as half:
+        rho, ok = cp.log_radii(*_two_triangles(1.5, 1.6, 3.1))
     assert not ok
-    assert half.call_count < 2 * _NEWTON_STEPS
+    assert half.call_count < 2 * NEWTON_STEPS
 

@@ -85,16 +85,16 @@ def test_repeated_corners_no_longer_hang(tmp_path):
 
 
 def test_texture_bomb_and_outside_textures(tmp_path):
-    from test_io import _bomb_png, _png
+    from helpers import write_bomb_png, write_png
 
-    _bomb_png(tmp_path / "bomb.png")
+    write_bomb_png(tmp_path / "bomb.png")
     p = _icosphere_obj(tmp_path, "b.obj", mtl="bomb.png")
     for args in (["info", str(p)], ["convert", str(p), "-o", str(tmp_path / "o.ply")],
                  ["encode", str(p), "-o", str(tmp_path / "o.sfz"), "--bits-per-surfel", "4"]):
         _one_line_error(CliRunner().invoke(cli, args), "bomb.png: texture image exceeds the limit")
     inner = tmp_path / "inner"
     inner.mkdir()
-    _png(tmp_path / "secret.png")
+    write_png(tmp_path / "secret.png")
     p = _icosphere_obj(inner, "s.obj", mtl="../secret.png")
     r = CliRunner().invoke(cli, ["info", str(p), "--json"])
     assert r.exit_code == 0 and "lies outside the model's folder; skipped" in r.stderr
@@ -114,10 +114,10 @@ def test_collinear_points_and_off_variants(tmp_path):
                     + "".join(f"{0.1 * i} {0.2 * i} {0.3 * i}\n" for i in range(50)))
     for args in (["info", str(line)], ["convert", str(line), "-o", str(tmp_path / "o.ply")]):
         _one_line_error(CliRunner().invoke(cli, args), "line.ply: the 50 points are collinear")
-    from test_io import _off_sphere
+    from helpers import off_sphere
 
     off = tmp_path / "s.off"
-    off.write_text(_off_sphere("OFF {nv} {nf} 0"))
+    off.write_text(off_sphere("OFF {nv} {nf} 0"))
     r = CliRunner().invoke(cli, ["info", str(off), "--json"])
     assert r.exit_code == 0 and json.loads(r.output)["genus"] == 0
     off.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n1000000 0 1 2\n")

@@ -10,30 +10,12 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from surfidx import SurfelSet, read_surfels
+from surfidx import read_surfels
 from surfidx.cli import cli
 from surfidx.cli.db import parse_model_ref
 from surfidx.db import Database
 
-from test_ingest import fake_processor, make_tree
-
-DECODED = []
-
-
-def fake_decode(stream: bytes, *, bits_per_surfel=None, **level) -> SurfelSet:
-    """A stand-in for surfidx.codec.decode: a surfel set built from the stream's bytes; a lower
-    rate keeps a prefix (one surfel per 4 bytes, at least 3), a ``level`` the first level + 3."""
-    DECODED.append((len(stream), bits_per_surfel, *level.values()))
-    data = np.frombuffer(stream, np.uint8).astype(np.float64)
-    n = len(data) // 4 if bits_per_surfel is None else max(3, int(bits_per_surfel))
-    n = min(n, len(data) // 4, level.get("level", n) + 3)
-    pos = data[: 3 * n].reshape(n, 3)
-    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
-    return SurfelSet(pos, normals, np.full(n, 0.5), name="decoded")
-
-
-OBJ = {"processor": fake_processor, "decoder": fake_decode}
-
+from helpers import DECODED, OBJ, fake_processor, make_tree
 
 def invoke(args, obj=OBJ):
     """Run the CLI; an ``ingest`` without ``--workers`` gets ``--workers 1`` (ids in file
@@ -283,20 +265,20 @@ def test_ids_of_64_bits_and_more(filled, tmp_path, big):
 
 
 def test_damaged_database_is_one_line(filled, tmp_path):
-    from test_database import _damage
+    from helpers import damage_database
 
     _, db = filled
-    _damage(db)
+    damage_database(db)
     for args in (["show", "1"], ["query", "id:1"], ["get", "1", "-o", tmp_path / "x.ply"],
                  ["ls"], ["redescribe"]):
         _one_error_line(invoke(args + ["--db", db]), "the database file is damaged")
 
 
 def test_foreign_file_with_meta_and_models_is_one_line_and_untouched(tmp_path):
-    from test_database import _foreign
+    from helpers import foreign_database
 
     path = tmp_path / "app.db"
-    _foreign(path, user_version=1)
+    foreign_database(path, user_version=1)
     before = _digest(path)
     root = make_tree(tmp_path / "data", 1)
     for args in READ_COMMANDS + [["ingest", root, "--no-progress"], ["redescribe"]]:
@@ -343,8 +325,8 @@ def test_read_only_database_ingest_is_one_line(filled, tmp_path, monkeypatch):
     root, db = filled
     (root / "new.ply").write_text("model new")
     before = _digest(db)
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda p, mode, t: real_connect(p, "ro", t))
     r = invoke(["ingest", root, "--db", db, "--no-progress"])
     _one_error_line(r, "cannot write: the database is read-only (attempt to write a readonly "
                        "database)")
@@ -358,7 +340,7 @@ def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, mon
     root.mkdir()
     for i in range(12):
         (root / f"m{i:02d}.ply").write_text(f"model {i}")
-    real_connect = dbmod._connect
+    real_connect = dbmod.connect
 
     def small(p, mode, t):
         conn = real_connect(p, mode, t)
@@ -371,7 +353,7 @@ def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, mon
         return m
 
     db = tmp_path / "full.db"
-    monkeypatch.setattr(dbmod, "_connect", small)
+    monkeypatch.setattr(dbmod, "connect", small)
     import ingest
 
     with pytest.raises(dbmod.DatabaseError, match="the disk is full"):
@@ -389,13 +371,13 @@ def test_full_disk_ingest_is_one_line_and_the_database_stays_whole(tmp_path, mon
 
 
 def _weird_tree(root):
-    from test_ingest import _bytes_name
+    from helpers import bytes_name
 
     root.mkdir()
-    _bytes_name(root, b"red\x1b[31mX.ply", b"model red")
-    _bytes_name(root, b"two\nlines.ply", b"model two lines")
-    _bytes_name(root, b"caf\xe9.ply", b"model cafe")
-    _bytes_name(root, b"evil\x1b[2J.obj", b"FAIL")
+    bytes_name(root, b"red\x1b[31mX.ply", b"model red")
+    bytes_name(root, b"two\nlines.ply", b"model two lines")
+    bytes_name(root, b"caf\xe9.ply", b"model cafe")
+    bytes_name(root, b"evil\x1b[2J.obj", b"FAIL")
     return root
 
 

@@ -274,7 +274,7 @@ def test_one_plane_bound_for_anchors_and_zerotree():
     """The container's anchors and the zerotree's planes share one bound."""
     from surfidx.codec import container, zerotree
 
-    assert zerotree._MAX_PLANE is container.MAX_PLANE
+    assert zerotree.MAX_PLANE is container.MAX_PLANE
     assert container.min_file_bytes(9) == -(-(10 * 4 ** 9 + 2) // container.GRID_PER_BYTE)
 
 

@@ -23,18 +23,12 @@ from surfidx.db.catalog import SCHEMA_VERSION, schema_sql
 from surfidx.pipeline import ProcessedModel
 from surfidx.db.search import SearchIndex, search, weighted_l2
 
+from helpers import damage_database, foreign_database, tiny_png
+
 REPO = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------- test doubles
-def tiny_png(seed: int = 0, size: int = 8) -> bytes:
-    """A small solid-colour PNG made with Pillow."""
-    from PIL import Image
-
-    rgb = tuple(int(c) for c in np.random.default_rng(seed).integers(0, 256, 3))
-    buf = io.BytesIO()
-    Image.new("RGB", (size, size), rgb).save(buf, format="PNG")
-    return buf.getvalue()
 
 
 def make_model(seed: int = 0, *, name=None, color: bool = True, shape_dim: int = 16,
@@ -130,7 +124,7 @@ def test_built_package_finds_schema(tmp_path):
 
 def test_new_database_layout(db):
     assert db.schema_version == SCHEMA_VERSION
-    assert set(db.db.table_names()) == set(dbmod._TABLES) | {"tags", "model_topology"}
+    assert set(db.db.table_names()) == set(dbmod.TABLES) | {"tags", "model_topology"}
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
     meta = dict(db.conn.execute("SELECT key, value FROM meta"))
@@ -143,7 +137,7 @@ def test_new_database_layout(db):
                                                 "ingest_errors") for fk in db.db[t].foreign_keys}
     assert fks == {("assets", "models"), ("descriptors", "models"), ("thumbnails", "models"),
                    ("ingest_errors", "ingest_runs")}
-    assert len(dbmod._MIGRATIONS) == SCHEMA_VERSION - 1
+    assert len(dbmod.MIGRATIONS) == SCHEMA_VERSION - 1
 
 
 def test_reopen_keeps_data(tmp_path):
@@ -434,7 +428,7 @@ def test_migration_from_older_version(tmp_path, monkeypatch):
         conn.execute("ALTER TABLE models ADD COLUMN license TEXT NOT NULL DEFAULT 'unknown'")
 
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [to_v2])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [to_v2])
     with Database(path) as d:
         assert d.schema_version == 2
         assert d.conn.execute("SELECT name, license FROM models").fetchall() == [("old", "unknown")]
@@ -452,7 +446,7 @@ def test_failing_migration_leaves_file_unchanged(tmp_path, monkeypatch):
         conn.execute("SELECT * FROM no_such_table")
 
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [half])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [half])
     with pytest.raises(DatabaseError,
                        match=r"upgrading the schema to version 2 failed .*unchanged"):
         Database(path)
@@ -579,16 +573,6 @@ def _digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def _foreign(path, *, user_version=0, application_id=0, tables=("meta", "models")):
-    conn = sqlite3.connect(path)
-    for t in tables:
-        conn.execute(f"CREATE TABLE {t} (key TEXT, value TEXT)")
-    conn.execute(f"PRAGMA user_version = {user_version}")
-    conn.execute(f"PRAGMA application_id = {application_id}")
-    conn.commit()
-    conn.close()
-
-
 def test_new_database_carries_the_application_id(db):
     assert db.conn.execute("PRAGMA application_id").fetchone()[0] == dbmod.APPLICATION_ID
     assert dbmod.APPLICATION_ID.to_bytes(4, "big") == b"SFDX"
@@ -596,7 +580,7 @@ def test_new_database_carries_the_application_id(db):
 
 def test_foreign_file_with_surfidx_table_names_is_refused_untouched(tmp_path):
     path = tmp_path / "other.db"
-    _foreign(path, user_version=1)                      # user_version 1, tables meta and models
+    foreign_database(path, user_version=1)                      # user_version 1, tables meta and models
     before = _digest(path)
     for kwargs in ({}, {"readonly": True}, {"create": False}):
         with pytest.raises(DatabaseError, match=r"other\.db: not a surfidx database \(it holds "
@@ -610,14 +594,14 @@ def test_foreign_file_with_surfidx_table_names_is_refused_untouched(tmp_path):
 
 def test_other_application_id_and_marker_without_schema(tmp_path):
     path = tmp_path / "app.db"
-    _foreign(path, application_id=0x12345678, tables=("things",))
+    foreign_database(path, application_id=0x12345678, tables=("things",))
     before = _digest(path)
     with pytest.raises(DatabaseError, match=r"application_id 0x12345678 is another "
                                             r"application's"):
         Database(path)
     assert _digest(path) == before
     path = tmp_path / "marked.db"
-    _foreign(path, application_id=dbmod.APPLICATION_ID, tables=())
+    foreign_database(path, application_id=dbmod.APPLICATION_ID, tables=())
     with pytest.raises(DatabaseError, match=r"carries surfidx's application id but no schema"):
         Database(path)
 
@@ -682,19 +666,10 @@ def test_readonly_open_of_an_older_schema(tmp_path, monkeypatch):
     path = tmp_path / "v1.db"
     _v1_database(path)
     monkeypatch.setattr(dbmod, "SCHEMA_VERSION", 2)
-    monkeypatch.setattr(dbmod, "_MIGRATIONS", [lambda conn: None])
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [lambda conn: None])
     with pytest.raises(DatabaseError, match=r"schema version 1 is older than this surfidx's "
                                             r"\(2\) and a read-only open cannot upgrade it"):
         Database(path, readonly=True)
-
-
-def _damage(path):
-    """Overwrite every page but the first (the header and the table list) with garbage."""
-    size = path.stat().st_size
-    rng = np.random.default_rng(7)
-    with open(path, "r+b") as fh:
-        fh.seek(4096)
-        fh.write(rng.integers(0, 256, size - 4096, dtype=np.uint8).tobytes())
 
 
 def test_damaged_file_is_one_database_error(tmp_path):
@@ -702,7 +677,7 @@ def test_damaged_file_is_one_database_error(tmp_path):
     with Database(path) as d:
         for i in range(8):
             d.add(make_model(i))
-    _damage(path)
+    damage_database(path)
     with pytest.raises(DatabaseError, match=r"bad\.db: the database file is damaged \(database "
                                             r"disk image is malformed\); restore it"):
         with Database(path, readonly=True) as d:
@@ -742,8 +717,8 @@ class _FakeConn:
 def test_every_sqlite_error_is_a_database_error(tmp_path, monkeypatch, error, message):
     path = tmp_path / "f.db"
     Database(path).close()
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda *a: _FakeConn(real_connect(*a), error))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda *a: _FakeConn(real_connect(*a), error))
     monkeypatch.setattr(_FakeConn, "armed", False)
     with Database(path) as d:
         _FakeConn.armed = True
@@ -760,8 +735,8 @@ def test_read_only_file_real_error(tmp_path, monkeypatch):
     path = tmp_path / "ro.db"
     Database(path).close()
     before = _digest(path)
-    real_connect = dbmod._connect
-    monkeypatch.setattr(dbmod, "_connect", lambda p, mode, t: real_connect(p, "ro", t))
+    real_connect = dbmod.connect
+    monkeypatch.setattr(dbmod, "connect", lambda p, mode, t: real_connect(p, "ro", t))
     with Database(path) as d:
         with pytest.raises(DatabaseError, match=r"ro\.db: cannot write: the database is read-only "
                                                 r"\(attempt to write a readonly database\)"):
@@ -773,14 +748,14 @@ def test_full_disk_real_error_rolls_back(tmp_path, monkeypatch):
     """SQLite's own SQLITE_FULL (max_page_count reached): the model is not stored, earlier
     ones stay whole, the file passes the integrity check."""
     path = tmp_path / "full.db"
-    real_connect = dbmod._connect
+    real_connect = dbmod.connect
 
     def small(p, mode, t):
         conn = real_connect(p, mode, t)
         conn.execute("PRAGMA max_page_count = 40")
         return conn
 
-    monkeypatch.setattr(dbmod, "_connect", small)
+    monkeypatch.setattr(dbmod, "connect", small)
     stored = 0
     with Database(path) as d:
         with pytest.raises(DatabaseError, match=r"full\.db: the disk is full \(database or disk "
@@ -871,7 +846,7 @@ def _real_v1_database(path):
     is not unique), holding two models of one name and rows a delete without foreign keys
     left behind."""
     conn = sqlite3.connect(path)
-    for stmt in dbmod._statements(schema_sql()):
+    for stmt in dbmod.split_statements(schema_sql()):
         code = "\n".join(ln for ln in stmt.splitlines() if not ln.strip().startswith("--"))
         if __import__("re").search(r"\b(tags|TRIGGER|VIEW|model_topology)\b", code):
             continue

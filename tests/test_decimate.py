@@ -122,7 +122,7 @@ def test_shortest_first_is_the_stable_order_of_rounded_lengths(far):
     """The edges go shortest first by squared length rounded to 9 decimals relative to the mean,
     ties in edge order: exactly a stable argsort of those rounded values, whether the integer
     keys fit 63 bits or (100k edges, one a million times longer) the argsort itself runs."""
-    from surfidx.sphere.decimate import _shortest_first
+    from surfidx.sphere.decimate import shortest_first
 
     rng = np.random.default_rng(3)
     p = np.round(rng.random((300, 3)), 2)            # a coarse lattice: many equal lengths
@@ -134,4 +134,4 @@ def test_shortest_first_is_the_stable_order_of_rounded_lengths(far):
     assert len(np.unique(rounded)) < len(e)                                  # ties exist
     fits = rounded.max() * 1e9 < 2.0 ** (62 - int(len(e) - 1).bit_length())
     assert fits == (far == 1.0)
-    assert np.array_equal(_shortest_first(p, e), np.argsort(rounded, kind="stable"))
+    assert np.array_equal(shortest_first(p, e), np.argsort(rounded, kind="stable"))

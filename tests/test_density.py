@@ -107,7 +107,7 @@ def test_errors():
 
 
 def test_impossible_and_out_of_range_fields_are_refused():
-    from surfidx.codec.density import _N_CTX, _encode_residuals
+    from surfidx.codec.density import N_CONTEXTS, encode_residuals
     from surfidx.codec.entropy import new_encoder, new_models
 
     with pytest.raises(BitstreamError, match="impossible code"):
@@ -115,6 +115,6 @@ def test_impossible_and_out_of_range_fields_are_refused():
     # residuals that leave the stored range: 15 on every level-0 vertex (the coder allows it)
     r = np.full(12, 15, np.int64)
     buf = np.zeros(256, np.uint8)
-    size = _encode_residuals(r, np.zeros(12, np.int64), buf, new_encoder(), new_models(_N_CTX))
+    size = encode_residuals(r, np.zeros(12, np.int64), buf, new_encoder(), new_models(N_CONTEXTS))
     with pytest.raises(BitstreamError, match="values out of range"):
         unpack_field(b"\x00" + bytes(buf[:size]))

@@ -103,19 +103,19 @@ def test_bad_input():
 
 def test_spectral_part_is_the_sphere_laplacian_spectrum():
     """On the unit sphere the Laplace–Beltrami eigenvalues are l(l+1), multiplicity 2l+1."""
-    from surfidx.describe.descriptors import SPECTRAL_K, _log_spectrum
+    from surfidx.describe.descriptors import SPECTRAL_K, log_spectrum
 
     exact = np.concatenate([np.full(2 * l + 1, l * (l + 1.0)) for l in range(1, 7)])[:SPECTRAL_K]
     want = np.log(exact / np.arange(1, SPECTRAL_K + 1))
     for level in (3, 5):   # the dense and the shift-invert solver
-        got = _log_spectrum(icosphere(level).vertices, level)
+        got = log_spectrum(icosphere(level).vertices, level)
         assert np.max(np.abs(got - want)) < (0.02 if level == 5 else 0.06)
 
 
 def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
     """Bending a surface without stretching keeps its spectrum; a map squeezing grid points onto
     each other (zero-area triangles) still gives a finite descriptor."""
-    from surfidx.describe.descriptors import _log_spectrum
+    from surfidx.describe.descriptors import log_spectrum
 
     v = icosphere(4).vertices
     flat = v * [1.0, 1.0, 0.05]            # a thin disc, then bent around the x axis
@@ -123,12 +123,12 @@ def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
     bent = np.c_[flat[:, 0], r * np.sin(flat[:, 1] / r), r * (1 - np.cos(flat[:, 1] / r))]
     bent = bent + np.c_[np.zeros((len(v), 1)), -flat[:, [2]] * np.sin(flat[:, 1] / r)[:, None],
                         flat[:, [2]] * np.cos(flat[:, 1] / r)[:, None]]
-    a, b = _log_spectrum(flat, 4), _log_spectrum(bent, 4)
-    other = _log_spectrum(v * [1.0, 2.0, 0.05], 4)
+    a, b = log_spectrum(flat, 4), log_spectrum(bent, 4)
+    other = log_spectrum(v * [1.0, 2.0, 0.05], 4)
     assert np.linalg.norm(a - b) < 0.2 * np.linalg.norm(a - other)
     squeezed = v.copy()
     squeezed[squeezed[:, 2] > 0.9] = [0.0, 0.0, 1.0]
-    assert np.all(np.isfinite(_log_spectrum(squeezed, 4)))
+    assert np.all(np.isfinite(log_spectrum(squeezed, 4)))
     assert np.all(np.isfinite(describe_grid(squeezed, 4).vectors["shape"]))
 
 
@@ -165,7 +165,7 @@ def test_cotangent_laplacian_identities():
 
 def test_shape_vector_is_the_weighted_parts():
     """``shape`` is the parts side by side, each times its scale, the layers part last: the
-    per-degree energies of the geometric KLT layers (:func:`_layers_part`)."""
+    per-degree energies of the geometric KLT layers (:func:`layers_part`)."""
     from surfidx.describe import descriptors as D
     from surfidx.codec.klt import KLT
 
@@ -174,10 +174,10 @@ def test_shape_vector_is_the_weighted_parts():
     geo = KLT.fit(x, sample_weights=icosphere(5).vertex_areas())
     total = float(np.sum(geo.eigenvalues))
     g = geo.forward(x) / np.sqrt(total)
-    parts = D._shape_parts(x, 5, g)
+    parts = D.shape_parts(x, 5, g)
     assert tuple(parts) == D.SHAPE_PARTS
     assert parts["layers"].size == 3 * (D.LAYERS_LMAX + 1)
-    np.testing.assert_allclose(parts["layers"], D._layers_part(g, 5))
+    np.testing.assert_allclose(parts["layers"], D.layers_part(g, 5))
     want = np.concatenate([s * parts[k] for k, s in zip(D.SHAPE_PARTS, D.SHAPE_PART_SCALES)])
     got = describe_grid(x, 5).vectors["shape"]
     np.testing.assert_allclose(got, want.astype(np.float32), rtol=1e-5, atol=1e-6)
@@ -187,12 +187,12 @@ def test_shape_vector_is_the_weighted_parts():
 def test_degree_energies_on_a_finer_grid():
     """A degree-2 function: its energy sits at degree 2, the same on the DH grid of its lmax and
     on a finer one."""
-    from surfidx.describe.descriptors import _degree_energies
+    from surfidx.describe.descriptors import degree_energies
 
     v = icosphere(5).vertices
     f = (v[:, 0] * v[:, 1])[:, None]           # a degree-2 harmonic
-    a = _degree_energies(f, 5, 8)[0]
-    b = _degree_energies(f, 5, 8, grid_lmax=32)[0]
+    a = degree_energies(f, 5, 8)[0]
+    b = degree_energies(f, 5, 8, grid_lmax=32)[0]
     assert a.shape == b.shape == (9,)
     assert a[2] > 100 * (a.sum() - a[2]) and b[2] > 100 * (b.sum() - b[2])
     assert b[2] == pytest.approx(a[2], rel=0.02)
@@ -231,7 +231,7 @@ def test_d2_draws_and_distances_are_numpys():
     """D2's kernels give what ``Generator.choice(p=w)`` and ``np.linalg.norm`` give, bit for
     bit: the inverse-CDF draws (with zero weights, ties at bucket edges and u = 0) and the
     pair distances."""
-    from surfidx.describe.descriptors import _pair_distances, _search_right
+    from surfidx.describe.descriptors import pair_distances, search_right
 
     rng = np.random.default_rng(5)
     w = rng.random(3001) ** 4
@@ -241,10 +241,10 @@ def test_d2_draws_and_distances_are_numpys():
     cdf = np.cumsum(w)
     cdf /= cdf[-1]
     u = np.random.default_rng(9).random(50_000)
-    assert np.array_equal(_search_right(cdf, u), draws)
+    assert np.array_equal(search_right(cdf, u), draws)
     edges = np.r_[0.0, np.arange(1, 1 << 16) / (1 << 16), cdf[:-1], np.nextafter(cdf[:-1], 0)]
     edges = edges[(edges >= 0) & (edges < 1)]
-    assert np.array_equal(_search_right(cdf, edges), np.searchsorted(cdf, edges, side="right"))
+    assert np.array_equal(search_right(cdf, edges), np.searchsorted(cdf, edges, side="right"))
     y = rng.normal(size=(500, 3)) * rng.random((500, 1)) * 1e3
     i, j = rng.integers(0, 500, 20_000), rng.integers(0, 500, 20_000)
-    assert np.array_equal(_pair_distances(y, i, j), np.linalg.norm(y[i] - y[j], axis=1))
+    assert np.array_equal(pair_distances(y, i, j), np.linalg.norm(y[i] - y[j], axis=1))

@@ -38,10 +38,10 @@ def inputs(tmp_path_factory):
     """A limbed mesh (multilevel map: untangling and balancing at every level) and a textured
     point cloud (spot's vertices without faces: proxy mesh, its map, the repair of the surfels'
     own spherical triangulation)."""
-    from test_parameterize import _limbs
+    from helpers import limbs_surfels
 
     folder = tmp_path_factory.mktemp("inputs")
-    surfidx.write_ply(_limbs(4), folder / "limbs.ply")
+    surfidx.write_ply(limbs_surfels(4), folder / "limbs.ply")
     s = surfidx.read_surfels(EXAMPLES / "spot" / "spot_triangulated.obj",
                              texture=EXAMPLES / "spot" / "spot_texture.png")
     cloud = surfidx.SurfelSet(s.positions, s.normals, s.radii, s.colors, name="spot_points")

@@ -118,15 +118,15 @@ def test_folded_mask_ignores_a_global_mirror(sphere_surfels):
 def test_local_delaunay_update_equals_the_global_hull(seed):
     """Moving a few vertices, the locally updated triangulation is the convex hull of the moved
     map, and its folded mask that of the hull (random points: no cocircular ties); the count
-    alone (:meth:`_Hull.folds_if_moved`) agrees."""
-    from surfidx.sphere.foldrepair import _Hull
+    alone (:meth:`Hull.folds_if_moved`) agrees."""
+    from surfidx.sphere.foldrepair import Hull
 
     rng = np.random.default_rng(seed)
     x = rng.normal(size=(2000, 3))
     x /= np.linalg.norm(x, axis=1)[:, None]
     p = x * rng.uniform(0.5, 1.5, size=(2000, 1))          # a bumpy star-shaped surface
     normals = x + 0.5 * rng.normal(size=x.shape)             # some folds
-    state = _Hull(x, p, normals)
+    state = Hull(x, p, normals)
     k = [10, 1, 3][seed % 3]         # many moved vertices (KD-tree tests) or a few (direct tests)
     for _ in range(2):               # from the start, then from the accepted result (new caches)
         moved = np.zeros(len(x), bool)
@@ -151,12 +151,12 @@ def test_local_update_holds_where_circles_are_small(k):
     circle only up to rounding (a few 1e-10 of the radius), so the test of the circles against
     the map's points skips the corners; testing them too refuses the local update, which falls
     back to the global hull."""
-    from surfidx.sphere.foldrepair import _Hull
+    from surfidx.sphere.foldrepair import Hull
 
     rng = np.random.default_rng(k)
     x = np.vstack([rng.normal(size=(500, 3)), [0, 0, 1] + 1e-3 * rng.normal(size=(1500, 3))])
     x /= np.linalg.norm(x, axis=1)[:, None]
-    state = _Hull(x, x, x + 0.3 * rng.normal(size=x.shape))
+    state = Hull(x, x, x + 0.3 * rng.normal(size=x.shape))
     fallbacks = 0
     for _ in range(5):
         moved = np.zeros(len(x), bool)
@@ -174,14 +174,14 @@ def test_local_update_holds_where_circles_are_small(k):
 def test_random_search_removes_folds_deterministically(tube_map):
     """The final random search (run when the move rounds leave few folds) keeps only moves that
     lower the fold count and invert no mesh triangle, and is seeded."""
-    from surfidx.sphere.foldrepair import _Hull, _Mesh, _search
+    from surfidx.sphere.foldrepair import Hull, Mesh, random_search
 
     s, f, x = tube_map
     results = []
     for _ in range(2):
-        state = _Hull(x, s.positions, s.normals)
+        state = Hull(x, s.positions, s.normals)
         before = int(state.bad.sum())
-        y, removed = _search(x, state, _Mesh(f, len(x)), trials=MapOptions().search_trials,
+        y, removed = random_search(x, state, Mesh(f, len(x)), trials=MapOptions().search_trials,
                              work=MapOptions().search_work)
         assert removed >= 1 and _folds(s, y) == before - removed == int(state.bad.sum())
         assert np.all(_orientation(y, f) > 0)
@@ -193,18 +193,18 @@ def test_search_trial_moves_by_its_share_of_the_edge_length(tube_map):
     """A search trial moves the vertex along the tangent part of its random direction by the
     drawn share of its mean mesh-edge length on the sphere, and is refused exactly when one of
     the vertex's mesh triangles would turn over (against the orientation of the whole map)."""
-    from surfidx.sphere.foldrepair import _Mesh, _trial_move
+    from surfidx.sphere.foldrepair import Mesh, trial_move
     from surfidx.geometry.unitsphere import corner_orientation
 
     s, f, x = tube_map
-    mesh = _Mesh(f, len(x))
+    mesh = Mesh(f, len(x))
     adj, vf = mesh.adj, mesh.vf
     rng = np.random.default_rng(5)
     refused = 0
     for _ in range(300):
         v = int(rng.integers(len(x)))
         d, share = rng.standard_normal(3), float(rng.uniform(0.05, 3.0))
-        new = _trial_move(x, v, d, share, adj.indptr, adj.indices, vf.indptr, vf.indices, f)
+        new = trial_move(x, v, d, share, adj.indptr, adj.indices, vf.indptr, vf.indices, f)
         nb = adj.indices[adj.indptr[v]:adj.indptr[v + 1]]
         h = np.mean(np.linalg.norm(x[nb] - x[v], axis=1))
         t = d - (d @ x[v]) * x[v]
@@ -233,12 +233,12 @@ def test_parameterize_reports_the_repair(tube_map):
 def test_blocked_move_is_halved_then_undone(sphere_surfels):
     """A move past a neighbour inverts mesh triangles: it is halved until none is inverted, or
     undone when halving is not allowed."""
-    from surfidx.sphere.foldrepair import _Mesh
+    from surfidx.sphere.foldrepair import Mesh
 
     s = sphere_surfels
     f = _oriented_faces(s)
     x = s.positions
-    mesh = _Mesh(f, len(x))
+    mesh = Mesh(f, len(x))
     v = 0
     u = mesh.adj[v].indices[0]
     for halvings, kept in ((3, True), (0, False)):

@@ -181,12 +181,12 @@ def test_refined_path_on_surface_and_shorter(sphere4):
 
 def _mesh_distance(points, s):
     """Distance of each point to the nearest triangle of ``s.faces`` (barycentric clamp)."""
-    from surfidx.sphere.proxy import _closest_on_triangle
+    from surfidx.sphere.proxy import closest_on_triangle
 
     tri = s.positions[s.faces]
     out = []
     for p in points:
-        q = [np.dot(_closest_on_triangle(p, *t), t) for t in tri]
+        q = [np.dot(closest_on_triangle(p, *t), t) for t in tri]
         out.append(np.min(np.linalg.norm(np.asarray(q) - p, axis=1)))
     return np.asarray(out)
 

@@ -245,13 +245,13 @@ def test_subdivided_half_edges_match_a_sort(level):
     """A subdivided level's twins follow from the coarser level's without a sort: each is the
     reversed half-edge (an involution swapping tail and head), the same the sort finds; the edges
     are the lo -> hi half-edges in lexicographic order, each half-edge numbered by its edge."""
-    from surfidx.geometry.icosphere import _twins_by_sorting
+    from surfidx.geometry.icosphere import twins_by_sorting
 
     ico = icosphere(level)
     he = ico._half_edges
     assert np.array_equal(he.twin[he.twin], np.arange(len(he.twin)))
     assert np.array_equal(he.tail[he.twin], he.head) and np.array_equal(he.head[he.twin], he.tail)
-    assert np.array_equal(he.twin, _twins_by_sorting(he.tail, he.head, ico.n_vertices))
+    assert np.array_equal(he.twin, twins_by_sorting(he.tail, he.head, ico.n_vertices))
     key = he.edges[:, 0] * ico.n_vertices + he.edges[:, 1]
     assert (he.edges[:, 0] < he.edges[:, 1]).all() and (np.diff(key) > 0).all()
     assert np.array_equal(he.edges[he.edge], np.sort(np.column_stack([he.tail, he.head]), axis=1))
@@ -261,11 +261,11 @@ def test_spherical_triangle_areas_of_a_grid_are_blocked_without_changing_a_bit()
     """Over more triangles than one block, ``triangle_areas`` gives each triangle the value of
     the whole-array formula to the bit; a grid's areas are positive and sum to 4π, and its
     vertex areas (a third of each incident triangle's) too."""
-    from surfidx.geometry.unitsphere import _BLOCK, triangle_areas
+    from surfidx.geometry.unitsphere import triangle_areas
 
     ico = icosphere(6)
     pts, tri = ico.vertices, ico.faces
-    assert len(tri) > _BLOCK
+    assert len(tri) > 1 << 16                    # more than one block of triangle_areas
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
     num = np.einsum("ij,ij->i", a, np.cross(b, c))
     den = 1.0 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \

@@ -154,3 +154,128 @@ def test_no_lazy_export_is_shadowed_by_its_submodule():
             source = importlib.import_module(f"{package}.{module}")
             assert getattr(pkg, name) is getattr(source, name), f"{package}.{name}"
         assert set(exports) <= set(pkg.__all__) and set(exports) <= set(dir(pkg))
+
+
+# -- private names stay inside their package ------------------------------------------------------
+
+# a private name (``_x``, not a dunder) of a module is used only by the modules of its own package
+# (``surfidx.codec``, ``surfidx.geometry``, ..., ``surfidx`` for the top-level modules,
+# ``ingest``); the tests are a package of their own and import from ``conftest`` and ``helpers``
+ALLOWED_PRIVATE: set[str] = set()
+
+
+def _private(name):
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _package_of(module, path):
+    """The package that owns the private names of ``module`` (its own name for an ``__init__``)."""
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _owner(dotted, modules):
+    """The package owning the private last part of ``dotted`` (``pkg.mod._x`` -> ``pkg``)."""
+    parent = dotted.rpartition(".")[0]
+    if parent in modules and modules[parent].name == "__init__.py":
+        return parent                            # a name or submodule of a package
+    return parent.rpartition(".")[0]             # a name of a module
+
+
+def _crossings(module, path, package, modules):
+    """``(line, dotted name)`` of each private name of another package that ``module`` uses."""
+    tree = ast.parse(path.read_text(), str(path))
+    bound = {}                                   # local name -> module it stands for
+    found = []
+
+    def check(dotted, line):
+        """Every private part of ``dotted`` (a path through known modules) must be ours."""
+        parts = dotted.split(".")
+        for i in range(1, len(parts)):
+            if _private(parts[i]) and ".".join(parts[:i]) in modules:
+                full = ".".join(parts[:i + 1])
+                if _owner(full, modules) != package and full not in ALLOWED_PRIVATE:
+                    found.append((line, full))
+                if full not in modules:
+                    break
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                check(a.name, node.lineno)
+                if a.asname:
+                    bound[a.asname] = a.name
+                else:
+                    bound[a.name.split(".")[0]] = a.name.split(".")[0]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+                base = base[:len(base) - node.level + 1]
+                base = ".".join(base + ([node.module] if node.module else []))
+            else:
+                base = node.module or ""
+            for a in node.names:
+                check(f"{base}.{a.name}", node.lineno)
+                if f"{base}.{a.name}" in modules:
+                    bound[a.asname or a.name] = f"{base}.{a.name}"
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            chain = []
+            cur = node
+            while isinstance(cur, ast.Attribute):
+                chain.append(cur.attr)
+                cur = cur.value
+            if isinstance(cur, ast.Name) and cur.id in bound and bound[cur.id] in modules:
+                check(".".join([bound[cur.id], *reversed(chain)]), node.lineno)
+    return found
+
+
+def _all_crossings():
+    modules = _modules()
+    out = []
+    for name, path in modules.items():
+        out += [(f"{path.relative_to(REPO)}:{line}", full)
+                for line, full in _crossings(name, path, _package_of(name, path), modules)]
+    for path in sorted((REPO / "tests").glob("*.py")):
+        out += [(f"{path.relative_to(REPO)}:{line}", full)
+                for line, full in _crossings(f"tests.{path.stem}", path, "tests", modules)]
+    return sorted(set(out))
+
+
+def test_the_scan_sees_private_names_across_packages(tmp_path):
+    """``from``-imports, module attributes through aliases and private modules are all seen; the
+    module's own package may use its private names."""
+    modules = _modules()
+    src = tmp_path / "x.py"
+    src.write_text("from surfidx.geometry.icosphere import _a, b\n"
+                   "import surfidx.sphere.balance as bal\n"
+                   "from surfidx.db import catalog\n"
+                   "import ingest._run\n"
+                   "def f():\n"
+                   "    return bal._b, catalog.c, catalog._d, bal.x._y\n")
+    found = {full for _, full in _crossings("surfidx.codec.x", src, "surfidx.codec", modules)}
+    assert found == {"surfidx.geometry.icosphere._a", "surfidx.sphere.balance._b",
+                     "surfidx.db.catalog._d", "ingest._run"}
+    assert _crossings("surfidx.geometry.x", src, "surfidx.geometry", modules) != []
+    mine = {full for _, full in _crossings("surfidx.geometry.x", src, "surfidx.geometry", modules)}
+    assert "surfidx.geometry.icosphere._a" not in mine
+
+
+def test_no_private_name_crosses_a_package_boundary():
+    """No module uses a private name (``_x``) of a module of another package."""
+    crossings = _all_crossings()
+    assert not crossings, "private names used across packages:\n" + "\n".join(
+        f"  {where}: {full}" for where, full in crossings)
+
+
+def test_test_files_share_helpers_only_through_conftest_and_helpers():
+    """A test file imports no other test file: shared helpers live in ``helpers.py``."""
+    tests = {p.stem for p in (REPO / "tests").glob("*.py")} - {"conftest", "helpers"}
+    found = []
+    for path in sorted((REPO / "tests").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [])
+            found += [f"{path.name}:{node.lineno}: {n}" for n in names
+                      if n and n.split(".")[0] in tests]
+    assert not found, "test files importing test files:\n" + "\n".join(found)

@@ -16,70 +16,15 @@ import pytest
 import ingest
 from surfidx import DatabaseError, InputError, SurfidxError
 from surfidx.db import Database
-from surfidx.pipeline import ProcessedModel, content_hash
+from surfidx.pipeline import content_hash
 
-from test_database import tiny_png
+from helpers import (bytes_name, fake_processor, kill_parent_and_watch_workers, make_tree,
+                     process_dead, tiny_png, wait_dead)
 
 TESTS = Path(__file__).resolve().parent
-_PYTEST_PID = os.getpid()
 
 
 # ---------------------------------------------------------------------- processor doubles
-def fake_processor(path, *, bits_per_surfel=8.0, texture=None, samples=None, level=None):
-    """A deterministic stand-in for surfidx.pipeline.process_model, driven by the file's text.
-
-    ``FAIL`` raises InputError, ``BOOM`` RuntimeError, ``CRASH`` kills the worker process,
-    ``INTERRUPT`` raises KeyboardInterrupt, ``SLOW`` sleeps 0.3 s, ``HANG`` 60 s; ``color`` (or
-    a texture) gives colour. Descriptors, stream and thumbnail derive from the content hash.
-    """
-    path = Path(path)
-    data = path.read_bytes()
-    if b"FAIL" in data:
-        raise InputError("deliberately unusable model", path=path)
-    if b"BOOM" in data:
-        raise RuntimeError("kaboom")
-    if b"CRASH" in data:
-        if os.getpid() == _PYTEST_PID:           # never end the test process itself
-            raise RuntimeError("CRASH double called in-process")
-        os._exit(3)
-    if b"INTERRUPT" in data:
-        raise KeyboardInterrupt
-    if b"SLOW" in data:
-        time.sleep(0.3)
-    if b"HANG" in data:
-        time.sleep(60)
-    h = content_hash(path, texture=texture)
-    seed = int(h[:8], 16)
-    rng = np.random.default_rng(seed)
-    color = texture is not None or b"color" in data
-    desc = {"shape": rng.standard_normal(12).astype(np.float32)}
-    if color:
-        desc["texture"] = rng.standard_normal(6).astype(np.float32)
-    stream = rng.integers(0, 256, 64, dtype=np.uint8).tobytes()
-    n = 100 + seed % 1000
-    return ProcessedModel(
-        name=path.stem, source=str(path.resolve()), content_hash=h, n_surfels=n,
-        has_color=color, bbox=np.array([[0.0, 0, 0], [1, 1, 1]]), stream=stream,
-        format_version=1, rate=8.0 * len(stream) / n,
-        quality={"psnr_d1": 50.0, "psnr_d2": 60.0, "psnr_y": 30.0 if color else None},
-        descriptors=desc, thumbnail=tiny_png(seed), params={"bits_per_surfel": bits_per_surfel,
-                                                            "texture": texture},
-        timings={})
-
-
-def make_tree(root: Path, n: int = 6, *, extra: dict | None = None) -> Path:
-    """A folder of ``n`` small model files (.ply/.obj/.off, nested), plus ``extra`` name->text."""
-    root.mkdir(parents=True, exist_ok=True)
-    suffixes = [".ply", ".obj", ".off"]
-    for i in range(n):
-        sub = root / ("sub" if i % 2 else "")
-        sub.mkdir(exist_ok=True)
-        (sub / f"m{i}{suffixes[i % 3]}").write_text(f"model {i}\n" + ("color\n" if i % 2 else ""))
-    (root / "notes.txt").write_text("not a model")
-    (root / ".hidden.ply").write_text("hidden")
-    for name, text in (extra or {}).items():
-        (root / name).write_text(text)
-    return root
 
 
 def count_rows(path):
@@ -253,8 +198,8 @@ def test_keyboard_interrupt_then_resume(tmp_path):
 _KILL_SCRIPT = """
 import sys
 sys.path.insert(0, {tests!r})
-import ingest, test_ingest
-ingest.run([{root!r}], db={db!r}, processor=test_ingest.fake_processor, progress=False,
+import ingest, helpers
+ingest.run([{root!r}], db={db!r}, processor=helpers.fake_processor, progress=False,
            batch=1, workers=1)
 """
 
@@ -444,13 +389,6 @@ def test_processed_surfel_file_records_no_mesh_conversion(tmp_path):
 
 
 # ---------------------------------------------------------------------- whatever a file is (#30)
-def _bytes_name(folder: Path, name: bytes, data: bytes) -> str:
-    """Write ``data`` to the file ``name`` (raw bytes, maybe not UTF-8) in ``folder``; its OS
-    text path (``os.fsdecode``)."""
-    path = os.path.join(os.fsencode(folder), name)
-    with open(path, "wb") as fh:
-        fh.write(data)
-    return os.fsdecode(path)
 
 
 def _run_guarded(fn, seconds=120):
@@ -479,8 +417,8 @@ def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
 
     root = tmp_path / "data"
     root.mkdir()
-    good = _bytes_name(root, b"caf\xe9.ply", b"model cafe")
-    bad = _bytes_name(root, b"bad\xff\\x.ply", b"FAIL")
+    good = bytes_name(root, b"caf\xe9.ply", b"model cafe")
+    bad = bytes_name(root, b"bad\xff\\x.ply", b"FAIL")
     db = tmp_path / "n.db"
     s = ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
     assert (s.stored, s.failed, s.status) == (1, 1, "finished")
@@ -543,70 +481,8 @@ def test_reading_is_bounded_and_never_blocks(tmp_path):
         _run_guarded(lambda: ingest.find_texture(tmp_path / "z.obj"), 60)
 
 
-def _dead(pid: int) -> bool:
-    """The process is gone (or a zombie waiting for its new parent to reap it)."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] == "Z"
-    except FileNotFoundError:
-        return True
-
-
-def _wait_dead(pids, seconds=60.0) -> list:
-    """The pids still alive after waiting up to ``seconds`` for them to end."""
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline and not all(_dead(p) for p in pids):
-        time.sleep(0.1)
-    return [p for p in pids if not _dead(p)]
-
-
-def pid_processor(path, **kw):
-    """``fake_processor`` that first writes its process id to ``<path>.pid`` (whole: written
-    beside it, then renamed, so a reader never sees an empty file)."""
-    tmp = Path(str(path) + ".pid.tmp")
-    tmp.write_text(str(os.getpid()))
-    os.replace(tmp, Path(str(path) + ".pid"))
-    return fake_processor(path, **kw)
-
-
-_ORPHAN_SCRIPT = """
-import sys
-sys.path.insert(0, {tests!r})
-import ingest, test_ingest
-ingest.run([{root!r}], db={db!r}, processor=test_ingest.pid_processor, progress=False,
-           workers=2, **{extra})
-"""
-
-
-def _kill_parent_and_watch_workers(tmp_path, n_pids, extra="{}"):
-    """Run an ingest in a subprocess (one HANG model, one quick one), SIGKILL it once its workers
-    have started the models; returns the worker pids still alive after that."""
-    root = tmp_path / "data"
-    root.mkdir()
-    (root / "a.ply").write_text("model a")               # done at once: that worker idles
-    (root / "b.ply").write_text("model b HANG")          # busy for 60 s
-    script = _ORPHAN_SCRIPT.format(tests=str(TESTS), root=str(root), db=str(tmp_path / "o.db"),
-                                   extra=extra)
-    proc = subprocess.Popen([sys.executable, "-c", script], stderr=subprocess.PIPE)
-    try:
-        deadline = time.monotonic() + 120
-        while len(list(root.glob("*.pid"))) < n_pids and time.monotonic() < deadline:
-            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
-            time.sleep(0.1)
-        pids = sorted({int(p.read_text()) for p in root.glob("*.pid")})
-        assert proc.pid not in pids and len(pids) >= 1
-        os.kill(proc.pid, signal.SIGKILL)                 # only the parent, as the OOM killer
-    finally:
-        proc.wait()
-        proc.stderr.close()
-    alive = _wait_dead(pids)
-    for pid in alive:                                     # never leave orphans behind
-        os.kill(pid, signal.SIGKILL)
-    return alive
-
-
 def test_pool_workers_exit_when_the_parent_is_killed(tmp_path):
-    assert _kill_parent_and_watch_workers(tmp_path, 2) == []
+    assert kill_parent_and_watch_workers(tmp_path, 2) == []
 
 
 def test_exit_with_parent_fallback_thread(tmp_path):
@@ -619,11 +495,11 @@ def test_exit_with_parent_fallback_thread(tmp_path):
     proc = subprocess.Popen([sys.executable, "-c", parent], stdout=subprocess.PIPE)
     try:
         pid = int(proc.stdout.readline())
-        assert not _dead(pid)
+        assert not process_dead(pid)
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait()
-    assert _wait_dead([pid]) == []
+    assert wait_dead([pid]) == []
 
 
 def test_find_texture_reads_the_mtl_as_io_does(tmp_path):

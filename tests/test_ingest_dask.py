@@ -23,7 +23,7 @@ from surfidx import InputError, SurfidxError  # noqa: E402
 from surfidx.db import Database  # noqa: E402
 
 from conftest import EXAMPLES, REPO, icosphere_mesh  # noqa: E402
-from test_ingest import fake_processor, make_tree  # noqa: E402
+from helpers import fake_processor, make_tree  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
 
@@ -267,6 +267,6 @@ def test_executor_with_a_client_is_reused(cluster, tmp_path):
 def test_local_cluster_workers_exit_when_the_parent_is_killed(tmp_path):
     """SIGKILL of the ingest process (the OOM killer) ends the LocalCluster's worker processes:
     dask's own watch of the parent (``distributed.process``), as exit_with_parent in a pool."""
-    from test_ingest import _kill_parent_and_watch_workers
+    from helpers import kill_parent_and_watch_workers
 
-    assert _kill_parent_and_watch_workers(tmp_path, 2, extra="{'scheduler': 'local'}") == []
+    assert kill_parent_and_watch_workers(tmp_path, 2, extra="{'scheduler': 'local'}") == []

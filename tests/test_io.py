@@ -9,6 +9,8 @@ from plyfile import PlyData
 from surfidx import FileFormatError, InputError, SurfelSet, TriangleMesh, read_mesh, read_surfels, write_ply
 from surfidx.geometry.mesh import MAX_EDGE_RATIO, sample_texture
 
+from helpers import off_sphere, write_bomb_png, write_png
+
 
 def test_igea_tristrips_give_outward_surfels(models):
     s = read_surfels(models / "igea.ply")
@@ -419,32 +421,8 @@ def _tex_obj(tmp_path, mtl_line, name="m.obj"):
     return _write(tmp_path, name, text)
 
 
-def _png(path, size=(4, 4), colour=(200, 30, 30)):
-    from PIL import Image
-
-    Image.new("RGB", size, colour).save(path)
-    return path
-
-
-def _bomb_png(path, side=50000):
-    """A valid 1-pixel PNG whose header declares ``side`` × ``side`` pixels."""
-    import io as _io
-    import struct
-    import zlib
-
-    from PIL import Image
-
-    buf = _io.BytesIO()
-    Image.new("RGB", (1, 1)).save(buf, "PNG")
-    d = bytearray(buf.getvalue())
-    d[16:24] = struct.pack(">II", side, side)
-    d[29:33] = struct.pack(">I", zlib.crc32(bytes(d[12:29])))
-    path.write_bytes(bytes(d))
-    return path
-
-
 def test_texture_bomb_is_a_clean_error(tmp_path):
-    _bomb_png(tmp_path / "bomb.png")
+    write_bomb_png(tmp_path / "bomb.png")
     p = _tex_obj(tmp_path, "map_Kd bomb.png")
     with pytest.raises(FileFormatError, match=r"bomb.png: texture image exceeds the limit of "
                        r"134,217,728 pixels \(it declares 2,500,000,000\) \(map_Kd in .*m.obj.mtl,"
@@ -455,7 +433,7 @@ def test_texture_bomb_is_a_clean_error(tmp_path):
 def test_texture_over_the_limit_and_damaged(tmp_path, monkeypatch):
     import surfidx.io.limits as limits
 
-    _png(tmp_path / "t.png", (8, 4))
+    write_png(tmp_path / "t.png", (8, 4))
     p = _tex_obj(tmp_path, "map_Kd t.png")
     assert read_surfels(p).has_color
     monkeypatch.setattr(limits, "MAX_TEXTURE_PIXELS", 31)
@@ -474,7 +452,7 @@ def test_texture_over_the_limit_and_damaged(tmp_path, monkeypatch):
 def test_textures_outside_the_model_folder_need_the_option(tmp_path):
     inner = tmp_path / "model"
     inner.mkdir()
-    _png(tmp_path / "secret.png")
+    write_png(tmp_path / "secret.png")
     for ref in ("../secret.png", str(tmp_path / "secret.png")):
         p = _tex_obj(inner, f"map_Kd {ref}")
         with pytest.warns(UserWarning, match=r"texture .*secret.png \(map_Kd in m.obj.mtl\) lies "
@@ -488,7 +466,7 @@ def test_textures_outside_the_model_folder_need_the_option(tmp_path):
     p = _tex_obj(inner, "map_Kd link.png")
     with pytest.warns(UserWarning, match="outside the model's folder"):
         assert not read_surfels(p).has_color
-    _png(inner / "inside.png")
+    write_png(inner / "inside.png")
     assert read_surfels(_tex_obj(inner, "map_Kd ./inside.png")).has_color
 
 
@@ -527,22 +505,14 @@ def test_fifo_is_not_opened(tmp_path):
         read_surfels(tmp_path / "pipe.obj")
 
 
-def _off_sphere(head, vertex=lambda p: " ".join(map(str, p)), sep="\n"):
-    from conftest import icosphere_mesh
-
-    v, f = icosphere_mesh(3)
-    return (head.format(nv=len(v), nf=len(f)) + sep + "".join(vertex(p) + "\n" for p in v)
-            + "".join(f"3 {a} {b} {c}\n" for a, b, c in f))
-
-
 @pytest.mark.parametrize("text, color", [
-    (_off_sphere("OFF {nv} {nf} 0"), False),                          # counts on the first line
-    (_off_sphere("# made by a tool\nOFF\n# counts\n{nv} {nf} 0  # comment"), False),
-    (_off_sphere("COFF {nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 255 128 0"), True),
-    (_off_sphere("COFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 1 0.5 0 1"), True),
-    (_off_sphere("NOFF\n{nv} {nf} 0", lambda p: (" ".join(map(str, p)) + " ") * 2), False),
-    (_off_sphere("STOFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 0.1 0.2"), False),
-    (_off_sphere("4OFF\n{nv} {nf} 0", lambda p: " ".join(map(str, 2 * p)) + " 2"), False),
+    (off_sphere("OFF {nv} {nf} 0"), False),                          # counts on the first line
+    (off_sphere("# made by a tool\nOFF\n# counts\n{nv} {nf} 0  # comment"), False),
+    (off_sphere("COFF {nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 255 128 0"), True),
+    (off_sphere("COFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 1 0.5 0 1"), True),
+    (off_sphere("NOFF\n{nv} {nf} 0", lambda p: (" ".join(map(str, p)) + " ") * 2), False),
+    (off_sphere("STOFF\n{nv} {nf} 0", lambda p: " ".join(map(str, p)) + " 0.1 0.2"), False),
+    (off_sphere("4OFF\n{nv} {nf} 0", lambda p: " ".join(map(str, 2 * p)) + " 2"), False),
 ])
 def test_off_variants(tmp_path, text, color):
     mesh = read_mesh(_write(tmp_path, "s.off", text))

@@ -243,13 +243,13 @@ def test_a_reference_probes_large_sets_in_blocks_with_the_same_answers():
     or everywhere) gives psnr_d2's numbers to the bit, and ``psnr_d2_at_least`` the comparison's
     answer for floors just around the value, far above it (where the blocks stop early),
     far below it and beyond float range."""
-    from surfidx.geometry.metrics import _PROBE_BLOCK as _BLOCK
+    block = 1 << 17                               # the points of one query block
 
     rng = np.random.default_rng(5)
     ref = sphere_points(2000, rng)
-    n = _BLOCK + 5000
+    n = block + 5000
     dense = sphere_points(n, rng)
-    far_tail = SurfelSet(dense.positions * np.where(np.arange(n) >= _BLOCK, 1.3, 1.0)[:, None],
+    far_tail = SurfelSet(dense.positions * np.where(np.arange(n) >= block, 1.3, 1.0)[:, None],
                          dense.normals, dense.radii)
     for test in (dense, far_tail):
         reference = Reference(ref)

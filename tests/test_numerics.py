@@ -10,10 +10,10 @@ import pytest
 
 import surfidx
 import surfidx.numerics
-from surfidx.numerics import PROFILE, _cpu_flags, _x86_64
+from surfidx.numerics import PROFILE, cpu_flags, is_x86_64
 
 x86_avx2 = pytest.mark.skipif(
-    not _x86_64() or not {"avx2", "fma"} <= (_cpu_flags() or frozenset()),
+    not is_x86_64() or not {"avx2", "fma"} <= (cpu_flags() or frozenset()),
     reason="the portable profile is x86-64-v3 (AVX2 and FMA)")
 
 

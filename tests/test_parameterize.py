@@ -13,17 +13,7 @@ from surfidx.sphere import (METHODS, MapOptions, SphericalMap, area_distortion, 
                             parameterize, sparse_sampling)
 
 from conftest import EXAMPLES, icosphere_mesh, tube_mesh
-
-
-def _limbs(level=3):
-    """A sphere with two long thin limbs pulled out of it (a synthetic shape with limbs)."""
-    v, f = icosphere_mesh(level)
-    v = v.copy()
-    for axis in (0, 1):
-        d = v[:, axis]
-        tip = d > 0.85
-        v[tip, axis] += 4.0 * (d[tip] - 0.85) / 0.15
-    return TriangleMesh(v, f, name="limbs").to_surfels()
+from helpers import limbs_surfels
 
 
 def _rotation(seed=3):
@@ -79,14 +69,14 @@ def test_count_folds_detects_a_fold(sphere_surfels):
 
 
 def test_limbs_no_mesh_folds():
-    s = _limbs()
+    s = limbs_surfels()
     m = parameterize(s, stress=False)
     assert m.info["mesh_folds"] == 0
     assert m.fold_fraction < 0.01
 
 
 def test_area_balancing_grows_limbs():
-    s = _limbs()
+    s = limbs_surfels()
     plain = parameterize(s, stress=False, iterations=0, balance=False)
     m = parameterize(s, stress=False)
     assert m.info["balance_steps"] >= 1 and m.info["mesh_folds"] == 0
@@ -136,7 +126,7 @@ def test_mobius_normalised(sphere_surfels):
 
 
 def test_rotation_invariance(sphere_surfels):
-    s = _limbs()
+    s = limbs_surfels()
     rot = _rotation()
     a = parameterize(s, stress=False)
     b = parameterize(s.transformed(rotation=rot, translation=[1.0, -2.0, 3.0], scale=2.5),
@@ -323,7 +313,7 @@ def test_realisation_removes_the_folds_the_repair_leaves_on_homer(models):
 
 
 def test_multilevel_map_has_levels_down_to_a_small_base():
-    s = _limbs(4)
+    s = limbs_surfels(4)
     m = parameterize(s, stress=False)
     assert [st.name for st in m.stages][0] == "multilevel" and not m.fallback
     levels = m.stage("multilevel").figures
@@ -334,7 +324,7 @@ def test_multilevel_map_has_levels_down_to_a_small_base():
 def test_finest_level_stops_on_its_step_count():
     """The finest level's balancing ends after ``final_steps`` steps, a count: the same map on
     every run."""
-    s = _limbs(4)
+    s = limbs_surfels(4)
     options = MapOptions(final_steps=4)
     m = parameterize(s, stress=False, options=options)
     assert m.info["balance_steps"] == 4
@@ -357,7 +347,7 @@ def test_level_left_with_few_inverted_triangles_is_kept():
     """Up to ``inverted_kept`` of a level's triangles may stay inverted (the map keeps its
     levels); here every share is allowed and nothing is untangled (nor are the many folds of
     that map realised: the check is of the levels)."""
-    m = parameterize(_limbs(4), stress=False, balance=False,
+    m = parameterize(limbs_surfels(4), stress=False, balance=False,
                      options=MapOptions(inverted_kept=1.0, second_pass=False, realise=False))
     assert not m.fallback and m.info["levels"] >= 3
     assert m.info["mesh_folds"] > 0 and m.info["balance_steps"] == 0
@@ -366,7 +356,7 @@ def test_level_left_with_few_inverted_triangles_is_kept():
 def test_level_that_cannot_be_untangled_falls_back_to_single_level():
     """Without untangling, a level that folded on prolongation falls back to the
     single-level Tutte map, which is fold-free by construction."""
-    s = _limbs(4)
+    s = limbs_surfels(4)
     m = parameterize(s, stress=False, balance=False)
     assert m.fallback and m.stage("multilevel") is None
     single = m.stage("single_level").figures
@@ -392,7 +382,7 @@ def test_level_that_fails_is_retried_with_another_hierarchy(monkeypatch):
         return real(surfels, coarse=coarse, **kwargs)
 
     monkeypatch.setattr(M, "multilevel_map", failing_first)
-    m = parameterize(_limbs(4), stress=False)
+    m = parameterize(limbs_surfels(4), stress=False)
     assert tried[:2] == list(ladder[:2])
     assert not m.fallback and m.info["retries"] == 1
     assert m.info["coarse"] == ladder[1] and m.info["mesh_folds"] == 0
@@ -411,7 +401,7 @@ def test_glasses_whose_coarse_map_collapses_are_mapped_without_holes(shared_data
 def test_point_cloud_mapped_through_proxy_mesh():
     """Surfels without faces (a point cloud) get the Tutte map through a closed proxy mesh: the
     map is fold-free on a sampled ellipsoid-like shape and keeps its limbs apart."""
-    s = _limbs()
+    s = limbs_surfels()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False)
     assert m.stages[0].name == "proxy" and m.stages[0].figures["proxy"] == "reconstructed"
@@ -453,7 +443,7 @@ def test_proxy_whose_map_falls_back_is_simplified_and_mapped_again(monkeypatch):
     """When the proxy's map falls back to the single-level route (marching-cubes slivers can
     stop every hierarchy), a proxy with half its vertices collapsed is mapped instead."""
     sizes = _failing_proxy_maps(monkeypatch, 1)
-    s = _limbs()
+    s = limbs_surfels()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False)
     assert len(sizes) == 2 and sizes[1] <= sizes[0] // 2 + 1
@@ -468,7 +458,7 @@ def test_proxy_whose_simplified_map_falls_back_too_is_rebuilt_coarser(monkeypatc
     """When the simplified proxy's map falls back as well, a proxy on a coarser grid is mapped;
     when that one falls back too, the first proxy's map is kept (and judged as a fallback)."""
     sizes = _failing_proxy_maps(monkeypatch, failing)
-    s = _limbs()
+    s = limbs_surfels()
     cloud = SurfelSet(s.positions, s.normals, s.radii)
     m = parameterize(cloud, stress=False, options=MapOptions(max_area_distortion=1e9))
     assert len(sizes) == 3
@@ -482,10 +472,10 @@ def test_squeezed_fallback_map_is_refused():
     """A single-level fallback whose area distortion exceeds ``max_area_distortion`` is refused
     with a TopologyError; a multilevel map is never refused for it."""
     options = MapOptions(max_area_distortion=0.01)
-    assert not parameterize(_limbs(), stress=False, options=options).fallback
+    assert not parameterize(limbs_surfels(), stress=False, options=options).fallback
     with pytest.raises(TopologyError, match=r"squeezes parts of the surface to nothing "
                                             r"\(area distortion .*no level of the mesh"):
-        parameterize(_limbs(4), stress=False, balance=False, options=options)
+        parameterize(limbs_surfels(4), stress=False, balance=False, options=options)
 
 
 def test_point_cloud_of_genus_one_refused():
@@ -530,7 +520,7 @@ def test_map_options_are_checked(sphere_surfels):
 def test_map_result_records_its_stages(sphere_surfels):
     """The result is frozen; its stages are records with read-only figures, merged in
     ``info`` and in ``figures()`` (the CLI's JSON)."""
-    m = parameterize(_limbs(), stress=False)
+    m = parameterize(limbs_surfels(), stress=False)
     assert [s.name for s in m.stages][:2] == ["multilevel", "repair"]
     assert m.stage("mds") is None and not m.fallback
     with pytest.raises(TypeError):
@@ -546,7 +536,7 @@ def test_map_result_records_its_stages(sphere_surfels):
 def test_repair_switches_are_options():
     """``second_pass=False`` and ``realise=False`` leave those stages out, and the first
     repair's result is where the second pass starts: it never adds folds."""
-    s = _limbs(4)
+    s = limbs_surfels(4)
     plain = parameterize(s, stress=False, options=MapOptions(second_pass=False, realise=False))
     full = parameterize(s, stress=False, options=MapOptions(realise=False))
     assert plain.stage("realise") is None and plain.stage("repair").figures["second_pass"] == 0

@@ -18,7 +18,7 @@ from surfidx.pipeline import describe_model, process_model
 from surfidx.progress import STAGES, StageLog, stage_fraction
 
 from conftest import icosphere_mesh
-from test_ingest import fake_processor, make_tree
+from helpers import fake_processor, make_tree
 
 trimesh = pytest.importorskip("trimesh")
 

@@ -122,26 +122,26 @@ def test_inward_normals():
 
 def test_broken_proxy_is_not_closed():
     # the check run on every proxy: a mesh with a hole, and one with a non-manifold edge
-    from surfidx.sphere.proxy import _check_topology
+    from surfidx.sphere.proxy import check_topology
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2]])
     with pytest.raises(TopologyError, match=r"not one closed manifold piece \(3 boundary edges"):
-        _check_topology(v, f, genus0=True)
+        check_topology(v, f, genus0=True)
     f2 = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 3, 2], [1, 2, 3]])  # flipped twin face
     with pytest.raises(TopologyError, match=r"not one closed manifold piece"):
-        _check_topology(v, f2, genus0=True)
+        check_topology(v, f2, genus0=True)
 
 
 def test_inconsistent_winding_is_reported():
-    from surfidx.sphere.proxy import _check_topology
+    from surfidx.sphere.proxy import check_topology
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    _check_topology(v, f, genus0=True)
+    check_topology(v, f, genus0=True)
     f[3] = [1, 3, 2]
     with pytest.raises(TopologyError, match=r"not consistently oriented"):
-        _check_topology(v, f, genus0=True)
+        check_topology(v, f, genus0=True)
 
 
 # ---------------------------------------------------------------------- closest points, transfer
@@ -173,10 +173,10 @@ def test_closest_points_match_brute_force():
     pts = rng.normal(size=(300, 3)) * 1.5  # inside, outside and far away
     face, bary, dist = closest_points(pts, v, f, candidates=2)
     # brute force over every triangle
-    from surfidx.sphere.proxy import _project
+    from surfidx.sphere.proxy import project_to_candidates
 
     allc = np.tile(np.arange(len(f)), (len(pts), 1))
-    _, _, d2 = _project(pts, allc, v, f)
+    _, _, d2 = project_to_candidates(pts, allc, v, f)
     np.testing.assert_allclose(dist, np.sqrt(d2), atol=1e-12)
     assert np.all(bary >= -1e-12) and np.allclose(bary.sum(axis=1), 1.0)
     q = np.einsum("nc,ncj->nj", bary, v[f[face]])

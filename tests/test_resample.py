@@ -234,12 +234,12 @@ def test_resample_checks_points(sphere_surfels):
 
 def test_degenerate_triangle_never_contains_a_query():
     """Sites on one great circle (a zero-volume triangle) are skipped by the walk, not divided by."""
-    from surfidx.codec.resample import _bary
+    from surfidx.codec.resample import barycentric
 
     a, b = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
     mid = (a + b) / np.sqrt(2.0)
-    assert _bary(np.array([0.0, 0.0, 1.0]), a, mid, b)[3] <= 0
-    assert _bary(np.array([0.0, 0.0, 1.0]), a, a, b)[3] <= 0
+    assert barycentric(np.array([0.0, 0.0, 1.0]), a, mid, b)[3] <= 0
+    assert barycentric(np.array([0.0, 0.0, 1.0]), a, a, b)[3] <= 0
 
 
 def test_locate_grid_equals_locate():
@@ -275,7 +275,7 @@ def test_sites_in_one_hemisphere_still_locate_every_query():
 def test_triangle_neighbours_by_vertex_edges_equal_the_sorted_edges():
     """The directed-edge walk finds the twins the edge sort finds, on a hull, on a mesh's own
     faces and with an open edge; a directed edge listed twice goes to the sort."""
-    from surfidx.codec.resample import _neighbors, _neighbors_sorted
+    from surfidx.codec.resample import neighbors, neighbors_sorted
     from surfidx.geometry.unitsphere import hull_triangles
 
     from conftest import icosphere_mesh
@@ -283,7 +283,7 @@ def test_triangle_neighbours_by_vertex_edges_equal_the_sorted_edges():
     _, faces = icosphere_mesh(3)
     for tri in (hull_triangles(_random_sites(400)), np.asarray(faces, np.int64),
                 np.asarray(faces, np.int64)[1:], np.array([[0, 1, 2], [0, 1, 2], [2, 1, 3]])):
-        np.testing.assert_array_equal(_neighbors(tri), _neighbors_sorted(tri))
+        np.testing.assert_array_equal(neighbors(tri), neighbors_sorted(tri))
 
 
 def test_hull_of_the_same_points_is_remembered_as_a_copy():

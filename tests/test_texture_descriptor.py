@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 import pytest
 
-from surfidx.describe.descriptors import _texture_vector, describe_grid
+from surfidx.describe.descriptors import texture_vector, describe_grid
 from surfidx.geometry.icosphere import choose_level
 from surfidx.io import read_mesh
 from surfidx.geometry.mesh import TriangleMesh
@@ -93,14 +93,14 @@ def textured(models):
         others = [m.texture for o, m in meshes.items() if o != name]
         (grid, other), level = _grid(mesh, textures=others)
         col = grid[:, 3:]
-        recoloured = {"other texture": _texture_vector(other[:, 3:], level, 24),
-                      "hue 120": _texture_vector(_hue_turn(col, 120.0), level, 24),
-                      "channels": _texture_vector(col[:, [2, 0, 1]], level, 24),
-                      "inverted": _texture_vector(255.0 - col, level, 24)}
+        recoloured = {"other texture": texture_vector(other[:, 3:], level, 24),
+                      "hue 120": texture_vector(_hue_turn(col, 120.0), level, 24),
+                      "channels": texture_vector(col[:, [2, 0, 1]], level, 24),
+                      "inverted": texture_vector(255.0 - col, level, 24)}
         (copy,), clevel = _grid(_copy(mesh, np.random.default_rng(7)))
         out[name] = {"grid": grid, "level": level,
-                     "vector": _texture_vector(col, level, 24),
-                     "copy": _texture_vector(copy[:, 3:], clevel, 24),
+                     "vector": texture_vector(col, level, 24),
+                     "copy": texture_vector(copy[:, 3:], clevel, 24),
                      "recoloured": recoloured}
     return out
 

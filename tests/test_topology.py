@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import icosphere_mesh, torus_mesh
+from helpers import moebius, pinched_sphere, sphere_with_holes, tetrahedron, voxel_plate
 from surfidx import InputError, TopologyError, TriangleMesh, read_mesh
 from surfidx.topology import (ClosedSurface, RepairOptions, analyse, close_surface,
                               split_parts)
@@ -20,53 +21,10 @@ from surfidx.topology.analysis import boundary_loops
 # ---------------------------------------------------------------------------- synthetic models
 
 
-def sphere_with_holes(centres, level=3):
-    """An icosphere with the faces of each listed vertex's star removed (one hole each)."""
-    v, f = icosphere_mesh(level)
-    return v, f[~np.isin(f, centres).any(axis=1)]
-
-
 def capped_sphere(z=0.4, level=4):
     """An icosphere without its cap above ``z``: one large hole."""
     v, f = icosphere_mesh(level)
     return v, f[~(v[f][:, :, 2] > z).any(axis=1)]
-
-
-def voxel_plate(width, holes):
-    """Boundary surface of a one-voxel-thick plate ``width x 3`` with the listed cells empty:
-    genus ``len(holes)``."""
-    cells = {(i, j, 0) for i in range(width) for j in range(3)} - {(i, j, 0) for i, j in holes}
-    index, verts, faces = {}, [], []
-
-    def vid(p):
-        if p not in index:
-            index[p] = len(verts)
-            verts.append(p)
-        return index[p]
-    for c in sorted(cells):
-        for a in range(3):
-            b, d = (a + 1) % 3, (a + 2) % 3
-            for sign in (1, -1):
-                nb = list(c)
-                nb[a] += sign
-                if tuple(nb) in cells:
-                    continue
-                p = np.array(c)
-                if sign > 0:
-                    p[a] += 1
-                eb, ed = np.eye(3, dtype=int)[b], np.eye(3, dtype=int)[d]
-                q = [p, p + eb, p + eb + ed, p + ed]
-                if sign < 0:
-                    q = q[::-1]
-                ids = [vid(tuple(int(x) for x in s)) for s in q]
-                faces += [[ids[0], ids[1], ids[2]], [ids[0], ids[2], ids[3]]]
-    return np.array(verts, float), np.array(faces)
-
-
-def tetrahedron(offset=(0, 0, 0)):
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float) + offset
-    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    return v, f
 
 
 def square_disk(k=10):
@@ -76,22 +34,6 @@ def square_disk(k=10):
     a = (i * (k + 1) + j).ravel()
     f = np.concatenate([np.stack([a, a + k + 1, a + k + 2], 1), np.stack([a, a + k + 2, a + 1], 1)])
     return v, f
-
-
-def moebius(n=24):
-    t = 2 * np.pi * np.arange(n) / n
-    top = np.c_[np.cos(t) * (2 + 0.5 * np.cos(t / 2)), np.sin(t) * (2 + 0.5 * np.cos(t / 2)),
-                0.5 * np.sin(t / 2)]
-    bot = np.c_[np.cos(t) * (2 - 0.5 * np.cos(t / 2)), np.sin(t) * (2 - 0.5 * np.cos(t / 2)),
-                -0.5 * np.sin(t / 2)]
-    v = np.vstack([top, bot])
-    f = []
-    for i in range(n):
-        a, b, c, d = i, n + i, (i + 1) % n, n + (i + 1) % n
-        if i == n - 1:        # the half twist: the last quad joins top to bottom
-            c, d = n, 0
-        f += [[a, b, d], [a, d, c]]
-    return v, np.array(f)
 
 
 # ---------------------------------------------------------------------------- independent checks
@@ -363,16 +305,6 @@ def test_handle_and_holes_together():
 
 
 # ---------------------------------------------------------------------------- pinches, pieces
-
-
-def pinched_sphere():
-    """An icosphere whose vertex 50 is merged into vertex 0 (far apart): one pinched vertex."""
-    v, f = icosphere_mesh(3)
-    f = np.where(f == 50, 0, f)
-    keep = np.ones(len(v), bool)
-    keep[50] = False
-    remap = np.cumsum(keep) - 1
-    return v[keep], remap[f]
 
 
 def test_pinched_vertex_is_split():

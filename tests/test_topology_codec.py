@@ -438,7 +438,7 @@ def test_too_coarse_a_grid_still_decodes_manifold():
     """A genus-2 voxel plate of 56 surfels on a level-3 grid: its cut lids are two faces each,
     so regions touch and a cut may stay open, but the decoded mesh is manifold at every level
     and rate (a strip that would double an edge or pinch a vertex is not added)."""
-    from test_topology import voxel_plate
+    from helpers import voxel_plate
 
     v, f = voxel_plate(5, [(1, 1), (3, 1)])
     e = _encoder(np.asarray(v, float), np.asarray(f))

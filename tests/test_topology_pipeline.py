@@ -14,7 +14,7 @@ from surfidx import InputError, TopologyError, TriangleMesh, read_surfels
 from surfidx.io import Model, join_surfels, model_hash, read_model
 from surfidx.topology import RepairOptions, close_surface, closed_mesh, patch_cuts
 
-from test_topology import moebius, sphere_with_holes, tetrahedron
+from helpers import moebius, sphere_with_holes, tetrahedron
 
 
 def write_obj(path, v, f):
@@ -75,7 +75,7 @@ def test_handle_is_cut_and_its_lids_pair():
 
 
 def test_pinched_vertex_split_without_virtual_surfels():
-    from test_topology import pinched_sphere
+    from helpers import pinched_sphere
 
     v, f = pinched_sphere()
     m = read_model((v, f))

@@ -9,7 +9,7 @@ import pytest
 
 from surfidx import TOL, InputError
 from surfidx.geometry.icosphere import icosphere
-from surfidx.codec.wavelets import (_measure_level_norms, forward, inverse, level_norms,
+from surfidx.codec.wavelets import (measure_level_norms, forward, inverse, level_norms,
                               scaling_integrals)
 
 
@@ -148,7 +148,7 @@ def test_equal_error_normalisation(lifted):
 def test_norm_table_matches_measurement(lifted):
     for level in range(0, 7):
         np.testing.assert_allclose(level_norms(level, lifted=lifted),
-                                   _measure_level_norms(level, lifted), rtol=1e-7)
+                                   measure_level_norms(level, lifted), rtol=1e-7)
 
 
 def test_normalized_is_scaled_raw():

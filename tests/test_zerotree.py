@@ -345,7 +345,7 @@ def test_anchor_values_match_the_encoder_once_the_plane_is_decoded():
 
 
 def test_top_bit_is_the_bit_length_less_one():
-    from surfidx.codec.zerotree import _top_bit
+    from surfidx.codec.zerotree import top_bit
 
     values = [0, 1, 2, 3] + [(1 << b) + d for b in range(2, 62) for d in (-1, 0, 1)]
-    assert [_top_bit(v) for v in values] == [v.bit_length() - 1 for v in values]
+    assert [top_bit(v) for v in values] == [v.bit_length() - 1 for v in values]

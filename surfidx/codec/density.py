@@ -58,7 +58,7 @@ MIN_GAIN_DB = 1.0
 
 _CLASSES = 5          # context classes by field level (levels >= 4 share the last)
 _PER_CLASS = 6        # zero flag, sign, 4 unary positions
-_N_CTX = _CLASSES * _PER_CLASS
+N_CONTEXTS = _CLASSES * _PER_CLASS
 
 
 @functools.lru_cache(maxsize=MAX_FIELD_LEVEL + 1)
@@ -181,7 +181,28 @@ def _residuals(q: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
-def _encode_residuals(r, cls, buf, st, models):
+def encode_residuals(r, cls, buf, st, models):
+    """Code density residuals, each in the contexts of its class: zero flag, sign, then its
+    magnitude in unary (the coder allows values beyond ``[Q_MIN, Q_MAX]``).
+
+    Parameters
+    ----------
+    r : ndarray of int64, shape (n,)
+        The residuals.
+    cls : ndarray of int64, shape (n,)
+        The context class of each.
+    buf : ndarray of uint8
+        The output buffer.
+    st : ndarray
+        An encoder state (:func:`~surfidx.codec.entropy.new_encoder`).
+    models : ndarray
+        Models of :data:`N_CONTEXTS` contexts (:func:`~surfidx.codec.entropy.new_models`).
+
+    Returns
+    -------
+    int
+        The bytes written to ``buf``.
+    """
     for i in range(r.shape[0]):
         base = cls[i] * _PER_CLASS
         v = r[i]
@@ -237,7 +258,7 @@ def pack_field(field, level: int) -> bytes:
                          f"[{q.min()}, {q.max()}]")
     r, cls = _residuals(q, int(level))
     buf = np.zeros(16 * len(r) + 16, np.uint8)
-    size = _encode_residuals(r, cls, buf, new_encoder(), new_models(_N_CTX))
+    size = encode_residuals(r, cls, buf, new_encoder(), new_models(N_CONTEXTS))
     return bytes([int(level)]) + bytes(buf[:size])
 
 
@@ -261,7 +282,7 @@ def unpack_field(data: bytes, *, path=None) -> tuple[np.ndarray, int]:
     r = np.zeros(n, np.int64)
     cls = np.minimum(icosphere(level).level_of, _CLASSES - 1).astype(np.int64)
     if not _decode_residuals(np.frombuffer(bytes(data[1:]), np.uint8), cls, r,
-                             new_models(_N_CTX)):
+                             new_models(N_CONTEXTS)):
         raise BitstreamError("corrupt density-weight field (impossible code)", path=path)
     q = r.copy()
     ep = icosphere(level).edge_parents

@@ -21,7 +21,7 @@ from ..jit import njit
 
 from ..errors import BitstreamError, InputError
 from .entropy import dec_bit, dec_init, enc_bit, enc_flush, new_encoder, new_models
-from ..geometry.icosphere import Icosphere, _check_level, vertex_count
+from ..geometry.icosphere import Icosphere, check_level, vertex_count
 
 __all__ = ["encode_mask", "decode_mask", "N_CONTEXTS"]
 
@@ -82,7 +82,7 @@ def encode_mask(bits, level: int) -> bytes:
     InputError
         When ``level`` is out of range or ``bits`` has the wrong length or values.
     """
-    lev = _check_level(level)
+    lev = check_level(level)
     b = np.asarray(bits)
     n = vertex_count(lev)
     if b.shape != (n,):
@@ -121,7 +121,7 @@ def decode_mask(data: bytes, level: int) -> np.ndarray:
     InputError
         When ``level`` is out of range.
     """
-    lev = _check_level(level)
+    lev = check_level(level)
     level_of, parents, butterfly = _tables(lev)
     arr = np.frombuffer(bytes(data), np.uint8)
     bits, ok = _decode(arr, level_of, parents, butterfly, vertex_count(lev),

@@ -62,7 +62,22 @@ def layer_names(has_color: bool) -> tuple[str, ...]:
 
 
 @numba.njit(cache=True)
-def _bary(q, a, b, c):
+def barycentric(q, a, b, c):
+    """Barycentric coordinates of ``q`` in the triangle ``a, b, c`` (central projection onto the
+    chord plane), normalised to sum 1.
+
+    Parameters
+    ----------
+    q, a, b, c : ndarray of float64, shape (3,)
+        The query and the triangle's corners.
+
+    Returns
+    -------
+    l0, l1, l2 : float
+        The coordinates (all at least 0 inside); -1 each for a degenerate triangle.
+    s : float
+        Their sum before normalising (-1 for a degenerate triangle).
+    """
     # solve q = l0 a + l1 b + l2 c, then normalise (central projection onto the chord plane)
     m00, m01, m02 = a[0], b[0], c[0]
     m10, m11, m12 = a[1], b[1], c[1]
@@ -97,7 +112,7 @@ def _walk(queries, pts, tri, nbr, start, eps):
         found = False
         for step in range(steps):
             i0, i1, i2 = tri[t, 0], tri[t, 1], tri[t, 2]
-            l0, l1, l2, s = _bary(q, pts[i0], pts[i1], pts[i2])
+            l0, l1, l2, s = barycentric(q, pts[i0], pts[i1], pts[i2])
             if s > 0 and l0 >= -eps and l1 >= -eps and l2 >= -eps:
                 found = True
                 break
@@ -117,7 +132,7 @@ def _walk(queries, pts, tri, nbr, start, eps):
         if not found:
             t = -1
         else:
-            l0, l1, l2, s = _bary(q, pts[tri[t, 0]], pts[tri[t, 1]], pts[tri[t, 2]])
+            l0, l1, l2, s = barycentric(q, pts[tri[t, 0]], pts[tri[t, 1]], pts[tri[t, 2]])
             out_b[k, 0] = l0
             out_b[k, 1] = l1
             out_b[k, 2] = l2
@@ -139,7 +154,7 @@ def _scan(queries, pts, tri, ptr, cand):
         best = -np.inf
         for i in range(count):
             tt = cand[lo + i] if hi > lo else i
-            l0, l1, l2, s = _bary(q, pts[tri[tt, 0]], pts[tri[tt, 1]], pts[tri[tt, 2]])
+            l0, l1, l2, s = barycentric(q, pts[tri[tt, 0]], pts[tri[tt, 1]], pts[tri[tt, 2]])
             if s > 0:
                 m = min(l0, min(l1, l2))
                 if m > best:
@@ -238,21 +253,21 @@ def _grid_normals_radii(p, f, ptr, nb):
     return nrm, rad
 
 
-def _neighbors(tri: np.ndarray) -> np.ndarray:
+def neighbors(tri: np.ndarray) -> np.ndarray:
     """nbr[t, j]: the triangle across the edge opposite corner j of triangle t (-1: none)."""
     tri = np.ascontiguousarray(tri, np.int64)
     if len(tri) and tri.min() >= 0:
         nbr, unique = _twin_edges(tri, int(tri.max()) + 1)
         if unique:
             return nbr
-    return _neighbors_sorted(tri)
+    return neighbors_sorted(tri)
 
 
 @numba.njit(cache=True)
 def _twin_edges(tri, n):
-    """:func:`_neighbors` through the directed edges leaving each vertex; ``unique`` False when
+    """:func:`neighbors` through the directed edges leaving each vertex; ``unique`` False when
     a directed edge occurs twice (then which twin the sort finds is the sort's choice, and
-    :func:`_neighbors_sorted` decides)."""
+    :func:`neighbors_sorted` decides)."""
     m = tri.shape[0]
     ptr = np.zeros(n + 1, np.int64)
     for t in range(m):
@@ -285,8 +300,8 @@ def _twin_edges(tri, n):
     return nbr, True
 
 
-def _neighbors_sorted(tri: np.ndarray) -> np.ndarray:
-    """:func:`_neighbors` by sorting the directed edges (any triangle list)."""
+def neighbors_sorted(tri: np.ndarray) -> np.ndarray:
+    """:func:`neighbors` by sorting the directed edges (any triangle list)."""
     m = len(tri)
     n = int(tri.max()) + 1
     a = np.concatenate([tri[:, 1], tri[:, 2], tri[:, 0]])
@@ -332,7 +347,7 @@ def locate(sphere_points, queries, *, triangles=None, start=None):
     qs = as_array(queries, "queries", shape=(None, 3))
     tri = hull_triangles(pts) if triangles is None else as_array(
         triangles, "triangles", dtype=np.int64, shape=(None, 3))
-    nbr = _neighbors(tri)
+    nbr = neighbors(tri)
     if start is None:
         start = _nearest_starts(pts, tri, qs)
     else:
@@ -374,7 +389,7 @@ def locate_grid(sphere_points, grid, *, triangles=None):
     pts = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=4)
     tri = hull_triangles(pts) if triangles is None else as_array(
         triangles, "triangles", dtype=np.int64, shape=(None, 3))
-    nbr = _neighbors(tri)
+    nbr = neighbors(tri)
     q = np.ascontiguousarray(grid.vertices, dtype=np.float64)
     counts = [vertex_count(j) for j in range(grid.level + 1)]
     idx = np.empty(len(q), np.int64)

@@ -75,7 +75,7 @@ from ..jit import njit
 
 from ..errors import InputError
 from ..validate import as_array
-from ..geometry.icosphere import BUTTERFLY_WEIGHTS, _check_level, _vertex_areas, icosphere, vertex_count
+from ..geometry.icosphere import BUTTERFLY_WEIGHTS, check_level, level_vertex_areas, icosphere, vertex_count
 
 __all__ = ["forward", "inverse", "level_norms", "scaling_integrals", "NORM_SAMPLES",
            "forward_anchored", "inverse_anchored", "choose_anchors", "ANCHOR_OFFSET"]
@@ -95,7 +95,7 @@ class _Operators:
         self.predict = []   # predict[j]: (m_j, counts[j]) CSR, m_j = counts[j+1] - counts[j]
         self.update = []    # update[j]: (counts[j], m_j) CSR
         integrals = [None] * (level + 1)
-        integrals[level] = np.asarray(_vertex_areas(level))
+        integrals[level] = np.asarray(level_vertex_areas(level))
         for j in range(level - 1, -1, -1):
             lo, hi = counts[j], counts[j + 1]
             m = hi - lo
@@ -126,7 +126,7 @@ def _operators(level: int) -> _Operators:
 
 
 def _prepare(values, level, name):
-    lev = _check_level(level)
+    lev = check_level(level)
     n = vertex_count(lev)
     arr = as_array(values, name)
     if arr.ndim not in (1, 2) or arr.shape[0] != n:
@@ -351,14 +351,14 @@ def scaling_integrals(level: int, coarse_level: int = 0) -> np.ndarray:
         Sums to 4π; ``Σ_v I_{0,v} s_{0,v}`` of the lifted coefficients equals the
         quadrature ``Σ_v I_{L,v} x_v`` of the grid function.
     """
-    lev = _check_level(level)
-    j = _check_level(coarse_level, "coarse_level")
+    lev = check_level(level)
+    j = check_level(coarse_level, "coarse_level")
     if j > lev:
         raise InputError(f"coarse_level must be at most level={lev}, got {j}")
     return _operators(lev).integrals[j].copy()
 
 
-# level_norms(L) for L = 0 … 9, measured by _measure_level_norms (9 significant digits).
+# level_norms(L) for L = 0 … 9, measured by measure_level_norms (9 significant digits).
 # A constant table, so encoder and decoder use bit-identical scales on every platform;
 # tests/test_wavelets.py checks it against a fresh measurement.
 _NORM_TABLE = {
@@ -395,7 +395,7 @@ _NORM_TABLE = {
 
 
 @functools.lru_cache(maxsize=4)
-def _measure_level_norms(level: int, lifted: bool) -> np.ndarray:
+def measure_level_norms(level: int, lifted: bool) -> np.ndarray:
     """Measure the scale table (what :data:`_NORM_TABLE` holds); seconds at level 8, ~20 s at 9."""
     ico = icosphere(level)
     counts = ico.counts
@@ -440,7 +440,7 @@ def level_norms(level: int, *, lifted: bool = True) -> np.ndarray:
     -------
     (L + 1,) float64
     """
-    return np.array(_NORM_TABLE[bool(lifted)][_check_level(level)], dtype=np.float64)
+    return np.array(_NORM_TABLE[bool(lifted)][check_level(level)], dtype=np.float64)
 
 
 # ---------------------------------------------------------------- closed-loop local frames

@@ -57,7 +57,7 @@ from ..jit import njit
 
 from ..errors import BitstreamError, InputError
 from ..validate import as_array
-from .container import MAX_PLANE as _MAX_PLANE
+from .container import MAX_PLANE
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
@@ -211,7 +211,7 @@ def _checked(parent, children_indptr, children_indices):
 
 
 @njit(cache=True)
-def _top_bit(m):
+def top_bit(m):
     """Index of the highest set bit of ``m >= 0`` (-1 for 0), by halving the width."""
     if m <= 0:
         return -1
@@ -232,7 +232,7 @@ def _set_tops(mag, order, indptr, indices):
     ltop = np.full((k, n), -1, dtype=np.int8)
     for l in range(k):
         for i in range(n):
-            tb[l, i] = _top_bit(mag[l, i])
+            tb[l, i] = top_bit(mag[l, i])
         for t in range(n - 1, -1, -1):
             v = order[t]
             d = np.int8(-1)
@@ -505,8 +505,8 @@ def _reconstruct(neg, known, lo, step):
     """:func:`_dequantize` of the decoder's layer-major state, node-major: ``(n, k)`` float64,
     the same floating-point operations element by element."""
     k, n = known.shape
-    frac = np.zeros(_MAX_PLANE + 1, dtype=np.float64)   # the midpoint offset of each lowest plane
-    for b in range(1, _MAX_PLANE + 1):
+    frac = np.zeros(MAX_PLANE + 1, dtype=np.float64)   # the midpoint offset of each lowest plane
+    for b in range(1, MAX_PLANE + 1):
         frac[b] = np.ldexp(1.0, b - 1) - 0.5
     out = np.empty((n, k), dtype=np.float64)
     for i in range(n):
@@ -650,7 +650,7 @@ def _check_header(header):
     if version != VERSION:
         raise BitstreamError(f"unsupported zerotree stream version {version} (this reader knows "
                              f"version {VERSION}); upgrade surfidx")
-    if not (-1 <= top <= _MAX_PLANE) or not (0 <= final <= _MAX_PLANE):
+    if not (-1 <= top <= MAX_PLANE) or not (0 <= final <= MAX_PLANE):
         raise BitstreamError(f"zerotree header planes out of range (top {top}, final {final})")
     if not (np.isfinite(step) and step > 0):
         raise BitstreamError(f"zerotree header step must be finite and positive, got {step}")
@@ -760,20 +760,20 @@ def prepare(coeffs, parent, children_indptr, children_indices, *, step: float = 
     if not (step32 > 0 and np.isfinite(step32)):
         raise InputError(f"step must be a positive finite float32, got {step!r}")
     if isinstance(final_plane, bool) or not isinstance(final_plane, (int, np.integer)) \
-            or not 0 <= final_plane <= _MAX_PLANE:
-        raise InputError(f"final_plane must be an integer in [0, {_MAX_PLANE}], got "
+            or not 0 <= final_plane <= MAX_PLANE:
+        raise InputError(f"final_plane must be an integer in [0, {MAX_PLANE}], got "
                          f"{final_plane!r}")
     with np.errstate(over="ignore"):     # a step too small overflows to inf: refused below
         q = np.floor(np.abs(c) / step32 + 0.5)
-    if q.size and q.max() >= 2.0 ** _MAX_PLANE:
+    if q.size and q.max() >= 2.0 ** MAX_PLANE:
         raise InputError(f"step {step32} is too small for coefficients up to {np.abs(c).max()}: "
-                         f"quantised magnitudes must stay below 2**{_MAX_PLANE}")
+                         f"quantised magnitudes must stay below 2**{MAX_PLANE}")
     mag = np.ascontiguousarray(q.T.astype(np.int64))
     sgn = np.ascontiguousarray((c < 0).T.astype(np.uint8))
     data_top = int(mag.max()).bit_length() - 1 if mag.size else -1
     top = data_top if top_plane is None else int(top_plane)
-    if top < data_top or top > _MAX_PLANE:
-        raise InputError(f"top_plane must be in [{data_top}, {_MAX_PLANE}] for these "
+    if top < data_top or top > MAX_PLANE:
+        raise InputError(f"top_plane must be in [{data_top}, {MAX_PLANE}] for these "
                          f"coefficients, got {top_plane}")
     header = {"version": VERSION, "top_plane": top, "final_plane": int(final_plane),
               "step": step32}

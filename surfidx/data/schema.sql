@@ -5,7 +5,7 @@
 -- surfidx.db.catalog.APPLICATION_ID (the bytes SFDX, the mark of a surfidx file: it is checked
 -- before anything is written to a file, and set on the next write in files made before it
 -- existed). Older databases are brought here by the migration functions in surfidx/database.py
--- (_MIGRATIONS), which must produce the same tables as this file. This file is package data
+-- (MIGRATIONS), which must produce the same tables as this file. This file is package data
 -- (what an installed surfidx reads); data_schema/schema.sql is a link to it.
 --
 -- Plain tables with readable column names, foreign keys and indexes, so that the file can be

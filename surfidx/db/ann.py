@@ -92,13 +92,13 @@ _COLOUR_KIND = "texture"
 #: Kinds of an index made without a search naming its kinds (:func:`update` after an ingest
 #: into a database without an index); a search of other kinds rebuilds it for its own.
 BUILD_KINDS = ("shape", "spectrum", "texture")
-#: Columns :func:`_digest` takes at most.
+#: Columns :func:`row_digest` takes at most.
 _DIGEST_WIDTH = 1024
 
 
 @functools.lru_cache(maxsize=1)
 def _multipliers() -> np.ndarray:
-    """Per-column odd multipliers of :func:`_digest` (fixed: digests are stored; made on first
+    """Per-column odd multipliers of :func:`row_digest` (fixed: digests are stored; made on first
     use, so that a query, which never digests, does not import ``numpy.random``)."""
     return np.random.default_rng(0x5F5A).integers(1, 2 ** 63, size=_DIGEST_WIDTH,
                                                   dtype=np.uint64) | np.uint64(1)
@@ -110,7 +110,20 @@ def index_dir(db_path) -> Path:
     return p.with_name(p.name + ".ann")
 
 
-def _files(man) -> list:
+def index_files(man) -> list:
+    """The files of an index that a manifest names.
+
+    Parameters
+    ----------
+    man : dict
+        The index manifest.
+
+    Returns
+    -------
+    list of str
+        The graph files, the row files (ids and rows) of each kind and the digests file, relative
+        to the index folder.
+    """
     out = [g["file"] for g in man.get("graphs", {}).values()]
     for r in man.get("rows", {}).values():
         out += [r["ids"], r["rows"]]
@@ -125,7 +138,7 @@ def index_size(db_path) -> int:
     man = _read_manifest(d)
     if man is None:
         return 0
-    return sum((d / f).stat().st_size for f in _files(man) if (d / f).exists())
+    return sum((d / f).stat().st_size for f in index_files(man) if (d / f).exists())
 
 
 def list_count(n: int) -> int:
@@ -156,7 +169,7 @@ class _one_thread:
         return False
 
 
-def _digest(*mats) -> np.ndarray:
+def row_digest(*mats) -> np.ndarray:
     """A 64-bit digest per row of float32 matrices side by side (exact bytes, order-aware)."""
     words = np.hstack([np.ascontiguousarray(m, np.float32).view(np.uint32) for m in mats])
     if words.shape[1] > _DIGEST_WIDTH:
@@ -232,7 +245,7 @@ def _rows(db, kinds):
             cols.append(full)
             flags.append(has[:, None])
         vec = np.ascontiguousarray(np.hstack(cols), np.float32)
-        graphs[name] = (gid, vec, _digest(vec, *flags) if gid.size else np.zeros(0, np.uint64))
+        graphs[name] = (gid, vec, row_digest(vec, *flags) if gid.size else np.zeros(0, np.uint64))
     conventions = {kind: sorted(r[0] for r in db.conn.execute(
         "SELECT DISTINCT convention FROM descriptors WHERE kind = ?", (kind,)))
         for kind in kinds}
@@ -255,7 +268,7 @@ def _new_graph(ids, vectors):
     return ix
 
 
-def _open_graph(path, graph: dict, *, view: bool):
+def open_graph(path, graph: dict, *, view: bool):
     """An index file, memory-mapped read-only for searches (``view``; a query touches only the
     lists it probes) or loaded to be changed (:func:`_catch_up`).
 
@@ -332,14 +345,14 @@ class AnnIndex:
         return int(self._ix["shape"].ntotal) if "shape" in self._ix else 0
 
     def _graph(self, name):
-        """The index ``name`` (memory-mapped on first use, see :func:`_open_graph`), or None;
+        """The index ``name`` (memory-mapped on first use, see :func:`open_graph`), or None;
         a damaged file is rebuilt."""
         if name in self._ix or name not in self._lazy:
             return self._ix.get(name)
         path = self._lazy[name]
         f = self.manifest["graphs"][name]
         try:
-            got = _open_graph(path, f, view=True)
+            got = open_graph(path, f, view=True)
         except (OSError, ValueError, RuntimeError):
             new = build(self._db, kinds=self.kinds, write=self._write)
             self.__dict__.update(new.__dict__)
@@ -559,8 +572,8 @@ class AnnIndex:
                     p.unlink()
             return False
         if old is not None:                      # the files the old manifest named
-            keep = set(_files(self.manifest))
-            for name in _files(old):
+            keep = set(index_files(self.manifest))
+            for name in index_files(old):
                 if name not in keep:
                     with _quiet():
                         (d / name).unlink()
@@ -651,7 +664,32 @@ class _Files(dict):
     """Graph name -> file of graphs not opened yet (see :meth:`AnnIndex._graph`)."""
 
 
-def _load(d: Path, man, *, view: bool):
+def load_index(d: Path, man, *, view: bool):
+    """The graphs and rows of the index in folder ``d`` that manifest ``man`` describes.
+
+    Parameters
+    ----------
+    d : Path
+        The index folder.
+    man : dict
+        Its manifest.
+    view : bool
+        Map the files read-only for searches (the graphs are opened on first use) rather than
+        load them to be changed.
+
+    Returns
+    -------
+    graphs : dict
+        Graph name -> index (``view``: its file, opened by :func:`open_graph` on first use).
+    rows : dict
+        Kind -> ``(ids, rows)``: ``ndarray of int64, shape (count,)`` and
+        ``ndarray of float32, shape (count, dim)``.
+
+    Raises
+    ------
+    OSError
+        When a file is missing or does not match the manifest.
+    """
     ix = {}
     for name, f in man["graphs"].items():
         if view:
@@ -659,7 +697,7 @@ def _load(d: Path, man, *, view: bool):
                 raise OSError(f"index file {d / f['file']} is missing")
             ix[name] = d / f["file"]
             continue
-        ix[name] = _open_graph(d / f["file"], f, view=False)
+        ix[name] = open_graph(d / f["file"], f, view=False)
     rows = {}
     for kind, r in man["rows"].items():
         # plain ndarrays over the mapped pages: indexing an np.memmap costs ~75 us a call in
@@ -711,7 +749,7 @@ def open_index(db, *, kinds=None, write: bool = True, state: dict | None = None)
             return build(db, kinds=kinds, write=write)
         try:
             if man["state"] == state:
-                graphs, rows = _load(d, man, view=True)
+                graphs, rows = load_index(d, man, view=True)
                 return AnnIndex(db, graphs, rows, man, None, write=write)
             return _catch_up(db, d, man, state, write=write)
         except (OSError, ValueError, KeyError, RuntimeError):
@@ -719,7 +757,7 @@ def open_index(db, *, kinds=None, write: bool = True, state: dict | None = None)
     return build(db, kinds=kinds, write=write)
 
 
-def _changes(old_ids, old_digests, ids, digests) -> tuple:
+def index_changes(old_ids, old_digests, ids, digests) -> tuple:
     """Models indexed but stored no more (``gone``) and stored but not indexed as they are now
     (``changed``: new or with other rows), from ascending ids and their digests.
 
@@ -745,7 +783,7 @@ def _catch_up(db, d, man, state, *, write):
     plan = {}
     for graph, (ids, _, dg) in rows["graphs"].items():
         oid, odg = old.get(graph, (np.zeros(0, np.int64), np.zeros(0, np.uint64)))
-        plan[graph] = _changes(np.asarray(oid, np.int64), np.asarray(odg, np.uint64), ids, dg)
+        plan[graph] = index_changes(np.asarray(oid, np.int64), np.asarray(odg, np.uint64), ids, dg)
     total = max(rows["graphs"]["shape"][0].size, 1)
     if sum(len(g) + len(c) for g, c in plan.values()) > _REBUILD_SHARE * total:
         return build(db, kinds=kinds, write=write)
@@ -756,12 +794,12 @@ def _catch_up(db, d, man, state, *, write):
         if write:
             with _quiet():
                 _write_manifest(d, man, os.urandom(6).hex())
-        graphs, per = _load(d, man, view=True)
+        graphs, per = load_index(d, man, view=True)
         return AnnIndex(db, graphs, per, man, None, write=write)
     if any(graph not in man["graphs"] and (gone or changed)
            for graph, (gone, changed) in plan.items()):
         return build(db, kinds=kinds, write=write)   # a first coloured model: lists to train
-    ix, _ = _load(d, man, view=False)
+    ix, _ = load_index(d, man, view=False)
     for graph, (src_ids, src, _) in rows["graphs"].items():
         gone, changed = plan[graph]
         if not gone and not changed:

@@ -4,7 +4,7 @@ thumbnail, plus the bookkeeping of bulk ingestion runs.
 The schema is ``surfidx/data/schema.sql`` (package data; ``data_schema/schema.sql`` links to it):
 plain tables with readable columns, foreign keys and indexes, so the file can be browsed as it is
 with ``sqlite-utils`` or Datasette. The schema version is ``PRAGMA user_version``; opening an older
-database runs the migration functions of :data:`_MIGRATIONS` in one transaction; a database of a
+database runs the migration functions of :data:`MIGRATIONS` in one transaction; a database of a
 newer surfidx raises :class:`DatabaseError`. The database runs in WAL mode, so readers
 (``surfidx query``) see a consistent state while an ingest writes, and every model is written in
 one transaction (never half a model).
@@ -15,7 +15,7 @@ A surfidx database carries ``PRAGMA application_id`` = :data:`APPLICATION_ID` (`
 Opening a file reads only; nothing is written to it (not even the journal mode) before it is
 known to be a surfidx database or empty: a file with another application's id, or with tables
 and no id, is refused. Databases made before the id existed are recognised by their own schema
-(every table of :data:`_TABLES`, the ``models`` columns) and their ``meta`` row
+(every table of :data:`TABLES`, the ``models`` columns) and their ``meta`` row
 ``schema_version`` equal to ``user_version``; they get the id with their next write. A database
 opened with ``readonly=True`` is opened by SQLite read-only (``mode=ro``): it is never written,
 a missing or empty (0-byte or schema-less) file is an error, not a new database.
@@ -76,12 +76,12 @@ APPLICATION_ID = int.from_bytes(b"SFDX", "big")
 _MAX_ID = 2 ** 63 - 1
 
 #: Tables every surfidx database holds (used to tell a surfidx database from a foreign one).
-_TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs", "ingest_errors")
+TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs", "ingest_errors")
 
-#: Migration functions: ``_MIGRATIONS[k - 1](conn)`` upgrades a version-``k`` database to
-#: version ``k + 1`` (so ``len(_MIGRATIONS) == SCHEMA_VERSION - 1``). They run inside the
+#: Migration functions: ``MIGRATIONS[k - 1](conn)`` upgrades a version-``k`` database to
+#: version ``k + 1`` (so ``len(MIGRATIONS) == SCHEMA_VERSION - 1``). They run inside the
 #: transaction :meth:`Database._migrate` opens and must leave the tables ``schema.sql`` creates.
-_MIGRATIONS: list = []
+MIGRATIONS: list = []
 
 QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
 _MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min_x",
@@ -229,7 +229,7 @@ def _map_sqlite_errors(cls):
     return cls
 
 
-def _connect(path: Path, mode: str, timeout: float) -> sqlite3.Connection:
+def connect(path: Path, mode: str, timeout: float) -> sqlite3.Connection:
     """Open ``path`` with SQLite's URI ``mode`` (``"ro"``, ``"rw"`` or ``"rwc"``); the one place
     surfidx connects (tests replace it to fake a read-only mount or a full disk)."""
     uri = Path(os.path.abspath(path)).as_uri() + f"?mode={mode}"
@@ -237,7 +237,7 @@ def _connect(path: Path, mode: str, timeout: float) -> sqlite3.Connection:
                            check_same_thread=False)
 
 
-def _statements(script: str):
+def split_statements(script: str):
     """Split an SQL script into complete statements (``sqlite3.complete_statement``)."""
     buf = ""
     for line in script.splitlines(keepends=True):
@@ -259,7 +259,7 @@ def _create_missing(conn) -> None:
     creates)."""
     have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
     pattern = re.compile(r"CREATE\s+(?:UNIQUE\s+)?(?:TABLE|INDEX|TRIGGER|VIEW)\s+(\w+)", re.I)
-    for stmt in _statements(schema_sql()):
+    for stmt in split_statements(schema_sql()):
         m = pattern.search(stmt)
         if m and m.group(1) not in have:
             conn.execute(stmt)
@@ -304,7 +304,7 @@ def _v1_to_v2(conn) -> None:
     _create_missing(conn)
 
 
-_MIGRATIONS.append(_v1_to_v2)
+MIGRATIONS.append(_v1_to_v2)
 
 
 def _v2_to_v3(conn) -> None:
@@ -314,7 +314,7 @@ def _v2_to_v3(conn) -> None:
     _create_missing(conn)
 
 
-_MIGRATIONS.append(_v2_to_v3)
+MIGRATIONS.append(_v2_to_v3)
 
 _TOPOLOGY_COLUMNS = ("parts", "parts_dropped", "holes_filled", "handles_cut", "pinched_vertices",
                      "virtual_surfels", "virtual_area_share")
@@ -447,7 +447,7 @@ class Catalog:
                                 "`surfidx ingest`", path=self.path)
         mode = "ro" if self.readonly else "rwc" if create else "rw"
         try:
-            conn = _connect(self.path, mode, self.timeout)
+            conn = connect(self.path, mode, self.timeout)
         except sqlite3.Error as exc:
             raise DatabaseError(f"cannot open ({exc})", path=self.path) from exc
         self._conn = conn
@@ -538,7 +538,7 @@ class Catalog:
     def _is_legacy(self, tables: set, version: int) -> bool:
         """A surfidx database made before the application id: every surfidx table, the
         ``models`` columns, and a ``meta`` row ``schema_version`` equal to ``user_version``."""
-        if not set(_TABLES) <= tables:
+        if not set(TABLES) <= tables:
             return False
         conn = self._conn
         try:
@@ -586,7 +586,7 @@ class Catalog:
             # Re-read inside the write lock: another process may have done it meanwhile.
             version = conn.execute("PRAGMA user_version").fetchone()[0]
             if version == 0:
-                for stmt in _statements(schema_sql()):
+                for stmt in split_statements(schema_sql()):
                     conn.execute(stmt)
                 from .. import __version__
 
@@ -595,7 +595,7 @@ class Catalog:
                                   ("created_at", utc_now())])
             else:
                 for k in range(version, SCHEMA_VERSION):
-                    _MIGRATIONS[k - 1](conn)
+                    MIGRATIONS[k - 1](conn)
             conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)",
                          (str(SCHEMA_VERSION),))
             conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")

@@ -1,5 +1,8 @@
 """Public names of :mod:`surfidx.describe` (imported on first use, see ``__init__.py``)."""
 
-from .descriptors import (DescriptorSet, describe_grid, descriptor_distance, descriptor_params,
-                          DEFAULT_LMAX, SH_NORMALIZATION, DESCRIPTOR_VERSION)
-from .options import DescribeOptions
+from .descriptors import (DescriptorSet as DescriptorSet, describe_grid as describe_grid,
+                          descriptor_distance as descriptor_distance,
+                          descriptor_params as descriptor_params, DEFAULT_LMAX as DEFAULT_LMAX,
+                          SH_NORMALIZATION as SH_NORMALIZATION,
+                          DESCRIPTOR_VERSION as DESCRIPTOR_VERSION)
+from .options import DescribeOptions as DescribeOptions

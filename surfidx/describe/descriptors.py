@@ -169,7 +169,7 @@ def _ico_to_dh(level: int, lmax: int) -> sp.csr_matrix:
     return sp.csr_matrix((bary.ravel(), (rows, tri[idx].ravel())), shape=(len(q), ico.n_vertices))
 
 
-def _degree_energies(layers: np.ndarray, level: int, lmax: int, *,
+def degree_energies(layers: np.ndarray, level: int, lmax: int, *,
                      grid_lmax: int | None = None) -> np.ndarray:
     """(k, lmax+1) per-degree energies (pyshtools, 4π norm) of grid layers (n_grid, k).
 
@@ -227,7 +227,7 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(out) * damp
 
 
-def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
+def shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     """The unscaled parts of the ``shape`` descriptor, by name (:data:`SHAPE_PARTS`).
 
     Parameters
@@ -240,8 +240,8 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     The measure parts (shells, D2, radial) use the grid of level ``min(level, SHAPE_LEVEL)`` (a
     prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms.
     """
-    spectral = _log_spectrum(x, level)
-    part = {"layers": _layers_part(layers, level)}
+    spectral = log_spectrum(x, level)
+    part = {"layers": layers_part(layers, level)}
     level = min(level, SHAPE_LEVEL)
     x = x[:vertex_count(level)]
     a = _grid_areas(x, level)
@@ -255,9 +255,9 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     rng = np.random.default_rng(SEED)
     cdf = np.cumsum(w)
     cdf /= cdf[-1]
-    i = _search_right(cdf, rng.random(D2_PAIRS))
-    j = _search_right(cdf, rng.random(D2_PAIRS))
-    d = _pair_distances(y, i, j)
+    i = search_right(cdf, rng.random(D2_PAIRS))
+    j = search_right(cdf, rng.random(D2_PAIRS))
+    d = pair_distances(y, i, j)
     part["d2"] = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
     part["radial"] = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
     part["spectral"] = spectral
@@ -265,7 +265,7 @@ def _shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
 
 
 @numba.njit(cache=True)
-def _search_right(cdf, u):  # pragma: no cover - compiled
+def search_right(cdf, u):  # pragma: no cover - compiled
     """``np.searchsorted(cdf, u, side="right")`` for a non-decreasing ``cdf`` ending at 1 and
     ``u`` in [0, 1): the inverse-CDF draws of ``Generator.choice(p=...)``, the same indices.
     A table of :data:`_DRAW_BUCKETS` equal slices of [0, 1] bounds each binary search to the
@@ -295,7 +295,7 @@ def _search_right(cdf, u):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _pair_distances(y, i, j):  # pragma: no cover - compiled
+def pair_distances(y, i, j):  # pragma: no cover - compiled
     """``np.linalg.norm(y[i] - y[j], axis=1)``, the same sums in the same order, without the
     two gathered ``(k, 3)`` copies."""
     out = np.empty(len(i))
@@ -306,11 +306,11 @@ def _pair_distances(y, i, j):  # pragma: no cover - compiled
     return out
 
 
-def _layers_part(layers: np.ndarray, level: int) -> np.ndarray:
+def layers_part(layers: np.ndarray, level: int) -> np.ndarray:
     """(3·(LAYERS_LMAX+1),) the *layers* part: ``sqrt(E_jl)``, the per-degree energies of the
     geometric KLT layers (n_grid, 3), degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid of
     degree ``LAYERS_GRID_LMAX``."""
-    e = _degree_energies(layers, level, LAYERS_LMAX, grid_lmax=LAYERS_GRID_LMAX)
+    e = degree_energies(layers, level, LAYERS_LMAX, grid_lmax=LAYERS_GRID_LMAX)
     return np.sqrt(np.maximum(e, 0)).ravel()
 
 
@@ -326,7 +326,7 @@ def _grid_solver(level: int) -> SPDSolver:
     return SPDSolver()
 
 
-def _log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
+def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
     """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator.
 
     Cotangent stiffness ``K`` and lumped (barycentric) mass ``M`` on the icosphere mesh of level
@@ -415,17 +415,17 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         raise InputError("the geometry has zero variance; cannot normalise its scale")
     g = geo.forward(values[:, :3]) / np.sqrt(total)
     vectors = {
-        "shape": _shape_vector(_shape_parts(values[:, :3], level, g)),
-        "layers": np.sqrt(np.maximum(_degree_energies(g, level, lmax), 0)).ravel(),
+        "shape": _shape_vector(shape_parts(values[:, :3], level, g)),
+        "layers": np.sqrt(np.maximum(degree_energies(g, level, lmax), 0)).ravel(),
         "spectrum": np.asarray(geo.eigenvalues) / total,
     }
     if values.shape[1] == 6:
-        vectors["texture"] = _texture_vector(values[:, 3:], level, lmax)
+        vectors["texture"] = texture_vector(values[:, 3:], level, lmax)
     vectors = {k: np.asarray(v, np.float32) for k, v in vectors.items()}
     return DescriptorSet(vectors, descriptor_params(lmax=lmax))
 
 
-def _texture_vector(colors: np.ndarray, level: int, lmax: int) -> np.ndarray:
+def texture_vector(colors: np.ndarray, level: int, lmax: int) -> np.ndarray:
     """(3·(lmax+1) + 3,) the ``texture`` descriptor of grid colours (n_grid, 3) in 0..255: sqrt
     per-degree energies of the colour KLT layers (units /255, sphere-area weights), then the
     area-weighted mean colour /255."""
@@ -433,7 +433,7 @@ def _texture_vector(colors: np.ndarray, level: int, lmax: int) -> np.ndarray:
     col = colors / 255.0
     c = KLT.fit(col, sample_weights=area).forward(col)
     mean_col = (area @ col) / area.sum()
-    return np.concatenate([np.sqrt(np.maximum(_degree_energies(c, level, lmax), 0)).ravel(),
+    return np.concatenate([np.sqrt(np.maximum(degree_energies(c, level, lmax), 0)).ravel(),
                            mean_col])
 
 

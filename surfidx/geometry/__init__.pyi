@@ -1,10 +1,14 @@
 """Public names of :mod:`surfidx.geometry` (imported on first use, see ``__init__.py``)."""
 
-from .surfels import SurfelSet
-from .mesh import TriangleMesh
-from .pointcloud import points_to_surfels
-from .graph import SphereOfInfluenceGraph, sphere_of_influence_graph
-from .geodesics import (GeodesicSolver, GeodesicPath, geodesic_distances, geodesic_path,
-                        farthest_point_landmarks)
-from .icosphere import Icosphere, choose_level, vertex_count
-from .metrics import evaluate, psnr_d1, psnr_d2, psnr_luma, hausdorff, Reference
+from .surfels import SurfelSet as SurfelSet
+from .mesh import TriangleMesh as TriangleMesh
+from .pointcloud import points_to_surfels as points_to_surfels
+from .graph import (SphereOfInfluenceGraph as SphereOfInfluenceGraph,
+                    sphere_of_influence_graph as sphere_of_influence_graph)
+from .geodesics import (GeodesicSolver as GeodesicSolver, GeodesicPath as GeodesicPath,
+                        geodesic_distances as geodesic_distances, geodesic_path as geodesic_path,
+                        farthest_point_landmarks as farthest_point_landmarks)
+from .icosphere import (Icosphere as Icosphere, choose_level as choose_level,
+                        vertex_count as vertex_count)
+from .metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_d2,
+                      psnr_luma as psnr_luma, hausdorff as hausdorff, Reference as Reference)

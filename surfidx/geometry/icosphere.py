@@ -91,7 +91,26 @@ def level_of_count(n: int) -> int | None:
     return level if vertex_count(level) == n else None
 
 
-def _check_level(level, name: str = "level") -> int:
+def check_level(level, name: str = "level") -> int:
+    """A grid level checked: an integer in ``[0, MAX_LEVEL]``.
+
+    Parameters
+    ----------
+    level : int
+        The level to check.
+    name : str
+        The argument's name in the error message.
+
+    Returns
+    -------
+    int
+        ``level`` as a Python int.
+
+    Raises
+    ------
+    InputError
+        When ``level`` is not an integer, negative or above :data:`MAX_LEVEL`.
+    """
     lev = check_positive_int(level, name, minimum=0)
     if lev > MAX_LEVEL:
         raise InputError(f"{name} must be at most {MAX_LEVEL} (grid of {vertex_count(MAX_LEVEL)} "
@@ -147,7 +166,7 @@ class _HalfEdges:
         self.tail, self.head = tail, head
         self.opp = faces[:, [2, 0, 1]].ravel()
         if coarse is None:
-            self.twin = _twins_by_sorting(tail, head, n_vertices)
+            self.twin = twins_by_sorting(tail, head, n_vertices)
         else:
             self.twin = _subdivided_twins(coarse.twin)
         # the half-edge of each edge that runs lo -> hi, edges in lexicographic (lo, hi) order
@@ -170,7 +189,7 @@ class _HalfEdges:
         return h - h % 3 + (h + 2) % 3
 
 
-def _twins_by_sorting(tail: np.ndarray, head: np.ndarray, n_vertices: int) -> np.ndarray:
+def twins_by_sorting(tail: np.ndarray, head: np.ndarray, n_vertices: int) -> np.ndarray:
     """The reversed half-edge of each half-edge of a closed 2-manifold, by sorting edge keys."""
     key = np.minimum(tail, head) * np.int64(n_vertices) + np.maximum(tail, head)
     order = np.argsort(key, kind="stable")
@@ -285,7 +304,7 @@ class Icosphere:
     """
 
     def __init__(self, level: int, *, _coarser: "Icosphere | None" = None):
-        level = _check_level(level)
+        level = check_level(level)
         self.level = level
         if level == 0:
             v, f = _icosahedron()
@@ -416,7 +435,7 @@ class Icosphere:
         indices : (60·4^level,) int64
             Neighbours of ``v`` are ``indices[indptr[v]:indptr[v + 1]]`` (ascending).
         """
-        lev = self.level if level is None else _check_level(level)
+        lev = self.level if level is None else check_level(level)
         if lev > self.level:
             raise InputError(f"level must be at most the grid level {self.level}, got {lev}")
         return icosphere(lev)._neighbors
@@ -427,7 +446,7 @@ class Icosphere:
 
     def vertex_areas(self) -> np.ndarray:
         """(n,) float64: a third of the spherical areas of the triangles at each vertex (sum 4π)."""
-        return _vertex_areas(self.level).copy()
+        return level_vertex_areas(self.level).copy()
 
     def __repr__(self) -> str:
         return f"Icosphere(level={self.level}, vertices={self.n_vertices}, faces={len(self.faces)})"
@@ -451,12 +470,25 @@ def icosphere(level: int) -> Icosphere:
     InputError
         If ``level`` is not an integer in 0 … :data:`MAX_LEVEL`.
     """
-    lev = _check_level(level)
+    lev = check_level(level)
     return Icosphere(lev, _coarser=icosphere(lev - 1) if lev else None)
 
 
 @functools.lru_cache(maxsize=MAX_LEVEL + 1)
-def _vertex_areas(level: int) -> np.ndarray:
+def level_vertex_areas(level: int) -> np.ndarray:
+    """The spherical area of each vertex of the level-``level`` grid (a third of each incident
+    triangle's), cached and read-only.
+
+    Parameters
+    ----------
+    level : int
+        A checked grid level (see :func:`check_level`).
+
+    Returns
+    -------
+    ndarray of float64, shape (vertex_count(level),)
+        The vertex areas; they sum to 4π.
+    """
     from .mesh import vertex_area_shares     # scipy: not needed to count vertices
 
     ico = icosphere(level)
@@ -505,7 +537,7 @@ def choose_level(n_surfels: int, *, oversampling: float = 4.0, sparse_sampling: 
         On a non-positive count or oversampling, or a cap outside 0 … :data:`MAX_LEVEL`.
     """
     n = check_positive_int(n_surfels, "n_surfels")
-    cap = _check_level(max_level, "max_level")
+    cap = check_level(max_level, "max_level")
     try:
         ov = float(oversampling)
     except (TypeError, ValueError):

@@ -1,10 +1,14 @@
 """Public names of :mod:`surfidx.io` (imported on first use, see ``__init__.py``)."""
 
-from .registry import SUPPORTED_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, OUTPUT_FORMATS
-from .limits import MAX_TEXTURE_PIXELS, MAX_COORDINATE, MAX_TEXT_BYTES
-from .reading import read_surfels, read_mesh, read_geometry, as_surfels, model_hash
-from .models import read_model, Model, join_surfels
-from .ply import write_ply
-from .writing import write_model, output_format
-from .atomic import write_atomic
-from .texture import read_texture
+from .registry import (SUPPORTED_SUFFIXES as SUPPORTED_SUFFIXES, MESH_SUFFIXES as MESH_SUFFIXES,
+                       POINT_SUFFIXES as POINT_SUFFIXES, OUTPUT_FORMATS as OUTPUT_FORMATS)
+from .limits import (MAX_TEXTURE_PIXELS as MAX_TEXTURE_PIXELS, MAX_COORDINATE as MAX_COORDINATE,
+                     MAX_TEXT_BYTES as MAX_TEXT_BYTES)
+from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,
+                      read_geometry as read_geometry, as_surfels as as_surfels,
+                      model_hash as model_hash)
+from .models import read_model as read_model, Model as Model, join_surfels as join_surfels
+from .ply import write_ply as write_ply
+from .writing import write_model as write_model, output_format as output_format
+from .atomic import write_atomic as write_atomic
+from .texture import read_texture as read_texture

@@ -149,7 +149,20 @@ def _dot(a, b):
     return float(np.einsum("i,i->", a, b))
 
 
-class _Energy:
+class Energy:
+    """The energy of a spherical map of triangles ``f`` of the surface ``p`` and its gradient:
+    the symmetric Dirichlet energy, or the untangling energy once :attr:`eps` is set.
+
+    Parameters
+    ----------
+    p : ndarray of float64, shape (n, 3)
+        The surface's points.
+    f : ndarray of int, shape (m, 3)
+        Its triangles.
+    max_cot : float
+        Bound of the cotangent weights.
+    """
+
     def __init__(self, p, f, *, max_cot: float = 4.0):
         self.f = np.ascontiguousarray(f, dtype=np.int64)
         self.cot, self.area3 = _cotangents(p, f, max_cot=max_cot)
@@ -177,7 +190,7 @@ class _Energy:
         verts = np.unique(self.f[faces])
         local = np.full(self.n, -1, dtype=np.int64)
         local[verts] = np.arange(len(verts))
-        sub = _Energy.__new__(_Energy)
+        sub = Energy.__new__(Energy)
         sub.f = np.ascontiguousarray(local[self.f[faces]])
         sub.cot, sub.area3 = self.cot[faces], self.area3[faces]
         sub.radius, sub.n, sub.eps, sub.lam = self.radius, len(verts), self.eps, self.lam
@@ -259,7 +272,7 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     info : dict
         ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``.
     """
-    energy = _Energy(p, f, max_cot=max_cot)
+    energy = Energy(p, f, max_cot=max_cot)
     if lam is not None:
         energy.eps, energy.lam = 0.0, float(lam)
     total = energy.area3.sum()
@@ -288,7 +301,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
     The vertices within ``patch_rings[0]`` edges of an inverted triangle are untangled first,
     the others held (when they are fewer than half); where that patch stays tangled (a triangle
-    still inverted after :data:`_PATCH_PATIENCE` rounds), the wider patches of ``patch_rings``
+    still inverted after :data:`PATCH_PATIENCE` rounds), the wider patches of ``patch_rings``
     in turn; the whole map only if they all fail.
 
     Parameters
@@ -316,7 +329,7 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
         ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted), ``rounds``,
         and ``patch`` (the width in rings) when a patch did it.
     """
-    energy = _Energy(p, f)
+    energy = Energy(p, f)
     energy.lam = float(lam)
     y = np.array(x, dtype=np.float64)
     dets = energy.dets(y)
@@ -328,15 +341,15 @@ def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
     # first only the vertices near the inverted triangles (a prolongation folds a few percent of
     # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
     for rings in _PATCH_RINGS if patch_rings is None else patch_rings:
-        free = _near_inverted(energy, y, rings=rings, below=_DET_GOAL if lift else 0.0)
+        free = near_inverted(energy, y, rings=rings, below=_DET_GOAL if lift else 0.0)
         if free.mean() >= 0.5:
             break
-        patch = _Patch(energy, y, free)
-        z, done = _untangle_rounds(patch, y[free], patience=_PATCH_PATIENCE, **options)
+        patch = Patch(energy, y, free)
+        z, done = untangle_rounds(patch, y[free], patience=PATCH_PATIENCE, **options)
         if done > 0:
             y[free] = z
             return _untangled(energy, y, rounds=done, patch=rings)
-    z, done = _untangle_rounds(energy, y, **options)
+    z, done = untangle_rounds(energy, y, **options)
     out = _untangled(energy, z, rounds=abs(done))
     if out[1]["inverted"] > np.count_nonzero(dets <= 0):
         # the map shrank toward a point (nothing on the sphere holds its scale): the map as
@@ -356,7 +369,7 @@ def _untangled(energy, y, **info):
 _PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
 # in turn: a patch's held border can pin a fold that one twice as wide lets go (frag_115's
 # finest level), at a fraction of the whole map's cost
-_PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
+PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
 # the next: on the shared and retrieval models, every patch that untangled had none left by the
 # 28th round (d041's 69 vertices; the others by the 13th), and frag_115's 4-ring patch, pinned
 # by its held border, kept 4 to the 60th
@@ -364,7 +377,7 @@ _DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below 
                    # left at 1e-8 pins the balancing's line search at its barrier)
 
 
-def _near_inverted(energy, y, *, rings: int, below: float = 0.0):
+def near_inverted(energy, y, *, rings: int, below: float = 0.0):
     """Vertices within ``rings`` edges of a triangle whose area ratio is at most ``below``
     (0: an inverted one)."""
     import scipy.sparse as sp
@@ -380,9 +393,9 @@ def _near_inverted(energy, y, *, rings: int, below: float = 0.0):
     return mark > 0
 
 
-class _Patch:
+class Patch:
     """The energy of the triangles around the ``free`` vertices as a function of those vertices
-    alone, the others held where they are (same interface as :class:`_Energy`)."""
+    alone, the others held where they are (same interface as :class:`Energy`)."""
 
     def __init__(self, energy, y, free):
         self.base, verts = energy.restrict(free[energy.f].any(axis=1))
@@ -406,7 +419,7 @@ class _Patch:
         return self.base.preconditioner(shift=shift, keep=np.flatnonzero(self.free))
 
 
-def _untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
+def untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
                      eps_max, patience=None):
     """The eps rounds of :func:`untangle` on ``energy``; returns the positions and the rounds
     taken (negative when it stopped with triangles still inverted). With ``patience``, it
@@ -467,7 +480,7 @@ def _history_forth(d, s, y, rho, order, alpha):  # pragma: no cover - compiled
             d[i] += b * s[k, i]
 
 
-class _History:
+class History:
     """The last ``memory`` L-BFGS pairs ``(s, y)`` in two ring buffers, oldest first."""
 
     def __init__(self, memory: int, size: int):
@@ -515,7 +528,7 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=N
     ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a fold-rejecting
     backtracking line search."""
     e, g = energy(y)
-    hist = _History(memory, g.size)
+    hist = History(memory, g.size)
     steps = 0
     last = 1.0
     stalls = 0

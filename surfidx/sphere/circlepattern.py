@@ -21,7 +21,7 @@ This module works the other way round, in two steps.
    system* exists: positive corner angles, π in each triangle and 2π around each vertex, the two
    opposite an edge summing to ``π - θ_e``. ``θ_e`` is positive exactly where the edge is
    locally Delaunay. After a stereographic projection from one vertex, the corner angles of the
-   current map are projected onto such a system (:func:`_coherent_angles`), with each edge at
+   current map are projected onto such a system (:func:`coherent_angles`), with each edge at
    least :data:`_FLOOR` from cocircular and the flipped ones :data:`_NEW_ANGLE`. Newton's method
    then solves for the triangles' log circumradii (Kharevych, Springborn & Schröder 2006),
    searching each step for the minimum of the convex functional whose gradient it zeroes, so
@@ -71,22 +71,22 @@ __all__ = ["flip_folds", "anneal_flips", "realise", "lower_folds"]
 _FLOOR = 0.01          # intersection angle floor of the triangulation's edges (radians); near
 # cocircular edges make Newton's functional nearly a step along them and its damped phase long
 _NEW_ANGLE = 0.05      # ... of the flipped-in edges: Delaunay by this margin after realisation
-_MIN_CORNER = 1e-4     # smallest corner angle of the coherent angle system (radians)
+MIN_CORNER = 1e-4     # smallest corner angle of the coherent angle system (radians)
 _PROJECTION_STEPS = 300
-_NEWTON_STEPS = 300
+NEWTON_STEPS = 300
 _NEWTON_TOL = 1e-10    # largest triangle angle-sum error (radians) at convergence
 _LINE_STEPS = 40       # bisections of a Newton step's line search
 _STALLS = 2            # fresh Newton steps in a row whose line search accepts no point: stalled.
 # Measured on the 95 retrieval models: the 167 calls that converge have at most 1 (d041), the
-# 4 that ran all _NEWTON_STEPS had one at every fresh step from the 3rd to the 7th on.
+# 4 that ran all NEWTON_STEPS had one at every fresh step from the 3rd to the 7th on.
 _POLE_TRIES = 20       # candidate poles of the stereographic projection (by their star's area)
 _MOEBIUS_STEPS = 5     # reweightings of the Möbius fit of a realisation to the current map
-_LAYOUT_WEIGHT = 0.5   # rows of the layout weighted by circumradius ** -this (see _layout)
+_LAYOUT_WEIGHT = 0.5   # rows of the layout weighted by circumradius ** -this (see layout)
 _LAYOUT_REFINEMENTS = 2
 _CHORD_RATE = 0.25     # a factorised Jacobian is reused while steps shrink the residual so
 _FLIP_ROUNDS = 30
 _FLIP_DEPTH = 6       # flips in a sequence that moves a fold before it is removed
-_MIN_SPACING_RATIO = 0.5
+MIN_SPACING_RATIO = 0.5
 """Without a caller's ``accept``, :func:`lower_folds` lets the realisations bring a point's
 nearest neighbours on the sphere (the mean distance to :data:`_SPACING_NEIGHBOURS` of them)
 closer by this factor at most, measured from the map before the first round: a flip far from
@@ -116,7 +116,7 @@ def _angle(x, a, b, c):
     return float(np.arccos(np.clip(u @ v / np.sqrt((u @ u) * (v @ v)), -1.0, 1.0)))
 
 
-def _against(p, normals, t):
+def against(p, normals, t):
     """:func:`surfidx.geometry.unitsphere.against_normals` of the one triangle ``t``, on the rows of
     ``p`` and ``normals`` as lists: the same operations in the same order in Python floats
     (the searches judge tens of thousands of single flips, where numpy's cost per call is
@@ -146,7 +146,7 @@ class _Flips:
             self._register(i)
         self.bad = (against_normals(p, normals, tri) ^ mirror).tolist()
         self.folded = set(compress(range(len(self.bad)), self.bad))   # kept up to date by flips
-        self._rows = p.tolist(), normals.tolist()       # for _against, one triangle at a time
+        self._rows = p.tolist(), normals.tolist()       # for against, one triangle at a time
 
     @classmethod
     def of(cls, tri, p, normals, x, **options):
@@ -200,7 +200,7 @@ class _Flips:
                 and np.pi - _angle(self.x, a, d, c) - _angle(self.x, b, c, d)
                 >= -self.max_violation):
             return False
-        return [_against(*self._rows, t) != self.mirror for t in new]
+        return [against(*self._rows, t) != self.mirror for t in new]
 
     def apply(self, cand):
         _, i, j, new, bad = cand
@@ -355,7 +355,7 @@ def anneal_flips(tri, p, normals, x, *, steps: int = DEFAULT_OPTIONS.anneal_step
 
 
 # ----------------------------------------------------------------------------- realisation
-def _edges(tri, n):
+def mesh_edges(tri, n):
     """Unique edges ``(E, 2)`` and the edge opposite each corner ``(m, 3)``."""
     e = np.concatenate([tri[:, [1, 2]], tri[:, [2, 0]], tri[:, [0, 1]]])
     key = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])
@@ -363,7 +363,21 @@ def _edges(tri, n):
     return np.column_stack([uniq // n, uniq % n]), inv.reshape(3, len(tri)).T
 
 
-def _planar_angles(u, t):
+def planar_angles(u, t):
+    """The signed corner angles of planar triangles.
+
+    Parameters
+    ----------
+    u : ndarray of float64, shape (n, 2)
+        Planar points.
+    t : ndarray of int, shape (m, 3)
+        Triangles.
+
+    Returns
+    -------
+    ndarray of float64, shape (m, 3)
+        The angle at each corner (negative in an inverted triangle).
+    """
     out = np.empty(t.shape)
     for k in range(3):
         a, b, c = u[t[:, k]], u[t[:, (k + 1) % 3]], u[t[:, (k + 2) % 3]]
@@ -373,9 +387,9 @@ def _planar_angles(u, t):
     return out
 
 
-def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
+def coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     """Corner angles near ``alpha`` that form a coherent angle system for the planar triangles
-    ``t`` (Bobenko & Springborn 2004): each at least :data:`_MIN_CORNER`, summing to π in every
+    ``t`` (Bobenko & Springborn 2004): each at least :data:`MIN_CORNER`, summing to π in every
     triangle and to 2π around every inner vertex (to ``ring_sums`` at the ``ring`` vertices on
     the boundary), and the two opposite an edge summing to at most ``cap`` of that edge (one,
     at the boundary). Such a system exists exactly when the circle pattern with the
@@ -437,10 +451,10 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     p, q = order[first[pair]], order[first[pair] + 1]     # the two corners opposite an edge
     single = order[first[~pair]]                          # the one opposite a boundary edge
     cap_p, cap_s = cap[e[p]], cap[e[single]]
-    lo, hi_p, hi_s = _MIN_CORNER * 1.01, cap_p - 1e-6, cap_s - 1e-6     # inside, by a margin
+    lo, hi_p, hi_s = MIN_CORNER * 1.01, cap_p - 1e-6, cap_s - 1e-6     # inside, by a margin
     a = alpha.ravel().copy()
     for _ in range(_PROJECTION_STEPS):
-        if a.min() >= _MIN_CORNER and (a[p] + a[q] <= cap_p).all() and (a[single] <= cap_s).all() \
+        if a.min() >= MIN_CORNER and (a[p] + a[q] <= cap_p).all() and (a[single] <= cap_s).all() \
                 and np.abs(tsum @ a - np.pi).max() < 1e-9 and np.abs(vsum @ a - vrhs).max() < 1e-9:
             return a.reshape(m, 3)
         u, v = np.maximum(a[p], lo), np.maximum(a[q], lo)
@@ -453,7 +467,7 @@ def _coherent_angles(alpha, t, n, ring, ring_sums, opposite, cap):
     return None
 
 
-def _half_angle(x, sin_ts, cos_ts):
+def half_angle(x, sin_ts, cos_ts):
     """Angle opposite an edge in a triangle whose circumcircle has log radius ``ρ_j``, when the
     neighbour's has ``ρ_j + x`` and the circles meet at ``π - ts``: ``arg(1 + e^(x + i ts))``,
     from ``sin(ts)`` and ``cos(ts)`` (Newton's method evaluates the angles of one ``ts``
@@ -463,11 +477,11 @@ def _half_angle(x, sin_ts, cos_ts):
 
 
 def _half_angle_slope(x, sin_ts, cos_ts):
-    """Derivative of :func:`_half_angle` in ``x``, from ``sin(ts)`` and ``cos(ts)``."""
+    """Derivative of :func:`half_angle` in ``x``, from ``sin(ts)`` and ``cos(ts)``."""
     return sin_ts / (2.0 * (np.cosh(np.clip(x, -700, 700)) + cos_ts))
 
 
-def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
+def log_radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     """Newton's method for the log circumradii ``rho`` (m,) of the triangles: each triangle's
     angles sum to π. The residual is minus the gradient of a convex functional (Bobenko &
     Springborn), so each step is searched along for that functional's minimum on the line (by
@@ -475,13 +489,13 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     functional has a minimum, which a coherent angle system guarantees. When the searches
     along the steps of :data:`_STALLS` fresh factorisations in a row find no point the
     bisections accept, the method has stalled (rounding leaves no descent; the steps that follow
-    repeat it until :data:`_NEWTON_STEPS`), so it stops there. Returns (rho, converged)."""
+    repeat it until :data:`NEWTON_STEPS`), so it stops there. Returns (rho, converged)."""
     i, j = inner_pairs[:, 0], inner_pairs[:, 1]
     const = np.bincount(boundary_face, boundary_ts, minlength=m) - np.pi
     trig = dict(sin_ts=np.sin(ts), cos_ts=np.cos(ts))
 
     def residual(r):            # the two angles opposite an edge sum to its ts
-        half = _half_angle(r[j] - r[i], **trig)
+        half = half_angle(r[j] - r[i], **trig)
         return const + np.bincount(i, half, minlength=m) + np.bincount(j, ts - half, minlength=m)
 
     def jacobian(r):            # minus the residual's Jacobian: a weighted dual Laplacian
@@ -493,7 +507,7 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
 
     g = residual(rho)
     lu, stalls, solver = None, 0, SPDSolver()
-    for _ in range(_NEWTON_STEPS):
+    for _ in range(NEWTON_STEPS):
         if np.abs(g).max() < _NEWTON_TOL:
             return rho, True
         if lu is None:          # a fresh factorisation, reused while the steps converge fast
@@ -535,7 +549,7 @@ def _radii(ts, inner_pairs, boundary_face, boundary_ts, m, rho):
     return rho, bool(np.abs(g).max() < _NEWTON_TOL)
 
 
-def _layout(t, angles, rho, n, anchor):
+def layout(t, angles, rho, n, anchor):
     """Positions (n,) complex of the triangles ``t`` with the given corner angles, by least squares
     over ``p_c - p_a = w (p_b - p_a)`` at every corner; the first triangle's first two corners
     pinned.
@@ -668,7 +682,7 @@ def _circle_pattern(x, tri, *, new_edges=None):
     n = len(x)
     if not _spans(tri, n):
         return None
-    edges, opposite = _edges(tri, n)
+    edges, opposite = mesh_edges(tri, n)
     ne = len(edges)
     for pole in _poles(x, tri)[:_POLE_TRIES]:
         # the pole's edges keep their intersection angles, the turning angles of the boundary
@@ -677,7 +691,7 @@ def _circle_pattern(x, tri, *, new_edges=None):
         u, frame = _stereographic(x, tri, pole)
         inner = ~np.any(tri == pole, axis=1)
         t = tri[inner]
-        ang = _planar_angles(u, t)
+        ang = planar_angles(u, t)
         spoke = np.any(edges == pole, axis=1)
         ring = np.where(edges[spoke, 0] == pole, edges[spoke, 1], edges[spoke, 0])
         vertex_sum = np.bincount(t.ravel(), ang.ravel(), minlength=n)
@@ -693,7 +707,7 @@ def _circle_pattern(x, tri, *, new_edges=None):
     elif len(new_edges):
         ne_ = np.sort(np.asarray(new_edges, dtype=np.int64), axis=1)
         floor[np.isin(edges[:, 0] * n + edges[:, 1], ne_[:, 0] * n + ne_[:, 1])] = _NEW_ANGLE
-    alpha = _coherent_angles(ang, t, n, ring, vertex_sum[ring], opposite[inner], np.pi - floor)
+    alpha = coherent_angles(ang, t, n, ring, vertex_sum[ring], opposite[inner], np.pi - floor)
     out = None if alpha is None else _pattern(
         alpha, u, t, ang, opposite[inner], ne, n, pole, keep, frame)
     return out
@@ -732,7 +746,7 @@ def _pattern(alpha, u, t, ang, opp_inner, ne, n, pole, keep, frame):
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.log(np.linalg.norm(a, axis=1) / (2.0 * np.abs(np.sin(b))))
     rho = np.where(np.isfinite(rho), rho, 0.0)
-    rho, ok = _radii(ts[pair_edges], pairs, bnd_face, ts[bnd_edge], mi, rho - rho[0])
+    rho, ok = log_radii(ts[pair_edges], pairs, bnd_face, ts[bnd_edge], mi, rho - rho[0])
     if not ok:
         return None
     # each inner triangle's corner angles: the half angle of the edge opposite the corner
@@ -744,21 +758,21 @@ def _pattern(alpha, u, t, ang, opp_inner, ne, n, pole, keep, frame):
         e = opp_inner[:, k]
         q = np.maximum(pair_of[e], 0)
         nb = np.where(pairs[q, 0] == own, pairs[q, 1], pairs[q, 0])
-        half = _half_angle(rho[nb] - rho, np.sin(ts[e]), np.cos(ts[e]))
+        half = half_angle(rho[nb] - rho, np.sin(ts[e]), np.cos(ts[e]))
         angles[:, k] = np.where(pair_of[e] >= 0, half, ts[e])
     if not (angles > 0).all():
         return None
-    zc = _layout(t, angles, rho, n, pole)
+    zc = layout(t, angles, rho, n, pole)
     if zc is None:
         return None
     # the Möbius map closest to the current map, weighted like area on the sphere: it keeps
     # the pattern's circles, so the realisation stays exact
     zu = u[keep, 0] + 1j * u[keep, 1]
-    moved, far = _moebius_fit(zc[keep], zu, zc)
+    moved, far = moebius_fit(zc[keep], zu, zc)
     return _from_plane(moved, frame, far)
 
 
-def _moebius_fit(z, target, z_all):
+def moebius_fit(z, target, z_all):
     """``m(z_all)`` and ``m(∞)`` for the Möbius map ``m(z) = (a z + b) / (c z + 1)`` that brings
     ``z`` nearest ``target`` in the sphere's metric: least squares on ``a z + b - c z target =
     target``, whose residuals are the wanted ones times ``c z + 1``, reweighted by that factor
@@ -783,7 +797,7 @@ def _canonical(t):
     return t[np.lexsort(t.T[::-1])]
 
 
-def _spacing(x):
+def point_spacing(x):
     """Each point's mean chord distance to its :data:`_SPACING_NEIGHBOURS` nearest, ``(n,)``."""
     from scipy.spatial import cKDTree
 
@@ -811,7 +825,7 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
     accept : callable, optional
         ``accept(y) -> bool`` for a realisation ``y`` (an ``(n, 3)`` map): whether it may
         replace the map (:func:`surfidx.sphere.parameterize` passes a bound on the loss of
-        resampling quality). Default: the geometric bound :data:`_MIN_SPACING_RATIO` on the
+        resampling quality). Default: the geometric bound :data:`MIN_SPACING_RATIO` on the
         crowding of every point's neighbours, measured from ``x``.
     options : MapOptions
         ``realise_rounds``: most flip-and-realise rounds. ``flip_ladder``: the flips tried in
@@ -838,10 +852,10 @@ def lower_folds(x, p, normals, *, accept=None, options: MapOptions = DEFAULT_OPT
     info = {"folds_before": folds, "folds": folds, "rounds": 0, "refused": 0, "annealed": 0,
             "annealing": 0}
     if accept is None:
-        spacing = _spacing(x)    # the rounds together may crowd a point this much at most
+        spacing = point_spacing(x)    # the rounds together may crowd a point this much at most
 
         def accept(y):
-            return bool(np.min(_spacing(y) / spacing) >= _MIN_SPACING_RATIO)
+            return bool(np.min(point_spacing(y) / spacing) >= MIN_SPACING_RATIO)
 
     anneal = options.anneal_steps > 0
     for _ in range(options.realise_rounds):

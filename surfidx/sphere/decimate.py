@@ -341,7 +341,7 @@ def _bucket_faces(flat, ptr):  # pragma: no cover - compiled
     return idx
 
 
-def _shortest_first(p: np.ndarray, e: np.ndarray) -> np.ndarray:
+def shortest_first(p: np.ndarray, e: np.ndarray) -> np.ndarray:
     """The order of the edges ``e`` by squared length rounded to 9 decimals relative to the mean,
     ties in edge order: the order (hence the coarse mesh) does not change with a rotation or
     scaling of the input.
@@ -391,7 +391,7 @@ def decimate(positions: np.ndarray, faces: np.ndarray, target: int, *,
         deg = np.bincount(f.ravel(), minlength=n)    # closed manifold: faces = neighbours
         e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = e[e[:, 0] < e[:, 1]]                     # each undirected edge once
-        e = np.ascontiguousarray(e[_shortest_first(p, e)])
+        e = np.ascontiguousarray(e[shortest_first(p, e)])
         ptr, idx = _vertex_faces(f, n)
         removed, kept, ring_ptr, ring = _select(e, p, ptr, idx, f, deg, alive - target,
                                                 _MAX_DEGREE, *turn_sliver)

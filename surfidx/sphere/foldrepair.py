@@ -23,12 +23,12 @@ What remains lies across sharp creases and thin sheets (the three surfel normals
 the densest limb rows.
 
 When the rounds leave at most ``search_folds`` folded triangles, a seeded random search follows
-(:func:`_search`): single moves of a corner or of a corner's mesh neighbour, in random directions
+(:func:`random_search`): single moves of a corner or of a corner's mesh neighbour, in random directions
 by up to a mesh-edge length, the first that lowers the count kept. It reaches folds across
 creases that no move of the triangle's own corners mends. Its evaluations are one budget,
 ``search_work / n`` in all, shared by the folds, so the search costs about the same at any size.
 
-Each round re-triangulates only the cavity of the moved vertices (:class:`_Hull`); one global
+Each round re-triangulates only the cavity of the moved vertices (:class:`Hull`); one global
 convex hull is computed at the start and one at the end.
 """
 
@@ -53,7 +53,7 @@ __all__ = ["repair_folds"]
 _MOVES = ((0, 0.2), (0, 1.0), (1, 0.2), (2, 0.2), (0, 0.05), (1, 1.0), (2, 1.0),
           (0, -1.0), (1, -1.0), (2, -1.0), (0, -0.5), (1, -0.5), (2, -0.5))
 _CLUSTER_RINGS = 2   # rings of vertices around the moved ones that a cluster's folds are counted on
-_FEW_MOVED = 8       # _Hull.moved tests circumcircles directly against this many moved vertices
+_FEW_MOVED = 8       # Hull.moved tests circumcircles directly against this many moved vertices
 _HALVINGS = 3        # a move that inverts a mesh triangle is halved this often, then undone
 _ON_CIRCLE = 1e-10   # a circumcircle holds a point nearer its centre than (1 - this) its radius
 _SEARCH_MIN = 10     # the random search evaluates at least this many moves per fold
@@ -74,7 +74,7 @@ def _largest_angle_corner(p, t):
     return np.nan_to_num(cos, nan=1.0).argmin(axis=1)
 
 
-class _Mesh:
+class Mesh:
     """Adjacency of the mesh, built once."""
 
     def __init__(self, f, n):
@@ -111,7 +111,7 @@ class _Mesh:
         return moved
 
 
-class _Hull:
+class Hull:
     """The spherical Delaunay triangulation of the current map and its folded triangles, updated
     locally when a few vertices move.
 
@@ -291,7 +291,7 @@ def repair_folds(x, p, normals, f, *, options: MapOptions = DEFAULT_OPTIONS, sea
         ``repair_rounds``: most rounds. Each round tries a move on every folded triangle at
         once, the next of :data:`_MOVES` that this triangle has not had; the repair ends when
         every folded triangle has had them all. ``search_folds``, ``search_trials``,
-        ``search_work``: the random search (:func:`_search`).
+        ``search_work``: the random search (:func:`random_search`).
     search : bool
         Follow the rounds with the random search when they leave at most
         ``options.search_folds`` folds.
@@ -305,9 +305,9 @@ def repair_folds(x, p, normals, f, *, options: MapOptions = DEFAULT_OPTIONS, sea
         ``moved`` (moves kept, summed over the rounds) and, when the random search ran,
         ``searched`` (the folds it removed).
     """
-    mesh = _Mesh(f, len(x))
+    mesh = Mesh(f, len(x))
     x0 = x = np.array(x, dtype=np.float64)
-    state = _Hull(x, p, normals)
+    state = Hull(x, p, normals)
     info = {"folds_before": int(state.bad.sum()), "rounds": 0, "moved": 0, "folds": 0}
     if not info["folds_before"]:
         return x, info
@@ -340,7 +340,7 @@ def repair_folds(x, p, normals, f, *, options: MapOptions = DEFAULT_OPTIONS, sea
         info["rounds"] += 1
         info["moved"] += int(kept.sum())
     if search and 0 < int(state.bad.sum()) <= options.search_folds:
-        x, found = _search(x, state, mesh, trials=options.search_trials,
+        x, found = random_search(x, state, mesh, trials=options.search_trials,
                            work=options.search_work)
         info["searched"] = found
     folds = int(folded_mask(p, normals, hull_triangles(x)).sum())   # the global hull, once
@@ -350,7 +350,7 @@ def repair_folds(x, p, normals, f, *, options: MapOptions = DEFAULT_OPTIONS, sea
     return x, info
 
 
-def _search(x, state, mesh, *, trials: int, work: float):
+def random_search(x, state, mesh, *, trials: int, work: float):
     """Random single-vertex moves around the few folds the move rounds left: for each folded
     triangle, up to ``trials`` moves of a corner or of a corner's mesh neighbour, in a random
     direction by a random share (:data:`_SEARCH_STEP`) of its mean mesh-edge length on the
@@ -378,7 +378,7 @@ def _search(x, state, mesh, *, trials: int, work: float):
             if adj.indptr[v] == adj.indptr[v + 1]:
                 continue                     # no mesh neighbour: no step length to draw from
             d = rng.standard_normal(3)
-            new = _trial_move(x, v, d, rng.uniform(*_SEARCH_STEP), adj.indptr, adj.indices,
+            new = trial_move(x, v, d, rng.uniform(*_SEARCH_STEP), adj.indptr, adj.indices,
                               vf.indptr, vf.indices, mesh.f)
             if new is None:
                 continue                     # inverts a mesh triangle: rejected unevaluated
@@ -395,8 +395,8 @@ def _search(x, state, mesh, *, trials: int, work: float):
     return x, removed
 
 
-def _trial_move(x, v, d, share, adj_ptr, adj_idx, vf_ptr, vf_idx, f):
-    """:func:`_search`'s move of vertex ``v``: along the random direction ``d`` (projected on the
+def trial_move(x, v, d, share, adj_ptr, adj_idx, vf_ptr, vf_idx, f):
+    """:func:`random_search`'s move of vertex ``v``: along the random direction ``d`` (projected on the
     tangent plane) by ``share`` of its mean mesh-edge length on the sphere; the new unit vector,
     or None when it would invert one of ``v``'s mesh triangles."""
     new = np.empty(3)

@@ -183,7 +183,24 @@ def _merge_duplicates(v, f):
     return uv, f
 
 
-def _check_topology(v, f, *, genus0: bool):
+def check_topology(v, f, *, genus0: bool):
+    """Check that a proxy surface is one closed, manifold, consistently oriented piece (of
+    genus 0 with ``genus0``).
+
+    Parameters
+    ----------
+    v : ndarray of float64, shape (n, 3)
+        The surface's vertices.
+    f : ndarray of int, shape (m, 3)
+        Its triangles.
+    genus0 : bool
+        Require genus 0.
+
+    Raises
+    ------
+    TopologyError
+        When the surface is not.
+    """
     topo = TriangleMesh(v, f).topology()
     if not topo.closed or topo.nonmanifold_vertices:
         raise TopologyError(
@@ -303,7 +320,7 @@ def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
         h = extent / cells
         try:
             v, f = _extract(p, nrm, surfels.radii, h, spacing)
-            _check_topology(v, f, genus0=genus0)
+            check_topology(v, f, genus0=genus0)
             break
         except TopologyError as exc:
             first = first or exc
@@ -322,7 +339,7 @@ def proxy_mesh(surfels, *, resolution: int | None = None, genus0: bool = True,
 
 # ---------------------------------------------------------------------- closest points
 @njit(cache=True)
-def _closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
+def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     """Barycentric coordinates (u, v, w) of the point of triangle abc closest to p (Ericson,
     Real-Time Collision Detection, 5.1.5)."""
     abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
@@ -370,7 +387,7 @@ def _closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _project(points, cand, vertices, faces):  # pragma: no cover - compiled
+def project_to_candidates(points, cand, vertices, faces):  # pragma: no cover - compiled
     """For each point, the closest of its candidate triangles (``cand`` rows, -1 padded):
     face index, barycentric coordinates, squared distance."""
     n, k = cand.shape
@@ -386,7 +403,7 @@ def _project(points, cand, vertices, faces):  # pragma: no cover - compiled
             a = vertices[faces[t, 0]]
             b = vertices[faces[t, 1]]
             c = vertices[faces[t, 2]]
-            u, v, w = _closest_on_triangle(p, a, b, c)
+            u, v, w = closest_on_triangle(p, a, b, c)
             dx = u * a[0] + v * b[0] + w * c[0] - p[0]
             dy = u * a[1] + v * b[1] + w * c[1] - p[1]
             dz = u * a[2] + v * b[2] + w * c[2] - p[2]
@@ -446,7 +463,7 @@ def closest_points(points, vertices, faces, *, candidates: int = 16):
     if k == 1:
         dk, cand = dk[:, None], cand[:, None]
     cand = np.ascontiguousarray(cand, np.int64)
-    face, bary, d2 = _project(points, cand, vertices, faces)
+    face, bary, d2 = project_to_candidates(points, cand, vertices, faces)
     dist = np.sqrt(d2)
     if k < len(faces):
         # an untried triangle is at least (its centroid distance - reach) >= dk[:, -1] - reach away
@@ -457,7 +474,7 @@ def closest_points(points, vertices, faces, *, candidates: int = 16):
             more = np.full((len(redo), width), -1, np.int64)
             for r, x in enumerate(lists):  # one row per uncertified point (few)
                 more[r, :len(x)] = x
-            f2, b2, d22 = _project(points[redo], more, vertices, faces)
+            f2, b2, d22 = project_to_candidates(points[redo], more, vertices, faces)
             better = d22 < d2[redo]
             sel = redo[better]
             face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
