@@ -32,7 +32,7 @@ import surfidx.codec as codec  # noqa: E402
 import surfidx.codec.encoder as codec_encoder  # noqa: E402
 from surfidx.codec import density, wavelets  # noqa: E402
 from surfidx.codec import PartsEncoder, decode, decode_grid  # noqa: E402
-from surfidx.io import read_model  # noqa: E402
+from surfidx.topology import read_model  # noqa: E402
 from surfidx.codec.klt import KLT  # noqa: E402
 from surfidx.pipeline import content_hash  # noqa: E402
 

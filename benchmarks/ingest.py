@@ -38,6 +38,7 @@ from pathlib import Path
 # This script is named like the package it measures: import the package, not the script.
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 import ingest  # noqa: E402
+from surfidx.io import find_texture  # noqa: E402
 from surfidx.pipeline import process_model  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,7 +47,7 @@ WARMUP = REPO / "examples" / "models" / "spot" / "spot_triangulated.obj"
 
 def warm_up() -> None:
     """Process one small model (imports, numba caches) in this process."""
-    process_model(str(WARMUP), texture=ingest.find_texture(WARMUP))
+    process_model(str(WARMUP), texture=find_texture(WARMUP))
 
 
 class Recording:

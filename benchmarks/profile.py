@@ -64,7 +64,7 @@ SHARED = ROOT.parent / "shared" / "data"
 STAGES = (
     ("surfidx.io.reading", "read_surfels", "read"),
     ("surfidx.io.reading", "read_geometry", "read"),
-    ("surfidx.io.models", "read_model", "read"),
+    ("surfidx.topology.model", "read_model", "read"),
     ("surfidx.topology.model", "repair_model", "read"),
     ("surfidx.geometry.graph", "sphere_of_influence_graph", "graph"),
     ("surfidx.geometry.geodesics", "GeodesicSolver.__init__", "geodesics"),

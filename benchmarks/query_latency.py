@@ -8,7 +8,7 @@ Built from real descriptors: ``--real-npz`` folders of per-model grids cached by
 collection; their descriptors are computed with :func:`surfidx.describe.descriptors.describe_grid` and
 cached in ``/tmp/surfidx_query_latency_desc``)
 and/or ``--real-db`` databases of ingested models. Every stored kind is generated (``shape``,
-``spectrum``, ``layers``, ``texture``), searched by :data:`surfidx.db.search.DEFAULT_KINDS`. They are
+``spectrum``, ``layers``, ``texture``), searched by :data:`surfidx.describe.distance.DEFAULT_KINDS`. They are
 perturbed so that neighbourhoods look like real ones (:class:`Generator`): every row belongs to a
 sub-class whose centre mixes two real models of one class (classes from ``labels.csv`` of the
 retrieval collection; the mixing weight drawn towards the first) plus noise along the real models'
@@ -54,9 +54,10 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
-from surfidx.db import Database
+from surfidx.database import Database
 from surfidx.db.catalog import utc_now
-from surfidx.db.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, SearchIndex, weighted_l2
+from surfidx.db.search import SearchIndex  # noqa: E402
+from surfidx.describe.distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, weighted_l2
 
 LABELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval" / "labels.csv"
 COLOUR = "texture"

@@ -6,7 +6,7 @@ Data: ``../shared/data/retrieval`` (``labels.csv``: path,class; ``meta.csv``: ge
 pipeline's default method, no stress figure) → resampling on the icosahedral grid at
 :func:`surfidx.geometry.icosphere.choose_level` (what :class:`surfidx.codec.Encoder` does before coding;
 the coding itself is skipped) → :func:`surfidx.describe.descriptors.describe_grid` →
-:func:`surfidx.describe.descriptors.descriptor_distance`. Models are read by :func:`surfidx.io.read_model`,
+:func:`surfidx.describe.descriptors.descriptor_distance`. Models are read by :func:`surfidx.topology.read_model`,
 as ingest reads them: a closed genus-0 mesh exactly as :func:`surfidx.read_surfels` reads it, a
 genus > 0 one (18 of the 95) through the topology repair (handles cut, the cut sides capped by
 virtual patches), so the descriptors describe its closed surface. Models that still cannot be
@@ -126,7 +126,7 @@ def _load_model(path: Path, variant):
     mesh = surfidx.read_mesh(path)
     v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
     if variant is None:     # as ingest reads it: a sphere as it is, anything else repaired
-        from surfidx.io import read_model
+        from surfidx.topology import read_model
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -203,7 +203,7 @@ def compute(job: dict) -> dict:
 
 
 def needs_repair(path: Path) -> bool:
-    """Whether :func:`surfidx.io.read_model` repairs the mesh (it is not one closed genus-0
+    """Whether :func:`surfidx.topology.read_model` repairs the mesh (it is not one closed genus-0
     piece)."""
     import surfidx
     from surfidx.topology import analyse

@@ -24,7 +24,7 @@ five real models), everything through the ingest path as it is:
 
 * before (:func:`surfidx.topology.analysis` of the file's mesh): holes, genus (largest piece),
   pieces;
-* what the repair added (:func:`surfidx.io.read_model`'s :meth:`~surfidx.topology.Model.summary`):
+* what the repair added (:func:`surfidx.topology.read_model`'s :meth:`~surfidx.topology.Model.summary`):
   holes filled, handles cut, pinched vertices split, parts kept (dropped), virtual share of the
   area;
 * CPU time (``time.process_time``) of the repair (analyse + split_parts + close_surface +
@@ -124,7 +124,7 @@ def ingest_row(path: Path, rates) -> dict:
     import sys
 
     from surfidx.codec import decode, max_file_bytes, stream_summary
-    from surfidx.io import read_model
+    from surfidx.topology import read_model
     from surfidx.geometry.metrics import psnr_d2
     from surfidx.pipeline import process_model
     from surfidx.topology import closed_mesh

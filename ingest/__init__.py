@@ -5,7 +5,7 @@
 >>> print(summary)                                                        # doctest: +SKIP
 run 1: stored 41, skipped 0, failed 1 in 312.4 s
 
-Modules: :mod:`ingest._files` (discovery, bounded reading, texture discovery),
+Modules: :mod:`ingest._files` (discovery, content hashes),
 :mod:`ingest._tasks` (tasks, the per-model function, outcomes), :mod:`ingest._run` (the data
 flow, executors, the single writer) and :mod:`ingest._dask` (the dask.distributed executor:
 ``ingest.run(..., scheduler="local")`` or ``scheduler="tcp://HOST:PORT"``; needs
@@ -13,12 +13,11 @@ flow, executors, the single writer) and :mod:`ingest._dask` (the dask.distribute
 """
 
 from ._dask import DaskExecutor
-from ._files import NotRegularFile, discover, find_texture, hash_files
+from ._files import discover, hash_files
 from ._run import IngestSummary, ProcessPool, default_workers, exit_with_parent, run, serial
-from ._tasks import (Outcome, Task, accepts_progress, error_message, make_tasks, process_task,
-                     resolve_processor)
+from ._tasks import Outcome, Task, error_message, make_tasks, process_task, resolve_processor
 
-__all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "find_texture", "make_tasks",
+__all__ = ["run", "IngestSummary", "Task", "Outcome", "discover", "make_tasks",
            "process_task", "resolve_processor", "serial", "ProcessPool", "DaskExecutor",
-           "error_message", "hash_files", "NotRegularFile", "exit_with_parent",
-           "default_workers", "accepts_progress"]
+           "error_message", "hash_files", "exit_with_parent",
+           "default_workers"]

@@ -1,20 +1,19 @@
-"""Model files of an ingest: folders searched for them, files read within bounds, textures found.
+"""Model files of an ingest: folders searched for them, and each file's content hash.
 
-Only regular files are read (a FIFO, a device, a socket or a link to one raises
-:class:`NotRegularFile` unread), and never beyond the size a file had when it was opened, so a
-file that grows while it is read cannot stall the run.
+Files are hashed through :mod:`surfidx.io.files` (regular files only, never beyond the size a file
+had when it was opened), so a FIFO or a file that grows while it is read cannot stall the run.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-import stat
 from pathlib import Path
 
 from surfidx.errors import InputError
+from surfidx.io.files import file_pieces
 
-__all__ = ["discover", "NotRegularFile", "not_regular", "hash_files", "find_texture"]
+__all__ = ["discover", "hash_files"]
 
 
 # ---------------------------------------------------------------------- discovery
@@ -74,66 +73,6 @@ def discover(paths) -> list:
     return sorted(found)
 
 
-# ---------------------------------------------------------------------- bounded reading
-class NotRegularFile(OSError):
-    """A path that is not a regular file (FIFO, device, socket, directory, or a link to one)."""
-
-
-def _file_type(mode: int) -> str:
-    for test, name in ((stat.S_ISFIFO, "a named pipe (FIFO)"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory")):
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
-def not_regular(path, mode: int) -> NotRegularFile:
-    """The :class:`NotRegularFile` error for ``path`` of file mode ``mode`` (its kind named)."""
-    kind = _file_type(mode)
-    link = os.path.islink(path)
-    return NotRegularFile(f"not a regular file: {'a symbolic link to ' if link else ''}{kind}")
-
-
-def _open_regular(path):
-    """``(binary file, size)`` of a regular file, opened without blocking (opening a FIFO for
-    reading would wait for a writer); anything else raises :class:`NotRegularFile`."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise not_regular(path, st.st_mode)
-        if hasattr(os, "set_blocking"):
-            os.set_blocking(fd, True)
-        return os.fdopen(fd, "rb"), st.st_size
-    except BaseException:
-        os.close(fd)
-        raise
-
-
-def _pieces(path, read):
-    """``read(file, n)`` pieces of a regular file (at most 1 MiB each) until the size it had
-    when opened is read."""
-    fh, size = _open_regular(path)
-    with fh:
-        while size > 0:
-            piece = read(fh, min(size, 1 << 20))
-            if not piece:
-                return
-            size -= len(piece)
-            yield piece
-
-
-def _read_regular(path) -> bytes:
-    """The bytes of a regular file, at most its size when opened."""
-    return b"".join(_pieces(path, lambda fh, n: fh.read(n)))
-
-
-def _lines_of_regular(path):
-    """The lines of a regular file, read no further than its size when opened."""
-    return _pieces(path, lambda fh, n: fh.readline(n))
-
-
 def hash_files(path, *, texture=None) -> str:
     """SHA-256 hex of a model file's bytes and then its texture's (as
     ``surfidx.pipeline.content_hash``), reading regular files only and each no further than
@@ -141,7 +80,7 @@ def hash_files(path, *, texture=None) -> str:
 
     Raises
     ------
-    NotRegularFile
+    surfidx.io.NotRegularFile
         ``path`` or ``texture`` is a FIFO, device, socket or directory (or a link to one).
     OSError
         A file cannot be opened or read.
@@ -149,66 +88,6 @@ def hash_files(path, *, texture=None) -> str:
     h = hashlib.sha256()
     for p in (path, texture):
         if p is not None:
-            for chunk in _pieces(p, lambda fh, n: fh.read(n)):
+            for chunk in file_pieces(p, lambda fh, n: fh.read(n)):
                 h.update(chunk)
     return h.hexdigest()
-
-
-def _texture_lines(path: Path):
-    """The lines of an OBJ that can say whether it names a texture, decoded: every ``mtllib``
-    and the first ``vt`` (one is enough to know there are texture coordinates)."""
-    vt = False
-    for line in _lines_of_regular(path):
-        if line.startswith(b"mtllib ") or (not vt and line.startswith(b"vt ")):
-            vt = vt or line.startswith(b"vt ")
-            yield line.decode("utf-8", "replace")
-
-
-def _obj_needs_texture(path: Path) -> bool:
-    """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``
-    image, parsed as :func:`surfidx.io.read_mesh` parses them."""
-    from surfidx.io.obj import mtl_texture_name, obj_statements
-
-    st = obj_statements(_texture_lines(path), keys=("vt", "mtllib"))
-    if not st["vt"]:
-        return False
-    for lib in st["mtllib"]:
-        try:
-            text = _read_regular(path.parent / lib).decode("utf-8", "replace")
-        except OSError:
-            continue
-        if mtl_texture_name(text) is not None:
-            return False
-    return True
-
-
-def find_texture(path):
-    """The texture image of a textured OBJ whose UVs name none (like Keenan Crane's spot).
-
-    For an OBJ with texture coordinates and no ``map_Kd`` in its material libraries, the first of
-    these beside it is the texture: ``<stem>_texture.png``, ``<stem>.png``, or the only PNG of the
-    folder. Any other file gets None.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-
-    Returns
-    -------
-    pathlib.Path or None
-
-    Raises
-    ------
-    NotRegularFile
-        ``path`` is an OBJ that is not a regular file.
-    OSError
-        ``path`` cannot be read.
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".obj" or not _obj_needs_texture(path):
-        return None
-    for name in (f"{path.stem}_texture.png", f"{path.stem}.png"):
-        if (path.parent / name).is_file():
-            return path.parent / name
-    pngs = [p for p in path.parent.iterdir() if p.suffix.lower() == ".png" and p.is_file()]
-    return pngs[0] if len(pngs) == 1 else None

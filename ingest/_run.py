@@ -4,7 +4,7 @@ Data flow of :func:`run`:
 
 1. :func:`ingest.discover` (:mod:`ingest._files`) lists the model files once (folders
    recursively, every suffix of ``surfidx.io.SUPPORTED_SUFFIXES``, sorted), and
-   :func:`ingest.find_texture` pairs a textured OBJ whose UVs name no texture with a PNG beside
+   :func:`surfidx.io.find_texture` pairs a textured OBJ whose UVs name no texture with a PNG beside
    it.
 2. :func:`ingest.make_tasks` (:mod:`ingest._tasks`) computes every file's content hash (file bytes, then texture bytes) is computed first; files already
    stored (or seen earlier in the same run) are skipped, so re-running an interrupted ingest
@@ -55,8 +55,9 @@ from surfidx.errors import InputError, SurfidxError
 from surfidx.validate import check_positive_int
 
 from ._files import discover
-from ._tasks import (Outcome, accepts_progress, error_message, make_tasks, process_task,
-                     resolve_processor)
+from surfidx.validate import accepts_keyword
+
+from ._tasks import Outcome, error_message, make_tasks, process_task, resolve_processor
 
 __all__ = ["run", "IngestSummary", "serial", "ProcessPool", "exit_with_parent",
            "default_workers"]
@@ -425,7 +426,7 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
     propagates; a re-run resumes. After SIGKILL the run row stays ``running``; every model that was
     committed is whole.
     """
-    from surfidx.db import Database
+    from surfidx.db.catalog import Catalog
 
     defaulted = workers is None
     workers = default_workers() if defaulted else check_positive_int(workers, "workers")
@@ -464,8 +465,8 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
             # Connect (or start the LocalCluster) before anything is written.
             executor = stack.enter_context(DaskExecutor(scheduler, workers=workers,
                                                         retries=retries))
-        if not isinstance(db, Database):
-            db = stack.enter_context(Database(db))
+        if not isinstance(db, Catalog):
+            db = stack.enter_context(Catalog(db))
         return _ingest(files, [str(p) for p in paths], db=db, workers=workers,
                        bits_per_surfel=bits_per_surfel, options=options, processor=processor,
                        progress=progress, executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
@@ -584,7 +585,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, p
         if progress and tasks:
             from tqdm import tqdm
 
-            if accepts_progress(processor):
+            if accepts_keyword(processor, "progress"):
                 if executor is serial:
                     sender = moved.event
                 elif isinstance(executor, ProcessPool):

@@ -15,10 +15,12 @@ from dataclasses import dataclass
 
 from surfidx.errors import SurfidxError
 
-from ._files import NotRegularFile, find_texture, hash_files, not_regular
+from surfidx.io.files import NotRegularFile, find_texture, not_regular
+from surfidx.validate import accepts_keyword
 
-__all__ = ["Task", "Outcome", "error_message", "resolve_processor", "process_task", "make_tasks",
-           "accepts_progress"]
+from ._files import hash_files
+
+__all__ = ["Task", "Outcome", "error_message", "resolve_processor", "process_task", "make_tasks"]
 
 
 # ---------------------------------------------------------------------- tasks and outcomes
@@ -78,17 +80,6 @@ def resolve_processor(processor=None):
     return process_model
 
 
-def accepts_progress(processor, parameter: str = "progress") -> bool:
-    """Whether ``processor`` names a ``progress`` parameter (or ``parameter``), as
-    :func:`surfidx.pipeline.process_model` does: only such a processor is given one."""
-    import inspect
-
-    try:
-        return parameter in inspect.signature(processor).parameters
-    except (TypeError, ValueError):
-        return False
-
-
 def process_task(task: Task, *, processor, bits_per_surfel: float, options=None,
                  allow_outside_textures: bool = False, stages=None) -> Outcome:
     """Run the processor on one task, catching its errors (the per-model function of every
@@ -99,15 +90,15 @@ def process_task(task: Task, *, processor, bits_per_surfel: float, options=None,
     recognises the model. With ``allow_outside_textures`` the processor also gets
     ``allow_outside_textures=True``; with ``options`` (a ``surfidx.options.ProcessOptions``) a
     processor that names an ``options`` parameter also gets ``options=``. With ``stages``, a callable ``stages(path, stage, done,
-    total)``, a processor that takes ``progress=`` (:func:`accepts_progress`) gets one that
+    total)``, a processor that takes ``progress=`` (:func:`surfidx.validate.accepts_keyword`) gets one that
     reports its stage events with the task's path. ``KeyboardInterrupt`` and ``SystemExit``
     propagate.
     """
     t0 = time.perf_counter()
     extra = {"allow_outside_textures": True} if allow_outside_textures else {}
-    if options is not None and accepts_progress(processor, "options"):
+    if options is not None and accepts_keyword(processor, "options"):
         extra["options"] = options
-    if stages is not None and accepts_progress(processor):
+    if stages is not None and accepts_keyword(processor, "progress"):
         extra["progress"] = functools.partial(stages, task.path)
     try:
         model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture,

@@ -16,10 +16,10 @@ from .geometry.geodesics import (GeodesicSolver as GeodesicSolver, GeodesicPath 
                                  farthest_point_landmarks as farthest_point_landmarks)
 from .geometry.metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_d2,
                                psnr_luma as psnr_luma, hausdorff as hausdorff)
-from .io import (read_surfels as read_surfels, read_mesh as read_mesh, read_model as read_model,
+from .io import (read_surfels as read_surfels, read_mesh as read_mesh,
                  write_ply as write_ply, write_model as write_model, as_surfels as as_surfels)
 from .topology import (RepairOptions as RepairOptions, Model as Model, join_surfels as join_surfels,
-                       repair_model as repair_model)
+                       repair_model as repair_model, read_model as read_model)
 from .sphere import (MapOptions as MapOptions, parameterize as parameterize,
                      SphericalMap as SphericalMap)
 from .codec import Encoder as Encoder, encode as encode, decode as decode
@@ -30,6 +30,7 @@ from .describe.options import DescribeOptions as DescribeOptions
 from .options import ProcessOptions as ProcessOptions
 from .pipeline import (process_model as process_model, describe_model as describe_model,
                        ProcessedModel as ProcessedModel)
-from .db import Database as Database, SearchIndex as SearchIndex
+from .database import Database as Database, QueryExample as QueryExample
+from .db import SearchIndex as SearchIndex
 
 __version__: str

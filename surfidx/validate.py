@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["as_array", "check_positive_int", "check_option_fields", "option"]
+__all__ = ["as_array", "check_positive_int", "check_option_fields", "option", "accepts_keyword"]
 
 
 def as_array(value, name: str, *, dtype=np.float64, shape=None, finite: bool = True,
@@ -133,3 +133,26 @@ def option(default, *, min=None, max=None, min_open: bool = False, choices=None)
     if min_open:
         meta["min_open"] = True
     return field(default=default, metadata=meta)
+
+
+def accepts_keyword(func, name: str) -> bool:
+    """Whether the callable ``func`` names a parameter ``name`` (as
+    :func:`surfidx.pipeline.process_model` names ``progress`` and ``options``): a caller passes
+    such a keyword only to a function that takes it, so user-supplied processors may omit it.
+
+    Parameters
+    ----------
+    func : callable
+    name : str
+
+    Returns
+    -------
+    bool
+        False also when ``func`` has no inspectable signature.
+    """
+    import inspect
+
+    try:
+        return name in inspect.signature(func).parameters
+    except (TypeError, ValueError):
+        return False

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from surfidx.db import ann
 from surfidx.errors import DatabaseError, InputError
-from surfidx.db import Database
+from surfidx.database import Database
 from surfidx.db.catalog import utc_now
 from surfidx.db.search import SearchIndex
 
@@ -372,7 +372,7 @@ def test_cli_query_exact_and_approximate_agree(at_threshold):
 
 
 # ---------------------------------------------------------------------- AnnIndex.query
-from surfidx.db.search import DEFAULT_KINDS, weighted_l2  # noqa: E402
+from surfidx.describe.distance import DEFAULT_KINDS, weighted_l2  # noqa: E402
 
 
 def ann_query(index, q, **kw):
@@ -589,7 +589,7 @@ def test_cli_queries_stay_exact_while_models_are_removed_and_redescribed(at_thre
 
 def test_cli_query_defaults_come_from_the_library():
     from surfidx.cli import cli
-    from surfidx.db.search import DEFAULT_SHAPE_WEIGHT
+    from surfidx.describe.distance import DEFAULT_SHAPE_WEIGHT
 
     params = {p.name: p for p in cli.get_command(None, "query").params}
     assert params["shape_weight"].default == DEFAULT_SHAPE_WEIGHT
@@ -633,7 +633,7 @@ def test_database_query_keeps_its_index_and_follows_changes(at_threshold, tmp_pa
     redescribed one is found by its new rows, every answer as the exact scan's."""
     import shutil
 
-    from surfidx.db.database import Database as Store
+    from surfidx.database import Database as Store
 
     src, shape, tex, color = at_threshold
     path = tmp_path / "thr.db"

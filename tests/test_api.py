@@ -123,7 +123,7 @@ def test_query_by_name_leaves_itself_out(real, tmp_path):
 def test_a_described_example_is_queried_as_its_model(real):
     """``Database.example`` describes once (the CLI draws its thumbnail on a contact sheet and
     queries with it); the same results as a query by the model itself."""
-    from surfidx.db import QueryExample
+    from surfidx.database import QueryExample
 
     root, path = real
     with surfidx.Database.open(path, readonly=True) as db:

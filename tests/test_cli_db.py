@@ -13,7 +13,7 @@ from PIL import Image
 from surfidx import read_surfels
 from surfidx.cli import cli
 from surfidx.cli.db import parse_model_ref
-from surfidx.db import Database
+from surfidx.database import Database
 
 from helpers import DECODED, OBJ, fake_processor, make_tree
 

@@ -18,10 +18,11 @@ from hypothesis import strategies as st
 import surfidx
 from surfidx import DatabaseError, InputError
 from surfidx.db import catalog as dbmod
-from surfidx.db import Database
+from surfidx.database import Database
 from surfidx.db.catalog import SCHEMA_VERSION, schema_sql
 from surfidx.pipeline import ProcessedModel
-from surfidx.db.search import SearchIndex, search, weighted_l2
+from surfidx.db.search import SearchIndex, search
+from surfidx.describe.distance import weighted_l2
 
 from helpers import damage_database, foreign_database, tiny_png
 
@@ -491,7 +492,7 @@ def test_weighted_l2_definition():
 def test_default_distance_is_descriptor_distance(db):
     """The vectorised scan computes surfidx.describe.descriptors.descriptor_distance for every model."""
     descriptors = pytest.importorskip("surfidx.describe.descriptors")
-    from surfidx.db.search import DEFAULT_SHAPE_WEIGHT
+    from surfidx.describe.distance import DEFAULT_SHAPE_WEIGHT
 
     models = [make_model(i, color=i % 2 == 0) for i in range(12)]
     for m in models:
@@ -561,7 +562,7 @@ def test_search_errors_and_empty(db):
 def test_package_exports_lazily():
     code = ("import sys, surfidx; assert 'sqlite_utils' not in sys.modules; "
             "from surfidx import Database, SearchIndex; "
-            "assert Database.__module__ == 'surfidx.db.database'; "
+            "assert Database.__module__ == 'surfidx.database'; "
             "assert SearchIndex.__module__ == 'surfidx.db.search'")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
     with pytest.raises(AttributeError, match="nothing_here"):

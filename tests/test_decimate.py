@@ -105,7 +105,7 @@ def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
     """d043, a genus-1 chair of the retrieval set: no hierarchy of the ladder untangles and the
     single-level map squeezes it (area distortion above the refusal limit); the embedded
     hierarchy maps it without a folded mesh triangle, within the limit."""
-    from surfidx.io import read_model
+    from surfidx.topology import read_model
     from surfidx.sphere.multilevel import mesh_map
     from surfidx.sphere.options import DEFAULT_OPTIONS
     from surfidx.sphere.quality import area_distortion

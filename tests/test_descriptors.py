@@ -202,7 +202,7 @@ def test_descriptor_distance_is_the_search_distance():
     """descriptor_distance is weighted_l2 for one pair, with search's default shape weight."""
     import inspect
 
-    from surfidx.db import search
+    from surfidx.describe import distance as search
 
     rng = np.random.default_rng(3)
     a = {"shape": rng.random(20), "spectrum": rng.random(3), "texture": rng.random(6)}

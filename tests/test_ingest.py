@@ -15,7 +15,8 @@ import pytest
 
 import ingest
 from surfidx import DatabaseError, InputError, SurfidxError
-from surfidx.db import Database
+from surfidx.database import Database
+from surfidx.io.files import NotRegularFile, find_texture
 from surfidx.pipeline import content_hash
 
 from helpers import (bytes_name, fake_processor, kill_parent_and_watch_workers, make_tree,
@@ -53,27 +54,27 @@ def test_find_texture(tmp_path):
     a = tmp_path / "a"
     a.mkdir()
     (a / "cow.obj").write_text(obj)
-    assert ingest.find_texture(a / "cow.obj") is None                 # no PNG
+    assert find_texture(a / "cow.obj") is None                 # no PNG
     (a / "single.png").write_bytes(tiny_png())
-    assert ingest.find_texture(a / "cow.obj") == a / "single.png"     # the only PNG
+    assert find_texture(a / "cow.obj") == a / "single.png"     # the only PNG
     (a / "other.png").write_bytes(tiny_png(1))
-    assert ingest.find_texture(a / "cow.obj") is None                 # ambiguous
+    assert find_texture(a / "cow.obj") is None                 # ambiguous
     (a / "cow.png").write_bytes(tiny_png(2))
-    assert ingest.find_texture(a / "cow.obj") == a / "cow.png"
+    assert find_texture(a / "cow.obj") == a / "cow.png"
     (a / "cow_texture.png").write_bytes(tiny_png(3))
-    assert ingest.find_texture(a / "cow.obj") == a / "cow_texture.png"
+    assert find_texture(a / "cow.obj") == a / "cow_texture.png"
     (a / "plain.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")  # no UVs
-    assert ingest.find_texture(a / "plain.obj") is None
+    assert find_texture(a / "plain.obj") is None
     (a / "named.obj").write_text("mtllib named.mtl\n" + obj)
     (a / "named.mtl").write_text("newmtl m\nmap_Kd cow.png\n")
-    assert ingest.find_texture(a / "named.obj") is None               # the MTL names one
+    assert find_texture(a / "named.obj") is None               # the MTL names one
     (a / "m.ply").write_text("ply")
-    assert ingest.find_texture(a / "m.ply") is None
+    assert find_texture(a / "m.ply") is None
 
 
 def test_spot_example_gets_its_texture():
     spot = TESTS.parent / "examples" / "models" / "spot" / "spot_triangulated.obj"
-    tex = ingest.find_texture(spot)
+    tex = find_texture(spot)
     assert tex is not None and tex.name == "spot_texture.png"
     task, = ingest.make_tasks([spot])
     assert task.texture == str(tex)
@@ -469,16 +470,16 @@ def test_reading_is_bounded_and_never_blocks(tmp_path):
     os.mkfifo(tmp_path / "m.mtl")                  # an MTL that is a FIFO is not read
     (tmp_path / "z.mtl").symlink_to("/dev/zero")   # nor one that never ends
     (tmp_path / "a.png").write_bytes(tiny_png())
-    tex = _run_guarded(lambda: ingest.find_texture(f), 60)
+    tex = _run_guarded(lambda: find_texture(f), 60)
     assert tex == tmp_path / "a.png"
     assert ingest.hash_files(f, texture=tex) == content_hash(f, texture=tex)
-    with pytest.raises(ingest.NotRegularFile, match="not a regular file: a character device"):
+    with pytest.raises(NotRegularFile, match="not a regular file: a character device"):
         ingest.hash_files("/dev/zero")
-    with pytest.raises(ingest.NotRegularFile, match=r"a named pipe \(FIFO\)"):
+    with pytest.raises(NotRegularFile, match=r"a named pipe \(FIFO\)"):
         _run_guarded(lambda: ingest.hash_files(tmp_path / "m.mtl"), 60)
     (tmp_path / "z.obj").symlink_to("/dev/zero")
-    with pytest.raises(ingest.NotRegularFile, match="symbolic link to a character device"):
-        _run_guarded(lambda: ingest.find_texture(tmp_path / "z.obj"), 60)
+    with pytest.raises(NotRegularFile, match="symbolic link to a character device"):
+        _run_guarded(lambda: find_texture(tmp_path / "z.obj"), 60)
 
 
 def test_pool_workers_exit_when_the_parent_is_killed(tmp_path):
@@ -509,9 +510,9 @@ def test_find_texture_reads_the_mtl_as_io_does(tmp_path):
     (tmp_path / "t.png").write_bytes(tiny_png())
     (tmp_path / "a.obj").write_text("mtllib a.mtl\n" + obj)
     (tmp_path / "a.mtl").write_text("newmtl m\nmap_Kd\n")
-    assert ingest.find_texture(tmp_path / "a.obj") == tmp_path / "t.png"
+    assert find_texture(tmp_path / "a.obj") == tmp_path / "t.png"
     (tmp_path / "b.obj").write_text("mtllib missing.mtl\n" + obj)
-    assert ingest.find_texture(tmp_path / "b.obj") == tmp_path / "t.png"
+    assert find_texture(tmp_path / "b.obj") == tmp_path / "t.png"
 
 
 def test_run_records_a_single_path_given_as_text(tmp_path):

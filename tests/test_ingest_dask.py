@@ -20,7 +20,7 @@ distributed = pytest.importorskip("distributed")
 
 import ingest  # noqa: E402
 from surfidx import InputError, SurfidxError  # noqa: E402
-from surfidx.db import Database  # noqa: E402
+from surfidx.database import Database  # noqa: E402
 
 from conftest import EXAMPLES, REPO, icosphere_mesh  # noqa: E402
 from helpers import fake_processor, make_tree  # noqa: E402

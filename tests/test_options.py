@@ -126,7 +126,7 @@ def test_code_refuses_a_rate_below_the_header(ball):
 
 def test_cli_options_file_reaches_the_map_and_the_stored_params(tmp_path, ball):
     from surfidx.cli import cli
-    from surfidx.db import Database
+    from surfidx.database import Database
     from surfidx.io import write_model
 
     mesh = tmp_path / "ball.ply"

@@ -13,9 +13,10 @@ from click.testing import CliRunner
 
 import ingest
 from surfidx.cli import cli
-from surfidx.db import Database
+from surfidx.database import Database
 from surfidx.pipeline import describe_model, process_model
 from surfidx.progress import STAGES, StageLog, stage_fraction
+from surfidx.validate import accepts_keyword
 
 from conftest import icosphere_mesh
 from helpers import fake_processor, make_tree
@@ -194,8 +195,9 @@ def test_process_task_passes_progress_only_to_a_processor_that_names_it(tmp_path
     out = ingest.process_task(task, processor=fake_processor, bits_per_surfel=8.0,
                               stages=lambda *e: seen.append(e))    # no progress parameter
     assert out.error is None
-    assert ingest.accepts_progress(staged_processor) and not ingest.accepts_progress(
-        fake_processor)
+    assert accepts_keyword(staged_processor, "progress")
+    assert not accepts_keyword(fake_processor, "progress")
+    assert not accepts_keyword(object(), "progress")          # no signature
 
 
 @pytest.mark.parametrize("workers", [1, 2])

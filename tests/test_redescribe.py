@@ -14,7 +14,7 @@ from conftest import icosphere_mesh
 from surfidx import DatabaseError, InputError, TriangleMesh
 from surfidx.cli import cli
 from surfidx.codec import Encoder, decode_grid
-from surfidx.db import Database
+from surfidx.database import Database
 from surfidx.describe.descriptors import describe_grid, descriptor_params
 from surfidx.pipeline import ProcessedModel, describe_stream, redescribe
 

@@ -1,4 +1,4 @@
-"""Every mesh goes in (issue 24, input side): surfidx.io.read_model repairs what is not one
+"""Every mesh goes in (issue 24, input side): surfidx.topology.read_model repairs what is not one
 closed genus-0 piece into parts whose surfels carry the virtual patches; pipeline, database and
 CLI take such models as they are; a closed genus-0 mesh reads exactly as before."""
 
@@ -11,7 +11,8 @@ import pytest
 
 from conftest import icosphere_mesh, torus_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_surfels
-from surfidx.io import Model, join_surfels, model_hash, read_model
+from surfidx.io import model_hash
+from surfidx.topology import Model, join_surfels, read_model
 from surfidx.topology import RepairOptions, close_surface, closed_mesh, patch_cuts
 
 from helpers import moebius, sphere_with_holes, tetrahedron
@@ -262,7 +263,7 @@ def test_describe_model_equals_process_model(torus_processed):
 
 
 def test_database_records_what_was_added(tmp_path, torus_processed):
-    from surfidx.db import Database
+    from surfidx.database import Database
 
     with Database(tmp_path / "t.db") as db:
         mid = db.add(torus_processed)
@@ -278,7 +279,7 @@ def test_database_records_what_was_added(tmp_path, torus_processed):
 def test_database_refuses_a_bad_topology_record(tmp_path, torus_processed):
     import dataclasses
 
-    from surfidx.db import Database
+    from surfidx.database import Database
 
     with Database(tmp_path / "t.db") as db:
         bad = dataclasses.replace(torus_processed, topology=dict(torus_processed.topology,
@@ -342,7 +343,7 @@ def test_cli_show_prints_the_topology_record(tmp_path, torus_processed):
     from click.testing import CliRunner
 
     from surfidx.cli import cli
-    from surfidx.db import Database
+    from surfidx.database import Database
 
     path = tmp_path / "t.db"
     with Database(path) as db:
@@ -379,7 +380,7 @@ def test_topology_line():
 
 def test_ingest_records_an_unstorable_file_and_goes_on(tmp_path):
     import ingest
-    from surfidx.db import Database
+    from surfidx.database import Database
 
     vm, fm = moebius(40)
     write_obj(tmp_path / "strip.obj", vm, fm)
@@ -398,7 +399,7 @@ def test_cli_query_of_an_unstorable_file_is_one_line(tmp_path):
     from click.testing import CliRunner
 
     from surfidx.cli import cli
-    from surfidx.db import Database
+    from surfidx.database import Database
 
     vm, fm = moebius(40)
     p = write_obj(tmp_path / "strip.obj", vm, fm)

@@ -39,7 +39,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
            density_weighting, texture, samples, options, quiet, verbose, as_json):
     """Encode a model into an embedded .sfz bitstream.
 
-    A mesh that is not one closed genus-0 piece is repaired first (surfidx.io.read_model, that is
+    A mesh that is not one closed genus-0 piece is repaired first (surfidx.topology.read_model, that is
     surfidx.topology.repair_model: holes capped, handles cut, pinches split, tiny pieces
     dropped); the virtual patches are coded as a mask, so decoding gives back the open (or
     genus-g) surface, and each piece is one part of the file."""
@@ -47,7 +47,8 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
 
     from ..codec import PartsEncoder, stream_summary
     from ..codec.encoder import codec_options
-    from ..io import read_model, write_atomic
+    from ..io import write_atomic
+    from ..topology import read_model
     from ..options import ProcessOptions
     from ..progress import report
     from .common import allow_outside_textures

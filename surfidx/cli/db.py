@@ -19,7 +19,7 @@ import click
 
 from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
-from ..db.search import DEFAULT_SHAPE_WEIGHT
+from ..describe.distance import DEFAULT_SHAPE_WEIGHT
 from ..codec.options import DEFAULT_BITS_PER_SURFEL
 from .group import cli
 from .common import options_file_option
@@ -74,7 +74,7 @@ def parse_model_ref(text: str):
 def _open(db_path, *, readonly=True):
     """The database of a command: read-only (``ls``, ``show``, ``query``, ``get``, ``errors``:
     never written, a missing or empty file is an error), or for writing an existing one."""
-    from ..db.database import Database
+    from ..database import Database
 
     return Database(db_path, create=False, readonly=readonly)
 

@@ -14,7 +14,7 @@ one core instead of a quarter of an hour, and a memory-mapped index opens in mil
 
 A query takes the ``factor * k`` nearest models of the shape graph, for a coloured query also
 the ``factor * k`` nearest of the texture graph, and ranks them by the exact distance (the
-search's, e.g. :func:`surfidx.db.search.weighted_l2`) on float32 copies of their stored rows. The
+search's, e.g. :func:`surfidx.describe.distance.weighted_l2`) on float32 copies of their stored rows. The
 index is generic over the descriptor kinds of the search: they are arguments, stored in the
 manifest, and an index of other kinds is rebuilt.
 
@@ -455,7 +455,7 @@ class AnnIndex:
             leave out ``"texture"`` for a query without colour).
         distance : callable
             ``distance(query, stored, present, *, shape_weight) -> (m,) float``, e.g.
-            :func:`surfidx.db.search.weighted_l2`.
+            :func:`surfidx.describe.distance.weighted_l2`.
         k : int
         shape_weight : float
             ``w`` in [0, 1]; at 1 the texture graph is not asked.
@@ -633,7 +633,7 @@ def build(db, *, kinds=None, write: bool = True) -> AnnIndex:
     ----------
     db : surfidx.db.catalog.Catalog
     kinds : sequence of str, optional
-        The descriptor kinds of the search (e.g. :data:`surfidx.db.search.DEFAULT_KINDS`; default
+        The descriptor kinds of the search (e.g. :data:`surfidx.describe.distance.DEFAULT_KINDS`; default
         :data:`BUILD_KINDS`); the first is required of every model that takes part.
     write : bool
         Write it to :func:`index_dir` (when the folder can be written).

@@ -1102,7 +1102,7 @@ class Catalog:
 
         try:
             from . import ann
-            from .search import DEFAULT_KINDS
+            from ..describe.distance import DEFAULT_KINDS
 
             ann.update(self, kinds=DEFAULT_KINDS)
         except (ImportError, OSError, RuntimeError, SurfidxError, sqlite3.Error) as exc:

@@ -14,31 +14,15 @@ Two paths, one answer:
 ``benchmarks/query_latency.py`` prints both paths' latency and the index's recall@10 against the
 scan at 10 000, 100 000 and 1 000 000 models (figures in the README).
 
-Distance
---------
-One definition, :func:`weighted_l2` (vectorised over the stored models);
-:func:`surfidx.describe.descriptors.descriptor_distance` is its one-pair form and the approximate path
-re-ranks with it. With the shape weight ``w`` in [0, 1] (default :data:`DEFAULT_SHAPE_WEIGHT`
-= 0.7)::
-
-    d = w * ||Δshape|| + (1 - w) * ||Δtexture||   query and model both coloured
-    d = ||Δshape||                                otherwise
-
-where the shape vector is ``"shape"`` with the KLT ``"spectrum"`` appended (when both carry one)
-and ``Δ`` is the difference between query and stored vector. The ``"shape"`` vector holds its
-parts already weighted (shells, D2, radial, Laplace–Beltrami spectrum and the spherical-harmonic
-energies of the geometric KLT layers; :data:`surfidx.describe.descriptors.SHAPE_PART_WEIGHTS`), so its
-plain L2 distance is the weighted sum of squares of the parts' distances. The texture term
-counts only when the query and the stored model both have colour (both carry a ``"texture"``
-descriptor and the model's ``has_color`` is set); a pair without it is compared by shape alone,
-at full weight, so ``w = 1`` is pure shape distance for every pair. Any function with the
-signature of :func:`weighted_l2` can be passed as ``distance=`` instead.
+Distances are :func:`surfidx.describe.distance.weighted_l2` (see there for the rule).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..describe.distance import (DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight,
+                                combine_distances, squared_distances, weighted_l2)
 from ..errors import InputError
 from ..validate import as_array, check_positive_int
 
@@ -46,79 +30,7 @@ from ..validate import as_array, check_positive_int
 #: here so that importing this module does not import the index library).
 DEFAULT_FACTOR = 4
 
-__all__ = ["SearchIndex", "search", "weighted_l2", "check_shape_weight", "DEFAULT_SHAPE_WEIGHT",
-           "DEFAULT_KINDS", "DEFAULT_FACTOR"]
-
-#: Default ``w``: the weight of the shape term beside the texture term (one constant for the
-#: library, :func:`surfidx.describe.descriptors.descriptor_distance` and the CLI).
-DEFAULT_SHAPE_WEIGHT = 0.7
-
-#: Descriptor kinds a :class:`SearchIndex` loads by default.
-DEFAULT_KINDS = ("shape", "spectrum", "texture")
-
-
-def check_shape_weight(shape_weight) -> float:
-    """``shape_weight`` as a float in [0, 1].
-
-    Raises
-    ------
-    InputError
-        Outside [0, 1] (or not a number).
-    """
-    try:
-        w = float(shape_weight)
-    except (TypeError, ValueError):
-        w = float("nan")
-    if not 0.0 <= w <= 1.0:
-        raise InputError(f"shape_weight must be in [0, 1], got {shape_weight!r}")
-    return w
-
-
-def weighted_l2(query, stored, present, *,
-                shape_weight: float = DEFAULT_SHAPE_WEIGHT) -> np.ndarray:
-    """Weighted L2 distance of a query to every stored model (the default search distance).
-
-    Parameters
-    ----------
-    query : dict of str -> (d_k,) float32
-        The query's descriptors; ``"shape"`` is required, ``"spectrum"`` is optional,
-        ``"texture"`` marks a coloured query.
-    stored : dict of str -> (m, d_k) float32
-        The stored descriptors, one row per model (rows of absent kinds are zeros).
-    present : dict of str -> (m,) bool
-        Which rows of ``stored[kind]`` hold a descriptor (for ``"texture"``: the model has
-        colour and a texture descriptor).
-    shape_weight : float
-        ``w`` in [0, 1].
-
-    Returns
-    -------
-    (m,) float64
-        ``w * ||Δshape|| + (1 - w) * ||Δtexture||`` where both have colour, else ``||Δshape||``
-        (shape with the spectrum appended where both have one).
-    """
-    sq = _sq(stored["shape"], query["shape"])
-    if "spectrum" in query and "spectrum" in stored:
-        sq = sq + np.where(present["spectrum"], _sq(stored["spectrum"], query["spectrum"]), 0.0)
-    dt = None
-    if "texture" in query and "texture" in stored and shape_weight < 1.0:
-        dt = np.sqrt(_sq(stored["texture"], query["texture"]))
-    return _combine(np.sqrt(sq), dt, present.get("texture"), shape_weight)
-
-
-def _combine(ds, dt, coloured, w) -> np.ndarray:
-    """The rule of :func:`weighted_l2` from the shape distances ``ds`` (m,), the texture
-    distances ``dt`` (m,) or None (no texture term) and which rows are ``coloured`` (m,) bool."""
-    if dt is None or w >= 1.0 or coloured is None or not coloured.any():
-        return ds
-    return np.where(coloured, w * ds + (1.0 - w) * dt, ds)
-
-
-def _sq(matrix, vec) -> np.ndarray:
-    """Row-wise squared distance of ``matrix`` (m, d) float32 to ``vec`` (d,), as float64."""
-    diff = matrix.astype(np.float64) - np.asarray(vec, np.float64)
-    return np.einsum("ij,ij->i", diff, diff)
-
+__all__ = ["SearchIndex", "search", "DEFAULT_FACTOR"]
 
 class SearchIndex:
     """The stored descriptors of a database, set up once and queried many times: dense matrices
@@ -341,7 +253,7 @@ class SearchIndex:
         if ("texture" in q and "texture" in self.stored and w < 1.0
                 and self.present["texture"].any()):
             dt = np.sqrt(np.maximum(sq("texture"), 0.0))
-        return _combine(np.sqrt(np.maximum(s, 0.0)), dt, self.present.get("texture"), w)
+        return combine_distances(np.sqrt(np.maximum(s, 0.0)), dt, self.present.get("texture"), w)
 
 
 def search(db, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_WEIGHT,

@@ -6,3 +6,5 @@ from .descriptors import (DescriptorSet as DescriptorSet, describe_grid as descr
                           SH_NORMALIZATION as SH_NORMALIZATION,
                           DESCRIPTOR_VERSION as DESCRIPTOR_VERSION)
 from .options import DescribeOptions as DescribeOptions
+from .distance import (weighted_l2 as weighted_l2, DEFAULT_SHAPE_WEIGHT as DEFAULT_SHAPE_WEIGHT,
+                       DEFAULT_KINDS as DEFAULT_KINDS)

@@ -68,7 +68,7 @@ the sphere map through which surface points the grid samples and, for the layers
 where the map puts them.
 
 The distance of two descriptor sets is :func:`descriptor_distance`, the one-pair form of the
-search distance :func:`surfidx.db.search.weighted_l2`.
+search distance :func:`surfidx.describe.distance.weighted_l2`.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ from ..validate import as_array
 from ..geometry.icosphere import icosphere, vertex_count
 from ..geometry.mesh import cotangent_laplacian, vertex_area_shares
 from ..codec.klt import KLT
-from ..db.search import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
+from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
            "DEFAULT_LMAX",
@@ -457,7 +457,7 @@ def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
 
 
 def descriptor_distance(a: dict, b: dict, *, shape_weight: float = DEFAULT_SHAPE_WEIGHT) -> float:
-    """Distance between two models' descriptor dicts: :func:`surfidx.db.search.weighted_l2` (the
+    """Distance between two models' descriptor dicts: :func:`surfidx.describe.distance.weighted_l2` (the
     default search distance) for one pair.
 
     ``d = w·‖Δshape‖ + (1 − w)·‖Δtexture‖`` with ``w = shape_weight``; when either model lacks
@@ -469,7 +469,7 @@ def descriptor_distance(a: dict, b: dict, *, shape_weight: float = DEFAULT_SHAPE
     ----------
     a, b : dict of str -> (d,) float32
     shape_weight : float
-        In [0, 1] (default :data:`surfidx.db.search.DEFAULT_SHAPE_WEIGHT`).
+        In [0, 1] (default :data:`surfidx.describe.distance.DEFAULT_SHAPE_WEIGHT`).
 
     Returns
     -------

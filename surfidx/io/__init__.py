@@ -4,9 +4,10 @@ vertex colours or a base-colour texture) and point clouds (PLY, :mod:`.pcd`, :mo
 XYZ and PTS); :mod:`.registry` says which module reads and writes which suffix.
 
 :mod:`.reading` reads models as they are (:func:`read_surfels`, :func:`read_mesh`,
-:func:`as_surfels`, :func:`read_geometry`); :mod:`.models` reads for storing
-(:func:`read_model`: read, then :func:`surfidx.topology.repair_model`); :mod:`.writing` writes
-PLY, OBJ and GLB (:func:`write_model`). Shared: :mod:`.limits` (bounded reading),
+:func:`as_surfels`, :func:`read_geometry`), never repairing (reading for storing, read then
+repaired to closed genus-0 parts, is :func:`surfidx.topology.read_model`); :mod:`.writing` writes
+PLY, OBJ and GLB (:func:`write_model`). Shared: :mod:`.limits` (bounds on what is read),
+:mod:`.files` (regular files read within bounds, the texture beside an OBJ that names none),
 :mod:`.texture`, :mod:`.atomic` (:func:`write_atomic`), :mod:`.points`, :mod:`.trimeshio`
 (STL and glTF through trimesh), :mod:`.arrays`.
 """

@@ -7,8 +7,8 @@ from .limits import (MAX_TEXTURE_PIXELS as MAX_TEXTURE_PIXELS, MAX_COORDINATE as
 from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,
                       read_geometry as read_geometry, as_surfels as as_surfels,
                       model_hash as model_hash)
-from .models import read_model as read_model, Model as Model, join_surfels as join_surfels
 from .ply import write_ply as write_ply
 from .writing import write_model as write_model, output_format as output_format
 from .atomic import write_atomic as write_atomic
 from .texture import read_texture as read_texture
+from .files import find_texture as find_texture, NotRegularFile as NotRegularFile

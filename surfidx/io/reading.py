@@ -60,7 +60,7 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
         The scan as it is: an open, pinched, genus > 0 or several-piece mesh gives the surfels
         of the mesh as read, nothing added and nothing dropped (what rendering, metrics and
         geodesics want). Storing, encoding and querying repair such a mesh into closed genus-0
-        parts (:func:`surfidx.topology.repair_model`, :func:`surfidx.io.read_model`); the
+        parts (:func:`surfidx.topology.repair_model`, :func:`surfidx.topology.read_model`); the
         :attr:`~surfidx.topology.Model.surfels` of the result joins them.
 
     Raises

@@ -1,15 +1,19 @@
-"""A model brought to closed genus-0 parts for storing: :class:`Model` and :func:`repair_model`.
+"""A model brought to closed genus-0 parts for storing: :class:`Model`, :func:`repair_model`
+and :func:`read_model`.
 
 Reading a file (:mod:`surfidx.io`) gives the scan as it is; storing, encoding and querying need
 closed genus-0 surfaces, so :func:`repair_model` splits a mesh into its pieces and closes each
 (:func:`.repair.split_parts`, :func:`.repair.close_surface`), recording what was added.
-:func:`join_surfels` stacks the parts back into one surfel set.
+:func:`read_model` is the two in one call (read, then repair); :func:`join_surfels` stacks the
+parts back into one surfel set.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -17,12 +21,12 @@ from ..errors import InputError, SurfidxError
 from ..geometry.mesh import MAX_EDGE_RATIO, TriangleMesh
 from ..geometry.surfels import SurfelSet
 
-__all__ = ["Model", "join_surfels", "repair_model"]
+__all__ = ["Model", "join_surfels", "repair_model", "read_model"]
 
 
 @dataclass(frozen=True)
 class Model:
-    """A model for storing (:func:`repair_model`, :func:`surfidx.io.read_model`): its parts,
+    """A model for storing (:func:`repair_model`, :func:`read_model`): its parts,
     each closed genus-0 surfels.
 
     Attributes
@@ -278,3 +282,64 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
     return Model(parts=tuple(parts), reports=tuple(reports), topology=topo, kind="mesh",
                  parts_dropped=pieces.dropped, dropped_vertices=pieces.dropped_vertices,
                  areas=tuple(areas), name=name, face_patches=tuple(fps))
+
+
+def read_model(path, *, texture=None, samples: int | None = None, seed: int = 0,
+               max_edge_ratio: float | None = MAX_EDGE_RATIO,
+               allow_outside_textures: bool = False, options=None,
+               name: str | None = None) -> Model:
+    """Read any file (or model in memory) for storing: :func:`surfidx.io.read_geometry`, then
+    :func:`repair_model` (every mesh as it is, repaired to parts).
+
+    A mesh that is one closed, manifold, genus-0 piece becomes exactly
+    :func:`surfidx.io.read_surfels`' surfels (one part, no patch labels), so its streams and descriptors
+    are those of a plain read. Any other mesh is split into its pieces
+    (:func:`surfidx.topology.split_parts`: pinched vertices split; pieces under
+    ``max(options.min_part_vertices, options.min_part_share * V)`` vertices dropped, except the
+    largest, with a ``UserWarning`` saying how many), and each piece brought to a closed genus-0
+    surface (:func:`surfidx.topology.close_surface`: handles cut, holes and cut sides capped by
+    fair virtual patches), then converted to surfels as :meth:`TriangleMesh.to_surfels` does,
+    with :attr:`SurfelSet.patch` marking the virtual surfels (a vertex added by bisection is
+    virtual when every face around it is virtual). Colours (vertex colours, or the texture
+    averaged at the vertices) go with the scan's vertices; virtual vertices take the harmonic
+    interpolation of their rim's. Point clouds and surfel files are one part as
+    :func:`surfidx.io.read_surfels` reads them (a point cloud's proxy surface is closed by construction).
+
+    Parameters
+    ----------
+    path : str or os.PathLike, or a model in memory
+        As for :func:`surfidx.io.read_surfels` (a ``TriangleMesh``, ``(vertices, faces[, colours])`` or a
+        trimesh object is repaired as a file's mesh is).
+    texture, samples, seed, max_edge_ratio, allow_outside_textures
+        As for :func:`surfidx.io.read_surfels`.
+    options : surfidx.topology.RepairOptions, optional
+        Tuning of the repair (default ``RepairOptions()``).
+    name : str, optional
+        The model's name (default: the file stem or the model's own).
+
+    Returns
+    -------
+    surfidx.topology.Model
+
+    Raises
+    ------
+    FileFormatError
+        As for :func:`surfidx.io.read_surfels`.
+    InputError
+        As for :func:`surfidx.io.read_surfels`.
+    TopologyError
+        A piece that cannot be closed to a sphere (non-orientable: a Möbius strip, a Klein
+        bottle), or faces none of which is a triangle.
+
+    Warns
+    -----
+    UserWarning
+        Tiny pieces dropped (how many, how many vertices), degenerate faces dropped.
+    """
+    from ..io.reading import read_geometry          # the readers and their formats: on use
+
+    geometry = read_geometry(path, texture=texture, samples=samples,
+                             allow_outside_textures=allow_outside_textures, name=name)
+    return repair_model(geometry, samples=samples, seed=seed, max_edge_ratio=max_edge_ratio,
+                        options=options, name=name,
+                        path=Path(path) if isinstance(path, (str, os.PathLike)) else None)

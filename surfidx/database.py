@@ -9,8 +9,9 @@
 >>> db.query("bunny", k=5)                                               # doctest: +SKIP
 >>> db.export("bunny", "bunny.glb", bits_per_surfel=2)                   # doctest: +SKIP
 
-It lives beside :mod:`surfidx.db.catalog` (which :mod:`ingest` writes through) so that neither
-imports the other's callers.
+It sits above both the store (:mod:`surfidx.db`, which :mod:`ingest` writes through) and the
+bulk runner (:mod:`ingest`, which :meth:`Database.ingest` drives), so imports run one way:
+``surfidx.db`` ← ``ingest`` ← ``surfidx.database``.
 """
 
 from __future__ import annotations
@@ -23,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DatabaseError, InputError, SurfidxError
-from .catalog import Catalog, is_storage_failure
+from .errors import DatabaseError, InputError, SurfidxError
+from .io.files import find_texture
+from .validate import accepts_keyword
+from .db.catalog import Catalog, is_storage_failure
 
 __all__ = ["Database", "QueryExample"]
 
@@ -64,7 +67,7 @@ def _describer(describer=None):
     if describer is not None:
         return describer
     try:
-        from ..pipeline import describe_model
+        from .pipeline import describe_model
     except ImportError as exc:
         raise SurfidxError(f"the model describer surfidx.pipeline.describe_model is not "
                            f"available ({exc})") from exc
@@ -121,7 +124,7 @@ class Database(Catalog):
         """
         import ingest as _ingest
 
-        from ..geometry.surfels import SurfelSet
+        from .geometry.surfels import SurfelSet
 
         items = [models] if isinstance(models, (str, os.PathLike, tuple, np.ndarray,
                                                 SurfelSet)) or not hasattr(models, "__iter__") \
@@ -131,7 +134,7 @@ class Database(Catalog):
         if name is not None and len(items) != 1:
             raise InputError(f"name= names one model; {len(items)} were given")
         tags = [] if not tags else self._tags_of(tags)
-        from ..options import ProcessOptions
+        from .options import ProcessOptions
 
         if options is not None and not isinstance(options, ProcessOptions):
             raise InputError(f"options must be a ProcessOptions, got {type(options).__name__}")
@@ -153,7 +156,7 @@ class Database(Catalog):
                 label = f"<memory model {i}>"
                 try:
                     extra = {"name": name} if name is not None else {}
-                    if options is not None and _ingest.accepts_progress(proc, "options"):
+                    if options is not None and accepts_keyword(proc, "options"):
                         extra["options"] = options
                     processed = proc(model, bits_per_surfel=bits_per_surfel, **extra)
                     if self.has_hash(processed.content_hash):
@@ -183,8 +186,8 @@ class Database(Catalog):
 
         ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
         """
-        from ..pipeline import ProcessedModel
-        from .catalog import QUALITY_KEYS
+        from .pipeline import ProcessedModel
+        from .db.catalog import QUALITY_KEYS
 
         rec = self.get_model(id_or_name)
         a = rec["asset"]
@@ -230,13 +233,11 @@ class Database(Catalog):
             return QueryExample(id=rec["id"], name=rec["name"], has_color=rec["has_color"],
                                 descriptors=self.get_descriptors(rec["id"]),
                                 thumbnail=self.get_thumbnail(rec["id"]))
-        import ingest as _ingest    # a model file or one in memory: not for a stored model
-
-        from ..codec.options import DEFAULT_BITS_PER_SURFEL
-        from ..options import DEFAULT_THUMBNAIL_SIZE
+        from .codec.options import DEFAULT_BITS_PER_SURFEL
+        from .options import DEFAULT_THUMBNAIL_SIZE
 
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
-        if options is not None and _ingest.accepts_progress(
+        if options is not None and accepts_keyword(
                 processor if processor is not None else _describer(describer), "options"):
             extra["options"] = options
         if processor is not None:
@@ -249,7 +250,7 @@ class Database(Catalog):
             if isinstance(ref, os.PathLike):
                 if not Path(ref).is_file():
                     raise InputError("no such model file", path=ref)
-                tex = texture if texture is not None else _ingest.find_texture(ref)
+                tex = texture if texture is not None else find_texture(ref)
                 processed = proc(str(ref), texture=tex, **extra)
             else:
                 processed = proc(ref, **extra)
@@ -282,7 +283,7 @@ class Database(Catalog):
             Number of results.
         shape_weight : float, optional
             Weight of shape against texture distance (default
-            :data:`surfidx.db.search.DEFAULT_SHAPE_WEIGHT`).
+            :data:`surfidx.describe.distance.DEFAULT_SHAPE_WEIGHT`).
         include_self : bool
             Keep the query model itself among the results when it is stored (by default it is
             left out).
@@ -315,7 +316,8 @@ class Database(Catalog):
         DatabaseError
             No such stored model.
         """
-        from .search import DEFAULT_SHAPE_WEIGHT, SearchIndex
+        from .db.search import SearchIndex
+        from .describe.distance import DEFAULT_SHAPE_WEIGHT
 
         ex = model if isinstance(model, QueryExample) else self.example(
             model, processor=processor, describer=describer, texture=texture,
@@ -364,8 +366,8 @@ class Database(Catalog):
         DatabaseError
             No such model.
         """
-        from ..codec import max_file_bytes
-        from ..codec.container import truncate
+        from .codec import max_file_bytes
+        from .codec.container import truncate
 
         mid = self.resolve(model)
         stream = self.get_stream(mid)
@@ -400,7 +402,7 @@ class Database(Catalog):
         SurfelSet or TriangleMesh
             Named after the model.
         """
-        from ..pipeline import output_level
+        from .pipeline import output_level
 
         mid = self.resolve(model)
         stream = self.get_stream(mid)
@@ -413,7 +415,7 @@ class Database(Catalog):
         if max_surfels is not None:
             options["max_surfels"] = max_surfels
         if decoder is None:
-            from ..codec import decode as decoder
+            from .codec import decode as decoder
 
             options["path"] = f"model {mid}"
         out = decoder(stream, bits_per_surfel=bits_per_surfel, **options)
@@ -445,7 +447,7 @@ class Database(Catalog):
             ``id``, ``name``, ``output``, ``format``, ``bytes`` (sfz) or ``surfels``
             (and ``faces`` for a mesh), ``level``, ``bits_per_surfel``.
         """
-        from ..io import output_format, write_atomic, write_model
+        from .io import output_format, write_atomic, write_model
 
         fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
         mid = self.resolve(model)
@@ -457,7 +459,7 @@ class Database(Catalog):
             write_atomic(path, lambda tmp: tmp.write_bytes(data))
             out["bytes"] = len(data)
             return out
-        from ..pipeline import output_level
+        from .pipeline import output_level
 
         if level is None:
             level = output_level(self.get_stream(mid))
