@@ -42,6 +42,15 @@ def _models(sets):
     return out
 
 
+def _key(path: Path) -> str:
+    """The model's name in the JSON: relative to the repository for its own files (so that two
+    checkouts compare), else relative to the folder beside it (``shared/data/...``)."""
+    for base in (ROOT, ROOT.parent):
+        if path.is_relative_to(base):
+            return str(path.relative_to(base))
+    return str(path)
+
+
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
@@ -100,8 +109,7 @@ def main(argv=None):
         futures = [pool.submit(_one, str(p)) for p in models]
         for i, fut in enumerate(as_completed(futures), 1):
             path, rec = fut.result()
-            results[str(Path(path).relative_to(ROOT.parent))
-                    if Path(path).is_relative_to(ROOT.parent) else path] = rec
+            results[_key(Path(path))] = rec
             print(f"[{i}/{len(models)}] {Path(path).name}: {rec.get('stream', rec.get('error'))}",
                   file=sys.stderr, flush=True)
     results = dict(sorted(results.items()))
