@@ -63,21 +63,17 @@ def error_message(exc: BaseException) -> str:
 
 
 def resolve_processor(processor=None):
-    """``processor``, or :func:`surfidx.pipeline.process_model` when None (imported now).
+    """``processor``, or :func:`surfidx.pipeline.process_model` when None
+    (:func:`surfidx.pipeline.unit_of_work`).
 
     Raises
     ------
     SurfidxError
         ``surfidx.pipeline.process_model`` is not available.
     """
-    if processor is not None:
-        return processor
-    try:
-        from surfidx.pipeline import process_model
-    except ImportError as exc:
-        raise SurfidxError(f"the model processor surfidx.pipeline.process_model is not "
-                           f"available ({exc})") from exc
-    return process_model
+    from surfidx.pipeline import unit_of_work
+
+    return unit_of_work(processor, "process_model")
 
 
 def process_task(task: Task, *, processor, bits_per_surfel: float, options=None,

@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import DatabaseError, InputError, SurfidxError
 from .io.files import find_texture
+from .pipeline import unit_of_work
 from .validate import accepts_keyword
 from .db.catalog import Catalog, is_storage_failure
 
@@ -54,24 +55,6 @@ class QueryExample:
     has_color: bool
     descriptors: dict
     thumbnail: bytes | None = None
-
-
-def _describer(describer=None):
-    """``describer``, or :func:`surfidx.pipeline.describe_model` when None (imported now).
-
-    Raises
-    ------
-    SurfidxError
-        ``surfidx.pipeline.describe_model`` is not available.
-    """
-    if describer is not None:
-        return describer
-    try:
-        from .pipeline import describe_model
-    except ImportError as exc:
-        raise SurfidxError(f"the model describer surfidx.pipeline.describe_model is not "
-                           f"available ({exc})") from exc
-    return describe_model
 
 
 class Database(Catalog):
@@ -238,12 +221,12 @@ class Database(Catalog):
 
         extra = {"allow_outside_textures": True} if allow_outside_textures else {}
         if options is not None and accepts_keyword(
-                processor if processor is not None else _describer(describer), "options"):
+                processor if processor is not None else unit_of_work(describer, "describe_model"), "options"):
             extra["options"] = options
         if processor is not None:
             proc = functools.partial(processor, bits_per_surfel=DEFAULT_BITS_PER_SURFEL)
         else:
-            proc = functools.partial(_describer(describer),
+            proc = functools.partial(unit_of_work(describer, "describe_model"),
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))
         try:

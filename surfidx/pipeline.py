@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import SurfidxError
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
-           "describe_stream", "redescribe", "output_level", "combine_descriptors"]
+           "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
 
 
 @dataclass
@@ -562,3 +563,30 @@ def redescribe(db, *, everything: bool = False, lmax: int | None = None, progres
         if progress is not None:
             progress(model_id)
     return {"redescribed": done, "current": len(ids) - len(todo), "failed": failed}
+
+
+def unit_of_work(func, name: str):
+    """``func``, or this module's per-model function ``name`` (``"process_model"`` for an
+    ingest, ``"describe_model"`` for a query by example) when ``func`` is None, looked up now:
+    the one place the callers' default is chosen.
+
+    Parameters
+    ----------
+    func : callable or None
+    name : {"process_model", "describe_model"}
+
+    Returns
+    -------
+    callable
+
+    Raises
+    ------
+    SurfidxError
+        This module has no function ``name``.
+    """
+    if func is not None:
+        return func
+    step = globals().get(name)
+    if step is None:
+        raise SurfidxError(f"the per-model function surfidx.pipeline.{name} is not available")
+    return step
