@@ -8,8 +8,7 @@ import re
 import click
 
 from ..errors import InputError
-from .common import (common_options, echo_json, input_options, outside_textures_option, plain,
-                      reading)
+from .common import common_options, echo_json, input_options, plain, reading
 from .group import cli
 
 __all__ = ["eval_", "render_"]
@@ -23,24 +22,25 @@ _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2"
 @click.argument("test", type=click.Path(dir_okay=False))
 @click.option("--peak", type=float, default=None,
               help="PSNR peak instead of the reference's bounding-box diagonal.")
-@click.option("--texture", type=click.Path(dir_okay=False), default=None,
-              help="Texture image for a REFERENCE OBJ whose UVs name none.")
 @click.option("--test-texture", type=click.Path(dir_okay=False), default=None,
-              help="Texture image for a TEST OBJ whose UVs name none.")
-@outside_textures_option
+              help="Texture image for a TEST OBJ whose UVs name none (--texture is "
+                   "REFERENCE's).")
+@input_options
 @common_options
-def eval_(reference, test, peak, texture, test_texture, *, console):
+def eval_(reference, test, peak, test_texture, texture, samples, *, console):
     """Distortion of TEST against REFERENCE: PSNR D1/D2, luma PSNR and Hausdorff.
 
     MPEG pc_error definitions, symmetric (the worse of the two directions); the peak is the
     reference's bounding-box diagonal, Hausdorff is relative to it. Zero error gives a PSNR of
-    inf (Infinity in JSON); psnr_y is null/- when either model has no colour.
+    inf (Infinity in JSON); psnr_y is null/- when either model has no colour. --texture and
+    --samples say how REFERENCE is read (as by info and convert), --test-texture TEST's
+    texture.
     """
     from ..geometry.metrics import evaluate
     from ..progress import report
 
     with console.progress() as progress:
-        ref = reading(progress, reference, texture)
+        ref = reading(progress, reference, texture, samples)
         tst = reading(progress, test, test_texture)
         for role, path, s in (("reference", reference, ref), ("test", test, tst)):
             console.detail(f"{role} {path}: {len(s):,} surfels"
