@@ -306,3 +306,17 @@ def test_decode_and_get_share_their_options():
             pa, pb = option(cmds[a], opt), option(cmds[b], opt)
             assert (pa.help, pa.type.name, pa.name) == (pb.help, pb.type.name, pb.name), opt
     assert {"--mesh", "--surfels"} <= names(cmds["resample"])
+
+
+def test_a_partial_failure_as_json_is_one_object(tmp_path):
+    """``redescribe --json`` with models that fail: the summary alone on stdout, exit 1 (no
+    error line after it)."""
+    root = make_tree(tmp_path / "data", 2)
+    db = tmp_path / "r.db"
+    assert invoke(["ingest", root, "--db", db, "-q"]).exit_code == 0   # streams of noise
+    r = invoke(["redescribe", "--db", db, "--all", "--json"])
+    assert r.exit_code == 1 and r.stderr == ""
+    out = json.loads(r.stdout)
+    assert out["redescribed"] == 0 and len(out["failed"]) == 2
+    r = invoke(["redescribe", "--db", db, "--all"])
+    assert r.exit_code == 1 and "Error: 2 model(s) could not be redescribed" in r.stderr
