@@ -26,10 +26,11 @@ import numpy as np
 
 from ..errors import SurfidxError
 
-__all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
-           "outside_textures_option", "output_format_option", "stage_progress", "reading", "common_options", "Console", "uses_database",
-           "DEFAULT_DB", "DB_ENVVAR", "rate_option", "export_options", "ascii_option", "EXPORT_HELP",
-           "options_file_option", "allow_outside_textures"]
+__all__ = ["common_options", "Console", "uses_database", "DEFAULT_DB", "DB_ENVVAR",
+           "command_errors", "echo_json", "plain", "stage_progress", "reading", "read_input",
+           "input_options", "outside_textures_option", "allow_outside_textures",
+           "options_file_option", "output_format_option", "rate_option", "ascii_option",
+           "export_options", "EXPORT_HELP"]
 
 #: The database file of the database commands when neither ``--db`` nor ``$SURFIDX_DB`` names one.
 DEFAULT_DB = "surfidx.db"
@@ -214,8 +215,9 @@ def common_options(func=None, *, db: bool = False):
                            help="Print details and each stage's wall and CPU time on "
                                 "stderr.")(guarded)
     guarded = click.option("-q", "--quiet", is_flag=True,
-                           help="Print no progress and no notes on stderr (errors still); "
-                                "progress is shown when stderr is a terminal.")(guarded)
+                           help="No progress display and no notes on stderr (errors and "
+                                "warnings still show); without it, progress shows when stderr "
+                                "is a terminal.")(guarded)
     if db:
         guarded = click.option(
             "--db", "db_path", default=DEFAULT_DB, envvar=DB_ENVVAR, show_default=False,
