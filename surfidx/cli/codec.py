@@ -5,18 +5,20 @@ from __future__ import annotations
 import click
 
 from ..sphere.options import METHODS
-from .common import (command_errors, echo_json, input_options, options_file_option,
-                      output_format_option, plain, progress_options, stage_progress)
+from .common import (common_options, echo_json, export_options, input_options,
+                      options_file_option, plain, rate_option)
 from .group import cli
+
+__all__ = ["encode", "decode", "output_summary"]
 
 
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The .sfz file to write.")
-@click.option("--bits-per-surfel", "bits", type=float, default=None,
-              help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes "
-                   "(required unless the --options file sets codec.bits_per_surfel).")
+@rate_option(dest="bits",
+             help="Rate in bits per input surfel; the whole file is at most ceil(B·n/8) bytes "
+                  "(required unless the --options file sets codec.bits_per_surfel).")
 @click.option("--no-color", is_flag=True, help="Code geometry only.")
 @click.option("--level", type=click.IntRange(0, 9), default=None,
               help="Icosahedral grid level (default: chosen from the surfel count).")
@@ -32,11 +34,9 @@ from .group import cli
                    "when the estimated gain is at least 1 dB).")
 @input_options
 @options_file_option
-@progress_options
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-@command_errors
+@common_options
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, options, quiet, verbose, as_json):
+           density_weighting, texture, samples, options, *, console):
     """Encode a model into an embedded .sfz bitstream.
 
     A mesh that is not one closed genus-0 piece is repaired first (surfidx.topology.read_model, that is
@@ -67,7 +67,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
     if no_color:
         opts = opts.updated(**{"codec.color": False})
     bits = opts.codec.bits_per_surfel
-    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+    with console.progress() as progress:
         report(progress, "read", 0, 1)
         model = read_model(input, texture=texture, samples=opts.samples, options=opts.repair,
                            allow_outside_textures=allow_outside_textures())
@@ -95,7 +95,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
            "parts": len(parts), "dropped_parts": dropped, "holes": sum(summary["holes"]),
            "cuts": sum(summary["cuts"]), "mask_bytes": sum(summary["mask_bytes"]),
            "mask_share": summary["mask_share"]}
-    if as_json:
+    if console.json:
         echo_json(out)
     else:
         lv = enc.level if len(parts) == 1 else "/".join(str(e.level) for e in pe.encoders)
@@ -105,16 +105,6 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
                      f"holes, {out['cuts']} cuts, mask {out['mask_bytes']} bytes")
         click.echo(f"{output}: {len(data)} bytes, {out['bits_per_surfel']:.3f} bits/surfel "
                    f"({n} surfels, grid level {lv}{', colour' if enc.color else ''}{extra})")
-
-
-#: Help of the options shared by ``decode`` and ``get``.
-LEVEL_HELP = ("Grid level of the output (default: the level whose vertex count is closest to the "
-              "input's surfel count; lower: fewer surfels).")
-MAX_SURFELS_HELP = ("Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
-                    "grid); --level gives fewer.")
-OUTPUT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
-               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
-               "stream, truncated to --bits-per-surfel).")
 
 
 def output_summary(out: dict) -> str:
@@ -132,47 +122,46 @@ def output_summary(out: dict) -> str:
 
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help=OUTPUT_HELP)
-@output_format_option
-@click.option("--bits-per-surfel", "bits", type=click.FloatRange(min=0, min_open=True),
-              default=None, help="Decode (or keep, for .sfz) only the prefix of the embedded "
-                                 "stream that fits this rate.")
-@click.option("--mesh/--surfels", "mesh", default=None,
-              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
-                   "surfels for PLY).")
-@click.option("--level", type=int, default=None, help=LEVEL_HELP)
-@click.option("--max-surfels", type=click.IntRange(min=1), default=None, help=MAX_SURFELS_HELP)
+@export_options
 @click.option("--keep-virtual", is_flag=True,
               help="Keep the virtual patches topology repair added (the closed surface as "
                    "coded); by default they are dropped and handle cuts zipped again.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def decode(input, output, fmt, bits, mesh, level, max_surfels, keep_virtual, as_json):
+@common_options
+def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, text, keep_virtual, *,
+           console):
     """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
     lower rate as a .sfz."""
     from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
     from ..codec.container import part_surfels, truncate, unpack_parts
     from ..io import output_format, write_atomic, write_model
     from ..pipeline import output_level
+    from ..progress import report
 
+    bits = bits_per_surfel
     fmt = output_format(output, fmt, allowed=("ply", "obj", "glb", "sfz"))
-    data = read_sfz(input)
     out = {"input": str(input), "output": str(output), "format": fmt, "bits_per_surfel": bits}
-    if fmt == "sfz":
-        n = sum(part_surfels(p, path=input) for p in unpack_parts(data, path=input))
-        cut = data if bits is None else truncate(data, max_file_bytes(bits, n), path=input)
-        write_atomic(output, lambda tmp: tmp.write_bytes(cut))
-        out["bytes"] = len(cut)
-    else:
-        level = output_level(data, path=input) if level is None else level
-        as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
-        model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
-                        max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
-                        keep_virtual=keep_virtual)
-        write_model(model, output, format=fmt)
-        out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
-                    "faces": len(model.faces) if as_mesh else None})
-    if as_json:
+    with console.progress() as progress:
+        report(progress, "read", 0, 1)
+        data = read_sfz(input)
+        if fmt == "sfz":
+            n = sum(part_surfels(p, path=input) for p in unpack_parts(data, path=input))
+            cut = data if bits is None else truncate(data, max_file_bytes(bits, n), path=input)
+            console.detail(f"{len(cut):,} of the stream's {len(data):,} bytes kept")
+            report(progress, "write", 0, 1)
+            write_atomic(output, lambda tmp: tmp.write_bytes(cut))
+            out["bytes"] = len(cut)
+        else:
+            level = output_level(data, path=input) if level is None else level
+            as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
+            report(progress, "decode", 0, 1)
+            model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
+                            max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
+                            keep_virtual=keep_virtual)
+            report(progress, "write", 0, 1)
+            write_model(model, output, format=fmt, text=text)
+            out.update({"surfels": len(model.vertices) if as_mesh else len(model),
+                        "level": level, "faces": len(model.faces) if as_mesh else None})
+    if console.json:
         echo_json(out)
     else:
         click.echo(plain(output_summary(out)))

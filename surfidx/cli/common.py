@@ -1,8 +1,19 @@
-"""Shared CLI helpers: error mapping, JSON output, input options."""
+"""Shared CLI helpers: the options every command takes, error mapping, JSON output, the
+options of the commands that read or write models.
+
+Every command takes the same habits from :func:`common_options`: ``-q/--quiet`` (no progress
+display, no informational notes on stderr; errors and warnings are still printed),
+``-v/--verbose`` (per-stage times and details on stderr), ``--json`` (the result as JSON on
+stdout, and a failure as ``{"error": "..."}`` there too, with a non-zero exit status) and, for a
+command that uses the model database, ``--db PATH`` (``$SURFIDX_DB``, else
+:data:`DEFAULT_DB`). The command gets a :class:`Console` that holds the first three and prints
+accordingly.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import json
 import re
@@ -15,9 +26,16 @@ import numpy as np
 
 from ..errors import SurfidxError
 
-__all__ = ["command_errors", "echo_json", "read_input", "input_options", "plain",
-           "outside_textures_option", "output_format_option", "progress_options",
-           "stage_progress", "reading"]
+__all__ = ["common_options", "Console", "uses_database", "DEFAULT_DB", "DB_ENVVAR",
+           "command_errors", "echo_json", "plain", "stage_progress", "reading", "read_input",
+           "input_options", "outside_textures_option", "allow_outside_textures",
+           "options_file_option", "output_format_option", "rate_option", "ascii_option",
+           "export_options", "EXPORT_HELP"]
+
+#: The database file of the database commands when neither ``--db`` nor ``$SURFIDX_DB`` names one.
+DEFAULT_DB = "surfidx.db"
+#: The environment variable that names the database when ``--db`` is not given.
+DB_ENVVAR = "SURFIDX_DB"
 
 #: The arguments that name the file a command reads, for errors found after reading.
 _INPUT_ARGS = ("input", "example", "reference")
@@ -58,8 +76,9 @@ def command_errors(func):
     (or ``example``, ``reference``) argument, if any. The line goes through :func:`plain` (names
     with control characters stay on one line); an ``sqlite3`` error the library did not map is
     one line too. With ``--json`` (an ``as_json`` argument) the error is printed on stdout as
-    ``{"error": "..."}`` (exact, not escaped) and the exit status is 1. A closed pipe
-    (``surfidx ls | head``) ends the command quietly (click's handling of ``EPIPE``).
+    ``{"error": "..."}`` (exact, not escaped) and the exit status is 1; so is a click error the
+    command raises (a usage error keeps its status 2). A closed pipe (``surfidx ls | head``)
+    ends the command quietly (click's handling of ``EPIPE``).
 
     Warnings are shown as one ``warning:`` line on stderr instead of Python's two-line format;
     :data:`_NOT_FOR_USERS` (deprecations, and resource warnings, which the garbage collector
@@ -70,10 +89,10 @@ def command_errors(func):
     def wrapper(*args, **kwargs):
         as_json = bool(kwargs.get("as_json"))
 
-        def fail(text):
+        def fail(text, code=1):
             if as_json:
                 echo_json({"error": text})
-                raise click.exceptions.Exit(1)
+                raise click.exceptions.Exit(code)
             raise click.ClickException(plain(text))
 
         with warnings.catch_warnings(record=True) as caught:
@@ -87,6 +106,10 @@ def command_errors(func):
                 src = next((kwargs[a] for a in _INPUT_ARGS if kwargs.get(a) is not None), None)
                 named = exc.path is not None or src is None
                 fail(str(exc) if named else f"{src}: {exc}")
+            except click.ClickException as exc:
+                if not as_json:
+                    raise
+                fail(exc.format_message(), exc.exit_code)
             except sqlite3.Error as exc:
                 fail(f"SQLite error ({exc})")
             except MemoryError:
@@ -105,6 +128,102 @@ def command_errors(func):
                         click.echo(f"warning: {plain(msg)}", err=True)
 
     return wrapper
+
+
+@dataclasses.dataclass(frozen=True)
+class Console:
+    """What ``-q``, ``-v`` and ``--json`` asked of a command, and the ways it talks on stderr.
+
+    Results go to stdout (as JSON with ``json``); notes, details and the progress display go
+    to stderr, so that a ``--json`` result stays machine-readable.
+
+    Attributes
+    ----------
+    quiet : bool
+        No progress display and no notes (errors and warnings are still printed).
+    verbose : bool
+        Details and per-stage times too.
+    json : bool
+        Print the result (or the error) as JSON on stdout.
+    """
+
+    quiet: bool = False
+    verbose: bool = False
+    json: bool = False
+
+    def note(self, text) -> None:
+        """An informational line on stderr (through :func:`plain`), unless ``quiet``."""
+        if not self.quiet:
+            click.echo(plain(text), err=True)
+
+    def detail(self, text) -> None:
+        """A line on stderr (through :func:`plain`) with ``verbose`` only."""
+        if self.verbose:
+            click.echo(plain(text), err=True)
+
+    def progress(self):
+        """The command's stage display (:func:`stage_progress`): a context manager giving a
+        progress callback, or None when nothing would be shown."""
+        return stage_progress(quiet=self.quiet, verbose=self.verbose)
+
+    @property
+    def live(self) -> bool:
+        """Whether a progress display (a bar) is shown: not ``quiet`` and stderr a terminal."""
+        return not self.quiet and _stderr_is_terminal(click.get_text_stream("stderr"))
+
+
+_DATABASE = "uses_database"
+"""The attribute :func:`common_options` sets on the callback of a command that takes ``--db``."""
+
+
+def uses_database(command) -> bool:
+    """Whether the click ``command`` uses the model database (it was given ``--db`` by
+    ``common_options(db=True)``)."""
+    return bool(getattr(command.callback, _DATABASE, False))
+
+
+def common_options(func=None, *, db: bool = False):
+    """The options every command takes, with its errors mapped (:func:`command_errors`).
+
+    Adds ``-q/--quiet``, ``-v/--verbose`` and ``--json`` and hands the command a
+    :class:`Console` of them as ``console``; with ``db``, also ``--db PATH`` (default
+    ``$SURFIDX_DB``, else :data:`DEFAULT_DB`), handed as ``db_path``, and the mark
+    :func:`uses_database` reads. Use it as ``@common_options`` or ``@common_options(db=True)``
+    right under the command's other options.
+
+    Raises
+    ------
+    click.UsageError
+        Both ``--quiet`` and ``--verbose``.
+    """
+    if func is None:
+        return functools.partial(common_options, db=db)
+
+    @functools.wraps(func)
+    def wrapper(*args, quiet=False, verbose=False, as_json=False, **kwargs):
+        if quiet and verbose:
+            raise click.UsageError("--quiet and --verbose exclude each other")
+        return func(*args, console=Console(quiet=quiet, verbose=verbose, json=as_json),
+                    **kwargs)
+
+    guarded = command_errors(wrapper)       # as_json reaches it: failures as JSON too
+    setattr(guarded, _DATABASE, bool(db))
+    guarded = click.option("--json", "as_json", is_flag=True,
+                           help="Print the result as JSON on stdout (a failure as "
+                                '{"error": "..."}).')(guarded)
+    guarded = click.option("-v", "--verbose", is_flag=True,
+                           help="Print details and each stage's wall and CPU time on "
+                                "stderr.")(guarded)
+    guarded = click.option("-q", "--quiet", is_flag=True,
+                           help="No progress display and no notes on stderr (errors and "
+                                "warnings still show); without it, progress shows when stderr "
+                                "is a terminal.")(guarded)
+    if db:
+        guarded = click.option(
+            "--db", "db_path", default=DEFAULT_DB, envvar=DB_ENVVAR, show_default=False,
+            metavar="PATH", type=click.Path(dir_okay=False),
+            help=f"Database file (default ${DB_ENVVAR}, else {DEFAULT_DB}).")(guarded)
+    return guarded
 
 
 def _default(o):
@@ -156,13 +275,57 @@ def input_options(func):
     return func
 
 
-def output_format_option(func):
-    """``--format``: the output format when the suffix does not say it."""
-    return click.option("--format", "fmt", type=click.Choice(["ply", "obj", "glb", "sfz"],
-                                                            case_sensitive=False),
+def output_format_option(func=None, *, formats=("ply", "obj", "glb", "sfz")):
+    """``--format``: the output format when the suffix does not say it, one of ``formats``."""
+    if func is None:
+        return functools.partial(output_format_option, formats=formats)
+    suffixes = ", ".join(f".{f}" for f in formats)
+    return click.option("--format", "fmt", type=click.Choice(list(formats), case_sensitive=False),
                         default=None,
-                        help="Output format (default: from the output's suffix: .ply, .obj, "
-                             ".glb, .sfz).")(func)
+                        help=f"Output format (default: from the output's suffix: {suffixes})."
+                        )(func)
+
+
+def rate_option(func=None, *, help: str, dest: str = "bits_per_surfel"):
+    """``--bits-per-surfel B``: a coding or decoding rate (a positive number), as ``dest``."""
+    if func is None:
+        return functools.partial(rate_option, help=help, dest=dest)
+    return click.option("--bits-per-surfel", dest, type=click.FloatRange(min=0, min_open=True),
+                        default=None, metavar="B", help=help)(func)
+
+
+def ascii_option(func):
+    """``--ascii``: write a PLY as text instead of binary little-endian (handed as ``text``)."""
+    return click.option("--ascii", "text", is_flag=True,
+                        help="Write ASCII PLY instead of binary.")(func)
+
+
+#: What ``decode`` and ``get`` write, by the output's suffix.
+EXPORT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
+               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
+               "stream, truncated to --bits-per-surfel).")
+
+
+def export_options(func):
+    """The options of the commands that decode a stream to a file (``decode``, ``get``):
+    ``-o/--output``, ``--format``, ``--bits-per-surfel`` (as ``bits_per_surfel``), ``--level``,
+    ``--mesh/--surfels``, ``--max-surfels`` and ``--ascii`` (as ``text``)."""
+    func = ascii_option(func)
+    func = click.option("--max-surfels", type=click.IntRange(min=1), default=None,
+                        help="Refuse to decode to more surfels than this (default 2,621,442, "
+                             "the level-9 grid); --level gives fewer.")(func)
+    func = click.option("--mesh/--surfels", "mesh", default=None,
+                        help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ "
+                             "and GLB, surfels for PLY).")(func)
+    func = click.option("--level", type=int, default=None,
+                        help="Grid level of the output (default: the level whose vertex count "
+                             "is closest to the input's surfel count; lower: fewer "
+                             "surfels).")(func)
+    func = rate_option(func, help="Decode (or keep, for .sfz) only the prefix of the stream "
+                                  "that fits this rate (default: all of it).")
+    func = output_format_option(func)
+    return click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+                        help=EXPORT_HELP)(func)
 
 
 def read_input(path, texture=None, samples=None, allow_outside=None):
@@ -172,15 +335,6 @@ def read_input(path, texture=None, samples=None, allow_outside=None):
 
     allow = allow_outside_textures() if allow_outside is None else bool(allow_outside)
     return read_surfels(path, texture=texture, samples=samples, allow_outside_textures=allow)
-
-
-def progress_options(func):
-    """``--quiet`` and ``--verbose``: the stage display on stderr (:func:`stage_progress`)."""
-    func = click.option("-v", "--verbose", is_flag=True,
-                        help="Print the wall and CPU time of each stage on stderr.")(func)
-    return click.option("-q", "--quiet", is_flag=True,
-                        help="Show no stage progress on stderr (shown when stderr is a "
-                             "terminal).")(func)
 
 
 def _stderr_is_terminal(stream) -> bool:

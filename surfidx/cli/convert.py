@@ -7,8 +7,8 @@ from pathlib import Path
 import click
 
 from ..errors import SurfidxError
-from .common import (allow_outside_textures, command_errors, echo_json, input_options, plain,
-                      read_input)
+from .common import (allow_outside_textures, ascii_option, common_options, echo_json,
+                      input_options, output_format_option, plain, reading)
 from .group import cli
 
 __all__ = ["convert", "info"]
@@ -18,21 +18,22 @@ __all__ = ["convert", "info"]
 @click.argument("input", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="File to write: .ply (surfels, binary little-endian), .obj or .glb.")
-@click.option("--format", "fmt", type=click.Choice(["ply", "obj", "glb"], case_sensitive=False),
-              default=None, help="Output format (default: from the output's suffix).")
+@output_format_option(formats=("ply", "obj", "glb"))
 @input_options
-@click.option("--ascii", "text", is_flag=True, help="Write ASCII PLY instead of binary.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def convert(input, output, fmt, texture, samples, text, as_json):
+@ascii_option
+@common_options
+def convert(input, output, fmt, texture, samples, text, *, console):
     """Convert a mesh or point cloud (PLY, OBJ, OFF, STL, glTF/GLB, PCD, XYZ, PTS) to surfels,
     written as PLY, OBJ or GLB."""
     from ..io import output_format, write_model
+    from ..progress import report
 
     fmt = output_format(output, fmt)               # before reading: a bad suffix fails fast
-    s = read_input(input, texture, samples)
-    write_model(s, output, format=fmt, text=text)
-    if as_json:
+    with console.progress() as progress:
+        s = reading(progress, input, texture, samples)
+        report(progress, "write", 0, 1)
+        write_model(s, output, format=fmt, text=text)
+    if console.json:
         echo_json({"input": str(input), "output": str(output), "format": fmt,
                    "surfels": len(s), "color": s.has_color})
         return
@@ -42,26 +43,29 @@ def convert(input, output, fmt, texture, samples, text, as_json):
 @cli.command()
 @click.argument("input", type=click.Path(dir_okay=False))
 @input_options
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def info(input, texture, samples, as_json):
+@common_options
+def info(input, texture, samples, *, console):
     """Surfel count, bounding box, colour and, for meshes, closedness, holes, pinched vertices,
     genus and pieces with what the repair before storing would add; for a .sfz stream, its
     container header and what it holds (parts, virtual patches, mask share)."""
-    if Path(input).suffix.lower() == ".sfz":
-        _echo(_stream_info(input), as_json)
-        return
-    s = read_input(input, texture, samples)
-    lo, hi = s.bounds
-    out = {"file": str(input), "surfels": len(s), "color": s.has_color,
-           "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "diagonal": s.diagonal,
-           "mean_radius": float(s.radii.mean())}
-    mesh = _input_mesh(input, s)
-    if mesh is not None:
-        out.update(_mesh_info(*mesh))
-    else:
-        out["mesh"] = False
-    _echo(out, as_json)
+    from ..progress import report
+
+    with console.progress() as progress:
+        if Path(input).suffix.lower() == ".sfz":
+            report(progress, "read", 0, 1)
+            out = _stream_info(input)
+        else:
+            s = reading(progress, input, texture, samples)
+            lo, hi = s.bounds
+            out = {"file": str(input), "surfels": len(s), "color": s.has_color,
+                   "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "diagonal": s.diagonal,
+                   "mean_radius": float(s.radii.mean())}
+            mesh = _input_mesh(input, s)
+            if mesh is not None:
+                out.update(_mesh_info(*mesh))
+            else:
+                out["mesh"] = False
+    _echo(out, console.json)
 
 
 def _input_mesh(input, surfels):

@@ -1,6 +1,7 @@
 """``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors``, ``redescribe``, ``rm``,
-``rename``, ``tag`` and ``untag``: the model database, each a thin layer over a
-:class:`surfidx.Database` method.
+``rename``, ``tag``, ``untag`` and ``datasette-metadata``: the model database, each a thin
+layer over a :class:`surfidx.Database` method. Each takes ``--db PATH`` (``$SURFIDX_DB``) but
+``datasette-metadata``, whose metadata fits any surfidx database.
 
 The model processor (``surfidx.pipeline.process_model``) and the stream decoder
 (``surfidx.codec.decode``) are imported when a command needs them; tests (and embedding
@@ -21,20 +22,14 @@ from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
 from ..describe.distance import DEFAULT_SHAPE_WEIGHT
 from ..codec.options import DEFAULT_BITS_PER_SURFEL
+from ..progress import report
 from .group import cli
-from .common import options_file_option
-from .common import (allow_outside_textures, command_errors, echo_json, outside_textures_option,
-                      output_format_option, plain, progress_options, stage_progress)
+from .common import (allow_outside_textures, common_options, echo_json, export_options,
+                      options_file_option, outside_textures_option, plain, rate_option)
 
 __all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
-           "parse_model_ref", "rm", "rename", "tag", "untag"]
-
-_DB_HELP = "Database file (default surfidx.db, or $SURFIDX_DB)."
-
-
-def _db_option(func):
-    return click.option("--db", "db_path", default="surfidx.db", envvar="SURFIDX_DB",
-                        show_default=False, type=click.Path(dir_okay=False), help=_DB_HELP)(func)
+           "parse_model_ref", "rm", "rename", "tag", "untag", "datasette_metadata_command",
+           "topology_line", "echo_params"]
 
 
 def _injected(key):
@@ -71,11 +66,12 @@ def parse_model_ref(text: str):
     return text
 
 
-def _open(db_path, *, readonly=True):
+def _open(db_path, console, *, readonly=True):
     """The database of a command: read-only (``ls``, ``show``, ``query``, ``get``, ``errors``:
     never written, a missing or empty file is an error), or for writing an existing one."""
     from ..database import Database
 
+    console.detail(f"database {db_path}{' (read-only)' if readonly else ''}")
     return Database(db_path, create=False, readonly=readonly)
 
 
@@ -100,7 +96,6 @@ def _table(rows, columns):
 # ---------------------------------------------------------------------- ingest
 @cli.command("ingest")
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
-@_db_option
 @click.option("-j", "--workers", type=click.IntRange(min=1), default=None,
               help="Worker processes (of the local pool, or of --scheduler local); default: "
                    "as many as the machine's cores.")
@@ -111,20 +106,19 @@ def _table(rows, columns):
 @click.option("--retries", type=click.IntRange(min=0), default=2, show_default=True,
               help="With --scheduler: times a model whose worker died is re-run before it is "
                    "recorded as failed.")
-@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Coding rate of the stored streams (default: the options file's, else "
-                   f"{DEFAULT_BITS_PER_SURFEL:g}).")
+@rate_option(help="Coding rate of the stored streams (default: the options file's, else "
+                  f"{DEFAULT_BITS_PER_SURFEL:g}).")
 @options_file_option
 @click.option("--name", default=None,
               help="Name of the stored model (one file only; default: the file's stem, or when "
                    "another model has it the parent folder's name, then STEM-2, STEM-3...).")
 @click.option("--tag", "tags", multiple=True, help="Tag every stored model (repeatable).")
 @outside_textures_option
-@click.option("--no-progress", is_flag=True, help="Hide the progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-@command_errors
-def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel, options, name,
-                   tags, no_progress, as_json):
+@click.option("--no-progress", is_flag=True, hidden=True,
+              help="Hide the progress bar (the old spelling; -q also hides the notes).")
+@common_options(db=True)
+def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options, name, tags,
+                   no_progress, *, db_path, console):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
@@ -136,19 +130,21 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
     Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ and PTS files; a folder
     with none is an error. The exit status is 1 when any file failed (what could be stored is).
     Without --workers, as many worker processes run as the machine has cores; the progress bar
-    moves within each model as its stages finish (per model with --scheduler).
+    (on a terminal) moves within each model as its stages finish (per model with --scheduler).
     """
     import ingest
 
+    console.detail(f"database {db_path}")
     # ingest.run (what Database.ingest runs for files) opens the database itself, after every
     # argument and the scheduler were checked: a bad call leaves no new file behind
     summary = ingest.run(list(paths), db=db_path, workers=workers,
                          bits_per_surfel=bits_per_surfel, options=options,
                          processor=_processor(),
-                         progress=not no_progress, scheduler=scheduler, retries=retries,
-                         name=name, tags=list(tags),
+                         progress=console.live and not no_progress, scheduler=scheduler,
+                         retries=retries, name=name, tags=list(tags),
                          allow_outside_textures=allow_outside_textures())
-    if as_json:
+    console.detail(f"stored ids: {', '.join(map(str, summary.ids)) or '-'}")
+    if console.json:
         echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
                    "failed": summary.failed, "ids": summary.ids, "seconds": summary.seconds,
                    "errors": [{"path": p, "error": e} for p, e in summary.errors],
@@ -157,7 +153,7 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
             raise click.exceptions.Exit(1)
         return
     for path, message in summary.skips:
-        click.echo(plain(f"skipped: {path}: {message}"), err=True)
+        console.note(f"skipped: {path}: {message}")
     for path, message in summary.errors:
         line = message if message.startswith(path) else f"{path}: {message}"
         click.echo(plain(f"failed: {line}"), err=True)
@@ -170,7 +166,6 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
 # ---------------------------------------------------------------------- query
 @cli.command()
 @click.argument("example")
-@_db_option
 @click.option("-k", "k", type=click.IntRange(min=1), default=10, show_default=True,
               help="Number of results.")
 @click.option("--shape-weight", type=click.FloatRange(0.0, 1.0), default=DEFAULT_SHAPE_WEIGHT,
@@ -186,11 +181,8 @@ def ingest_command(paths, db_path, workers, scheduler, retries, bits_per_surfel,
                    "re-ranked by the exact distance).")
 @outside_textures_option
 @options_file_option
-@progress_options
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def query(example, db_path, k, shape_weight, sheet, include_self, exact, options, quiet, verbose,
-          as_json):
+@common_options(db=True)
+def query(example, k, shape_weight, sheet, include_self, exact, options, *, db_path, console):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
@@ -200,7 +192,7 @@ def query(example, db_path, k, shape_weight, sheet, include_self, exact, options
     the shape descriptor with the KLT spectrum appended). A model file's stages are shown on
     stderr when it is a terminal (--quiet: never; --verbose: their times).
     """
-    with _open(db_path) as db, stage_progress(quiet=quiet, verbose=verbose) as progress:
+    with _open(db_path, console) as db, console.progress() as progress:
         # a model file is described by surfidx.pipeline.describe_model (imported then), or
         # by the processor or describer the context object injects
         ex = db.example(example, processor=_injected("processor"),
@@ -208,14 +200,13 @@ def query(example, db_path, k, shape_weight, sheet, include_self, exact, options
                         progress=progress, allow_outside_textures=allow_outside_textures(),
                         options=options)
         label, qthumb = ex.name, ex.thumbnail
-        if progress is not None:
-            progress("search", 0, 1)
+        report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
                         exact=exact)
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])
-    if as_json:
+    if console.json:
         echo_json({"results": rows})
         return
     for rank, r in enumerate(rows, 1):
@@ -224,7 +215,7 @@ def query(example, db_path, k, shape_weight, sheet, include_self, exact, options
     _table(rows, [("rank", "rank"), ("id", "id"), ("name", "name"), ("distance_s", "distance"),
                   ("source", "source")])
     if sheet:
-        click.echo(plain(f"{sheet}: query and {len(rows)} results"), err=True)
+        console.note(f"{sheet}: query and {len(rows)} results")
 
 
 def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
@@ -264,37 +255,22 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 # ---------------------------------------------------------------------- get
 @cli.command()
 @click.argument("model")
-@_db_option
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="File to write, its format from the suffix (or --format): .ply (surfels, or "
-                   "a mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz "
-                   "(the stored stream, truncated to --bits-per-surfel).")
-@output_format_option
-@click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Serve only this rate's prefix of the stream (default: all of it).")
-@click.option("--level", type=int, default=None,
-              help="Grid level of the output (default: the level whose vertex count is closest "
-                   "to the input's surfel count; lower: fewer surfels).")
-@click.option("--mesh/--surfels", "mesh", default=None,
-              help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
-                   "surfels for PLY).")
-@click.option("--max-surfels", type=click.IntRange(min=1), default=None,
-              help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
-                   "grid); --level gives fewer.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, as_json):
+@export_options
+@common_options(db=True)
+def get(model, output, fmt, bits_per_surfel, level, mesh, max_surfels, text, *, db_path,
+        console):
     """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
     .sfz, optionally at a lower rate."""
     from .codec import output_summary
 
-    with _open(db_path) as db:
+    sfz = (fmt or Path(output).suffix).lower().endswith("sfz")
+    with _open(db_path, console) as db, console.progress() as progress:
+        report(progress, "write" if sfz else "decode", 0, 1)
         out = db.export(parse_model_ref(model), output, format=fmt,
                         bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
-                        max_surfels=max_surfels,
-                        decoder=None if (fmt or Path(output).suffix).lower().endswith("sfz")
-                        else _decoder())
-    if as_json:
+                        max_surfels=max_surfels, text=text,
+                        decoder=None if sfz else _decoder())
+    if console.json:
         echo_json(out)
         return
     click.echo(plain(f"{output_summary(out)} (model {out['id']}, {out['name']})"))
@@ -302,20 +278,19 @@ def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, 
 
 # ---------------------------------------------------------------------- ls, show, errors
 @cli.command()
-@_db_option
 @click.option("--errors", "show_errors", is_flag=True, help="List ingest failures instead.")
 @click.option("--tag", "tags", multiple=True, help="Only models with this tag (repeatable: all).")
 @click.option("--name-like", default=None,
               help="Only models whose name matches this SQL LIKE pattern (%: any text).")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def ls(db_path, show_errors, tags, name_like, as_json):
+@common_options(db=True)
+def ls(show_errors, tags, name_like, *, db_path, console):
     """List the stored models (or, with --errors, the ingest failures)."""
     if show_errors:
-        return _print_errors(db_path, None, as_json)
-    with _open(db_path) as db:
+        return _print_errors(db_path, None, console)
+    with _open(db_path, console) as db:
         rows = db.list_models(tag=list(tags) or None, name_like=name_like)
-    if as_json:
+    console.detail(f"{len(rows)} model(s)")
+    if console.json:
         echo_json({"models": rows})
         return
     for r in rows:
@@ -327,19 +302,17 @@ def ls(db_path, show_errors, tags, name_like, as_json):
 
 @cli.command()
 @click.argument("model")
-@_db_option
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def show(model, db_path, as_json):
+@common_options(db=True)
+def show(model, *, db_path, console):
     """One model's record, asset figures and descriptors, and the last ingest run's errors."""
-    with _open(db_path) as db:
+    with _open(db_path, console) as db:
         rec = db.get_model(parse_model_ref(model))
         run = db.last_run()
         run_errors = db.errors(run["id"]) if run else []
     rec["bbox_min"], rec["bbox_max"] = rec["bbox"][0].tolist(), rec["bbox"][1].tolist()
     del rec["bbox"]
     out = {"model": rec, "last_run": None if run is None else {**run, "errors": run_errors}}
-    if as_json:
+    if console.json:
         echo_json(out)
         return
     for key in ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min",
@@ -384,21 +357,19 @@ def echo_params(params) -> str:
 
 
 @cli.command()
-@_db_option
 @click.option("--run", "run_id", type=int, default=None, help="Only this run's failures.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def errors(db_path, run_id, as_json):
+@common_options(db=True)
+def errors(run_id, *, db_path, console):
     """List the files ingest runs could not store, with their error messages."""
-    _print_errors(db_path, run_id, as_json)
+    _print_errors(db_path, run_id, console)
 
 
-def _print_errors(db_path, run_id, as_json):
-    with _open(db_path) as db:
+def _print_errors(db_path, run_id, console):
+    with _open(db_path, console) as db:
         if run_id is not None and all(r["id"] != run_id for r in db.runs()):
             raise DatabaseError(f"no ingest run with id {run_id}", path=db_path)
         rows = db.errors(run_id)
-    if as_json:
+    if console.json:
         echo_json({"errors": rows})
         return
     if not rows:
@@ -408,19 +379,19 @@ def _print_errors(db_path, run_id, as_json):
 
 
 @cli.command("redescribe")
-@_db_option
 @click.option("--all", "everything", is_flag=True,
               help="Recompute every model, not only those with outdated descriptors.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def redescribe_command(db_path, everything, as_json):
+@common_options(db=True)
+def redescribe_command(everything, *, db_path, console):
     """Recompute stored descriptors from the stored assets (after an upgrade changed them)."""
     from ..pipeline import redescribe
 
-    with _open(db_path, readonly=False) as db:
+    with _open(db_path, console, readonly=False) as db:
         out = redescribe(db, everything=everything)
-    if as_json:
+    if console.json:
         echo_json(out)
+        if out["failed"]:
+            raise click.exceptions.Exit(1)
     else:
         click.echo(f"redescribed {out['redescribed']}, up to date {out['current']}, "
                    f"failed {len(out['failed'])}")
@@ -433,15 +404,13 @@ def redescribe_command(db_path, everything, as_json):
 # ---------------------------------------------------------------------- rm, rename, tag, untag
 @cli.command()
 @click.argument("models", nargs=-1, required=True)
-@_db_option
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def rm(models, db_path, as_json):
+@common_options(db=True)
+def rm(models, *, db_path, console):
     """Remove stored models (ID, id:ID or NAME, several at once) with their assets, descriptors,
     thumbnails and tags; none is removed when one is not found."""
-    with _open(db_path, readonly=False) as db:
+    with _open(db_path, console, readonly=False) as db:
         removed = db.remove(*[parse_model_ref(m) for m in models])
-    if as_json:
+    if console.json:
         echo_json({"removed": removed})
         return
     for r in removed:
@@ -451,14 +420,12 @@ def rm(models, db_path, as_json):
 @cli.command()
 @click.argument("model")
 @click.argument("new_name")
-@_db_option
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def rename(model, new_name, db_path, as_json):
+@common_options(db=True)
+def rename(model, new_name, *, db_path, console):
     """Give a stored model (ID, id:ID or NAME) another name (names are unique)."""
-    with _open(db_path, readonly=False) as db:
+    with _open(db_path, console, readonly=False) as db:
         out = db.rename(parse_model_ref(model), new_name)
-    if as_json:
+    if console.json:
         echo_json(out)
         return
     click.echo(plain(f"model {out['id']}: {out['old_name']} -> {out['name']}"))
@@ -469,15 +436,13 @@ def _tag_command(name, method, verb):
                             f"{'add' if method == 'tag' else 'remove'} the TAGS given.")
     @click.argument("model")
     @click.argument("tags", nargs=-1, required=True)
-    @_db_option
-    @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-    @command_errors
-    def command(model, tags, db_path, as_json):
-        with _open(db_path, readonly=False) as db:
+    @common_options(db=True)
+    def command(model, tags, *, db_path, console):
+        with _open(db_path, console, readonly=False) as db:
             mid = db.resolve(parse_model_ref(model))
             changed = getattr(db, method)(mid, list(tags))
             now = db.tags(mid)
-        if as_json:
+        if console.json:
             echo_json({"id": mid, verb: changed, "tags": now})
             return
         click.echo(plain(f"model {mid}: {verb} {changed}; tags: {', '.join(now) or '-'}"))
@@ -493,19 +458,25 @@ untag = _tag_command("untag", "untag", "removed")
 @cli.command("datasette-metadata")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Write it to this file instead of printing it.")
-@command_errors
-def datasette_metadata_command(output):
+@common_options
+def datasette_metadata_command(output, *, console):
     """Print the Datasette metadata of a surfidx database (titles, model names as the labels of
     model_id, browsing views). Use: surfidx datasette-metadata -o meta.json; datasette
-    surfidx.db --metadata meta.json (thumbnails as images with datasette-render-images)."""
+    surfidx.db --metadata meta.json (thumbnails as images with datasette-render-images).
+    The metadata is JSON already: --json changes only the line printed after writing it to
+    a file."""
     import json
 
     from ..db.catalog import datasette_metadata
     from ..io import write_atomic
 
+    console.detail("the metadata of surfidx/data/datasette.json (for any surfidx database)")
     text = json.dumps(datasette_metadata(), indent=2) + "\n"
     if output is None:
         click.echo(text, nl=False)
         return
     write_atomic(output, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    if console.json:
+        echo_json({"output": str(output), "bytes": len(text.encode("utf-8"))})
+        return
     click.echo(plain(f"{output}: Datasette metadata"))

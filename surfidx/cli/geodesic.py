@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import click
 
-from .common import command_errors, echo_json, input_options, read_input
+from .common import common_options, echo_json, input_options, reading
 from .group import cli
+
+__all__ = ["geodesic"]
 
 
 @cli.command()
@@ -19,24 +21,29 @@ from .group import cli
 @click.option("--max-angle", type=float, default=None,
               help="Largest normal angle (degrees) between linked surfels.")
 @click.option("--bridge", is_flag=True, help="Join disconnected parts with straight links.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @input_options
-@command_errors
-def geodesic(input, source, target, refine, output, max_angle, bridge, as_json, texture, samples):
+@common_options
+def geodesic(input, source, target, refine, output, max_angle, bridge, texture, samples, *,
+             console):
     """Geodesic distance and path between surfels SOURCE and TARGET of INPUT.
 
     Surfel indices follow the input's order (for a mesh, its vertex order).
     """
     from ..geometry.geodesics import GeodesicSolver
     from ..geometry.graph import DEFAULT_MAX_ANGLE
+    from ..progress import report
 
-    s = read_input(input, texture, samples)
-    solver = GeodesicSolver(s, max_angle=DEFAULT_MAX_ANGLE if max_angle is None else max_angle,
-                            bridge=bridge)
-    path = solver.path(source, target, refine=refine)
-    if output is not None:
-        path.write_ply(output)
-    if as_json:
+    with console.progress() as progress:
+        s = reading(progress, input, texture, samples)
+        report(progress, "path", 0, 1)
+        solver = GeodesicSolver(s, max_angle=DEFAULT_MAX_ANGLE if max_angle is None
+                                else max_angle, bridge=bridge)
+        path = solver.path(source, target, refine=refine)
+        if output is not None:
+            report(progress, "write", 0, 1)
+            path.write_ply(output)
+    console.detail(f"{len(s):,} surfels read; path of {len(path.indices)} surfels")
+    if console.json:
         echo_json({"distance": path.length, "path": path.indices, "refined": bool(path.refined),
                    "points": int(len(path.points))})
         return
@@ -45,4 +52,3 @@ def geodesic(input, source, target, refine, output, max_angle, bridge, as_json, 
     click.echo("path     " + " ".join(str(int(i)) for i in path.indices))
     if output is not None:
         click.echo(f"{output}: {len(path.points)} path points")
-

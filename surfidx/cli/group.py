@@ -8,17 +8,48 @@ The group imports a command's module when the command is asked for by name
 codec, sphere or render commands (and their imports). Listing the commands (``surfidx --help``)
 imports them all. ``cli.commands`` holds the commands imported so far; use
 ``cli.get_command(ctx, name)`` or :meth:`LazyGroup.load_all` for any of them.
+
+Its commands are :class:`Command`: with ``--json`` among the arguments, a usage error found
+while click parses them (a bad value, a missing option) is printed on stdout as
+``{"error": "..."}`` as the command's own failures are (:func:`surfidx.cli.common.command_errors`).
 """
 
 from __future__ import annotations
 
 import importlib
+import json
 
 import click
 
 from .. import __version__
 
-__all__ = ["cli", "LazyGroup"]
+__all__ = ["cli", "LazyGroup", "Command"]
+
+
+def _wants_json(args) -> bool:
+    """Whether ``--json`` is among the command-line arguments ``args`` (before a ``--``)."""
+    args = list(args)
+    return "--json" in (args[:args.index("--")] if "--" in args else args)
+
+
+def _json_usage_error(exc: click.UsageError):
+    """Print ``exc`` as ``{"error": "..."}`` on stdout; the exit keeps its status (2)."""
+    click.echo(json.dumps({"error": exc.format_message()}, indent=2))
+    return click.exceptions.Exit(exc.exit_code)
+
+
+class Command(click.Command):
+    """A surfidx command: with ``--json``, a usage error is printed as ``{"error": ...}`` on
+    stdout too (and the exit status stays click's 2)."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        wants_json = _wants_json(args)
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as exc:
+            if not wants_json:
+                raise
+            raise _json_usage_error(exc) from exc
 
 
 class LazyGroup(click.Group):
@@ -32,6 +63,8 @@ class LazyGroup(click.Group):
         Imports every command module (set by ``surfidx.cli``); run for a name that
         :attr:`modules` does not know, so that a command missing there is still found.
     """
+
+    command_class = Command
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -57,6 +90,14 @@ class LazyGroup(click.Group):
     def list_commands(self, ctx):
         self.load_all()
         return super().list_commands(ctx)
+
+    def resolve_command(self, ctx, args):
+        try:
+            return super().resolve_command(ctx, args)
+        except click.UsageError as exc:         # no such command
+            if not _wants_json(args):
+                raise
+            raise _json_usage_error(exc) from exc
 
 
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})

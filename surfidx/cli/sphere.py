@@ -5,9 +5,12 @@ from __future__ import annotations
 import click
 
 from ..sphere.options import METHODS
-from .common import command_errors, echo_json, input_options, progress_options, reading, \
-    stage_progress
+from .common import common_options, echo_json, input_options, reading
 from .group import cli
+
+__all__ = ["parameterize", "resample"]
+
+_METHOD_HELP = "tutte: fold-free Tutte map with area balancing; mds: original spherical MDS."
 
 
 @cli.command()
@@ -15,26 +18,24 @@ from .group import cli
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Surfel PLY to write, with the sphere position as properties sx sy sz.")
 @click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True,
-              help="tutte: fold-free Tutte map with area balancing; mds: original spherical MDS.")
+              help=_METHOD_HELP)
 @click.option("--seed", type=int, default=0, show_default=True, help="Landmark seed.")
 @input_options
-@progress_options
-@click.option("--json", "as_json", is_flag=True, help="Print the figures as JSON.")
-@command_errors
-def parameterize(input, output, method, seed, texture, samples, quiet, verbose, as_json):
+@common_options
+def parameterize(input, output, method, seed, texture, samples, *, console):
     """Map a closed genus-0 model onto the unit sphere."""
     from ..io import write_ply
     from ..progress import report
     from ..sphere import parameterize as run
 
-    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+    with console.progress() as progress:
         s = reading(progress, input, texture, samples)
         m = run(s, method=method, seed=seed, progress=progress)
         report(progress, "write", 0, 1)
         write_ply(s, output, extra={"sx": m.points[:, 0], "sy": m.points[:, 1],
                                     "sz": m.points[:, 2]})
     fig = {"file": str(input), "output": str(output), **m.figures()}
-    if as_json:
+    if console.json:
         echo_json(fig)
         return
     click.echo(f"{output}: {len(s)} surfels on the sphere ({m.method}), "
@@ -49,20 +50,20 @@ def parameterize(input, output, method, seed, texture, samples, quiet, verbose, 
               help="PLY to write: grid surfels, or with --mesh the grid mesh as surfels with faces.")
 @click.option("--level", type=click.IntRange(0, 9), default=None,
               help="Grid level (default: chosen from the surfel count).")
-@click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True)
-@click.option("--mesh", "as_mesh", is_flag=True, help="Write the grid triangle mesh.")
+@click.option("--method", type=click.Choice(METHODS), default=METHODS[0], show_default=True,
+              help=_METHOD_HELP)
+@click.option("--mesh/--surfels", "as_mesh", default=False,
+              help="Write the grid's triangle mesh, or its surfels (default).")
 @input_options
-@progress_options
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
-def resample(input, output, level, method, as_mesh, texture, samples, quiet, verbose, as_json):
+@common_options
+def resample(input, output, level, method, as_mesh, texture, samples, *, console):
     """Map a model to the sphere and write its uncompressed icosahedral-grid reconstruction."""
     from ..io import write_ply
     from ..progress import report
     from ..sphere import parameterize as run
     from ..codec.resample import grid_to_mesh, grid_to_surfels, resample as resample_grid
 
-    with stage_progress(quiet=quiet, verbose=verbose) as progress:
+    with console.progress() as progress:
         s = reading(progress, input, texture, samples)
         m = run(s, method=method, stress=False, progress=progress)
         lev = m.grid_level if level is None else level
@@ -75,7 +76,7 @@ def resample(input, output, level, method, as_mesh, texture, samples, quiet, ver
         write_ply(g, output)
     out = {"file": str(input), "output": str(output), "level": lev, "grid_vertices": len(vals),
            "mesh": as_mesh, "folded": m.folded, "fold_fraction": m.fold_fraction}
-    if as_json:
+    if console.json:
         echo_json(out)
         return
     click.echo(f"{output}: level-{lev} grid, {len(vals)} vertices"

@@ -8,9 +8,10 @@ import re
 import click
 
 from ..errors import InputError
-from .common import (command_errors, echo_json, input_options, outside_textures_option, plain,
-                      read_input)
+from .common import common_options, echo_json, input_options, plain, reading
 from .group import cli
+
+__all__ = ["eval_", "render_"]
 
 _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2", "peak",
                "n_reference", "n_test")
@@ -21,20 +22,32 @@ _EVAL_ORDER = ("psnr_d1", "psnr_d2", "psnr_y", "hausdorff", "rmse_d1", "rmse_d2"
 @click.argument("test", type=click.Path(dir_okay=False))
 @click.option("--peak", type=float, default=None,
               help="PSNR peak instead of the reference's bounding-box diagonal.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@outside_textures_option
-@command_errors
-def eval_(reference, test, peak, as_json):
+@click.option("--test-texture", type=click.Path(dir_okay=False), default=None,
+              help="Texture image for a TEST OBJ whose UVs name none (--texture is "
+                   "REFERENCE's).")
+@input_options
+@common_options
+def eval_(reference, test, peak, test_texture, texture, samples, *, console):
     """Distortion of TEST against REFERENCE: PSNR D1/D2, luma PSNR and Hausdorff.
 
     MPEG pc_error definitions, symmetric (the worse of the two directions); the peak is the
     reference's bounding-box diagonal, Hausdorff is relative to it. Zero error gives a PSNR of
-    inf (Infinity in JSON); psnr_y is null/- when either model has no colour.
+    inf (Infinity in JSON); psnr_y is null/- when either model has no colour. --texture and
+    --samples say how REFERENCE is read (as by info and convert), --test-texture TEST's
+    texture.
     """
     from ..geometry.metrics import evaluate
+    from ..progress import report
 
-    res = evaluate(read_input(reference), read_input(test), peak=peak)
-    if as_json:
+    with console.progress() as progress:
+        ref = reading(progress, reference, texture, samples)
+        tst = reading(progress, test, test_texture)
+        for role, path, s in (("reference", reference, ref), ("test", test, tst)):
+            console.detail(f"{role} {path}: {len(s):,} surfels"
+                           f"{', colour' if s.has_color else ', no colour'}")
+        report(progress, "evaluate", 0, 1)
+        res = evaluate(ref, tst, peak=peak)
+    if console.json:
         echo_json(res)
         return
     for key in _EVAL_ORDER:
@@ -78,11 +91,11 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option("--supersample", type=int, default=2, show_default=True,
               help="Render at N times the size and average down (anti-aliasing).")
 @input_options
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
-@command_errors
+@common_options
 def render_(input, output, view, azimuth, elevation, up, size, path_file, supersample, texture,
-            samples, as_json):
+            samples, *, console):
     """Render a model to a PNG as lit, z-buffered disk splats (colours when present)."""
+    from ..progress import report
     from ..render import read_polyline, render, save_png
 
     width, height = _parse_size(size)
@@ -93,11 +106,14 @@ def render_(input, output, view, azimuth, elevation, up, size, path_file, supers
     elif view is None:
         view = "three-quarter"
     path = read_polyline(path_file) if path_file is not None else None
-    s = read_input(input, texture, samples)
-    img = render(s, width=width, height=height, view=view, up=up, path_points=path,
-                 supersample=supersample)
-    save_png(img, output)
-    if as_json:
+    with console.progress() as progress:
+        s = reading(progress, input, texture, samples)
+        report(progress, "render", 0, 1)
+        img = render(s, width=width, height=height, view=view, up=up, path_points=path,
+                     supersample=supersample)
+        report(progress, "write", 0, 1)
+        save_png(img, output)
+    if console.json:
         echo_json({"input": str(input), "output": str(output), "width": width, "height": height,
                    "surfels": len(s), "view": view})
         return
