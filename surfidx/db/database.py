@@ -398,7 +398,8 @@ class Database(Catalog):
         Returns
         -------
         SurfelSet or TriangleMesh
-            Named after the model.
+            Named after the model; ``to_trimesh()`` converts either (a ``trimesh.PointCloud``
+            or a ``trimesh.Trimesh``).
         """
         from ..pipeline import output_level
 
