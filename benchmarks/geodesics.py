@@ -13,9 +13,10 @@ finely sampled unit sphere (level-6 icosphere, 40,962 surfels; exact geodesics a
 * heat: potpourri3d's point-cloud heat method (``PointCloudHeatSolver``) on the surfel centres;
 
 reported as mean and 95th percentile of the absolute relative error ``|d / d_exact - 1|`` (and the
-mean signed error). A second table sweeps the normal-angle threshold, the sphere-radius scale and
-the surface-test limit ``max_offset`` (graph distances only; ``--no-sweep`` skips it); a third
-times graph construction and one source to all on Igea (one core).
+mean signed error). A second table sweeps the normal-angle threshold, the sphere-radius scale,
+the surface-test limit ``max_offset`` and its length limit ``MIDPOINT_SLACK`` (graph distances
+only; ``--no-sweep`` skips it); a third times graph construction and one source to all on Igea
+(one core).
 
 Run: ``python benchmarks/geodesics.py [--sources 20] [--ball 10000] [--models igea bunny_hr ...]``.
 """
@@ -36,6 +37,7 @@ import numpy as np
 from surfidx import TriangleMesh, read_surfels
 from surfidx.geometry.geodesics import GeodesicSolver
 from surfidx.geometry.icosphere import icosphere
+from surfidx.geometry import graph as sig
 from surfidx.geometry.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
@@ -48,6 +50,7 @@ MODELS = {
 ANGLES = (30.0, 45.0, 60.0, 90.0, 120.0, 180.0)
 SCALES = (1.0, 1.5, 1.75, 2.0, 2.5)
 OFFSETS = (None, 0.05, 0.07, 0.15, 0.2)  # surface-test limits besides DEFAULT_MAX_OFFSET
+SLACKS = (float("inf"), 1.5, 1.0)        # surface-test length limits besides MIDPOINT_SLACK
 
 
 def load(name):
@@ -136,20 +139,27 @@ def main(argv=None):
             row["heat"] = rel_stats(hd, exact)
         rows.append(row)
         if not args.no_sweep:
-            combos = ([(a, DEFAULT_SCALE, DEFAULT_MAX_OFFSET) for a in ANGLES]
-                      + [(DEFAULT_MAX_ANGLE, sc, DEFAULT_MAX_OFFSET) for sc in SCALES
+            slack0 = sig.MIDPOINT_SLACK
+            combos = ([(a, DEFAULT_SCALE, DEFAULT_MAX_OFFSET, slack0) for a in ANGLES]
+                      + [(DEFAULT_MAX_ANGLE, sc, DEFAULT_MAX_OFFSET, slack0) for sc in SCALES
                          if sc != DEFAULT_SCALE]
-                      + [(DEFAULT_MAX_ANGLE, DEFAULT_SCALE, off) for off in OFFSETS])
-            for ang, sc, off in combos:
+                      + [(DEFAULT_MAX_ANGLE, DEFAULT_SCALE, off, slack0) for off in OFFSETS]
+                      + [(DEFAULT_MAX_ANGLE, DEFAULT_SCALE, DEFAULT_MAX_OFFSET, sl)
+                         for sl in SLACKS])
+            for ang, sc, off, sl in combos:
+                sig.MIDPOINT_SLACK = sl     # a module constant the graph build reads each call
                 try:
                     sv = GeodesicSolver(s, max_angle=ang, scale=sc, max_offset=off)
                     d = np.take_along_axis(sv.distances(sources), targets, axis=1)
-                    sweep.append((name, (ang, sc, off), sv.graph.degrees.mean(),
+                    sweep.append((name, (ang, sc, off, sl), sv.graph.degrees.mean(),
                                   rel_stats(d, exact)))
                 except Exception as exc:  # a disconnected graph at a strict angle
-                    sweep.append((name, (ang, sc, off), float("nan"), (np.nan, np.nan, np.nan)))
-                    print(f"  {name} angle {ang} scale {sc} offset {off}: {type(exc).__name__}: "
-                          f"{exc}"[:150], file=sys.stderr)
+                    sweep.append((name, (ang, sc, off, sl), float("nan"),
+                                  (np.nan, np.nan, np.nan)))
+                    print(f"  {name} angle {ang} scale {sc} offset {off} slack {sl}: "
+                          f"{type(exc).__name__}: {exc}"[:150], file=sys.stderr)
+                finally:
+                    sig.MIDPOINT_SLACK = slack0
         stats = " ".join(f"{key} {row[key][0]:.2f}/{row[key][1]:.2f}%" for key in
                          ("graph", "refined", "heat") if key in row)
         print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s;"
@@ -172,19 +182,20 @@ def main(argv=None):
         else "n/a".center(20) for k in ("graph", "refined", "heat")))
 
     if sweep:
-        print("\nGraph distances: mean |relative error| % by normal-angle threshold, scale and "
-              "surface-test limit (mean degree in brackets)")
+        print("\nGraph distances: mean |relative error| % by normal-angle threshold, scale, "
+              "surface-test limit and its length limit (mean degree in brackets)")
         combos = list(dict.fromkeys(c for _, c, _, _ in sweep))
-        label = lambda c: f"{c[0]:g}d x{c[1]:g} o{c[2] if c[2] is not None else '-'}"  # noqa: E731
-        print(f"{'model':13s} " + " ".join(f"{label(c):>17s}" for c in combos))
+        label = lambda c: (f"{c[0]:g}d x{c[1]:g} o{c[2] if c[2] is not None else '-'}"  # noqa: E731
+                           f" s{c[3]:g}")
+        print(f"{'model':13s} " + " ".join(f"{label(c):>22s}" for c in combos))
         for name in dict.fromkeys(m for m, *_ in sweep):
             cells = []
             for c in combos:
                 hit = [x for x in sweep if x[0] == name and x[1] == c][0]
                 cells.append(f"{hit[3][0]:6.2f} [{hit[2]:4.1f}]")
-            print(f"{name:13s} " + " ".join(f"{c:>17s}" for c in cells))
+            print(f"{name:13s} " + " ".join(f"{c:>22s}" for c in cells))
         cells = [f"{np.mean([x[3][0] for x in sweep if x[1] == c]):6.2f}" for c in combos]
-        print(f"{'mean':13s} " + " ".join(f"{c:>17s}" for c in cells))
+        print(f"{'mean':13s} " + " ".join(f"{c:>22s}" for c in cells))
 
     if "igea" in args.models:
         s = load("igea")

@@ -41,8 +41,14 @@ five real models), everything through the ingest path as it is:
   PSNR_D2 of the decoded real surface against the input's surfels (one per used vertex, peak
   the input's diagonal) and the mask sections' share of the stream.
 
+``--dp`` prints instead the CPU time of closing one hole by its rim length: a cone open at its
+base, closed with ``RepairOptions(dp_max_loop=rim)`` (Liepa's O(n³) programme on the whole rim)
+and with the default ``dp_max_loop`` (longer rims split by chords first); the figures behind
+that default.
+
 Run: ``python benchmarks/topology.py [--no-map] [--no-retrieval] [--models ...] [--mask]``,
-``python benchmarks/topology.py --ingest [--models ...] [--rates 2,4]``
+``python benchmarks/topology.py --ingest [--models ...] [--rates 2,4]``,
+``python benchmarks/topology.py --dp [--rims 100,300,600,1000]``
 """
 
 from __future__ import annotations
@@ -53,9 +59,11 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 import surfidx
 from surfidx.geometry.mesh import TriangleMesh
-from surfidx.topology import analyse, close_surface, split_parts
+from surfidx.topology import RepairOptions, analyse, close_surface, split_parts
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MODELS = ["stanford-bunny.obj", "cow.obj", "rocker-arm.obj",
@@ -202,6 +210,30 @@ def ingest_table(paths, rates) -> None:
         print(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
 
 
+def cone(rim: int):
+    """(vertices, faces) of a cone open at its base: one hole of ``rim`` vertices."""
+    t = 2 * np.pi * np.arange(rim) / rim
+    v = np.vstack([np.c_[np.cos(t), np.sin(t), np.zeros(rim)], [[0.0, 0.0, 1.0]]])
+    i = np.arange(rim)
+    return v, np.c_[np.full(rim, rim), (i + 1) % rim, i]
+
+
+def dp_table(rims) -> None:
+    """CPU seconds of closing one hole by rim length, one programme on the whole rim and with
+    the default split (see the module docstring)."""
+    close_surface(*cone(20))                                 # compile the kernels first
+    default = RepairOptions().dp_max_loop
+    print(f"rim | one programme (s) | default dp_max_loop={default} (s)")
+    for rim in rims:
+        v, f = cone(rim)
+        cells = []
+        for opts in (RepairOptions(dp_max_loop=max(rim, 3)), RepairOptions()):
+            t = time.process_time()
+            close_surface(v, f, options=opts)
+            cells.append(f"{time.process_time() - t:.3f}")
+        print(f"{rim} | " + " | ".join(cells), flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", default=",".join(MODELS))
@@ -210,7 +242,12 @@ def main(argv=None) -> None:
     ap.add_argument("--mask", action="store_true")
     ap.add_argument("--ingest", action="store_true", help="the issue's table (see above)")
     ap.add_argument("--rates", default="2,4", help="decoding rates of --ingest (bits/surfel)")
+    ap.add_argument("--dp", action="store_true", help="hole-closing time by rim length")
+    ap.add_argument("--rims", default="100,300,600,1000", help="rim lengths of --dp")
     args = ap.parse_args(argv)
+    if args.dp:
+        dp_table([int(r) for r in args.rims.split(",")])
+        return
     if args.ingest:
         names = [m for m in args.models.split(",") if m]
         ingest_table([DATA / "models" / m if not m.startswith("retrieval/") else DATA / m

@@ -327,7 +327,7 @@ class Database(Catalog):
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next
-        query (opening its graphs costs ~0.1 s per million models; it follows changes of the
+        query (opening its graphs takes time in proportion to the models; it follows changes of the
         database itself, :meth:`SearchIndex.still_approximate`); the exact scan is set up per
         query (its matrices are not followed)."""
         kept = self.__dict__.get("_kept_search")
@@ -383,7 +383,8 @@ class Database(Catalog):
         Returns
         -------
         SurfelSet or TriangleMesh
-            Named after the model.
+            Named after the model; ``to_trimesh()`` converts either (a ``trimesh.PointCloud``
+            or a ``trimesh.Trimesh``).
         """
         from .pipeline import output_level
 

@@ -58,6 +58,12 @@ class ProcessedModel:
         ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
         ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
         for a model stored as it was read.
+
+    Notes
+    -----
+    The geometry is in :attr:`stream`: :func:`surfidx.codec.decode` of it gives a
+    :class:`~surfidx.SurfelSet` (or with ``mesh=True`` a :class:`~surfidx.TriangleMesh`), whose
+    ``to_trimesh()`` gives a trimesh object.
     """
 
     name: str

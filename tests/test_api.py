@@ -72,6 +72,13 @@ def test_get_and_export(real, tmp_path):
         assert len(db.get(1, level=1)) == 42
         mesh = db.get("ball", mesh=True)
         assert len(mesh.faces) == 320
+        # both convert to trimesh: the surfels to a point cloud, the mesh to a mesh
+        cloud, tm = s.to_trimesh(), mesh.to_trimesh()
+        assert isinstance(cloud, trimesh.PointCloud) and np.array_equal(cloud.vertices, s.positions)
+        assert np.array_equal(cloud.colors[:, :3], s.colors) and cloud.metadata["name"] == "ball"
+        assert isinstance(tm, trimesh.Trimesh) and np.array_equal(tm.faces, mesh.faces)
+        assert np.array_equal(tm.vertices, mesh.vertices) and tm.metadata["name"] == "ball"
+        assert np.array_equal(tm.visual.vertex_colors[:, :3], mesh.vertex_colors)
         full = db.get_sfz("ball")
         cut = db.get_sfz("ball", bits_per_surfel=7.5)      # the header takes 149 bytes
         assert len(cut) <= -(-7.5 * 162 // 8) < len(full)         # ceil(B·n/8) bytes

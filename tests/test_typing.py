@@ -29,6 +29,8 @@ positions: np.ndarray = s.positions
 stream: bytes = encode(s, bits_per_surfel=8.0)
 again: bytes = Encoder(s, level=5).encode(4.0)
 back = decode(stream, bits_per_surfel=2.0)
+cloud = s.to_trimesh()
+tm = mesh.to_trimesh()
 smap: surfidx.SphericalMap = parameterize(s, options=MapOptions())
 grid = np.zeros((surfidx.Icosphere(3).n_vertices, 3))
 d: DescriptorSet = describe_grid(grid, 3)

@@ -11,18 +11,18 @@ grid point by
 ``w = mix · d + 1 − mix``  (:data:`DENSITY_MIX`)
 
 and a coefficient multiplied by ``√w`` before the zerotree coder's uniform thresholds gets its
-share of the bits (the decoder divides it back out). ``mix`` was chosen by measurement: on
-scorpion at 1.39, 2 and 3.56 bits/surfel, mix = 0.8 balances the two directions (0.6: the first
-direction limits, 0.95: the second), +1.8 to +2.4 dB PSNR_D2 over no weighting.
+share of the bits (the decoder divides it back out). ``mix`` balances the two directions: with
+a smaller one the first limits PSNR_D2, with a larger one the second; it was chosen by
+measurement on a model with thin limbs at several rates.
 
 The field
 ---------
 ``d`` is counted in the Voronoi cells of the vertices of a coarse icosphere (level
 :func:`field_level`: at most 4, at most one field vertex per 16 surfels), ``log2 w`` rounded to an
-integer (finer steps measured no better) and clipped to [:data:`Q_MIN`, :data:`Q_MAX`], and
+integer (finer steps gain nothing measurable) and clipped to [:data:`Q_MIN`, :data:`Q_MAX`], and
 interpolated to the grid in the log domain along the icosphere's edge bisections. It is stored in
 the container (:func:`pack_field`): each vertex's value minus the floor of its edge parents' mean,
-adaptively arithmetic coded (about 130 bytes at level 3, 500 at level 4). A model the map samples
+adaptively arithmetic coded (a few hundred bytes at most). A model the map samples
 evenly gains less from weighting than the field costs, so :func:`weighting_gain` estimates the
 gain and the encoder weights only above :data:`MIN_GAIN_DB`.
 """
@@ -50,9 +50,11 @@ DENSITY_MIX = 0.8
 Q_MIN, Q_MAX = -3, 12
 """Range of the stored ``round(log2 w)``."""
 MAX_FIELD_LEVEL = 4
-"""Finest icosphere level of the weight field (level 3 lost 0.3–0.8 dB on scorpion)."""
+"""Finest icosphere level of the weight field (a coarser field blurs the density of thin parts
+and loses PSNR_D2 on them)."""
 SURFELS_PER_FIELD_VERTEX = 16
-"""The field has at most one vertex per this many input surfels (its cost stays ~0.1 bit/surfel)."""
+"""The field has at most one vertex per this many input surfels (so its bytes stay a small share
+of the stream at any rate worth weighting)."""
 MIN_GAIN_DB = 1.0
 """Weight only when :func:`weighting_gain` reaches this many dB."""
 

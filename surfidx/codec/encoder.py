@@ -862,7 +862,8 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     Returns
     -------
     SurfelSet or TriangleMesh
-        All parts of a multi-part file together (concatenated in part order).
+        All parts of a multi-part file together (concatenated in part order);
+        ``to_trimesh()`` converts either.
 
     Raises
     ------

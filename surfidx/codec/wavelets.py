@@ -45,14 +45,13 @@ before it needs the details): the normal ``n_m`` (the sum of the area-weighted v
 the edge parents ``a, b`` on the level-``j`` grid surface), the edge direction ``x_b − x_a`` made
 orthogonal to it, and their cross product. The tangential components are multiplied by
 ``tangent_weight``. Point-to-plane distortion ignores displacements along the surface, and on a
-spherical map most of the fine-level detail energy is tangential (scorpion, level 9: 91 % at the
-finest level, 80 % at the next), so a weight below 1 spends the bits on the normal components.
+spherical map most of the fine-level detail energy is tangential, so a weight below 1 spends the
+bits on the normal components.
 The frames are orthonormal (a degenerate normal or edge falls back to a fixed axis), so the
 transform stays exactly invertible. :func:`forward`/:func:`inverse` take the frames from the exact
 coarse values, so a decoder working from quantised ones computes slightly different frames, which
 moves a detail by its length times the frames' angular error: on thin shapes at low rates that
-displaced whole parts (a pair of glasses: −6.6 dB PSNR_D2 at 0.89 bits/surfel against no frames;
-with the encoder's frames given to the decoder, +1.2 dB).
+can displace whole parts, which the closed-loop frames below avoid.
 
 Closed-loop frames (:func:`forward_anchored`, what the codec uses) take the frames of level
 ``j + 1`` from the level-``j`` approximation synthesised from the *coded* coefficients quantised to
@@ -396,7 +395,8 @@ _NORM_TABLE = {
 
 @functools.lru_cache(maxsize=4)
 def measure_level_norms(level: int, lifted: bool) -> np.ndarray:
-    """Measure the scale table (what :data:`_NORM_TABLE` holds); seconds at level 8, ~20 s at 9."""
+    """Measure the scale table (what :data:`_NORM_TABLE` holds; slow at the finest levels, so the
+    codec reads the table)."""
     ico = icosphere(level)
     counts = ico.counts
     n = int(counts[-1])
@@ -445,9 +445,10 @@ def level_norms(level: int, *, lifted: bool = True) -> np.ndarray:
 
 # ---------------------------------------------------------------- closed-loop local frames
 ANCHOR_OFFSET = 3
-"""Planes below the level's top plane (see :func:`choose_anchors`). On the 77 genus-0 retrieval
-models (``benchmarks/codec_collection.py``) offsets 3 and 5 were within 0.1 dB in median; 3 left
-4 models more than 1 dB below no frames at 0.89 bits/surfel, 5 left 6 (open-loop frames: 7)."""
+"""Planes below the level's top plane (see :func:`choose_anchors`). A larger offset takes the
+frames from a finer approximation, which encoder and decoder share only at higher rates; chosen by
+measurement on the genus-0 retrieval models, where it leaves the fewest models below no frames
+at low rates (``benchmarks/codec_collection.py`` prints how many lose against no frames)."""
 
 
 def _synthesise_to(y: np.ndarray, level: int, upto: int, geometries, weight: float) -> None:

@@ -3,13 +3,14 @@
 Above :data:`DEFAULT_THRESHOLD` stored models, :class:`surfidx.db.search.SearchIndex` does not scan
 every stored vector. It asks inverted-file indexes (faiss ``IndexIVFScalarQuantizer``: the
 vectors in :func:`list_count` k-means lists, stored as 8-bit codes; a query scans the
-:data:`DEFAULT_PROBES` nearest lists) for candidates and ranks them by the exact distance. They
-were chosen over HNSW graphs (hnswlib, usearch) because a million models build in 5 minutes of
-one core instead of a quarter of an hour, and a memory-mapped index opens in milliseconds:
+:data:`DEFAULT_PROBES` nearest lists) for candidates and ranks them by the exact distance.
+Inverted files rather than HNSW graphs (hnswlib, usearch): they build several times faster for
+the same recall, and a memory-mapped index opens at once (``benchmarks/query_latency.py
+--compare`` prints the build time, size and recall of each):
 
 * the ``"shape"`` index holds, per model with the first kind (``"shape"``), every kind of the
-  search but ``"texture"`` side by side (today shape with the KLT spectrum appended; a kind a
-  model lacks is zeros there);
+  search but ``"texture"`` side by side (for the default search, shape with the KLT spectrum
+  appended; a kind a model lacks is zeros there);
 * the ``"texture"`` graph holds the texture vectors of the coloured models.
 
 A query takes the ``factor * k`` nearest models of the shape graph, for a coloured query also
@@ -67,8 +68,8 @@ __all__ = ["AnnIndex", "open_index", "build", "update", "index_dir", "index_size
            "FORMAT"]
 
 #: Model count from which :class:`surfidx.db.search.SearchIndex` uses the index (the exact scan
-#: below it): below it a scan costs about 2 ms or less and is exact by construction, and no
-#: writer pays for an index (``benchmarks/query_latency.py`` prints both paths).
+#: below it): below it a scan is fast and exact by construction, and no writer pays for an
+#: index (``benchmarks/query_latency.py`` prints both paths' latency).
 DEFAULT_THRESHOLD = 20_000
 
 #: Candidates per result: ``factor * k`` models per graph are ranked by the exact distance.
@@ -77,7 +78,7 @@ DEFAULT_FACTOR = 4
 #: Lists a query scans in each index (``nprobe``; all of them when an index has fewer).
 DEFAULT_PROBES = 32
 
-#: Manifest format version (an index of another format is rebuilt: format 2 was usearch's).
+#: Manifest format version (an index of another format is rebuilt).
 FORMAT = 3
 
 #: k-means lists per stored vector: about ``4 sqrt(n)``, with at least 39 training vectors a
@@ -284,7 +285,7 @@ def open_graph(path, graph: dict, *, view: bool):
     if Path(path).stat().st_size != graph.get("bytes"):
         raise OSError(f"index file {path} is not of its manifest's size")
     # in-place mapping of the codes (IO_FLAG_MMAP_IFC): a search reads the mapped lists as it
-    # reads loaded ones; faiss's older IO_FLAG_MMAP (on-disk lists) searched 10x slower
+    # reads loaded ones (faiss's IO_FLAG_MMAP, lists read from disk per search, is far slower)
     flags = faiss.IO_FLAG_MMAP_IFC | faiss.IO_FLAG_READ_ONLY if view else 0
     ix = faiss.read_index(str(path), flags)
     if ix.ntotal != graph["count"] or ix.d != graph["ndim"] or not hasattr(ix, "nprobe"):
@@ -700,8 +701,8 @@ def load_index(d: Path, man, *, view: bool):
         ix[name] = open_graph(d / f["file"], f, view=False)
     rows = {}
     for kind, r in man["rows"].items():
-        # plain ndarrays over the mapped pages: indexing an np.memmap costs ~75 us a call in
-        # its Python __getitem__, a dozen calls per query
+        # plain ndarrays over the mapped pages: indexing an np.memmap goes through its Python
+        # __getitem__, a dozen calls per query
         kid = np.asarray(np.load(d / r["ids"], mmap_mode="r" if view else None,
                                  allow_pickle=False))
         mat = np.asarray(np.load(d / r["rows"], mmap_mode="r" if view else None,

@@ -629,8 +629,8 @@ class Catalog:
 
     @property
     def db(self):
-        """The ``sqlite_utils.Database`` of this connection (imported on first use: it costs
-        ~0.5 s to import, which a query does not need)."""
+        """The ``sqlite_utils.Database`` of this connection (imported on first use: its import
+        is slow, and a query does not need it)."""
         if getattr(self, "_sqlite_utils", None) is None:
             import sqlite_utils
 

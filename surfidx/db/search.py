@@ -12,7 +12,7 @@ Two paths, one answer:
   of the stored rows, so every distance returned is the exact one.
 
 ``benchmarks/query_latency.py`` prints both paths' latency and the index's recall@10 against the
-scan at 10 000, 100 000 and 1 000 000 models (figures in the README).
+scan at 10 000, 100 000 and 1 000 000 models.
 
 Distances are :func:`surfidx.describe.distance.weighted_l2` (see there for the rule).
 """

@@ -48,9 +48,9 @@ Descriptor vectors (float32), by kind:
            resampled positions), so shells, D2 and radial measure the surface, not the sphere
            map: limbs the map squeezes keep their surface share. They use the grid of level
            ``min(level, SHAPE_LEVEL)`` (a prefix of the grid). Square roots make the L2 distance
-           a Hellinger one. The weights (:data:`SHAPE_PART_WEIGHTS`, version 7) are chosen on
-           all 95 models of ``benchmarks/retrieval.py``, on a plateau of weights that give the
-           same figures (the README gives them).
+           a Hellinger one. The weights (:data:`SHAPE_PART_WEIGHTS`, version 7) were chosen by
+           measurement on the models of ``benchmarks/retrieval.py`` (which prints the retrieval
+           figures), in the middle of a plateau of weights that give the same figures.
 ``layers`` (3·(lmax+1),) — ``sqrt`` of the per-degree energies (pyshtools) of the three geometric
            KLT layers up to the ``lmax`` argument (the raw vector of the shape vector's layers
            part, kept for other distances).
@@ -122,9 +122,9 @@ SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "layers")
 #: spectral, layers) on the retrieval benchmark's genus-0 set.
 SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 0.3359)
 #: Relative weight of each shape part (its median distance becomes 1.15 × the weight): chosen
-#: on all 95 retrieval models (genus 0-6, the genus > 0 ones repaired), in the middle of a
-#: plateau where a quarter more or less of any one weight keeps the figures
-#: (``benchmarks/retrieval.py``; the README gives them).
+#: by measurement on the retrieval models, genus > 0 ones repaired, in the middle of a plateau
+#: where changing any one weight a little keeps the figures (``benchmarks/retrieval.py`` prints
+#: them).
 SHAPE_PART_WEIGHTS = (0.5, 0.25, 0.25, 3.0, 2.0)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
 

@@ -22,17 +22,17 @@ nearest surfel of the point is not linked to its current one, or (when they were
 surfels of its two polyline neighbours, or when it faces away from them (normals more than 90
 degrees apart: the other side of a thin part). Consecutive points thus sit on linked surfels,
 whose edge passed the graph's surface test, so a path never slides across a gap to another part
-(the scorpion's legs). Refinement only shortens: a refined path longer than the graph distance is
+(between two legs). Refinement only shortens: a refined path longer than the graph distance is
 dropped for the graph path.
 
 Meshed inputs (surfels with ``faces``): the path is found on the triangles themselves
 (:mod:`surfidx.geometry.meshpaths`): a Steiner graph on a corridor of triangles around the mesh-edge
 shortest path, then its crossing points slid along their edges until the path is locally
 shortest. Every segment lies in a triangle, so the length is that of a path on the surface, never
-a chord cutting through the relief of a coarse, faceted mesh (falconstatue: the plane projection
-above rounded the relief off and measured 1.2 % short; chords of spacing-long segments between
-points on the triangles still missed by 0.6 %, both ways), and a mesh-edge corridor cannot cross a
-narrow gap between two sheets, as a graph link that passed the surface test can.
+a chord cutting through the relief of a coarse, faceted mesh (the plane projection above rounds
+such relief off, and chords between points on the triangles cut through it), and a mesh-edge
+corridor cannot cross a narrow gap between two sheets, as a graph link that passed the surface
+test can.
 """
 
 from __future__ import annotations
@@ -362,7 +362,7 @@ class GeodesicSolver:
             md, mp = mesh_pred[0]
             idx = _walk_predecessors(mp, a, b)
             # around the mesh-edge path and the graph path: where they pass a bump on different
-            # sides (the bunny's ears), the geodesic may follow either
+            # sides, the geodesic may follow either
             spine = np.union1d(idx, _walk_predecessors(pred, a, b))
             longest = np.linalg.norm(np.diff(self._positions[idx], axis=0), axis=1).max()
             pts, length = shortest_path_on_mesh(
@@ -448,7 +448,7 @@ def farthest_point_landmarks(surfels: SurfelSet, k: int, *, seed: int = 0,
 # ---------------------------------------------------------------------- kernels
 def _dijkstra(matrix, *, directed=True, **kwargs):
     """scipy's Dijkstra; the SIG matrix is symmetric, so the directed mode (which skips scipy's
-    internal symmetrisation, 3x faster) gives the undirected distances."""
+    internal symmetrisation of the matrix) gives the undirected distances."""
     return _csgraph_dijkstra(matrix, directed=directed, **kwargs)
 
 

@@ -48,25 +48,20 @@ __all__ = ["SphereOfInfluenceGraph", "sphere_of_influence_graph", "DEFAULT_MAX_A
 DEFAULT_MAX_ANGLE = 60.0
 """Default largest angle (degrees) between the normals of linked surfels.
 
-Chosen with ``benchmarks/geodesics.py`` (scale 2, 20 sources x 200 targets per model, mean
-relative error of graph distances averaged over the sphere and 11 closed models): 30 degrees
-disconnects 5 of the models (isolated creases); 45 degrees 1.23 %, 60 degrees 1.27 %, 90 degrees
-1.65 %, 120 degrees 2.03 %, 180 degrees 2.28 % (wider angles let paths jump between nearby
-parts: scorpion 1.2 % at 60, 7.0 % at 180 degrees). 60 is the best or within 0.1 % of it on
-igea, bunny, horse, armadillo, nefertiti, spot and banana, and keeps the thin-part protection
-with a margin for noisy normals; 45 is better only on scorpion, falconstatue and homer.
+A narrower angle disconnects models at their sharp creases; a wider one lets paths jump
+between nearby parts that face away from each other (the two sides of a thin part). 60 degrees
+keeps that protection with a margin for noisy normals. Chosen by measurement on the shared
+models: ``benchmarks/geodesics.py`` prints the error of graph distances at each angle.
 """
 
 DEFAULT_SCALE = 2.0
 """Default sphere-radius multiplier ``s``.
 
-With ``s = 1`` and mesh coverage radii the graph is essentially the mesh's 1-ring (6 neighbours),
-whose Dijkstra distances overestimate geodesics by about 5-8 % (zig-zag metrication error).
-Measured on unit icospheres (levels 4 and 5; mean relative error against arc lengths, mean
-degree): ``s = 1.5`` 2.4-2.9 % (degree 9), ``s = 1.75`` 1.3-1.4 % (16), ``s = 2`` 1.3-1.4 % (18),
-``s = 2.5`` 0.3 % (32). ``s = 1.5`` misses the 2 % target on regular samplings; the default 2 reaches the
-full 2-ring (1.75 nearly does, with the same error) with a margin for irregular samplings; on Igea it costs 1.9 M edges instead of 1.0 M
-(build 0.8 s instead of 0.6 s, one source 0.07 s either way). See ``benchmarks/geodesics.py``.
+With ``s = 1`` and a mesh's coverage radii the graph is essentially the mesh's 1-ring, whose
+Dijkstra distances overestimate geodesics by the zig-zag of its edges (metrication error); a
+larger scale links farther neighbours, which lowers the error and adds edges. 2 reaches the full
+2-ring of a regular sampling, with a margin for irregular ones. ``benchmarks/geodesics.py``
+prints the error and mean degree at each scale, and the build and query times at the default.
 """
 
 DEFAULT_MAX_OFFSET = 0.1
@@ -78,40 +73,22 @@ surface) and ``|n_k . (m - p_k)| <= max_offset * |p_i - p_j|`` (the midpoint lie
 a chord of a smooth surface stays within its sagitta ``L**2 / 8R``, i.e. ``L / 8R`` relative, while
 an edge jumping a gap between two parts or cutting through a fold has its midpoint in the air or
 inside). The nearest surfel is exact: it lies within ``2 s r_i`` of the larger surfel ``i``, whose
-neighbourhood the grid scan visits anyway, so the test costs no extra search (Igea: build 0.71 s
-before, 0.79 s with the test and arc weights).
+neighbourhood the grid scan visits anyway, so the test costs no extra search.
 
-Chosen with ``benchmarks/geodesics.py`` (scale 2, angle 60, arc weights, mesh edges, no
-``MIDPOINT_SLACK`` length limit yet; 10 sources x 200 targets; graph mean relative error %; before
-the test falconstatue 2.82, homer 1.68, scorpion 1.15 on 20 sources):
-
-============  =====  =====  =====  =====  =====
-max_offset    0.05   0.07   0.1    0.15   0.2
-============  =====  =====  =====  =====  =====
-falconstatue  1.88   1.65   1.64   2.09   2.35
-homer         1.09   0.66   0.42   0.35   0.34
-scorpion      0.67   0.41   0.26   0.25   0.32
-bunny_hr      1.72   1.57   1.46   1.39   1.36
-koala         0.37   0.24   0.20   0.18   0.18
-sphere        1.46   1.46   1.46   1.46   1.46
-============  =====  =====  =====  =====  =====
-
-Smaller limits cut valid edges on curved, coarsely sampled parts (positive errors); larger ones
-let shortcuts back in (falconstatue's signed error -0.08 % at 0.1, -1.24 % at 0.2). With the test,
-wider normal angles no longer pay on the thin models (falconstatue 1.66 / 1.64 / 1.97 % at 45 / 60 /
-90 degrees, scorpion 0.40 / 0.26 / 0.26 %), so ``DEFAULT_MAX_ANGLE`` stays 60.
+A smaller limit cuts valid edges on curved, coarsely sampled parts (distances come out long); a
+larger one lets shortcuts back in (distances come out short). Chosen by measurement on the shared
+models: ``benchmarks/geodesics.py`` prints the error at each limit. With the test in place, normal
+angles wider than :data:`DEFAULT_MAX_ANGLE` do not help the thin models either.
 """
 
 RADIUS_MODES = ("surfel", "nearest", "knn")
 MIDPOINT_SLACK = 1.25
 """Surface-test length limit: an edge may be at most ``2 * MIDPOINT_SLACK * s * r_k`` long, ``r_k``
 the radius of the surfel nearest its midpoint (a large surfel of a graded sampling must not link
-across a finely sampled, detailed region). Measured with ``max_offset`` 0.1 (10 sources x 200
-targets, graph / refined mean error %): falconstatue none 1.64 / 1.67, 1.5 1.51 / 1.57, 1.25 1.32 /
-1.62, 1.0 1.35 / 1.42; homer, scorpion, bunny_hr and the sphere within 0.05 of each other for
-1.25-none (1.0 costs homer and scorpion 0.05-0.2 on graph distances).
+across a finely sampled, detailed region). A tighter limit starts to cut valid edges of coarsely
+sampled parts. Chosen by measurement on the shared models: ``benchmarks/geodesics.py`` prints the
+error at each limit.
 """
-
 
 class SphereOfInfluenceGraph:
     """A spheres-of-influence graph: symmetric sparse matrix of Euclidean edge lengths.

@@ -57,12 +57,16 @@ ascending ids); :meth:`Icosphere.neighbors` gives those of a coarser level.
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError
 from ..validate import check_positive_int
 from .unitsphere import triangle_areas
+
+if TYPE_CHECKING:                     # trimesh is imported by :meth:`Icosphere.to_trimesh` only
+    import trimesh
 
 __all__ = ["Icosphere", "icosphere", "vertex_count", "level_of_count", "choose_level", "MAX_LEVEL",
            "SPARSE_MIN", "BUTTERFLY_WEIGHTS"]
@@ -447,6 +451,24 @@ class Icosphere:
     def vertex_areas(self) -> np.ndarray:
         """(n,) float64: a third of the spherical areas of the triangles at each vertex (sum 4π)."""
         return level_vertex_areas(self.level).copy()
+
+    def to_trimesh(self) -> "trimesh.Trimesh":
+        """The grid as a ``trimesh.Trimesh`` of the unit sphere (``process=False``: vertices
+        and faces in grid order), each vertex's birth level in ``vertex_attributes["level"]``
+        ((n,) uint8, a type glTF can hold).
+
+        The grid's values on it, a decoded surface, come from :func:`surfidx.codec.decode`
+        (``mesh=True``) as a :class:`~surfidx.TriangleMesh` with its own ``to_trimesh``.
+
+        Returns
+        -------
+        trimesh.Trimesh
+        """
+        import trimesh
+
+        return trimesh.Trimesh(np.array(self.vertices), np.array(self.faces),
+                               vertex_attributes={"level": self.level_of.astype(np.uint8)},
+                               metadata={"name": f"icosphere level {self.level}"}, process=False)
 
     def __repr__(self) -> str:
         return f"Icosphere(level={self.level}, vertices={self.n_vertices}, faces={len(self.faces)})"

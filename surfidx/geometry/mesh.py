@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,7 +28,10 @@ from scipy.sparse.csgraph import connected_components
 from ..errors import InputError
 from ..tolerance import TOL
 from ..validate import as_array
-from .surfels import SurfelSet
+from .surfels import SurfelSet, _rgba
+
+if TYPE_CHECKING:                     # trimesh is imported by :meth:`TriangleMesh.to_trimesh` only
+    import trimesh
 
 __all__ = ["TriangleMesh", "Topology", "MAX_EDGE_RATIO", "sample_texture", "spacing_radii",
            "cotangent_laplacian", "vertex_area_shares"]
@@ -106,6 +110,29 @@ class TriangleMesh:
     patch_cut : (P,) int64, optional
         Per patch, the handle cut it closes or -1 for a hole (:attr:`SurfelSet.patch_cut`);
         only with ``face_patch``.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+    vertex_colors : (n, 3) uint8 or None
+        RGB per vertex.
+    uv : (k, 2) float64 or None
+        Texture coordinates, v upwards (OBJ's and trimesh's convention).
+    uv_faces : (m, 3) int64 or None
+        Indices into :attr:`uv` per face corner.
+    texture : (h, w, 3) uint8 or None
+        Texture image, row 0 at the top.
+    name : str or None
+    face_patch : (m,) int64 or None
+        Virtual patch of each face (-1: a face of the scan), or None when all are real.
+    patch_cut : (P,) int64 or None
+        Handle cut of each patch (-1: a hole), or None without :attr:`face_patch`.
+
+    See Also
+    --------
+    surfidx.io.read_mesh : a file as a mesh.
+    surfidx.io.read_geometry : a ``trimesh.Trimesh`` in memory as a mesh.
     """
 
     def __init__(self, vertices, faces, *, vertex_colors=None, uv=None, uv_faces=None,
@@ -163,6 +190,89 @@ class TriangleMesh:
         used = np.zeros(len(self.vertices), bool)
         used[self.faces.ravel()] = True
         return np.flatnonzero(used)
+
+    # ------------------------------------------------------------------ interoperability
+    def to_trimesh(self) -> "trimesh.Trimesh":
+        """The mesh as a ``trimesh.Trimesh`` (built with ``process=False``; trimesh is imported
+        on this call).
+
+        Without a texture the trimesh has this mesh's vertices and faces as they are, in their
+        order. A texture is a material on per-vertex texture coordinates, so the mesh is split
+        at its UV seams: one trimesh vertex per texture coordinate where each texture coordinate
+        belongs to one vertex (a mesh read from glTF, GLB or a trimesh object, whose original
+        vertices this restores), else one per distinct (vertex, texture coordinate) pair of the
+        faces, in order of first use.
+
+        Returns
+        -------
+        trimesh.Trimesh
+            ``vertices`` : (n', 3) float64
+                :attr:`vertices` (``n' = n`` without a texture).
+            ``faces`` : (m, 3) int64
+                :attr:`faces`, renumbered to the split vertices with a texture.
+            ``vertex_normals`` : (n', 3) float64
+                The area-weighted normals :meth:`to_surfels` gives its surfels (outward on a
+                closed mesh).
+            ``visual``
+                With a texture: ``TextureVisuals`` with ``uv`` (n', 2) float64 and a
+                ``PBRMaterial`` whose ``baseColorTexture`` is :attr:`texture` (a PIL image);
+                with vertex colours: (n', 4) uint8 RGBA, alpha 255; else trimesh's default.
+            ``vertex_attributes`` : dict
+                ``"color"``: (n', 4) uint8 RGBA, the vertex colours of a mesh that has both
+                vertex colours and a texture.
+            ``face_attributes`` : dict
+                ``"patch"``: (m,) int64, :attr:`face_patch` where the mesh has it.
+            ``metadata`` : dict
+                ``"name"``; ``"patch_cut"`` (P,) int64 with :attr:`face_patch`.
+
+        Notes
+        -----
+        :func:`surfidx.io.read_geometry` (and :func:`~surfidx.io.as_surfels`) read the trimesh
+        back, merging vertices of equal position: a mesh whose vertices are distinct comes back
+        with the same vertices, faces, colours, texture coordinates and texture.
+        """
+        import trimesh
+
+        vertex_colors = _rgba(self.vertex_colors)
+        normals = self._vertex_normals(self.face_areas())
+        meta = {"name": self.name}
+        face_attrs, vertex_attrs = {}, {}
+        if self.face_patch is not None:
+            face_attrs["patch"] = self.face_patch.copy()
+            meta["patch_cut"] = self.patch_cut.copy()
+        if self.texture is None or self.uv is None or self.uv_faces is None:
+            return trimesh.Trimesh(self.vertices.copy(), self.faces.copy(),
+                                   vertex_normals=normals, vertex_colors=vertex_colors,
+                                   face_attributes=face_attrs, metadata=meta, process=False)
+        from PIL import Image
+
+        index, faces, uv = self._uv_vertices()
+        if vertex_colors is not None:
+            vertex_attrs["color"] = vertex_colors[index]
+        material = trimesh.visual.material.PBRMaterial(
+            baseColorTexture=Image.fromarray(np.ascontiguousarray(self.texture, np.uint8)))
+        return trimesh.Trimesh(self.vertices[index], faces, vertex_normals=normals[index],
+                               visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
+                               face_attributes=face_attrs, vertex_attributes=vertex_attrs,
+                               metadata=meta, process=False)
+
+    def _uv_vertices(self):
+        """The mesh split at its UV seams: ``(index, faces, uv)``, the vertex of each split
+        vertex, the faces over the split vertices and their texture coordinates (see
+        :meth:`to_trimesh`)."""
+        corner_v, corner_t = self.faces.ravel(), self.uv_faces.ravel()
+        owner = np.full(len(self.uv), -1, np.int64)
+        owner[corner_t] = corner_v
+        if np.all(owner >= 0) and np.array_equal(owner[corner_t], corner_v):
+            return owner, self.uv_faces.copy(), self.uv.copy()
+        key = corner_v * np.int64(len(self.uv)) + corner_t
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")
+        rank = np.empty(len(order), np.int64)
+        rank[order] = np.arange(len(order))
+        pairs = key[first[order]]
+        faces = rank[np.asarray(inverse).ravel()].reshape(-1, 3)
+        return pairs // len(self.uv), faces, self.uv[pairs % len(self.uv)]
 
     # ------------------------------------------------------------------ topology
     def topology(self) -> Topology:

@@ -16,17 +16,16 @@ A path between two mesh vertices is found in three steps:
    second point on the same edge runs along it: both dropped);
 3. **shortening**: the crossing points slide along their edges to the shortest chain, a convex
    problem in their edge parameters with a tridiagonal Hessian, solved by projected Newton steps
-   (a Gauss-Seidel sweep of exact one-point minimisers needed ~1e5 sweeps on 200-point paths).
-   The path stays on the surface throughout and ends locally shortest for its edge sequence;
+   (sweeps of one-point minimisers crawl along a long path; Newton moves it whole). The path
+   stays on the surface throughout and ends locally shortest for its edge sequence;
 4. **vertex flips**: crossing points that end at a mesh vertex mean the path wraps round it on
    the side Dijkstra chose; the path is moved to the vertex's other side (crossing the spokes of
    its fan there) and kept when that is shorter, until no such move shortens it.
 
-Measured against exact polyhedral geodesics (MMP) on falconstatue (coarse, faceted, sliver
-triangles; 200 pairs): mean excess 0.03 %, 95th percentile 0.14 %, about 70 ms per path; the
-previous projection relaxation measured 0.59 % both ways. A vertex the true geodesic passes
-through (a saddle) is reached by the flips; the remaining excess is the corridor or Steiner
-resolution missing a better edge sequence altogether.
+A vertex the true geodesic passes through (a saddle) is reached by the flips; what excess
+remains over the exact polyhedral geodesic is the corridor or Steiner resolution missing a
+better edge sequence altogether. ``benchmarks/geodesics.py`` prints the error of these paths
+against exact (MMP) geodesics and their time.
 """
 
 from __future__ import annotations

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import InputError
 from ..tolerance import TOL
 from ..validate import as_array
+
+if TYPE_CHECKING:                      # trimesh is imported by :meth:`SurfelSet.to_trimesh` only
+    import trimesh
 
 __all__ = ["SurfelSet"]
 
@@ -39,6 +44,23 @@ class SurfelSet:
         from 0; both sides of cut ``k`` carry ``k``) or -1 for a hole of the input. Defaults to
         all -1 when ``patch`` is given.
 
+    Attributes
+    ----------
+    positions : (n, 3) float64
+    normals : (n, 3) float64
+        Unit length.
+    radii : (n,) float64
+        Positive.
+    colors : (n, 3) uint8 or None
+        RGB; None when the surfels carry no colour (:attr:`has_color`).
+    faces : (m, 3) int64 or None
+        Triangles over the surfels (indices into :attr:`positions`), or None.
+    name : str or None
+    patch : (n,) int32 or None
+        Virtual patch of each surfel (-1: a surfel of the scan), or None when all are real.
+    patch_cut : (P,) int32 or None
+        Handle cut of each patch (-1: a hole), or None without :attr:`patch`.
+
     Raises
     ------
     InputError
@@ -46,6 +68,10 @@ class SurfelSet:
         colours outside 0..255, faces indexing missing surfels, or patch labels that are not
         -1 or a patch index (``patch_cut`` of the wrong length, or pairing other than two
         patches per cut).
+
+    See Also
+    --------
+    surfidx.io.as_surfels : a ``trimesh.Trimesh``, ``PointCloud`` or ``Scene`` as surfels.
     """
 
     __slots__ = ("positions", "normals", "radii", "colors", "faces", "name", "patch", "patch_cut")
@@ -163,6 +189,62 @@ class SurfelSet:
         """The same surfels with the colours dropped."""
         return SurfelSet(self.positions, self.normals, self.radii, None, faces=self.faces,
                          name=self.name, patch=self.patch, patch_cut=self.patch_cut)
+
+    # ------------------------------------------------------------------ interoperability
+    def to_trimesh(self) -> "trimesh.PointCloud":
+        """The surfels as a ``trimesh.PointCloud`` (trimesh is imported on this call).
+
+        A trimesh point cloud holds positions and colours only, so the other arrays go into its
+        ``metadata`` dict: copies in surfel order, which trimesh's own operations on the cloud
+        (``apply_transform``, ``merge_vertices``) leave as they are. A surfel set with
+        :attr:`faces` still gives a point cloud; decode or read a :class:`TriangleMesh`
+        for a ``trimesh.Trimesh``.
+
+        Returns
+        -------
+        trimesh.PointCloud
+            ``vertices`` : (n, 3) float64
+                :attr:`positions`, in surfel order.
+            ``colors`` : (n, 4) uint8
+                :attr:`colors` as RGBA, alpha 255; empty when the surfels carry no colour.
+            ``metadata`` : dict
+                ``"name"`` (str or None), ``"normals"`` (n, 3) float64, ``"radii"`` (n,)
+                float64; and where the surfels have them ``"faces"`` (m, 3) int64,
+                ``"patch"`` (n,) int32 and ``"patch_cut"`` (P,) int32.
+
+        Notes
+        -----
+        :func:`surfidx.io.as_surfels` reads the cloud back with the same positions, colours and
+        name; it estimates normals and radii from the points again, as for any point cloud.
+        """
+        import trimesh
+
+        meta = {"name": self.name, "normals": self.normals.copy(), "radii": self.radii.copy()}
+        for key in ("faces", "patch", "patch_cut"):
+            value = getattr(self, key)
+            if value is not None:
+                meta[key] = value.copy()
+        return trimesh.PointCloud(self.positions.copy(), colors=_rgba(self.colors),
+                                  metadata=meta)
+
+
+def _rgba(colors: np.ndarray | None) -> np.ndarray | None:
+    """RGB colours as RGBA with alpha 255, the layout trimesh's colour visuals hold.
+
+    Parameters
+    ----------
+    colors : (n, 3) uint8 or None
+
+    Returns
+    -------
+    (n, 4) uint8 or None
+        None for None.
+    """
+    if colors is None:
+        return None
+    out = np.full((len(colors), 4), 255, np.uint8)
+    out[:, :3] = colors
+    return out
 
 
 def _check_patches(patch, patch_cut, n):

@@ -118,7 +118,7 @@ def hull_triangles(sphere_points) -> np.ndarray:
     return tri
 
 
-_HULL_MEMO_MIN = 2000   # points from which a hull is remembered (qhull: ~5 ms per 1,000 points)
+_HULL_MEMO_MIN = 2000   # points from which a hull is remembered (a smaller one is cheap to redo)
 _HULL_MEMO_SIZE = 2     # hulls remembered, by the digest of the points' bytes (a copy returned)
 _hull_memo: dict = {}
 _hull_lock = threading.Lock()

@@ -259,7 +259,8 @@ def as_surfels(model, *, samples: int | None = None, seed: int = 0,
         return model
     mesh = model
     if type(model).__module__.startswith("trimesh"):
-        mesh = from_trimesh(model, name=name or getattr(model, "metadata", {}).get("name"))
+        name = name or getattr(model, "metadata", {}).get("name")
+        mesh = from_trimesh(model, name=name)
     elif isinstance(model, tuple):
         if len(model) not in (2, 3):
             raise InputError(f"a model tuple is (vertices, faces) or (vertices, faces, colours), "

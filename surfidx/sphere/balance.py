@@ -367,14 +367,14 @@ def _untangled(energy, y, **info):
 
 
 _PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
-# in turn: a patch's held border can pin a fold that one twice as wide lets go (frag_115's
-# finest level), at a fraction of the whole map's cost
+# in turn: a patch's held border can pin a fold that one twice as wide lets go, at a fraction
+# of the whole map's cost
 PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
-# the next: on the shared and retrieval models, every patch that untangled had none left by the
-# 28th round (d041's 69 vertices; the others by the 13th), and frag_115's 4-ring patch, pinned
-# by its held border, kept 4 to the 60th
-_DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a triangle
-                   # left at 1e-8 pins the balancing's line search at its barrier)
+# the next: a patch that untangles has done so well within this many rounds, while one pinned
+# by its held border keeps its folds however long it runs (chosen on the shared and retrieval
+# models)
+_DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a nearly
+                   # degenerate triangle pins the balancing's line search at its barrier)
 
 
 def near_inverted(energy, y, *, rings: int, below: float = 0.0):

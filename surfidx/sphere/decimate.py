@@ -348,7 +348,7 @@ def shortest_first(p: np.ndarray, e: np.ndarray) -> np.ndarray:
 
     The rounded lengths are sorted as integers ``rint(1e9 · length / mean)`` with the edge index
     in the low bits, one plain sort of distinct keys (a stable argsort of the floats gives the
-    same order, 10 times slower); where they would not fit 63 bits, by that argsort."""
+    same order, slower); where they would not fit 63 bits, by that argsort."""
     d = p[e[:, 0]] - p[e[:, 1]]
     length = np.einsum("ij,ij->i", d, d)
     relative = length / length.mean()

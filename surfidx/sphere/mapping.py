@@ -85,6 +85,12 @@ class SphericalMap:
         (:func:`surfidx.codec.resample.locate_surfels` of these points), when the fold realisation's
         check found that already; :meth:`location` hands it on, so the codec does not locate
         the grid twice.
+
+    Notes
+    -----
+    A map is one point on the sphere per surfel, not a surface of its own, so it has no
+    ``to_trimesh``: ``TriangleMesh(smap.points, surfels.faces).to_trimesh()`` shows the map of
+    surfels that carry faces, ``trimesh.PointCloud(smap.points)`` that of any surfels.
     """
 
     points: np.ndarray

@@ -58,8 +58,8 @@ class MapOptions:
         surface beyond ``max_area_distortion``, map it by one more hierarchy instead: decimated
         to ``coarse_ladder[0]`` with topology checks only and prolonged so that every level
         starts embedded (each removed vertex placed in its ring's kernel where the mean would
-        fold it), which cannot fail to untangle. (Where the single-level map is accepted it is
-        kept: on d056 of the retrieval set it leaves 31 folds, the embedded hierarchy 199.)
+        fold it), which cannot fail to untangle. Where the single-level map is accepted it is
+        kept: where both apply, the single-level map can leave fewer folds.
     level_ratio : int
         Each level has this many times the vertices of the next coarser one (≥ 2).
     level_steps : int

@@ -14,12 +14,16 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import InputError, SurfidxError
 from ..geometry.mesh import MAX_EDGE_RATIO, TriangleMesh
 from ..geometry.surfels import SurfelSet
+
+if TYPE_CHECKING:                          # imported by the to_trimesh methods only
+    import trimesh
 
 __all__ = ["Model", "join_surfels", "repair_model", "read_model"]
 
@@ -81,7 +85,19 @@ class Model:
 
     @property
     def n_surfels(self) -> int:
+        """Surfels of all parts together."""
         return int(sum(len(p) for p in self.parts))
+
+    def to_trimesh(self) -> "trimesh.PointCloud":
+        """The surfels of all parts (:attr:`surfels`) as one ``trimesh.PointCloud``
+        (:meth:`SurfelSet.to_trimesh`: normals, radii, faces and patch labels in its
+        ``metadata``); each part converts on its own too.
+
+        Returns
+        -------
+        trimesh.PointCloud
+        """
+        return self.surfels.to_trimesh()
 
     def summary(self) -> dict:
         """What the repair added, for records and ``surfidx info``/``show``.

@@ -23,10 +23,10 @@ class RepairOptions:
     dp_max_loop : int
         Holes with at most this many rim vertices are triangulated by the O(n³) dynamic programme
         (Liepa 2003: lexicographic (largest dihedral angle, area)); longer rims are first split
-        by short chords into pieces of at most this many (O(n log n)). Measured CPU time of the
-        programme on one loop: 0.04 s at 300 vertices, 0.31 s at 600, 1.6 s at 1000, 3.9 s at
-        1418 (frag_115's outline), so the default keeps each piece at a few hundredths of a
-        second.
+        by short chords into pieces of at most this many (O(n log n)). The programme's cost
+        grows as the cube of the rim, so the default keeps each piece cheap against the rest
+        of the repair; ``benchmarks/topology.py --dp`` prints the time of closing one hole by rim
+        length, with and without the split.
     refine_ratio : float
         Patch edges longer than this many times the hole's mean rim edge length are bisected.
     patch_vertex_factor : float

@@ -26,12 +26,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError, TopologyError
+from ..geometry.mesh import TriangleMesh
 from ..validate import as_array
 from .analysis import (boundary_loops, distinct_corners, edge_table, euler_characteristic,
                        face_components, orientation, used_count)
@@ -41,6 +43,9 @@ from .options import RepairOptions
 from .pieces import drop_threshold, piece_faces
 from .pinch import split_pinched
 from .patches import closed_mesh, patch_cuts
+
+if TYPE_CHECKING:                          # imported by the to_trimesh methods only
+    import trimesh
 
 __all__ = ["RepairOptions", "TopologyReport", "RepairReport", "CutCycle", "ClosedSurface", "Part",
            "Parts", "analyse", "close_surface", "split_parts", "closed_mesh", "patch_cuts"]
@@ -221,6 +226,17 @@ class ClosedSurface:
     patch: np.ndarray
     report: RepairReport
 
+    def to_trimesh(self) -> "trimesh.Trimesh":
+        """The closed surface as a ``trimesh.Trimesh``: :func:`closed_mesh` of it, converted by
+        :meth:`surfidx.TriangleMesh.to_trimesh` (vertices and faces in this order, the virtual
+        faces' patches in ``face_attributes["patch"]`` when the repair added any).
+
+        Returns
+        -------
+        trimesh.Trimesh
+        """
+        return closed_mesh(self).to_trimesh()
+
 
 @dataclass(frozen=True)
 class Part:
@@ -242,6 +258,21 @@ class Part:
     faces: np.ndarray
     vertex_index: np.ndarray
     face_index: np.ndarray
+
+    def to_trimesh(self) -> "trimesh.Trimesh":
+        """The piece as a ``trimesh.Trimesh`` (:meth:`surfidx.TriangleMesh.to_trimesh`:
+        vertices and faces in this order), with :attr:`vertex_index` in
+        ``vertex_attributes["vertex_index"]`` ((k,) uint32, a type glTF can hold) and
+        :attr:`face_index` in ``face_attributes["face_index"]`` ((p,) int64).
+
+        Returns
+        -------
+        trimesh.Trimesh
+        """
+        out = TriangleMesh(self.vertices, self.faces).to_trimesh()
+        out.vertex_attributes["vertex_index"] = np.array(self.vertex_index, np.uint32)
+        out.face_attributes["face_index"] = np.array(self.face_index, np.int64)
+        return out
 
 
 @dataclass(frozen=True)
