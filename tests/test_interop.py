@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from surfidx import Icosphere, RepairOptions, SurfelSet, TriangleMesh
-from surfidx.io import as_surfels, read_geometry, read_model, read_surfels
-from surfidx.topology import close_surface, split_parts
+from surfidx.io import as_surfels, read_geometry, read_surfels
+from surfidx.topology import close_surface, read_model, split_parts
 
 from conftest import icosphere_mesh
 from helpers import sphere_with_holes, tetrahedron
