@@ -392,9 +392,11 @@ def options_file_option(func):
     its values)."""
     @functools.wraps(func)
     def wrapper(*args, options_file=None, **kwargs):
-        from ..options import ProcessOptions
+        options = None
+        if options_file is not None:
+            from ..options import ProcessOptions       # the whole tree: only when asked for
 
-        options = None if options_file is None else ProcessOptions.load(options_file)
+            options = ProcessOptions.load(options_file)
         return func(*args, options=options, **kwargs)
 
     return click.option(

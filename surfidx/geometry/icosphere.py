@@ -63,7 +63,6 @@ import numpy as np
 
 from ..errors import InputError
 from ..validate import check_positive_int
-from .unitsphere import triangle_areas
 
 if TYPE_CHECKING:                     # trimesh is imported by :meth:`Icosphere.to_trimesh` only
     import trimesh
@@ -512,6 +511,7 @@ def level_vertex_areas(level: int) -> np.ndarray:
         The vertex areas; they sum to 4π.
     """
     from .mesh import vertex_area_shares     # scipy: not needed to count vertices
+    from .unitsphere import triangle_areas
 
     ico = icosphere(level)
     area = np.abs(triangle_areas(ico.vertices, ico.faces))
