@@ -1,0 +1,253 @@
+"""Hostile inputs (issue 55): damaged GLB accessors, textures dropped without a word, PCD/PTS
+values refused like XYZ's, MTL libraries outside the model's folder, level-9 streams decoded at
+level 2 in bounded memory, damaged databases."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import struct
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from surfidx import FileFormatError, read_surfels
+from surfidx import io as sio
+from surfidx.cli import cli
+from surfidx.db import Database
+
+from helpers import tiny_png, write_bomb_png
+
+TET = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+TET_FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], np.uint32)
+
+
+def glb(positions=TET, faces=TET_FACES, *, image=None, image_uri=None, edit=None) -> bytes:
+    """A GLB of one triangle primitive (positions, indices, UVs), optionally with a base-colour
+    texture (``image`` bytes in the binary chunk, or ``image_uri``); ``edit(doc)`` changes the
+    JSON before it is written."""
+    pos = np.asarray(positions, "<f4").tobytes()
+    idx = np.asarray(faces, "<u4").tobytes()
+    uv = np.asarray(positions, "<f4")[:, :2].tobytes()
+    blob = pos + idx + uv
+    n = len(positions)
+    doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+           "buffers": [{"byteLength": 0}],
+           "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": len(pos)},
+                           {"buffer": 0, "byteOffset": len(pos), "byteLength": len(idx)},
+                           {"buffer": 0, "byteOffset": len(pos) + len(idx),
+                            "byteLength": len(uv)}],
+           "accessors": [{"bufferView": 0, "componentType": 5126, "count": n, "type": "VEC3"},
+                         {"bufferView": 1, "componentType": 5125, "count": np.size(faces),
+                          "type": "SCALAR"},
+                         {"bufferView": 2, "componentType": 5126, "count": n, "type": "VEC2"}]}
+    if image is not None or image_uri is not None:
+        prim = doc["meshes"][0]["primitives"][0]
+        prim["attributes"]["TEXCOORD_0"] = 2
+        prim["material"] = 0
+        doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+        doc["textures"] = [{"source": 0}]
+        if image_uri is not None:
+            doc["images"] = [{"uri": image_uri}]
+        else:
+            blob += b"\0" * (-len(blob) % 4)
+            doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob),
+                                       "byteLength": len(image)})
+            doc["images"] = [{"bufferView": 3, "mimeType": "image/png"}]
+            blob += image
+    blob += b"\0" * (-len(blob) % 4)
+    doc["buffers"][0]["byteLength"] = len(blob)
+    if edit is not None:
+        edit(doc)
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    body = struct.pack("<II", len(js), 0x4E4F534A) + js + \
+        struct.pack("<II", len(blob), 0x004E4942) + blob
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def one_line_error(args, *parts):
+    """Run the command; it fails with one ``Error:`` line holding every part, no traceback."""
+    r = CliRunner().invoke(cli, [str(a) for a in args])
+    assert r.exit_code != 0, r.output
+    assert r.output.startswith("Error: ") and r.output.count("\n") == 1, r.output
+    assert all(p in r.output for p in parts), r.output
+    return r.output
+
+
+# -- GLB accessors --------------------------------------------------------------------------------
+
+def test_glb_as_written_reads(tmp_path):
+    (tmp_path / "ok.glb").write_bytes(glb())
+    assert sio.read_mesh(tmp_path / "ok.glb").faces.shape == (4, 3)
+
+
+def test_glb_index_past_the_vertices(tmp_path):
+    faces = TET_FACES.copy()
+    faces[0, 0] = 1000
+    path = tmp_path / "bad.glb"
+    path.write_bytes(glb(faces=faces))
+    with pytest.raises(FileFormatError, match=r"bad.glb: .*indices \(accessor 1\) refer to "
+                                              r"vertex 1,000, the positions .* hold 4"):
+        read_surfels(path)
+    db = tmp_path / "s.db"
+    Database(db).close()
+    for args in (["info", path], ["convert", path, "-o", tmp_path / "o.ply"],
+                 ["encode", path, "-o", tmp_path / "o.sfz", "--bits-per-surfel", "8"],
+                 ["query", path, "--db", db]):
+        one_line_error(args, "bad.glb", "refer to vertex 1,000")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["accessors"][1].update(count=999), r"accessor 1 reads 999 elements of 4 bytes "
+                                                   r"every 4 from byte 0 of bufferView 1"),
+    (lambda d: d["accessors"][0].update(byteOffset=40), r"accessor 0 reads 4 elements .* from "
+                                                        r"byte 40 of bufferView 0, which holds 48"),
+    (lambda d: d["bufferViews"][0].update(byteStride=64), r"accessor 0 reads 4 elements of 12 "
+                                                          r"bytes every 64"),
+    (lambda d: d["bufferViews"][2].update(byteOffset=10 ** 6), r"bufferView 2 spans bytes "
+                                                               r"1,000,000 to"),
+    (lambda d: d["buffers"][0].update(byteLength=10 ** 6), r"buffer 0 announces 1,000,000 bytes"),
+    (lambda d: d["accessors"][1].update(bufferView=7), r"accessor 1 bufferView is 7, the file "
+                                                       r"has 3"),
+    (lambda d: d["accessors"][0].update(count=-1), r"accessor 0 count is -1, not an integer"),
+    (lambda d: d["accessors"][2].update(count=3), r"attribute TEXCOORD_0 \(accessor 2\) holds "
+                                                  r"3 elements, POSITION holds 4"),
+    (lambda d: d["accessors"][1].update(count=5), r"5 indices do not make whole triangles"),
+    (lambda d: d["accessors"].append({"componentType": 5126, "count": 10 ** 9, "type": "MAT4"}),
+     r"accessor 3 announces 1,000,000,000 elements with no data"),
+    (lambda d: d["accessors"][0].pop("bufferView"), r"positions \(accessor 0\) have no data"),
+    (lambda d: d["accessors"][0].update(type=[1]), r"accessor 0 has an unknown componentType"),
+])
+def test_glb_accessors_out_of_bounds(tmp_path, edit, message):
+    if "TEXCOORD" in message:
+        def edit(d, _edit=edit):                      # a primitive with UVs of 3 elements
+            d["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = 2
+            _edit(d)
+    path = tmp_path / "bad.glb"
+    path.write_bytes(glb(edit=edit))
+    with pytest.raises(FileFormatError, match="bad.glb: glTF .*" + message):
+        read_surfels(path)
+
+
+def test_glb_header_and_chunks(tmp_path):
+    path = tmp_path / "cut.glb"
+    path.write_bytes(glb()[:60])
+    with pytest.raises(FileFormatError, match="cut.glb: not a readable GLB file .* it may be "
+                                              "truncated"):
+        read_surfels(path)
+    data = bytearray(glb())
+    data[4:8] = struct.pack("<I", 1)
+    path.write_bytes(bytes(data))
+    with pytest.raises(FileFormatError, match=r"version 1; only glTF 2"):
+        read_surfels(path)
+    data = glb()
+    path.write_bytes(data[:-8])
+    with pytest.raises(FileFormatError, match="binary chunk announces .* it may be truncated"):
+        read_surfels(path)
+
+
+def test_glb_skipped_primitive_is_named(tmp_path):
+    def fan(d):
+        prims = d["meshes"][0]["primitives"]
+        prims.append(dict(prims[0], mode=6))
+    path = tmp_path / "fan.glb"
+    path.write_bytes(glb(edit=fan))
+    with pytest.warns(UserWarning, match=r"fan.glb: mesh 0, primitive 1 draws triangle fan, "
+                                         r"which is not read; skipped"):
+        assert len(sio.read_mesh(path).faces) == 4
+
+
+def test_gltf_buffer_names_a_missing_file(tmp_path):
+    (tmp_path / "m.gltf").write_text('{"asset": {"version": "2.0"}, "buffers": '
+                                     '[{"uri": "gone.bin", "byteLength": 4}]}')
+    with pytest.raises(FileFormatError, match="buffer 0 names gone.bin, which is not a file"):
+        read_surfels(tmp_path / "m.gltf")
+    (tmp_path / "n.gltf").write_text('{"asset": {"version": "2.0"}, "buffers": '
+                                     '[{"byteLength": 4}]}')
+    with pytest.raises(FileFormatError, match="buffer 0 has no uri"):
+        read_surfels(tmp_path / "n.gltf")
+    (tmp_path / "j.gltf").write_text('[1, 2]')
+    with pytest.raises(FileFormatError, match="its JSON is not an object"):
+        read_surfels(tmp_path / "j.gltf")
+
+
+# -- GLB textures: refused like an OBJ's, or skipped with a warning -------------------------------
+
+def test_glb_texture_too_large_is_refused(tmp_path):
+    bomb = write_bomb_png(tmp_path / "bomb.png", side=50000).read_bytes()
+    (tmp_path / "big.glb").write_bytes(glb(image=bomb))
+    with pytest.raises(FileFormatError, match=r"big.glb: texture image exceeds the limit of "
+                                              r"134,217,728 pixels \(it declares 2,500,000,000\) "
+                                              r"\(image 0\)"):
+        read_surfels(tmp_path / "big.glb")
+    uri = "data:image/png;base64," + base64.b64encode(bomb).decode()
+    (tmp_path / "uri.glb").write_bytes(glb(image_uri=uri))
+    with pytest.raises(FileFormatError, match=r"uri.glb: texture image exceeds the limit"):
+        read_surfels(tmp_path / "uri.glb")
+    bomb = write_bomb_png(tmp_path / "bomb.png", side=12000).read_bytes()   # under Pillow's own
+    (tmp_path / "mid.glb").write_bytes(glb(image=bomb))
+    with pytest.raises(FileFormatError, match=r"mid.glb: texture image of 12000 × 12000 pixels "
+                                              r"exceeds the limit"):
+        read_surfels(tmp_path / "mid.glb")
+
+
+def test_glb_truncated_texture_names_the_file(tmp_path):
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (64, 64, 3), np.uint8)).save(
+        buf, "PNG")
+    (tmp_path / "cut.glb").write_bytes(glb(image=buf.getvalue()[:-200]))
+    with pytest.raises(FileFormatError, match=r"cut.glb: cannot read the texture image "
+                                              r"\(image file is truncated"):
+        read_surfels(tmp_path / "cut.glb")
+    one_line_error(["info", tmp_path / "cut.glb"], "cut.glb", "image file is truncated")
+    (tmp_path / "junk.glb").write_bytes(glb(image=b"not an image at all"))
+    with pytest.raises(FileFormatError, match=r"junk.glb: cannot read the texture image .*"
+                                              r"\(image 0\)"):
+        read_surfels(tmp_path / "junk.glb")
+
+
+def test_glb_texture_outside_the_folder(tmp_path):
+    (tmp_path / "outside.png").write_bytes(tiny_png(size=4))
+    folder = tmp_path / "m"
+    folder.mkdir()
+    (folder / "outside.png").write_bytes(tiny_png(seed=3, size=4))   # never read instead
+    (folder / "m.glb").write_bytes(glb(image_uri="../outside.png"))
+    with pytest.warns(UserWarning, match=r"m.glb: texture ../outside.png \(image 0\) lies "
+                                         r"outside the model's folder; skipped"):
+        assert sio.read_mesh(folder / "m.glb").texture is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = sio.read_mesh(folder / "m.glb", allow_outside_textures=True)
+    from PIL import Image
+
+    expected = np.asarray(Image.open(io.BytesIO(tiny_png(size=4))).convert("RGB"))
+    assert np.array_equal(mesh.texture, expected)
+    (folder / "gone.glb").write_bytes(glb(image_uri="gone.png"))
+    with pytest.raises(FileFormatError, match=r"gone.glb: texture image gone.png not found"):
+        read_surfels(folder / "gone.glb")
+
+
+def test_glb_ktx2_texture_is_named(tmp_path):
+    def ktx(d):
+        d["images"][0]["mimeType"] = "image/ktx2"
+    (tmp_path / "k.glb").write_bytes(glb(image=tiny_png(), edit=ktx))
+    with pytest.warns(UserWarning, match=r"k.glb: texture image 0 is KTX2, which is not read"):
+        assert sio.read_mesh(tmp_path / "k.glb").texture is None
+
+
+def test_glb_texture_inside_reads(tmp_path):
+    (tmp_path / "t.png").write_bytes(tiny_png(size=4))
+    (tmp_path / "in.glb").write_bytes(glb(image_uri="t.png"))
+    (tmp_path / "bv.glb").write_bytes(glb(image=tiny_png(size=4)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("in.glb", "bv.glb"):
+            assert sio.read_mesh(tmp_path / name).texture.shape == (4, 4, 3)
