@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from surfidx import FileFormatError, read_surfels
+from surfidx import FileFormatError, InputError, read_surfels
 from surfidx import io as sio
 from surfidx.cli import cli
 from surfidx.db import Database
@@ -251,3 +251,140 @@ def test_glb_texture_inside_reads(tmp_path):
         warnings.simplefilter("error")
         for name in ("in.glb", "bv.glb"):
             assert sio.read_mesh(tmp_path / name).texture.shape == (4, 4, 3)
+
+
+# -- point files: refused like XYZ and PTS refuse them, not read in part --------------------------
+
+def pcd(fields, rows, *, data="binary", points=None, width=None, types=None):
+    """A PCD file of float fields (or ``types``) and its rows; ``points``/``width`` override
+    the header's counts."""
+    rows = np.asarray(rows, np.float64)
+    n = len(rows)
+    types = types or ["F"] * len(fields)
+    head = (f"VERSION 0.7\nFIELDS {' '.join(fields)}\nSIZE {' '.join(['4'] * len(fields))}\n"
+            f"TYPE {' '.join(types)}\nCOUNT {' '.join(['1'] * len(fields))}\n"
+            f"WIDTH {n if width is None else width}\nHEIGHT 1\n"
+            f"POINTS {n if points is None else points}\nDATA {data}\n").encode()
+    if data == "ascii":
+        return head + "".join(" ".join(f"{x:g}" for x in r) + "\n" for r in rows).encode()
+    dt = [(f, "<f4" if t == "F" else "<u4") for f, t in zip(fields, types)]
+    return head + np.array([tuple(r) for r in rows], dtype=dt).tobytes()
+
+
+def _cloud(n=50):
+    rng = np.random.default_rng(1)
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def test_pcd_nan_point_is_refused(tmp_path):
+    v = _cloud()
+    v[7, 1] = np.nan
+    v[9, 0] = np.nan
+    for data in ("binary", "ascii"):
+        path = tmp_path / f"{data}.pcd"
+        path.write_bytes(pcd("x y z".split(), v, data=data))
+        with pytest.raises(InputError, match=rf"{data}.pcd: PCD point 7 has NaN or infinite "
+                                             r"coordinates \(2 points so"):
+            read_surfels(path)
+    one_line_error(["info", tmp_path / "binary.pcd"], "binary.pcd: PCD point 7 has NaN")
+
+
+def test_pcd_nan_normals_are_named(tmp_path):
+    v = _cloud()
+    nrm = v.copy()
+    nrm[3] = np.nan
+    path = tmp_path / "n.pcd"
+    path.write_bytes(pcd("x y z normal_x normal_y normal_z".split(), np.c_[v, nrm]))
+    with pytest.warns(UserWarning, match=r"n.pcd: 1 PCD normals have NaN or infinite values; the "
+                                         r"normals are dropped"):
+        assert len(read_surfels(path)) == 50
+
+
+def test_pcd_header_count_below_its_data(tmp_path):
+    v = _cloud()
+    path = tmp_path / "few.pcd"
+    path.write_bytes(pcd("x y z".split(), v, points=40, width=40))
+    with pytest.raises(FileFormatError, match=r"few.pcd: PCD header announces 40 points, the data "
+                                              r"holds 50 of 12 bytes"):
+        read_surfels(path)
+    path.write_bytes(pcd("x y z".split(), v, data="ascii", points=40, width=40))
+    with pytest.raises(FileFormatError, match=r"few.pcd: PCD header announces 40 points of 3 "
+                                              r"numbers, the data holds 50"):
+        read_surfels(path)
+    path.write_bytes(pcd("x y z".split(), v, points=40))
+    with pytest.raises(FileFormatError, match=r"few.pcd: PCD header announces 40 points "
+                                              r"\(POINTS\) and a grid of 50"):
+        read_surfels(path)
+    path.write_bytes(pcd("x y z".split(), v) + b"\n")         # a trailing newline is not a point
+    assert len(read_surfels(path)) == 50
+
+
+def test_colours_outside_0_255_are_refused(tmp_path):
+    v = _cloud(6)
+    rows = [f"{a} {b} {c} 9 10 20 30" for a, b, c in v]
+    rows[2] = rows[2].replace("10 20 30", "300 20 30")
+    rows[4] = rows[4].replace("10 20 30", "-5 20 30")
+    (tmp_path / "c.pts").write_text("6\n# scanner export\n" + "\n".join(rows) + "\n")
+    with pytest.raises(FileFormatError, match=r"c.pts: PTS colour 300 20 30 on line 5 is outside "
+                                              r"0..255 \(2 points so\)"):
+        read_surfels(tmp_path / "c.pts")
+    one_line_error(["info", tmp_path / "c.pts"], "c.pts: PTS colour 300 20 30 on line 5")
+    (tmp_path / "c.xyz").write_text("".join(f"{a} {b} {c} {a} {b} {c} 1 2 -5\n" for a, b, c in v))
+    with pytest.raises(FileFormatError, match=r"c.xyz: XYZ colour 1 2 -5 on line 1 is outside"):
+        read_surfels(tmp_path / "c.xyz")
+    rgb = np.c_[v, np.tile([10, 20, 256], (6, 1))]
+    (tmp_path / "c.pcd").write_bytes(pcd("x y z r g b".split(), rgb))
+    with pytest.raises(FileFormatError, match=r"c.pcd: PCD colour 10 20 256 on point 0 is "
+                                              r"outside 0..255 \(6 points so\)"):
+        read_surfels(tmp_path / "c.pcd")
+
+
+# -- OBJ material libraries -----------------------------------------------------------------------
+
+def _textured_obj(folder, mtllib):
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(2)
+    uv = "".join(f"vt {0.5 + 0.4 * a} {0.5 + 0.4 * b}\n" for a, b, c in v)
+    faces = "".join("f " + " ".join(f"{i + 1}/{i + 1}" for i in t) + "\n" for t in f)
+    path = folder / "m.obj"
+    path.write_text(f"mtllib {mtllib}\n" + "".join(f"v {a} {b} {c}\n" for a, b, c in v)
+                    + uv + faces)
+    return path
+
+
+def test_mtllib_must_be_an_mtl_file_inside_the_folder(tmp_path):
+    folder = tmp_path / "a" / "b"
+    folder.mkdir(parents=True)
+    (tmp_path / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\nmap_Kd ../../t.png\n")
+    path = _textured_obj(folder, "../../passwd")
+    with pytest.warns(UserWarning, match=r"m.obj: material library ../../passwd is not an .mtl "
+                                         r"file; skipped, no texture from it"):
+        assert sio.read_mesh(path).texture is None
+    (tmp_path / "t.png").write_bytes(tiny_png(size=4))
+    (tmp_path / "out.mtl").write_text("newmtl m\nmap_Kd t.png\n")
+    path = _textured_obj(folder, "../../out.mtl")
+    with pytest.warns(UserWarning, match=r"m.obj: material library ../../out.mtl lies outside "
+                                         r"the model's folder \(allow it with "
+                                         r"allow_outside_textures=True"):
+        assert sio.read_mesh(path).texture is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert sio.read_mesh(path, allow_outside_textures=True).texture.shape == (4, 4, 3)
+    r = CliRunner().invoke(cli, ["info", str(path)])
+    assert r.exit_code == 0 and "material library ../../out.mtl lies outside" in r.stderr
+    path = _textured_obj(folder, "gone.mtl")
+    with pytest.warns(UserWarning, match=r"m.obj: material library gone.mtl not found"):
+        assert sio.read_mesh(path).texture is None
+
+
+def test_ingest_texture_search_reads_no_foreign_mtllib(tmp_path):
+    from ingest import find_texture
+
+    (tmp_path / "passwd").write_text("map_Kd x.png\n")
+    folder = tmp_path / "m"
+    folder.mkdir()
+    path = _textured_obj(folder, "../passwd")
+    (folder / "m.png").write_bytes(tiny_png(size=4))
+    assert find_texture(path) == folder / "m.png"      # passwd is not read as its MTL
