@@ -388,3 +388,123 @@ def test_ingest_texture_search_reads_no_foreign_mtllib(tmp_path):
     path = _textured_obj(folder, "../passwd")
     (folder / "m.png").write_bytes(tiny_png(size=4))
     assert find_texture(path) == folder / "m.png"      # passwd is not read as its MTL
+
+
+# -- decoding at a coarser level: time and memory follow the level asked -------------------------
+
+def _bumpy_ball():
+    from conftest import icosphere_mesh
+
+    v, f = icosphere_mesh(3)
+    return sio.as_surfels((v * (1 + 0.1 * np.sin(3 * v[:, :1])), f))
+
+
+@pytest.fixture(scope="module")
+def level7_stream():
+    from surfidx.codec import encode
+
+    return encode(_bumpy_ball(), bits_per_surfel=16.0, level=7)
+
+
+def forged_level9(data: bytes) -> bytes:
+    """A small stream with its header's grid level raised to 9 (frame anchors extended, the
+    stream padded to the smallest level-9 file): it decodes, to a surface of its own."""
+    from surfidx.codec import container
+
+    h, stream = container.unpack(data)
+    h.anchors = tuple(h.anchors) + (h.anchors[-1],) * (9 - len(h.anchors))
+    h.level = 9
+    return container.pack(h, stream + bytes(container.min_file_bytes(9) + 2000))
+
+
+def test_read_level():
+    from surfidx.codec import read_level
+
+    assert [read_level(lv, 9) for lv in range(10)] == [6, 6, 6, 6, 6, 7, 8, 9, 9, 9]
+    assert [read_level(lv, 5) for lv in range(6)] == [5] * 6
+
+
+def test_coarser_decoding_reads_a_coarser_grid(level7_stream):
+    from surfidx.codec import decode
+    from surfidx.geometry.icosphere import vertex_count
+
+    full = decode(level7_stream)
+    size = np.linalg.norm(np.ptp(full.positions, axis=0))
+    for level in (5, 6):                                  # reads level 7: the whole stream
+        s = decode(level7_stream, level=level)
+        np.testing.assert_array_equal(s.positions, full.positions[:vertex_count(level)])
+    for level in (0, 2, 4):                               # reads level 6 only
+        s = decode(level7_stream, level=level)
+        assert len(s) == vertex_count(level)
+        assert np.abs(s.positions - full.positions[:len(s)]).max() < 1e-3 * size
+
+
+def test_level_2_decoding_of_a_level_9_stream_is_bounded(tmp_path):
+    """A 3.9 kB stream claiming the level-9 grid (2,621,442 vertices) decodes at level 2 in
+    less than 100 MB more than a level-3 stream does (peak RSS of a fresh process, where the
+    zerotree coder's own arrays count too, and the Python allocations traced)."""
+    import subprocess
+    import sys
+
+    from surfidx.codec import encode
+
+    small = encode(_bumpy_ball(), bits_per_surfel=8.0, level=3)
+    (tmp_path / "small.sfz").write_bytes(small)
+    (tmp_path / "big.sfz").write_bytes(forged_level9(small))
+    script = (
+        "import resource, sys, tracemalloc\n"
+        "from surfidx.numerics import use_portable_profile\n"
+        "use_portable_profile()\n"
+        "from surfidx.codec import decode\n"
+        "small, big = (open(p, 'rb').read() for p in sys.argv[1:])\n"
+        "assert len(decode(small, level=2)) == 162\n"
+        "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "tracemalloc.start()\n"
+        "assert len(decode(big, level=2)) == 162\n"
+        "peak = tracemalloc.get_traced_memory()[1]\n"
+        "after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "print((after - before) * 1024, peak)\n")
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path / "small.sfz"),
+                        str(tmp_path / "big.sfz")], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    rss, traced = map(int, r.stdout.split())
+    assert rss < 100e6 and traced < 100e6, (rss, traced)
+
+
+def test_grid_level_beyond_the_format(tmp_path):
+    from surfidx import BitstreamError, InputError
+    from surfidx.codec import container, decode, encode
+
+    data = bytearray(encode(_bumpy_ball(), bits_per_surfel=8.0, level=3))
+    data[6] = 12
+    with pytest.raises(BitstreamError, match=r"big.sfz: corrupt header \(grid level 12; format "
+                                             r"version 3 allows 0 … 9\)"):
+        decode(bytes(data), path="big.sfz")
+    (tmp_path / "big.sfz").write_bytes(bytes(data))
+    one_line_error(["decode", tmp_path / "big.sfz", "-o", tmp_path / "o.ply"],
+                   "big.sfz: corrupt header (grid level 12")
+    h, stream = container.unpack(encode(_bumpy_ball(), bits_per_surfel=8.0, level=3))
+    h.level = 10
+    with pytest.raises(InputError, match=r"grid level must be 0..9, got 10"):
+        container.pack(h, stream)
+
+
+def test_coarser_decoding_keeps_holes_and_handles(monkeypatch):
+    from conftest import torus_mesh
+
+    from surfidx import InputError
+    from surfidx.codec import Encoder, decode
+    from surfidx.codec import encoder as codec_encoder
+    from surfidx.codec.restore import closed_surfels
+    from surfidx.topology import analyse, close_surface
+
+    s, fp = closed_surfels(close_surface(*torus_mesh(nu=64, nv=24)))
+    data = Encoder(s, face_patch=fp, level=7).encode(4.0)
+    for level in (3, 4):                                  # reads level 6 of the level-7 grid
+        m = decode(data, level=level, mesh=True)
+        assert analyse(m.vertices, m.faces).genus == (1,)
+    monkeypatch.setattr(codec_encoder, "READ_LEVEL_MIN", 0)
+    monkeypatch.setattr(codec_encoder, "READ_BELOW", 0)
+    with pytest.raises(InputError, match=r"m.sfz: the stream's 2 virtual regions .* make \d+ on "
+                                         r"the level-0 grid .* decode at level 7"):
+        decode(data, level=0, path="m.sfz")
