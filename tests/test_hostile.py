@@ -508,3 +508,101 @@ def test_coarser_decoding_keeps_holes_and_handles(monkeypatch):
     with pytest.raises(InputError, match=r"m.sfz: the stream's 2 virtual regions .* make \d+ on "
                                          r"the level-0 grid .* decode at level 7"):
         decode(data, level=0, path="m.sfz")
+
+
+# -- damaged databases: ingest refuses them, lookups say "damaged" -------------------------------
+
+def _stored_model(i):
+    import hashlib
+
+    from surfidx.pipeline import ProcessedModel
+
+    rng = np.random.default_rng(i)
+    return ProcessedModel(
+        name=f"model{i}", source=f"/data/model{i}.ply",
+        content_hash=hashlib.sha256(f"model {i}".encode()).hexdigest(), n_surfels=1000,
+        has_color=False, bbox=np.array([[0.0, 0, 0], [1, 1, 1]]),
+        stream=rng.integers(0, 256, 100, dtype=np.uint8).tobytes(), format_version=1, rate=0.8,
+        quality={"psnr_d1": 50.0, "psnr_d2": 60.0, "psnr_y": None},
+        descriptors={"shape": rng.standard_normal(16).astype(np.float32)},
+        thumbnail=tiny_png(i), params={}, timings={})
+
+
+def misorder_rowids(path):
+    """Set the first divider key of the ``models`` table's root (interior) page to 0: a lookup of
+    id 1 then descends into the wrong child and finds nothing, while a scan still reads it."""
+    import sqlite3
+
+    conn = sqlite3.connect(path)
+    conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    size = conn.execute("PRAGMA page_size").fetchone()[0]
+    root = conn.execute("SELECT rootpage FROM sqlite_master WHERE name = 'models'").fetchone()[0]
+    conn.close()
+    with open(path, "r+b") as fh:
+        fh.seek((root - 1) * size)
+        page = bytearray(fh.read(size))
+        assert page[0] == 5                               # an interior table page
+        cell = struct.unpack(">H", page[12:14])[0]        # child pointer (4 bytes), rowid varint
+        page[cell + 4] = 0
+        fh.seek((root - 1) * size)
+        fh.write(bytes(page))
+
+
+@pytest.fixture
+def damaged_db(tmp_path):
+    path = tmp_path / "bad.db"
+    with Database(path) as db, db.transaction():
+        for i in range(500):
+            db.add(_stored_model(i))
+    misorder_rowids(path)
+    return path
+
+
+def test_lookups_in_a_damaged_database_say_damaged(damaged_db, tmp_path):
+    from surfidx import DatabaseError
+
+    damaged = r"bad.db: the database file is damaged \(PRAGMA quick_check: .*Rowid \d+ out of order"
+    with Database(damaged_db, readonly=True) as db:
+        assert [m["id"] for m in db.list_models()][:2] == [1, 2]     # a scan reads the rows
+        assert "out of order" in db.damage()
+        for lookup in (lambda: db.get_model(1), lambda: db.get_model("model1"),
+                       lambda: db.get_stream(1), lambda: db.resolve(1)):
+            with pytest.raises(DatabaseError, match=damaged):
+                lookup()
+        with pytest.raises(DatabaseError, match=damaged):
+            db.check_intact()
+    for args in (["show", "1"], ["show", "model1"], ["get", "1", "-o", tmp_path / "x.ply"],
+                 ["query", "id:1"], ["query", "model1"], ["query", "nosuch"]):
+        one_line_error(args + ["--db", damaged_db], "bad.db: the database file is damaged "
+                                                    "(PRAGMA quick_check:")
+
+
+def test_ingest_refuses_a_damaged_database(damaged_db, tmp_path):
+    import ingest
+    from surfidx import DatabaseError
+
+    from helpers import fake_processor, make_tree
+
+    root = make_tree(tmp_path / "data", 2)
+    before = damaged_db.read_bytes()
+    with pytest.raises(DatabaseError, match=r"bad.db: the database file is damaged \(PRAGMA "
+                                            r"quick_check: .*\); restore it from a backup"):
+        ingest.run([root], db=damaged_db, processor=fake_processor, workers=1, progress=False)
+    one_line_error(["ingest", root, "--db", damaged_db, "--no-progress"],
+                   "bad.db: the database file is damaged")
+    assert damaged_db.read_bytes() == before
+    with Database(damaged_db, readonly=True) as db:
+        assert db.runs() == []
+
+
+def test_intact_database_passes_and_missing_ids_stay_missing(tmp_path):
+    from surfidx import DatabaseError
+
+    with Database(tmp_path / "ok.db") as db:
+        db.add(_stored_model(0))
+        assert db.damage() is None
+        db.check_intact()
+        with pytest.raises(DatabaseError, match=r"ok.db: no model with id 7$"):
+            db.get_model(7)
+        with pytest.raises(DatabaseError, match=r"ok.db: no model named 'nope'"):
+            db.resolve("nope")
