@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import struct
 import warnings
 
@@ -233,6 +234,11 @@ def test_glb_texture_outside_the_folder(tmp_path):
     (folder / "gone.glb").write_bytes(glb(image_uri="gone.png"))
     with pytest.raises(FileFormatError, match=r"gone.glb: texture image gone.png not found"):
         read_surfels(folder / "gone.glb")
+    os.mkfifo(folder / "fifo.png")                        # never opened: it would block
+    (folder / "fifo.glb").write_bytes(glb(image_uri="fifo.png"))
+    with pytest.raises(FileFormatError, match=r"fifo.glb: texture image fifo.png is not a "
+                                              r"regular file"):
+        read_surfels(folder / "fifo.glb")
 
 
 def test_glb_ktx2_texture_is_named(tmp_path):

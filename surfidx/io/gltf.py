@@ -371,7 +371,8 @@ def _check_images(doc, views, buffers, path, allow_outside):
                 skipped.add(target)
                 continue
             if not target.is_file():
-                raise FileFormatError(f"texture image {uri} not found{where}", path=path)
+                what = "is not a regular file" if target.exists() else "not found"
+                raise FileFormatError(f"texture image {uri} {what}{where}", path=path)
             check_texture(target, path, f" ({uri}, image {k})")
         else:
             raise FileFormatError(f"glTF image {k} has neither a bufferView nor a uri",
