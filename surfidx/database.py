@@ -358,8 +358,7 @@ class Database(Catalog):
         stream = self.get_stream(mid)
         if bits_per_surfel is None:
             return stream
-        n = self._one("SELECT n_surfels FROM models WHERE id = ?", (mid,),
-                      f"no model with id {mid}")[0]
+        n = self.get_model(mid)["n_surfels"]
         return truncate(stream, max_file_bytes(bits_per_surfel, int(n)),
                         path=f"model {mid}")
 
@@ -393,8 +392,7 @@ class Database(Catalog):
 
         mid = self.resolve(model)
         stream = self.get_stream(mid)
-        name = self._one("SELECT name FROM models WHERE id = ?", (mid,),
-                         f"no model with id {mid}")[0]
+        name = self.get_model(mid)["name"]
         if level is None:
             level = output_level(stream)
         options = {} if level is None else {"level": level}
@@ -439,8 +437,7 @@ class Database(Catalog):
 
         fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
         mid = self.resolve(model)
-        name = self._one("SELECT name FROM models WHERE id = ?", (mid,),
-                         f"no model with id {mid}")[0]
+        name = self.get_model(mid)["name"]
         out = {"id": mid, "name": name, "output": str(path), "format": fmt,
                "bits_per_surfel": bits_per_surfel}
         if fmt == "sfz":

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from surfidx import FileFormatError, InputError, read_surfels
 from surfidx import io as sio
 from surfidx.cli import cli
-from surfidx.db import Database
+from surfidx import Database
 
 from helpers import tiny_png, write_bomb_png
 
@@ -386,7 +386,7 @@ def test_mtllib_must_be_an_mtl_file_inside_the_folder(tmp_path):
 
 
 def test_ingest_texture_search_reads_no_foreign_mtllib(tmp_path):
-    from ingest import find_texture
+    from surfidx.io.files import find_texture
 
     (tmp_path / "passwd").write_text("map_Kd x.png\n")
     folder = tmp_path / "m"
