@@ -418,7 +418,9 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
         (before anything is written).
     DatabaseError
         The database cannot be opened or written (not a surfidx database, read-only, full disk,
-        damaged, locked past the timeout): the run stops; every model committed is whole.
+        damaged, locked past the timeout): the run stops; every model committed is whole. A
+        file that fails SQLite's ``PRAGMA quick_check`` is refused before anything is written
+        (:meth:`surfidx.db.catalog.Catalog.check_intact`).
 
     Notes
     -----
@@ -511,6 +513,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, p
     from surfidx.db.catalog import escape_name, is_storage_failure, storable_text
 
     t_start = time.perf_counter()
+    db.check_intact()               # a damaged file is not written into: nothing is recorded
     n_workers = getattr(executor, "n_workers", workers)      # a cluster's actual worker count
     summary = IngestSummary(run_id=db.start_run(paths, workers=n_workers,
                                                 bits_per_surfel=bits_per_surfel))

@@ -208,7 +208,9 @@ class Database(Catalog):
             else:
                 try:
                     ref = int(self.resolve(model))
-                except DatabaseError:
+                except DatabaseError as exc:
+                    if not exc.reason.startswith("no model named"):
+                        raise                       # an ambiguous name, a damaged file
                     raise InputError("no such model file, and no stored model has this name",
                                      path=model) from None
         if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
@@ -356,7 +358,7 @@ class Database(Catalog):
         stream = self.get_stream(mid)
         if bits_per_surfel is None:
             return stream
-        n = self.conn.execute("SELECT n_surfels FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        n = self.get_model(mid)["n_surfels"]
         return truncate(stream, max_file_bytes(bits_per_surfel, int(n)),
                         path=f"model {mid}")
 
@@ -390,7 +392,7 @@ class Database(Catalog):
 
         mid = self.resolve(model)
         stream = self.get_stream(mid)
-        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        name = self.get_model(mid)["name"]
         if level is None:
             level = output_level(stream)
         options = {} if level is None else {"level": level}
@@ -435,7 +437,7 @@ class Database(Catalog):
 
         fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
         mid = self.resolve(model)
-        name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        name = self.get_model(mid)["name"]
         out = {"id": mid, "name": name, "output": str(path), "format": fmt,
                "bits_per_surfel": bits_per_surfel}
         if fmt == "sfz":

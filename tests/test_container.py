@@ -102,7 +102,7 @@ def test_random_garbage_never_crashes():
 def test_pack_validates():
     h = _header()
     h.level = 40
-    with pytest.raises(InputError, match="grid level must be 0..12"):
+    with pytest.raises(InputError, match="grid level must be 0..9"):
         pack(h, b"")
     h = _header()
     h.n_surfels = 0

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BitstreamError, InputError
-from ..geometry.icosphere import vertex_count
+from ..geometry.icosphere import MAX_LEVEL, vertex_count
 
 __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
            "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE",
@@ -241,8 +241,8 @@ def pack(header: Header, stream: bytes) -> bytes:
     if not (np.all(np.isfinite(basis)) and np.all(np.isfinite(mean))
             and np.all(np.isfinite(weights))):
         raise InputError("the KLT mean, basis and weights must be finite in float32/float16")
-    if not (0 <= header.level <= 12):
-        raise InputError(f"grid level must be 0..12, got {header.level}")
+    if not (0 <= header.level <= MAX_LEVEL):
+        raise InputError(f"grid level must be 0..{MAX_LEVEL}, got {header.level}")
     if not (0 < header.n_surfels < 2 ** 32):
         raise InputError(f"n_surfels must be 1..2^32-1, got {header.n_surfels}")
     problem = _implausible(mean, weights, k)
@@ -337,6 +337,9 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
                              "surfidx.codec.decode", path=path)
     if k not in (3, 6):
         raise BitstreamError(f"corrupt header (layer count {k}, expected 3 or 6)", path=path)
+    if level > MAX_LEVEL:
+        raise BitstreamError(f"corrupt header (grid level {level}; format version {version} "
+                             f"allows 0 … {MAX_LEVEL})", path=path)
     known = {2: FLAG_COLOR | FLAG_LIFTED, 3: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES
              | FLAG_WEIGHTED}.get(version, FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
                                   | FLAG_MASK)
@@ -382,7 +385,7 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if flags & FLAG_MASK and (mask_len == 0 or n_regions == 0):
         raise BitstreamError(f"corrupt header (virtual-region mask of {mask_len} bytes with "
                              f"{n_regions} regions; both must be > 0)", path=path)
-    if k not in (3, 6) or (k == 6) != bool(flags & FLAG_COLOR) or level > 12:
+    if (k == 6) != bool(flags & FLAG_COLOR):
         raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
                              path=path)
     stream = data[tail_off + _TAIL.size:]

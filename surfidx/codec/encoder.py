@@ -60,7 +60,8 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
-           "encode_parts", "decode_parts", "stream_summary"]
+           "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
+           "READ_LEVEL_MIN"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 from .options import COLOR_WEIGHT, MAX_COLOR_WEIGHT, TANGENT_WEIGHT  # noqa: E402
@@ -76,6 +77,38 @@ MAX_EXTENT = 1e6
 """Decoded values lie within this many weighted units of the KLT mean (for geometry:
 bounding-box diagonals of the model's centre; for colour: ``color_weight`` · value / 255, at most
 :data:`MAX_COLOR_WEIGHT`); anything else, or a non-finite value, is a damaged stream."""
+
+READ_BELOW = 2
+"""Grid levels below the output level that a decoding at a coarser level reads (see
+:func:`read_level`)."""
+
+READ_LEVEL_MIN = 6
+"""Finest grid level a decoding at a coarser level always reads (when the stream has it), so
+that the smallest outputs still see the stream's fine details (see :func:`read_level`)."""
+
+
+def read_level(out_level: int, stream_level: int) -> int:
+    """The grid level a decoding at ``out_level`` reads of a level-``stream_level`` stream:
+    ``max(out_level + READ_BELOW, READ_LEVEL_MIN)``, at most the stream's.
+
+    The zerotree stream interleaves every level's decisions, so a coarse coefficient's last
+    bits come after the finest details' first; reading it all costs time and memory in
+    proportion to the stream's grid (a level-9 grid is 2,621,442 vertices), whatever level is
+    asked. A coarser decoding therefore reads the coefficients down to this level only: the
+    first decision about a finer one ends it, as the end of the stream would, and the surface
+    is synthesised on this level's grid, whose prefix is the output. When the stream's grid is
+    no finer, this is the whole decoding.
+
+    Parameters
+    ----------
+    out_level, stream_level : int
+
+    Returns
+    -------
+    int
+    """
+    return min(stream_level, max(out_level + READ_BELOW, READ_LEVEL_MIN))
+
 
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
@@ -787,9 +820,12 @@ def check_header(header, *, path=None):
     return zh, klt, field
 
 
-def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.ndarray:
+def _decode_values(data, header, stream, bits_per_surfel, path, checked,
+                   level: int | None = None) -> np.ndarray:
     """The grid values of an unpacked container whose header ``check_header`` passed (see
-    :func:`decode_grid`)."""
+    :func:`decode_grid`), on the grid of ``level`` (default the stream's; a coarser one reads
+    the coefficients down to that level only, see :func:`read_level`)."""
+    level = header.level if level is None else level
     if bits_per_surfel is not None:
         keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
         if keep < 4:
@@ -799,20 +835,22 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.n
     zh, klt, field = checked
     frames = header.tangent_weight is not None
     k = header.layers
-    ico = icosphere(header.level)
-    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(header.level), None, None,
-                                header=zh, planes=True)
+    ico = icosphere(level)
+    cut = (ico.level_of == level) if level < header.level else None
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(level), None, None,
+                                header=zh, planes=True, cut=cut)
+    # the stream's level norms: coarser levels' norms depend on the finest level too
     scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
     if field is not None:
-        scales = scales * density.vertex_scales(*field, header.level)
+        scales = scales * density.vertex_scales(*field, level)
     with np.errstate(over="ignore", invalid="ignore"):
         if frames:
-            c = wavelets.inverse_anchored(w, header.level, tangent_weight=header.tangent_weight,
-                                          scales=scales, anchors=header.anchors,
+            c = wavelets.inverse_anchored(w, level, tangent_weight=header.tangent_weight,
+                                          scales=scales, anchors=header.anchors[:level],
                                           anchor_values=lambda a, rows: zerotree.anchor_values(
                                               planes, a, rows=rows, layers=3))
         else:
-            c = wavelets.inverse(w / scales[:, None], header.level, lifted=header.lifted)
+            c = wavelets.inverse(w / scales[:, None], level, lifted=header.lifted)
         values = klt.inverse(c)
         spread = np.abs(values * np.asarray(header.weights, np.float64)
                         - np.asarray(header.mean, np.float64))
@@ -845,7 +883,9 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
         ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
-        grid is coarser than ``level`` is decoded at its own.
+        grid is coarser than ``level`` is decoded at its own. The stream is read down to
+        :func:`read_level` only, so time and memory follow the level asked; a stream whose
+        grid is finer than that decodes to values close to, not equal to, the full decoding's.
     max_surfels : int
         Refuse, before decoding, to return more surfels than this (default :data:`MAX_SURFELS`;
         all parts together); a coarser ``level`` returns fewer.
@@ -937,27 +977,37 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
     name = Path(path).stem if path else None
     out = []
     for blob, (header, stream), chk, lv in zip(blobs, unpacked, checked, levels):
-        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk)
-        out.append(_model(values, header, lv, mesh=mesh, keep_virtual=keep_virtual, name=name,
-                          path=path))
+        read = read_level(lv, header.level)
+        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk, read)
+        out.append(_model(values, header, lv, read, mesh=mesh, keep_virtual=keep_virtual,
+                          name=name, path=path))
     return out
 
 
-def _regions(header, out_level, path):
-    """The virtual regions of a stream at the output level (:mod:`surfidx.codec.restore`)."""
+def _regions(header, out_level, read, path):
+    """The virtual regions of a stream at the output level (:mod:`surfidx.codec.restore`), from
+    the mask's first ``10·4^read + 2`` bits: the stream's regions when ``read`` is its level;
+    at a coarser ``read`` level its components stand for them, which holds while each region
+    shows there as one component (else an :class:`InputError` says to read the whole grid)."""
     from .mask import decode_mask
     from .restore import check_regions, grid_regions, regions_at
 
     try:
-        bits = decode_mask(header.mask, header.level)
+        bits = decode_mask(header.mask, header.level, upto=read)
     except BitstreamError as exc:
         raise BitstreamError(exc.reason, path=path) from None
-    count, region = grid_regions(bits, header.level)
+    count, region = grid_regions(bits, read)
+    if read < header.level and count != len(header.regions):
+        raise InputError(f"the stream's {len(header.regions)} virtual regions (holes and cut "
+                         f"sides of the input) make {count} on the level-{read} grid that a "
+                         f"decoding at level {out_level} reads; decode at level {header.level} "
+                         "(the stream's own), or keep the virtual regions (keep_virtual=True, "
+                         "--keep-virtual)", path=path)
     check_regions(header.regions, count, path=path)
-    return regions_at(region, header.regions, header.level, out_level)
+    return regions_at(region, header.regions, read, out_level)
 
 
-def _model(values, header, out_level, *, mesh, keep_virtual, name, path):
+def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path):
     from ..geometry.mesh import TriangleMesh
     from .resample import grid_to_mesh, grid_to_surfels
     from .restore import restore
@@ -965,7 +1015,7 @@ def _model(values, header, out_level, *, mesh, keep_virtual, name, path):
     values = values[:vertex_count(out_level)]
     if not header.mask or keep_virtual:
         return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
-    region, codes = _regions(header, out_level, path)
+    region, codes = _regions(header, out_level, read, path)
     r = restore(values[:, :3], out_level, region, codes)
     if mesh:
         col = None if values.shape[1] < 6 else np.clip(

@@ -101,7 +101,7 @@ def encode_mask(bits, level: int) -> bytes:
     return bytes(buf[:size])
 
 
-def decode_mask(data: bytes, level: int) -> np.ndarray:
+def decode_mask(data: bytes, level: int, *, upto: int | None = None) -> np.ndarray:
     """Read back the bits :func:`encode_mask` coded.
 
     Parameters
@@ -109,22 +109,29 @@ def decode_mask(data: bytes, level: int) -> np.ndarray:
     data : bytes
     level : int
         The grid level the mask was coded at.
+    upto : int, optional
+        Read only the bits of the level-``upto`` grid (``upto <= level``): they come first, so
+        the tables, time and memory are those of that grid.
 
     Returns
     -------
     (n,) bool
+        ``n = 10·4^upto + 2`` (default ``upto = level``).
 
     Raises
     ------
     BitstreamError
         When the stream starts with an impossible code value.
     InputError
-        When ``level`` is out of range.
+        When ``level`` or ``upto`` is out of range.
     """
     lev = check_level(level)
-    level_of, parents, butterfly = _tables(lev)
+    upto = lev if upto is None else check_level(upto, "upto")
+    if upto > lev:
+        raise InputError(f"upto must be at most the mask's level {lev}, got {upto}")
+    level_of, parents, butterfly = _tables(upto)
     arr = np.frombuffer(bytes(data), np.uint8)
-    bits, ok = _decode(arr, level_of, parents, butterfly, vertex_count(lev),
+    bits, ok = _decode(arr, level_of, parents, butterfly, vertex_count(upto),
                        new_models(N_CONTEXTS))
     if not ok:
         raise BitstreamError("the virtual-region mask starts with an impossible code value (FF FF "

@@ -325,9 +325,13 @@ def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth, pare
 
 @njit(cache=True)
 def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, indices, depth,
-         tb, dtop, ltop, mag, sgn):
+         tb, dtop, ltop, mag, sgn, cut):
     """The SPIHT passes; returns (complete, sigp, neg, known, lo, done): ``done`` is the lowest
-    plane whose sorting and refinement passes all finished (``top + 1`` if none did)."""
+    plane whose sorting and refinement passes all finished (``top + 1`` if none did).
+
+    ``cut[v]`` marks a node whose children the encoder's forest has and this one lacks (a forest
+    cut at a depth); the passes end, as at the end of the stream, where the stream first codes
+    a coefficient below one of them."""
     sigp = np.full((k, n), -1, dtype=np.int8)
     neg = np.zeros((k, n), dtype=np.uint8)
     known = np.zeros((k, n), dtype=np.int64)
@@ -347,14 +351,14 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
             if parent[i] < 0:
                 lip[l, lip_len[l]] = i
                 lip_len[l] += 1
-                if indptr[i + 1] > indptr[i]:
+                if indptr[i + 1] > indptr[i] or cut[i]:
                     lis[l, lis_len[l]] = 2 * i
                     lis_len[l] += 1
     has_gc = np.zeros(n, dtype=np.uint8)
     for i in range(n):
         for j in range(indptr[i], indptr[i + 1]):
             c = indices[j]
-            if indptr[c + 1] > indptr[c]:
+            if indptr[c + 1] > indptr[c] or cut[c]:
                 has_gc[i] = 1
                 break
 
@@ -415,6 +419,8 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         lis[l, w] = e
                         w += 1
                         continue
+                    if cut[v]:
+                        return False, sigp, neg, known, lo, p + 1
                     dsig[l, v] = 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
@@ -463,7 +469,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                     lsig[l, v] = 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
-                        if indptr[c + 1] > indptr[c]:
+                        if indptr[c + 1] > indptr[c] or cut[c]:
                             lis[l, end] = 2 * c
                             end += 1
             lis_len[l] = w
@@ -817,7 +823,7 @@ def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
         complete = _run(0, buf, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
                         int(final_plane), prepared.parent, prepared.indptr, prepared.indices,
                         prepared.depth, tb, dtop, ltop, prepared.magnitudes,
-                        prepared.negative)[0]
+                        prepared.negative, np.zeros(n, dtype=np.uint8))[0]
         if complete or budget >= limit:
             break
         cap = 4 * cap
@@ -826,7 +832,7 @@ def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
 
 
 def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *, header,
-           max_bytes: int | None = None, planes: bool = False):
+           max_bytes: int | None = None, planes: bool = False, cut=None):
     """Decode a stream of :func:`encode`, or any prefix of it.
 
     Parameters
@@ -846,6 +852,12 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
         Decode only the first ``max_bytes`` bytes (default: all of ``stream``).
     planes : bool
         Also return the decoded bits (:class:`DecodedPlanes`), for :func:`anchor_values`.
+    cut : (n,) bool, optional
+        For a forest that is the encoder's cut at a depth (its first ``n`` nodes, closed under
+        parents): the nodes whose children were cut off. Decoding then ends, as at the end of
+        the stream, at the first decision about a coefficient below them, so memory and time
+        follow the ``n`` nodes kept, not the encoder's forest; the coefficients are those of
+        the prefix of the stream read so far.
 
     Returns
     -------
@@ -884,12 +896,16 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
                              "the stream is damaged")
     if budget < 4:
         dec_init(dst, data)
+    if cut is None:
+        cut = np.zeros(n, dtype=np.uint8)
+    else:
+        cut = as_array(np.asarray(cut, bool).astype(np.uint8), "cut", dtype=np.uint8, shape=(n,))
     est = new_encoder()
     z8 = np.zeros((k, 1), dtype=np.int8)
     _, _, neg, known, lo, done = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
                                       final, parent, indptr, indices, depth, z8, z8, z8,
                                       np.zeros((k, 1), dtype=np.int64),
-                                      np.zeros((k, 1), dtype=np.uint8))
+                                      np.zeros((k, 1), dtype=np.uint8), cut)
     values = _reconstruct(neg, known, lo, step)
     if not planes:
         return values

@@ -662,6 +662,66 @@ class Catalog:
         """``PRAGMA user_version`` of the file."""
         return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
 
+    def damage(self, *, limit: int = 3) -> str | None:
+        """What SQLite's ``PRAGMA quick_check`` finds wrong with the file, or None.
+
+        quick_check reads every page once (b-tree structure, record formats, free list; not
+        whether indexes match their tables): far cheaper than ``integrity_check``, yet it
+        finds the damaged pages that make a lookup miss a row a scan still reads. Run when a
+        run of writes starts (:meth:`check_intact`) and when a lookup finds nothing.
+
+        Parameters
+        ----------
+        limit : int
+            Most problems reported.
+
+        Returns
+        -------
+        str or None
+            The first problems, ``"; "``-joined; None when the check passes.
+        """
+        try:
+            rows = [str(r[0]) for r in self.conn.execute(f"PRAGMA quick_check({int(limit)})")]
+        except sqlite3.DatabaseError as exc:
+            if _kind_of_error(exc).startswith(("SQLITE_CORRUPT", "SQLITE_NOTADB")):
+                return str(exc)
+            raise
+        lines = [ln.strip() for r in rows for ln in r.splitlines()
+                 if ln.strip() and not ln.startswith("***")]
+        return None if lines == ["ok"] else "; ".join(lines[:limit])
+
+    def check_intact(self) -> None:
+        """Refuse a damaged file (:meth:`damage`) before writing into it.
+
+        Raises
+        ------
+        DatabaseError
+            Naming the problem SQLite found and the ways out (a backup, ``sqlite3 .recover``).
+        """
+        problem = self.damage()
+        if problem is not None:
+            raise self._damaged(problem)
+
+    def _damaged(self, problem: str) -> DatabaseError:
+        return DatabaseError(f"the database file is damaged (PRAGMA quick_check: {problem}); "
+                             "restore it from a backup, or save what is left with "
+                             "`sqlite3 FILE .recover`", path=self.path)
+
+    def _missing(self, message: str) -> DatabaseError:
+        """The error of a lookup that found nothing: ``message``, unless the file is damaged
+        (then a damaged page, not a missing record, may be the cause)."""
+        problem = self.damage()
+        if problem is not None:
+            return self._damaged(problem)
+        return DatabaseError(message, path=self.path)
+
+    def _one(self, sql: str, params, message: str):
+        """The one row ``sql`` selects, or :meth:`_missing` with ``message``."""
+        row = self.conn.execute(sql, params).fetchone()
+        if row is None:
+            raise self._missing(message)
+        return row
+
     @contextlib.contextmanager
     def transaction(self):
         """One write transaction (``BEGIN IMMEDIATE`` ... ``COMMIT``); nested calls are savepoints.
@@ -840,7 +900,7 @@ class Catalog:
         model_id = self._check_id(model_id)
         with self.transaction():
             if self.conn.execute("DELETE FROM models WHERE id = ?", (model_id,)).rowcount == 0:
-                raise DatabaseError(f"no model with id {model_id}", path=self.path)
+                raise self._missing(f"no model with id {model_id}")
             self._descriptors_touched()
 
     def remove(self, *models) -> list:
@@ -870,8 +930,8 @@ class Catalog:
             raise InputError("name at least one model to remove")
         with self.transaction():
             ids = list(dict.fromkeys(self.resolve(m) for m in models))
-            names = [self.conn.execute("SELECT name FROM models WHERE id = ?", (i,)).fetchone()[0]
-                     for i in ids]
+            names = [self._one("SELECT name FROM models WHERE id = ?", (i,),
+                               f"no model with id {i}")[0] for i in ids]
             for i in ids:
                 self.delete(i)
         return [{"id": i, "name": n} for i, n in zip(ids, names)]
@@ -896,7 +956,8 @@ class Catalog:
             raise InputError("a model name must not be empty")
         with self.transaction():
             mid = self.resolve(model)
-            old = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+            old = self._one("SELECT name FROM models WHERE id = ?", (mid,),
+                            f"no model with id {mid}")[0]
             other = self.conn.execute("SELECT id FROM models WHERE name = ?", (name,)).fetchone()
             if other is not None and other[0] != mid:
                 raise DatabaseError(f"the name {name!r} is taken by model {other[0]}; choose "
@@ -983,10 +1044,8 @@ class Catalog:
         conv = _to_json(convention, f"model {model_id} descriptor convention")
         rows = [(model_id, *d) for d in _descriptor_rows(descriptors, conv, f"model {model_id}")]
         with self.transaction():
-            got = self.conn.execute("SELECT params FROM models WHERE id = ?",
-                                    (model_id,)).fetchone()
-            if got is None:
-                raise DatabaseError(f"no model with id {model_id}", path=self.path)
+            got = self._one("SELECT params FROM models WHERE id = ?", (model_id,),
+                            f"no model with id {model_id}")
             params = json.loads(got[0])
             params["descriptors"] = json.loads(conv)
             self.conn.execute("UPDATE models SET params = ? WHERE id = ?",
@@ -1160,16 +1219,14 @@ class Catalog:
             rows = self.conn.execute("SELECT id FROM models WHERE name IN (?, ?) ORDER BY id",
                                      (stored, storable_text(id_or_name))).fetchall()
             if not rows:
-                raise DatabaseError(f"no model named {storable_text(id_or_name)!r}",
-                                    path=self.path)
+                raise self._missing(f"no model named {storable_text(id_or_name)!r}")
             if len(rows) > 1:
                 ids = ", ".join(str(r[0]) for r in rows)
                 raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"
                                     " give the id", path=self.path)
             return int(rows[0][0])
         model_id = self._check_id(id_or_name)
-        if self.conn.execute("SELECT 1 FROM models WHERE id = ?", (model_id,)).fetchone() is None:
-            raise DatabaseError(f"no model with id {model_id}", path=self.path)
+        self._one("SELECT 1 FROM models WHERE id = ?", (model_id,), f"no model with id {model_id}")
         return model_id
 
     def get_model(self, id_or_name) -> dict:
@@ -1197,9 +1254,9 @@ class Catalog:
         """
         model_id = self.resolve(id_or_name)
         conn = self.conn
-        cur = conn.execute(f"SELECT {', '.join(_MODEL_COLUMNS)} FROM models WHERE id = ?",
-                           (model_id,))
-        rec = dict(zip(_MODEL_COLUMNS, cur.fetchone()))
+        rec = dict(zip(_MODEL_COLUMNS, self._one(
+            f"SELECT {', '.join(_MODEL_COLUMNS)} FROM models WHERE id = ?", (model_id,),
+            f"no model with id {model_id}")))
         rec["has_color"] = bool(rec["has_color"])
         rec["params"] = json.loads(rec["params"])
         rec["bbox"] = np.array([[rec.pop(f"bbox_{c}_{a}") for a in "xyz"] for c in ("min", "max")])
@@ -1244,10 +1301,7 @@ class Catalog:
         """The one blob ``sql`` selects for a model (by its id), or :class:`DatabaseError`
         naming ``what`` it lacks."""
         model_id = self.resolve(id_or_name)
-        row = self.conn.execute(sql, (model_id,)).fetchone()
-        if row is None:
-            raise DatabaseError(f"model {model_id} has no {what}", path=self.path)
-        return bytes(row[0])
+        return bytes(self._one(sql, (model_id,), f"model {model_id} has no {what}")[0])
 
     def get_descriptors(self, id_or_name) -> dict:
         """A model's descriptor vectors.
@@ -1460,7 +1514,7 @@ class Catalog:
                 "status = ? WHERE id = ?",
                 (utc_now(), int(stored), int(skipped), int(failed), status, int(run_id)))
             if cur.rowcount == 0:
-                raise DatabaseError(f"no ingest run with id {run_id}", path=self.path)
+                raise self._missing(f"no ingest run with id {run_id}")
 
     def runs(self) -> list:
         """All ingest runs, oldest first, as dicts (``paths`` decoded)."""

@@ -88,14 +88,19 @@ def _texture_lines(path: Path):
 def _obj_needs_texture(path: Path) -> bool:
     """An OBJ with texture coordinates (``vt``) whose material libraries name no ``map_Kd``
     image, parsed as :func:`surfidx.io.read_mesh` parses them."""
-    from .obj import mtl_texture_name, obj_statements     # numpy and the mesh type: on use
+    from .obj import material_library, mtl_texture_name, obj_statements   # numpy: on use
 
     st = obj_statements(_texture_lines(path), keys=("vt", "mtllib"))
     if not st["vt"]:
         return False
     for lib in st["mtllib"]:
+        # a library outside the folder counts: the reader uses it with allow_outside_textures
+        # and says it skips it without; a name not ending in .mtl is never read
+        mtl, _ = material_library(path, lib, allow_outside=True)
+        if mtl is None:
+            continue
         try:
-            text = read_regular(path.parent / lib).decode("utf-8", "replace")
+            text = read_regular(mtl).decode("utf-8", "replace")
         except OSError:
             continue
         if mtl_texture_name(text) is not None:

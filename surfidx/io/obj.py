@@ -194,17 +194,49 @@ def _parse_obj_faces(f_lines, nv, nvt, path):
     return np.concatenate(tris), (np.concatenate(ttris) if ti is not None else None)
 
 
+def material_library(path: Path, lib: str, *, allow_outside: bool = False):
+    """The MTL file an OBJ's ``mtllib`` statement names, if it may be read.
+
+    Only a name ending in ``.mtl`` is a material library (``mtllib ../../etc/passwd`` is not
+    read), and only one inside the OBJ's folder (after resolving ``..`` and symlinks) unless
+    ``allow_outside``; it must be a regular file.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The OBJ file.
+    lib : str
+        The name after ``mtllib``.
+    allow_outside : bool
+
+    Returns
+    -------
+    (pathlib.Path or None, str)
+        The file, or None and why it is not read (for a warning naming the OBJ).
+    """
+    mtl = path.parent / lib
+    if not lib.lower().endswith(".mtl"):
+        return None, f"material library {lib} is not an .mtl file"
+    if not allow_outside and not mtl.resolve().is_relative_to(path.parent.resolve()):
+        return None, (f"material library {lib} lies outside the model's folder (allow it with "
+                      "allow_outside_textures=True, --allow-outside-textures)")
+    if not mtl.is_file():
+        return None, f"material library {lib} not found"
+    return mtl, ""
+
+
 def _texture_from_mtl(path: Path, mtllibs, allow_outside: bool = False):
     """The first ``map_Kd`` image of the OBJ's material libraries, or None.
 
-    A texture outside the OBJ's folder (after resolving ``..`` and symlinks) is used only with
-    ``allow_outside``; otherwise it is skipped with a warning, and the model has no texture.
+    A library or texture outside the OBJ's folder (after resolving ``..`` and symlinks) is
+    used only with ``allow_outside``; otherwise it is skipped with a warning, and the model has
+    no texture. A library that is not an ``.mtl`` file is skipped with a warning.
     """
     folder = path.parent.resolve()
     for lib in mtllibs:
-        mtl = path.parent / lib
-        if not mtl.is_file():
-            warnings.warn(f"{path}: material library {lib} not found; no texture", UserWarning)
+        mtl, why = material_library(path, lib, allow_outside=allow_outside)
+        if mtl is None:
+            warnings.warn(f"{path}: {why}; skipped, no texture from it", UserWarning)
             continue
         name = mtl_texture_name(read_text(mtl))
         if name is None:

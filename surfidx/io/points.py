@@ -21,8 +21,9 @@ class Points:
         self.faces = None
 
 
-def colors_of(c, what: str, path) -> np.ndarray:
-    """Colours given as 0..1 (when all values are at most 1) or 0..255, as uint8.
+def colors_of(c, what: str, path, where=None) -> np.ndarray:
+    """Colours given as 0..1 (when all values are at most 1) or 0..255, as uint8; a value
+    outside 0..255 is refused, not clipped.
 
     Parameters
     ----------
@@ -30,6 +31,9 @@ def colors_of(c, what: str, path) -> np.ndarray:
     what : str
         The format, named in the error.
     path : pathlib.Path
+    where : callable, optional
+        ``where(row) -> str``, the place of a row in the file named in the error
+        (``"line 7"``); ``"point {row}"`` by default.
 
     Returns
     -------
@@ -38,14 +42,47 @@ def colors_of(c, what: str, path) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        NaN or infinite colours.
+        NaN or infinite colours, or colours below 0 or above 255, naming the first.
     """
     c = np.asarray(c, np.float64)
     if not np.all(np.isfinite(c)):
         raise FileFormatError(f"{what} colours contain NaN or infinite values", path=path)
+    bad = ((c < 0) | (c > 255)).any(axis=1)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        place = where(row) if where is not None else f"point {row}"
+        raise FileFormatError(f"{what} colour {' '.join(f'{x:g}' for x in c[row])} on {place} is "
+                              f"outside 0..255 ({int(bad.sum()):,} points so); fix the colour "
+                              "columns", path=path)
     if c.size and c.max() <= 1.0:
         c = c * 255.0
     return np.clip(np.round(c), 0, 255).astype(np.uint8)
+
+
+def data_line(lines, row: int, first: int = 1) -> str:
+    """The line of a text point file that holds table row ``row`` of :func:`loadtxt` (comment
+    and blank lines skipped as it skips them), as ``"line N"``.
+
+    Parameters
+    ----------
+    lines : sequence of str
+        The lines given to :func:`loadtxt`.
+    row : int
+    first : int
+        The number of ``lines[0]`` in the file.
+
+    Returns
+    -------
+    str
+    """
+    seen = -1
+    for k, line in enumerate(lines):
+        text = line.split("#", 1)[0].split("//", 1)[0].strip()
+        if text:
+            seen += 1
+            if seen == row:
+                return f"line {k + first}"
+    return f"point {row}"
 
 
 def loadtxt(lines, path: Path, what: str) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import FileFormatError
 from ..geometry.mesh import TriangleMesh
-from .limits import check_coordinates, read_text
+from .limits import check_coordinates
 from .points import Points
 from .texture import image_array
 
@@ -45,6 +45,10 @@ def _mesh_parts(tm, path):
     colours, or a uniform base colour."""
     verts = np.asarray(tm.vertices, np.float64)
     faces = np.asarray(tm.faces, np.int64)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(verts)):
+        bad = int(faces.max()) if faces.max() >= len(verts) else int(faces.min())
+        raise FileFormatError(f"a triangle refers to vertex {bad}, the mesh has {len(verts)}",
+                              path=path)
     visual = tm.visual
     kind = getattr(visual, "kind", None)
     colors, uv, tex = None, None, None
@@ -89,7 +93,7 @@ def from_trimesh(obj, path=None, name=None):
     Raises
     ------
     FileFormatError
-        When it holds no triangles and no points.
+        When it holds no triangles and no points, or a triangle names a missing vertex.
     """
     import trimesh
 
@@ -136,14 +140,15 @@ def from_trimesh(obj, path=None, name=None):
                         vertex_colors=colors, name=name)
 
 
-def read_trimesh(path: Path, allow_outside: bool = False):
-    """STL, glTF or GLB through trimesh (:func:`from_trimesh`). A ``.gltf`` refers to its
-    buffers and images by name: only files in its own folder are read unless ``allow_outside``.
+def read_trimesh(path: Path, resolver=None):
+    """STL, glTF or GLB through trimesh (:func:`from_trimesh`).
 
     Parameters
     ----------
     path : pathlib.Path
-    allow_outside : bool
+    resolver : trimesh.resolvers.Resolver, optional
+        What reads the files a glTF names (:func:`~surfidx.io.gltf.read_gltf` passes one
+        bounded to the model's folder); trimesh's own by default.
 
     Returns
     -------
@@ -152,50 +157,24 @@ def read_trimesh(path: Path, allow_outside: bool = False):
     Raises
     ------
     FileFormatError
-        A file trimesh cannot read, a glTF naming files outside its folder.
+        A file trimesh cannot read.
     """
     try:
         import trimesh
     except ImportError as exc:                              # pragma: no cover - a dependency
         raise FileFormatError(f"reading {path.suffix} needs trimesh ({exc})", path=path) \
             from None
-    if path.suffix.lower() == ".gltf" and not allow_outside:
-        check_gltf_uris(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            loaded = trimesh.load(str(path), process=False, force=None)
+            loaded = trimesh.load(str(path), process=False, force=None, resolver=resolver)
     except MemoryError:
         raise
     except Exception as exc:  # trimesh raises many kinds on damaged input
         msg = str(exc).strip() or type(exc).__name__
         raise FileFormatError(f"not a readable {path.suffix.lstrip('.').upper()} file ({msg})",
                               path=path) from None
-    return from_trimesh(loaded, path, name=path.stem)
-
-
-def check_gltf_uris(path: Path) -> None:
-    """Refuse a ``.gltf`` whose buffers or images name files outside its folder (after
-    resolving ``..`` and symlinks); embedded ``data:`` URIs are fine.
-
-    Raises
-    ------
-    FileFormatError
-        Naming the first such URI, or when the file is not JSON.
-    """
-    import json
-
     try:
-        doc = json.loads(read_text(path))
-    except ValueError as exc:
-        raise FileFormatError(f"not a readable glTF file ({exc})", path=path) from None
-    folder = path.parent.resolve()
-    for key in ("buffers", "images"):
-        for item in doc.get(key, []) if isinstance(doc, dict) else []:
-            uri = item.get("uri") if isinstance(item, dict) else None
-            if isinstance(uri, str) and not uri.startswith("data:"):
-                target = (path.parent / uri).resolve()
-                if not target.is_relative_to(folder):
-                    raise FileFormatError(
-                        f"refers to {uri} outside the model's folder; allow it with "
-                        "allow_outside_textures=True (--allow-outside-textures)", path=path)
+        return from_trimesh(loaded, path, name=path.stem)
+    except OSError as exc:      # Pillow decodes a texture lazily, when trimesh copies it
+        raise FileFormatError(f"cannot read the texture image ({exc})", path=path) from None

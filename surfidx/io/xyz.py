@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import FileFormatError
 from .limits import check_coordinates, check_text_size, read_text
-from .points import Points, colors_of, loadtxt
+from .points import Points, colors_of, data_line, loadtxt
 
 
 def read_xyz(path: Path) -> Points:
@@ -29,16 +29,22 @@ def read_xyz(path: Path) -> Points:
     ------
     FileFormatError
         A file over :data:`~surfidx.io.limits.MAX_TEXT_BYTES`, malformed lines, a count that
-        differs from the points, an unexpected number of columns.
+        differs from the points, an unexpected number of columns, colours outside 0..255
+        (naming the line).
     """
     check_text_size(path)
     lines = read_text(path).splitlines()
     what = path.suffix.lower().lstrip(".").upper()
     count = None
+    first = 1
     if what == "PTS" and lines and re.fullmatch(r"\s*\d+\s*", lines[0]):
         count = int(lines[0])
-        lines = lines[1:]
+        lines, first = lines[1:], 2
     arr = loadtxt(lines, path, what)
+
+    def where(row):
+        return data_line(lines, row, first)
+
     if count is not None and count != len(arr):
         raise FileFormatError(f"PTS file announces {count:,} points and holds {len(arr):,}; "
                               "it may be truncated", path=path)
@@ -49,20 +55,20 @@ def read_xyz(path: Path) -> Points:
             raise FileFormatError(f"PTS lines hold {k} numbers; expected x y z, x y z "
                                   "intensity, x y z r g b or x y z intensity r g b", path=path)
         if k >= 6:
-            colors = colors_of(arr[:, k - 3:], what, path)
+            colors = colors_of(arr[:, k - 3:], what, path, where)
     else:
         if k not in (3, 6, 9):
             raise FileFormatError(f"XYZ lines hold {k} numbers; expected x y z, x y z r g b, "
                                   "x y z nx ny nz or x y z nx ny nz r g b", path=path)
         if k == 9:
-            normals, colors = arr[:, 3:6], colors_of(arr[:, 6:9], what, path)
+            normals, colors = arr[:, 3:6], colors_of(arr[:, 6:9], what, path, where)
         elif k == 6:
             extra = arr[:, 3:6]
             lengths = np.linalg.norm(extra, axis=1)
             if np.all(np.abs(lengths - 1.0) < 1e-3):
                 normals = extra
             elif np.all((extra >= 0) & (extra <= 255)):
-                colors = colors_of(extra, what, path)
+                colors = colors_of(extra, what, path, where)
             else:
                 raise FileFormatError("XYZ columns 4-6 are neither unit normals nor colours "
                                       "(0..1 or 0..255)", path=path)
