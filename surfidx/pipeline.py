@@ -451,15 +451,20 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
                           timings=timings, topology=model.summary() if model.repaired else None)
 
 
-def output_level(stream: bytes, *, path=None) -> int | None:
-    """The default output grid level of a stream: the level (at most the stream's) whose vertex
-    count ``10·4^L + 2`` is closest to the input's surfel count in its header (the lower level on
-    a tie), so a decoded model has about as many surfels as its input.
+def output_level(stream: bytes, *, bits_per_surfel: float | None = None,
+                 max_surfels: int | None = None, path=None) -> int | None:
+    """The grid level a stream decodes to by default at a rate: the stream's own, or the level a
+    prefix without detail at the finest levels supports (:func:`surfidx.codec.default_level`,
+    the one rule :func:`surfidx.codec.decode` follows).
 
     Parameters
     ----------
     stream : bytes
         A container file.
+    bits_per_surfel : float, optional
+        The rate it is decoded at (default: all of it).
+    max_surfels : int, optional
+        As for :func:`surfidx.codec.decode` (default its own).
     path : str, optional
         Name for messages.
 
@@ -467,18 +472,20 @@ def output_level(stream: bytes, *, path=None) -> int | None:
     -------
     int or None
         None when ``stream`` is not a container (a stand-in decoder's data).
+
+    Raises
+    ------
+    InputError
+        A rate below what the header needs, a grid larger than ``max_surfels``.
     """
     from .errors import BitstreamError
-    from .codec.container import unpack
-    from .geometry.icosphere import vertex_count
+    from .codec import MAX_SURFELS, default_level
 
     try:
-        header, _ = unpack(bytes(stream), path=path)
+        return default_level(bytes(stream), bits_per_surfel=bits_per_surfel, path=path,
+                             max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
     except BitstreamError:
         return None
-    n = max(int(header.n_surfels), 1)
-    levels = range(int(header.level) + 1)
-    return min(levels, key=lambda lv: (abs(vertex_count(lv) - n), lv))
 
 
 def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):

@@ -108,13 +108,16 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
 
 
 #: Help of the options shared by ``decode`` and ``get``.
-LEVEL_HELP = ("Grid level of the output (default: the level whose vertex count is closest to the "
-              "input's surfel count; lower: fewer surfels).")
+LEVEL_HELP = ("Grid level of the output (default: the stream's own, or the level a lower "
+              "rate's prefix supports; lower: fewer surfels, see --max-vertices).")
+MAX_VERTICES_HELP = ("Write at most N vertices (surfels): the decoded mesh simplified by "
+                     "quadric-error edge collapses, which keeps the shape better than a lower "
+                     "--level (N >= 4).")
 MAX_SURFELS_HELP = ("Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
                     "grid); --level gives fewer.")
 OUTPUT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
-               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
-               "stream, truncated to --bits-per-surfel).")
+               "mesh with --mesh), .obj or .glb (the grid mesh with normals and vertex colours), "
+               ".sfz (the stream, truncated to --bits-per-surfel).")
 
 
 def output_summary(out: dict) -> str:
@@ -142,12 +145,14 @@ def output_summary(out: dict) -> str:
                    "surfels for PLY).")
 @click.option("--level", type=int, default=None, help=LEVEL_HELP)
 @click.option("--max-surfels", type=click.IntRange(min=1), default=None, help=MAX_SURFELS_HELP)
+@click.option("--max-vertices", type=int, default=None, metavar="N", help=MAX_VERTICES_HELP)
 @click.option("--keep-virtual", is_flag=True,
               help="Keep the virtual patches topology repair added (the closed surface as "
                    "coded); by default they are dropped and handle cuts zipped again.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def decode(input, output, fmt, bits, mesh, level, max_surfels, keep_virtual, as_json):
+def decode(input, output, fmt, bits, mesh, level, max_surfels, max_vertices, keep_virtual,
+           as_json):
     """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
     lower rate as a .sfz."""
     from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
@@ -164,11 +169,13 @@ def decode(input, output, fmt, bits, mesh, level, max_surfels, keep_virtual, as_
         write_atomic(output, lambda tmp: tmp.write_bytes(cut))
         out["bytes"] = len(cut)
     else:
-        level = output_level(data, path=input) if level is None else level
         as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
         model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
                         max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
-                        keep_virtual=keep_virtual)
+                        keep_virtual=keep_virtual, max_vertices=max_vertices)
+        if level is None:
+            level = output_level(data, bits_per_surfel=bits, max_surfels=max_surfels,
+                                 path=input)
         write_model(model, output, format=fmt)
         out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
                     "faces": len(model.faces) if as_mesh else None})

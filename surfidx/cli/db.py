@@ -267,23 +267,28 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 @_db_option
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="File to write, its format from the suffix (or --format): .ply (surfels, or "
-                   "a mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz "
-                   "(the stored stream, truncated to --bits-per-surfel).")
+                   "a mesh with --mesh), .obj or .glb (the grid mesh with normals and vertex "
+                   "colours), .sfz (the stored stream, truncated to --bits-per-surfel).")
 @output_format_option
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Serve only this rate's prefix of the stream (default: all of it).")
 @click.option("--level", type=int, default=None,
-              help="Grid level of the output (default: the level whose vertex count is closest "
-                   "to the input's surfel count; lower: fewer surfels).")
+              help="Grid level of the output (default: the stream's own, or the level a lower "
+                   "rate's prefix supports; lower: fewer surfels, see --max-vertices).")
 @click.option("--mesh/--surfels", "mesh", default=None,
               help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
                    "surfels for PLY).")
 @click.option("--max-surfels", type=click.IntRange(min=1), default=None,
               help="Refuse to decode to more surfels than this (default 2,621,442, the level-9 "
                    "grid); --level gives fewer.")
+@click.option("--max-vertices", type=int, default=None, metavar="N",
+              help="Write at most N vertices (surfels): the decoded mesh simplified by "
+                   "quadric-error edge collapses, which keeps the shape better than a lower "
+                   "--level (N >= 4).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @command_errors
-def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, as_json):
+def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices,
+        as_json):
     """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
     .sfz, optionally at a lower rate."""
     from .codec import output_summary
@@ -291,7 +296,7 @@ def get(model, db_path, output, fmt, bits_per_surfel, level, mesh, max_surfels, 
     with _open(db_path) as db:
         out = db.export(parse_model_ref(model), output, format=fmt,
                         bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
-                        max_surfels=max_surfels,
+                        max_surfels=max_surfels, max_vertices=max_vertices,
                         decoder=None if (fmt or Path(output).suffix).lower().endswith("sfz")
                         else _decoder())
     if as_json:
