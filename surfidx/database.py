@@ -372,8 +372,8 @@ class Database(Catalog):
         bits_per_surfel : float, optional
             Serve the stream truncated to this rate (default: all of it).
         level : int, optional
-            Grid level of the output; default the stream's own, or the level a lower rate's
-            prefix supports (:func:`surfidx.codec.default_level`).
+            Grid level of the output; default the stream's own, at any rate
+            (:func:`surfidx.pipeline.output_level`).
         mesh : bool
             A :class:`~surfidx.TriangleMesh` on the grid instead of surfels.
         max_surfels : int, optional
@@ -389,9 +389,13 @@ class Database(Catalog):
         SurfelSet or TriangleMesh
             Named after the model.
         """
+        from .pipeline import output_level
+
         mid = self.resolve(model)
         stream = self.get_stream(mid)
         name = self.conn.execute("SELECT name FROM models WHERE id = ?", (mid,)).fetchone()[0]
+        if level is None:
+            level = output_level(stream)
         options = {} if level is None else {"level": level}
         if mesh:
             options["mesh"] = True
@@ -447,13 +451,12 @@ class Database(Catalog):
             return out
         from .pipeline import output_level
 
+        if level is None:
+            level = output_level(self.get_stream(mid))
         as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
         decoded = self.get(mid, bits_per_surfel=bits_per_surfel, level=level, mesh=as_mesh,
                            max_surfels=max_surfels, max_vertices=max_vertices,
                            decoder=decoder)
-        if level is None:
-            level = output_level(self.get_stream(mid), bits_per_surfel=bits_per_surfel,
-                                 max_surfels=max_surfels)
         write_model(decoded, path, format=fmt, text=text)
         n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
         out.update({"surfels": int(n), "level": level})

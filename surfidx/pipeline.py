@@ -451,20 +451,14 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
                           timings=timings, topology=model.summary() if model.repaired else None)
 
 
-def output_level(stream: bytes, *, bits_per_surfel: float | None = None,
-                 max_surfels: int | None = None, path=None) -> int | None:
-    """The grid level a stream decodes to by default at a rate: the stream's own, or the level a
-    prefix without detail at the finest levels supports (:func:`surfidx.codec.default_level`,
-    the one rule :func:`surfidx.codec.decode` follows).
+def output_level(stream: bytes, *, path=None) -> int | None:
+    """The grid level a stream decodes to by default, at any rate: the stream's own (of a
+    multi-part file, its deepest part's), as :func:`surfidx.codec.decode` does.
 
     Parameters
     ----------
     stream : bytes
         A container file.
-    bits_per_surfel : float, optional
-        The rate it is decoded at (default: all of it).
-    max_surfels : int, optional
-        As for :func:`surfidx.codec.decode` (default its own).
     path : str, optional
         Name for messages.
 
@@ -472,18 +466,13 @@ def output_level(stream: bytes, *, bits_per_surfel: float | None = None,
     -------
     int or None
         None when ``stream`` is not a container (a stand-in decoder's data).
-
-    Raises
-    ------
-    InputError
-        A rate below what the header needs, a grid larger than ``max_surfels``.
     """
     from .errors import BitstreamError
-    from .codec import MAX_SURFELS, default_level
+    from .codec.container import unpack, unpack_parts
 
     try:
-        return default_level(bytes(stream), bits_per_surfel=bits_per_surfel, path=path,
-                             max_surfels=MAX_SURFELS if max_surfels is None else max_surfels)
+        return max(int(unpack(b, path=path)[0].level)
+                   for b in unpack_parts(bytes(stream), path=path))
     except BitstreamError:
         return None
 

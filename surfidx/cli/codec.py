@@ -108,8 +108,8 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
 
 
 #: Help of the options shared by ``decode`` and ``get``.
-LEVEL_HELP = ("Grid level of the output (default: the stream's own, or the level a lower "
-              "rate's prefix supports; lower: fewer surfels, see --max-vertices).")
+LEVEL_HELP = ("Grid level of the output (default: the stream's own, at any rate; lower: fewer "
+              "surfels, but --max-vertices keeps the shape better).")
 MAX_VERTICES_HELP = ("Write at most N vertices (surfels): the decoded mesh simplified by "
                      "quadric-error edge collapses, which keeps the shape better than a lower "
                      "--level (N >= 4).")
@@ -169,13 +169,11 @@ def decode(input, output, fmt, bits, mesh, level, max_surfels, max_vertices, kee
         write_atomic(output, lambda tmp: tmp.write_bytes(cut))
         out["bytes"] = len(cut)
     else:
+        level = output_level(data, path=input) if level is None else level
         as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
         model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
                         max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
                         keep_virtual=keep_virtual, max_vertices=max_vertices)
-        if level is None:
-            level = output_level(data, bits_per_surfel=bits, max_surfels=max_surfels,
-                                 path=input)
         write_model(model, output, format=fmt)
         out.update({"surfels": len(model.vertices) if as_mesh else len(model), "level": level,
                     "faces": len(model.faces) if as_mesh else None})

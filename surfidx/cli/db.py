@@ -273,8 +273,8 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 @click.option("--bits-per-surfel", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Serve only this rate's prefix of the stream (default: all of it).")
 @click.option("--level", type=int, default=None,
-              help="Grid level of the output (default: the stream's own, or the level a lower "
-                   "rate's prefix supports; lower: fewer surfels, see --max-vertices).")
+              help="Grid level of the output (default: the stream's own, at any rate; lower: "
+                   "fewer surfels, but --max-vertices keeps the shape better).")
 @click.option("--mesh/--surfels", "mesh", default=None,
               help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ and GLB, "
                    "surfels for PLY).")

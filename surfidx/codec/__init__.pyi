@@ -8,7 +8,6 @@ from .encoder import (Encoder as Encoder, encode as encode, decode as decode,
                       MAX_EXTENT as MAX_EXTENT, MAX_COLOR_WEIGHT as MAX_COLOR_WEIGHT,
                       MAX_COEFFICIENT as MAX_COEFFICIENT, check_header as check_header,
                       PartsEncoder as PartsEncoder, encode_parts as encode_parts,
-                      decode_parts as decode_parts, stream_summary as stream_summary,
-                      default_level as default_level, UNCODED_LEVELS as UNCODED_LEVELS)
+                      decode_parts as decode_parts, stream_summary as stream_summary)
 from .options import CodecOptions as CodecOptions
 from .encoder import Prepared as Prepared, prepare as prepare, code as code

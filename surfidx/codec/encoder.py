@@ -60,8 +60,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
-           "encode_parts", "decode_parts", "stream_summary", "default_level",
-           "UNCODED_LEVELS"]
+           "encode_parts", "decode_parts", "stream_summary"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 from .options import COLOR_WEIGHT, MAX_COLOR_WEIGHT, TANGENT_WEIGHT  # noqa: E402
@@ -72,12 +71,6 @@ MAX_SURFELS = vertex_count(MAX_LEVEL)
 """Default of :func:`decode`'s ``max_surfels``: the level-9 grid (2,621,442 surfels), the finest
 the encoder uses. A stream that would decode to more is refused before decoding; decode it at a
 coarser ``level``, or raise the limit."""
-
-UNCODED_LEVELS = 1
-"""How many of a stream's finest grid levels may carry no coded detail while the default output
-level (:func:`default_level`) stays the stream's own: one level interpolated by the wavelets from
-the coarser ones follows the surface better than the coarser grid alone, two or more no longer
-do (``benchmarks/output_level.py`` measures the rule)."""
 
 MAX_EXTENT = 1e6
 """Decoded values lie within this many weighted units of the KLT mean (for geometry:
@@ -794,18 +787,9 @@ def check_header(header, *, path=None):
     return zh, klt, field
 
 
-def _supported_level(coeffs: np.ndarray, level_of: np.ndarray, level: int) -> int:
-    """The default output level of decoded wavelet coefficients (:func:`default_level`)."""
-    coded = np.any(coeffs != 0, axis=1)
-    deepest = int(level_of[coded].max()) if coded.any() else 0
-    return level if deepest >= level - UNCODED_LEVELS else deepest
-
-
-def _decode_values(data, header, stream, bits_per_surfel, path, checked, *,
-                   with_level: bool = False):
+def _decode_values(data, header, stream, bits_per_surfel, path, checked) -> np.ndarray:
     """The grid values of an unpacked container whose header ``check_header`` passed (see
-    :func:`decode_grid`); with ``with_level``, also the output level the decoded prefix
-    supports (:func:`default_level`)."""
+    :func:`decode_grid`)."""
     if bits_per_surfel is not None:
         keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
         if keep < 4:
@@ -839,58 +823,7 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked, *,
         raise BitstreamError(f"decoding produced values {float(spread.max()):.3g} weighted units "
                              f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
                              path=path)
-    if with_level:
-        return values, _supported_level(w, ico.level_of, header.level)
     return values
-
-
-def default_level(data: bytes, *, bits_per_surfel: float | None = None,
-                  max_surfels: int = MAX_SURFELS, path=None) -> int:
-    """The grid level :func:`decode` returns by default: the stream's own, unless the decoded
-    prefix (a lower rate, a truncated file) carries no detail at its finest
-    :data:`UNCODED_LEVELS` + 1 levels; then the deepest level with a significant coefficient.
-
-    Decoding a prefix leaves the finer levels' coefficients zero, so their vertices are the
-    wavelets' interpolation of the coarser surface: one such level still follows the surface
-    better than the coarser grid alone, more of them add vertices that stray from it.
-
-    Parameters
-    ----------
-    data : bytes
-        A ``.sfz`` container.
-    bits_per_surfel : float, optional
-        The rate it will be decoded at (default: all of it).
-    max_surfels : int
-        As for :func:`decode`.
-    path : str, optional
-        File name for messages.
-
-    Returns
-    -------
-    int
-        Of a multi-part file, the deepest over its parts (each part decodes at its own).
-
-    Raises
-    ------
-    BitstreamError, InputError
-        As :func:`decode`.
-    """
-    data = bytes(data)
-    blobs = container.unpack_parts(data, path=path)
-    if bits_per_surfel is not None and len(blobs) > 1:
-        total = sum(container.unpack(b, path=path)[0].n_surfels for b in blobs)
-        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
-        blobs = container.unpack_parts(data, path=path)
-        bits_per_surfel = None
-    limit = check_positive_int(max_surfels, "max_surfels")
-    levels = []
-    for blob in blobs:
-        header, stream = container.unpack(blob, path=path)
-        checked = check_header(header, path=path)
-        _check_surfels(header.level, header.level, limit, path)
-        levels.append(_decode_values(blob, header, stream, bits_per_surfel, path, checked,
-                                     with_level=True)[1])
-    return max(levels)
 
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
@@ -909,9 +842,10 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
     level : int, optional
         Return the decoded surface on the grid of this level (0 … the stream's level; default:
-        the stream's level, or for a prefix without detail at the finest levels the level it
-        supports, :func:`default_level`, part by part). Coarser grids are prefixes of finer ones, so this keeps the first
-        ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
+        the stream's level, at any rate: where a prefix left the finest levels' coefficients
+        zero, the wavelets interpolate them from the coarser surface, which follows a smooth
+        surface far better than the coarser grid and costs little elsewhere). Coarser grids
+        are prefixes of finer ones, so this keeps the first ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
         grid is coarser than ``level`` is decoded at its own.
     max_surfels : int
@@ -1019,7 +953,6 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
         raise InputError(f"level must be an integer from 0 to the stream's grid level "
                          f"{max(h.level for h, _ in unpacked)}, got {level!r}")
     levels = [h.level if level is None else min(int(level), h.level) for h, _ in unpacked]
-    # the memory bound holds for the stream's levels; the default may then decode coarser
     limit = check_positive_int(max_surfels, "max_surfels")
     if len(blobs) == 1:
         _check_surfels(levels[0], unpacked[0][0].level, limit, path)
@@ -1031,10 +964,7 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
     name = Path(path).stem if path else None
     out = []
     for blob, (header, stream), chk, lv in zip(blobs, unpacked, checked, levels):
-        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk,
-                                with_level=level is None)
-        if level is None:
-            values, lv = values
+        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk)
         out.append(_model(values, header, lv, mesh=mesh, keep_virtual=keep_virtual, name=name,
                           path=path))
     return out
