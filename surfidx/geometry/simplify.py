@@ -23,6 +23,8 @@ MIN_VERTICES = 4
 #: later ones collapse faster and so reach a budget the first stops short of.
 AGGRESSIVENESS = (3.0, 5.0, 7.0, 10.0)
 
+_TRIES = 4  # per aggressiveness, each asking for fewer faces by what the last one overshot
+
 
 def check_max_vertices(max_vertices) -> int:
     """``max_vertices`` as an int, checked before anything is decoded or simplified.
@@ -55,26 +57,24 @@ def _collapse(vertices, faces, max_vertices: int):
     """Simplified ``(vertices, faces)`` with at most ``max_vertices`` used vertices."""
     import fast_simplification
 
-    v, f = vertices, faces
-    # a closed genus-0 mesh has 2V - 4 faces; ask in proportion for any other
-    target = max(int(len(faces) * max_vertices / len(vertices)), 4)
+    n = len(vertices)
     for agg in AGGRESSIVENESS:
-        v, f = fast_simplification.simplify(vertices, faces.astype(np.int32),
-                                            target_count=target, agg=agg,
-                                            preserve_border=True)
-        v, f = _compact(np.asarray(v, np.float64), np.asarray(f, np.int64))
-        if len(v) <= max_vertices:
-            return v, f
-    for _ in range(8):                # the border kept: collapse the rest further
-        target = max(int(target * max_vertices / len(v)) - 2, 4)
-        v, f = fast_simplification.simplify(vertices, faces.astype(np.int32),
-                                            target_count=target, agg=AGGRESSIVENESS[-1])
-        v, f = _compact(np.asarray(v, np.float64), np.asarray(f, np.int64))
-        if len(v) <= max_vertices:
-            return v, f
-    raise InputError(f"the mesh of {len(vertices):,} vertices could not be simplified to "
-                     f"{max_vertices:,} vertices (it stops at {len(v):,}); ask for more "
-                     "vertices")
+        # an edge collapse removes one vertex and two faces (one on a border): ask for the
+        # faces of a mesh with max_vertices vertices, fewer while a try leaves too many
+        target = len(faces) - 2 * (n - max_vertices)
+        for _ in range(_TRIES):
+            v, f = fast_simplification.simplify(vertices, faces.astype(np.int32),
+                                                target_count=max(target, 4), agg=agg,
+                                                preserve_border=True)
+            v, f = _compact(np.asarray(v, np.float64), np.asarray(f, np.int64))
+            if len(v) <= max_vertices:
+                return v, f
+            if target <= 4:
+                break
+            target -= 2 * (len(v) - max_vertices)
+    raise InputError(f"the mesh of {n:,} vertices could not be simplified to "
+                     f"{max_vertices:,} vertices (it stops at {len(v):,}, its open borders "
+                     "kept); ask for more vertices")
 
 
 def simplify_mesh(mesh: TriangleMesh, max_vertices: int) -> TriangleMesh:
@@ -89,15 +89,15 @@ def simplify_mesh(mesh: TriangleMesh, max_vertices: int) -> TriangleMesh:
     Returns
     -------
     TriangleMesh
-        ``mesh`` itself when it already uses no more vertices; else the mesh simplified by
-        quadric-error edge collapses (open borders kept while the budget allows), every
-        vertex used by a face, colours from the nearest vertex of ``mesh``, named as it.
+        ``mesh`` itself when it has no more vertices; else the mesh simplified by
+        quadric-error edge collapses (open borders kept), every vertex used by a face,
+        colours from the nearest vertex of ``mesh``, named as it.
 
     Raises
     ------
     InputError
         ``max_vertices`` not an integer of at least :data:`MIN_VERTICES`, or a mesh that
-        cannot be collapsed that far.
+        cannot be collapsed that far (its borders and pieces need more vertices).
     """
     limit = check_max_vertices(max_vertices)
     if not isinstance(mesh, TriangleMesh):
