@@ -363,7 +363,8 @@ class Database(Catalog):
                         path=f"model {mid}")
 
     def get(self, model, *, bits_per_surfel: float | None = None, level: int | None = None,
-            mesh: bool = False, max_surfels: int | None = None, decoder=None):
+            mesh: bool = False, max_surfels: int | None = None,
+            max_vertices: int | None = None, decoder=None):
         """Decode a stored model.
 
         Parameters
@@ -373,12 +374,15 @@ class Database(Catalog):
         bits_per_surfel : float, optional
             Serve the stream truncated to this rate (default: all of it).
         level : int, optional
-            Grid level of the output; default the level whose vertex count is closest to the
-            stored input's surfel count (:func:`surfidx.pipeline.output_level`).
+            Grid level of the output; default the stream's own, at any rate
+            (:func:`surfidx.pipeline.output_level`).
         mesh : bool
             A :class:`~surfidx.TriangleMesh` on the grid instead of surfels.
         max_surfels : int, optional
             As for :func:`surfidx.codec.decode`.
+        max_vertices : int, optional
+            At most this many vertices (surfels): the decoded mesh simplified
+            (:func:`surfidx.codec.decode`).
         decoder : callable, optional
             Instead of :func:`surfidx.codec.decode`.
 
@@ -400,6 +404,8 @@ class Database(Catalog):
             options["mesh"] = True
         if max_surfels is not None:
             options["max_surfels"] = max_surfels
+        if max_vertices is not None:
+            options["max_vertices"] = max_vertices
         if decoder is None:
             from .codec import decode as decoder
 
@@ -410,8 +416,8 @@ class Database(Catalog):
 
     def export(self, model, path, *, format: str | None = None,
                bits_per_surfel: float | None = None, level: int | None = None,
-               mesh: bool | None = None, max_surfels: int | None = None, text: bool = False,
-               decoder=None) -> dict:
+               mesh: bool | None = None, max_surfels: int | None = None,
+               max_vertices: int | None = None, text: bool = False, decoder=None) -> dict:
         """Write a stored model to a file: PLY, OBJ, GLB (decoded) or SFZ (the stream).
 
         Parameters
@@ -420,7 +426,7 @@ class Database(Catalog):
         path : str or os.PathLike
         format : {"ply", "obj", "glb", "sfz"}, optional
             Default from the suffix of ``path``; another suffix is an error.
-        bits_per_surfel, level, max_surfels, decoder
+        bits_per_surfel, level, max_surfels, max_vertices, decoder
             As for :meth:`get` (``sfz``: the stream truncated to the rate).
         mesh : bool, optional
             Decode to the grid mesh (default for OBJ and GLB) or to surfels (default for PLY).
@@ -431,7 +437,8 @@ class Database(Catalog):
         -------
         dict
             ``id``, ``name``, ``output``, ``format``, ``bytes`` (sfz) or ``surfels``
-            (and ``faces`` for a mesh), ``level``, ``bits_per_surfel``.
+            (and ``faces`` for a mesh), ``level`` (the grid level decoded, before any
+            simplification to ``max_vertices``), ``bits_per_surfel``.
         """
         from .io import output_format, write_atomic, write_model
 
@@ -451,7 +458,8 @@ class Database(Catalog):
             level = output_level(self.get_stream(mid))
         as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
         decoded = self.get(mid, bits_per_surfel=bits_per_surfel, level=level, mesh=as_mesh,
-                           max_surfels=max_surfels, decoder=decoder)
+                           max_surfels=max_surfels, max_vertices=max_vertices,
+                           decoder=decoder)
         write_model(decoded, path, format=fmt, text=text)
         n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
         out.update({"surfels": int(n), "level": level})

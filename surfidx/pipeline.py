@@ -458,9 +458,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
 
 
 def output_level(stream: bytes, *, path=None) -> int | None:
-    """The default output grid level of a stream: the level (at most the stream's) whose vertex
-    count ``10·4^L + 2`` is closest to the input's surfel count in its header (the lower level on
-    a tie), so a decoded model has about as many surfels as its input.
+    """The grid level a stream decodes to by default, at any rate: the stream's own (of a
+    multi-part file, its deepest part's), as :func:`surfidx.codec.decode` does.
 
     Parameters
     ----------
@@ -475,16 +474,13 @@ def output_level(stream: bytes, *, path=None) -> int | None:
         None when ``stream`` is not a container (a stand-in decoder's data).
     """
     from .errors import BitstreamError
-    from .codec.container import unpack
-    from .geometry.icosphere import vertex_count
+    from .codec.container import unpack, unpack_parts
 
     try:
-        header, _ = unpack(bytes(stream), path=path)
+        return max(int(unpack(b, path=path)[0].level)
+                   for b in unpack_parts(bytes(stream), path=path))
     except BitstreamError:
         return None
-    n = max(int(header.n_surfels), 1)
-    levels = range(int(header.level) + 1)
-    return min(levels, key=lambda lv: (abs(vertex_count(lv) - n), lv))
 
 
 def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):

@@ -68,10 +68,10 @@ def test_get_and_export(real, tmp_path):
     root, path = real
     with surfidx.Database.open(path, readonly=True) as db:
         s = db.get("ball")
-        assert s.name == "ball" and len(s) == 162            # level 2: 162 grid vertices
+        assert s.name == "ball" and len(s) == 2562     # the stream's level 4: 2562 grid vertices
         assert len(db.get(1, level=1)) == 42
         mesh = db.get("ball", mesh=True)
-        assert len(mesh.faces) == 320
+        assert len(mesh.faces) == 5120
         # both convert to trimesh: the surfels to a point cloud, the mesh to a mesh
         cloud, tm = s.to_trimesh(), mesh.to_trimesh()
         assert isinstance(cloud, trimesh.PointCloud) and np.array_equal(cloud.vertices, s.positions)
@@ -83,11 +83,14 @@ def test_get_and_export(real, tmp_path):
         cut = db.get_sfz("ball", bits_per_surfel=7.5)      # the header takes 149 bytes
         assert len(cut) <= -(-7.5 * 162 // 8) < len(full)         # ceil(B·n/8) bytes
         for fmt in ("ply", "obj", "glb"):
-            out = db.export("ball", tmp_path / f"b.{fmt}")
-            assert out["format"] == fmt and out["surfels"] == 162
+            out = db.export("ball", tmp_path / f"b.{fmt}", level=2)
+            assert out["format"] == fmt and out["surfels"] == 162 and out["level"] == 2
+            if fmt == "ply":                         # surfels: points, no face element
+                assert len(trimesh.load(tmp_path / "b.ply", process=False).vertices) == 162
+                continue
             loaded = trimesh.load(tmp_path / f"b.{fmt}", force="mesh", process=False)
             assert len(loaded.vertices) == 162
-            assert len(loaded.faces) == 320          # grid surfels carry the grid faces
+            assert len(loaded.faces) == 320
         out = db.export("ball", tmp_path / "b.sfz", bits_per_surfel=7.5)
         assert out["bytes"] == len(cut) == (tmp_path / "b.sfz").stat().st_size
         assert db.list_models(tag="demo")[0]["tags"] == ["demo"]
@@ -98,12 +101,12 @@ def test_get_and_export(real, tmp_path):
     # the CLI: decode the exported stream, get in every format, --json, errors as JSON
     r = invoke(["decode", tmp_path / "b.sfz", "-o", tmp_path / "d.glb", "--json"], obj=None)
     assert r.exit_code == 0, r.output
-    assert json.loads(r.stdout)["faces"] == 320
+    assert json.loads(r.stdout)["faces"] == 5120
     r = invoke(["decode", tmp_path / "b.sfz", "-o", tmp_path / "c.sfz",
                 "--bits-per-surfel", 7.4], obj=None)
     assert r.exit_code == 0 and "bytes of stream at 7.4 bits/surfel" in r.stdout, r.output
     r = invoke(["get", "ball", "--db", path, "-o", tmp_path / "g.obj"], obj=None)
-    assert r.exit_code == 0 and "mesh of 162 vertices and 320 faces (OBJ, grid level 2)" \
+    assert r.exit_code == 0 and "mesh of 2,562 vertices and 5,120 faces (OBJ, grid level 4)" \
         in r.stdout
     r = invoke(["get", "ball", "--db", path, "-o", tmp_path / "g.x", "--format", "sfz",
                 "--json"], obj=None)

@@ -127,8 +127,8 @@ def output_summary(out: dict) -> str:
               help="Keep the virtual patches topology repair added (the closed surface as "
                    "coded); by default they are dropped and handle cuts zipped again.")
 @common_options
-def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, text, keep_virtual, *,
-           console):
+def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices, text,
+           keep_virtual, *, console):
     """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
     lower rate as a .sfz."""
     from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
@@ -156,7 +156,7 @@ def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, text, 
             report(progress, "decode", 0, 1)
             model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
                             max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
-                            keep_virtual=keep_virtual)
+                            keep_virtual=keep_virtual, max_vertices=max_vertices)
             report(progress, "write", 0, 1)
             write_model(model, output, format=fmt, text=text)
             out.update({"surfels": len(model.vertices) if as_mesh else len(model),

@@ -302,15 +302,19 @@ def ascii_option(func):
 
 #: What ``decode`` and ``get`` write, by the output's suffix.
 EXPORT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
-               "mesh with --mesh), .obj or .glb (the grid mesh with vertex colours), .sfz (the "
+               "mesh with --mesh), .obj or .glb (the grid mesh with normals and vertex colours), .sfz (the "
                "stream, truncated to --bits-per-surfel).")
 
 
 def export_options(func):
     """The options of the commands that decode a stream to a file (``decode``, ``get``):
     ``-o/--output``, ``--format``, ``--bits-per-surfel`` (as ``bits_per_surfel``), ``--level``,
-    ``--mesh/--surfels``, ``--max-surfels`` and ``--ascii`` (as ``text``)."""
+    ``--mesh/--surfels``, ``--max-surfels``, ``--max-vertices`` and ``--ascii`` (as ``text``)."""
     func = ascii_option(func)
+    func = click.option("--max-vertices", type=int, default=None, metavar="N",
+                        help="Write at most N vertices (surfels): the decoded mesh simplified "
+                             "by quadric-error edge collapses, which keeps the shape better "
+                             "than a lower --level (N >= 4).")(func)
     func = click.option("--max-surfels", type=click.IntRange(min=1), default=None,
                         help="Refuse to decode to more surfels than this (default 2,621,442, "
                              "the level-9 grid); --level gives fewer.")(func)
@@ -318,9 +322,9 @@ def export_options(func):
                         help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ "
                              "and GLB, surfels for PLY).")(func)
     func = click.option("--level", type=int, default=None,
-                        help="Grid level of the output (default: the level whose vertex count "
-                             "is closest to the input's surfel count; lower: fewer "
-                             "surfels).")(func)
+                        help="Grid level of the output (default: the stream's own, at any "
+                             "rate; lower: fewer surfels, but --max-vertices keeps the shape "
+                             "better).")(func)
     func = rate_option(func, help="Decode (or keep, for .sfz) only the prefix of the stream "
                                   "that fits this rate (default: all of it).")
     func = output_format_option(func)

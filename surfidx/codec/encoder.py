@@ -866,7 +866,7 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
            level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
-           keep_virtual: bool = False):
+           keep_virtual: bool = False, max_vertices: int | None = None):
     """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
 
     Parameters
@@ -880,8 +880,10 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
     level : int, optional
         Return the decoded surface on the grid of this level (0 … the stream's level; default:
-        the stream's level). Coarser grids are prefixes of finer ones, so this keeps the first
-        ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
+        the stream's level, at any rate: where a prefix left the finest levels' coefficients
+        zero, the wavelets interpolate them from the coarser surface, which follows a smooth
+        surface far better than the coarser grid and costs little elsewhere). Coarser grids
+        are prefixes of finer ones, so this keeps the first ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
         grid is coarser than ``level`` is decoded at its own. The stream is read down to
         :func:`read_level` only, so time and memory follow the level asked; a stream whose
@@ -898,6 +900,11 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         surfels keep the grid vertices of the kept faces (with the faces). At a coarser
         ``level`` the topology stays as long as the virtual regions stay apart on that grid
         (on the smallest grids, a few dozen vertices, nearby holes merge).
+    max_vertices : int, optional
+        Return at most this many vertices (surfels), all parts together: the decoded mesh
+        simplified by quadric-error edge collapses (:func:`surfidx.geometry.simplify_mesh`),
+        which keeps the shape far better than a coarser ``level``; surfels are then the
+        simplified mesh's vertices with its normals, without faces.
 
     Returns
     -------
@@ -908,15 +915,36 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     Raises
     ------
     InputError
-        A level outside 0 … the stream's level, or more than ``max_surfels`` surfels.
+        A level outside 0 … the stream's level, more than ``max_surfels`` surfels, or a
+        ``max_vertices`` that is not an integer of at least 4.
     BitstreamError
         See :func:`decode_grid`; a damaged virtual-region mask or region table.
     """
+    if max_vertices is not None:
+        from ..geometry.simplify import check_max_vertices
+
+        check_max_vertices(max_vertices)
     parts = decode_parts(data, bits_per_surfel=bits_per_surfel, mesh=mesh, level=level,
                          max_surfels=max_surfels, path=path, keep_virtual=keep_virtual)
-    if len(parts) == 1:
-        return parts[0]
-    return _concatenate(parts, mesh=mesh, name=Path(path).stem if path else None)
+    out = parts[0] if len(parts) == 1 else _concatenate(
+        parts, mesh=mesh, name=Path(path).stem if path else None)
+    if max_vertices is None or len(getattr(out, "vertices", out)) <= max_vertices:
+        return out
+    return _simplified(out, max_vertices)
+
+
+def _simplified(model, max_vertices: int):
+    """A decoded mesh, or surfels with the grid's faces, simplified to ``max_vertices``
+    vertices (surfels: the simplified mesh's vertices, normals and cover radii, no faces)."""
+    from ..geometry.mesh import TriangleMesh
+    from ..geometry.simplify import simplify_mesh
+
+    if isinstance(model, TriangleMesh):
+        return simplify_mesh(model, max_vertices)
+    m = simplify_mesh(TriangleMesh(model.positions, model.faces, vertex_colors=model.colors,
+                                   name=model.name), max_vertices)
+    s = m.to_surfels(max_edge_ratio=None)
+    return SurfelSet(s.positions, s.normals, s.radii, s.colors, name=s.name)
 
 
 def _concatenate(parts, *, mesh, name):

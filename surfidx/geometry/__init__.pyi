@@ -2,6 +2,8 @@
 
 from .surfels import SurfelSet as SurfelSet
 from .mesh import TriangleMesh as TriangleMesh
+from .simplify import (simplify_mesh as simplify_mesh,
+                       check_max_vertices as check_max_vertices)
 from .pointcloud import points_to_surfels as points_to_surfels
 from .graph import (SphereOfInfluenceGraph as SphereOfInfluenceGraph,
                     sphere_of_influence_graph as sphere_of_influence_graph)

@@ -180,6 +180,24 @@ class TriangleMesh:
         """(m,) float64 triangle areas."""
         return 0.5 * np.linalg.norm(self.face_normals(unit=False), axis=1)
 
+    def vertex_normals(self) -> np.ndarray:
+        """Unit vertex normals: the area-weighted sum of the incident faces' normals, pointing
+        outward on a closed mesh (whatever its winding), as the surfels of :meth:`to_surfels`.
+
+        A vertex whose incident normals cancel takes one incident face's normal, and a vertex
+        no face uses ``(0, 0, 1)``, so every row is a unit vector (what glTF's ``NORMAL`` and
+        OBJ's ``vn`` need, degenerate triangles of a coarse decoded grid included).
+
+        Returns
+        -------
+        (n, 3) float64
+        """
+        if not len(self.faces):
+            out = np.zeros((len(self.vertices), 3))
+            out[:, 2] = 1.0
+            return out
+        return self._vertex_normals(self.face_areas())
+
     def signed_volume(self) -> float:
         """Signed enclosed volume (positive when faces wind counter-clockwise seen from outside)."""
         v = self.vertices[self.faces]

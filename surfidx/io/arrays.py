@@ -17,9 +17,10 @@ def model_arrays(model):
     Returns
     -------
     positions : (n, 3) float64
-    normals : (n, 3) float64 or None
-        None for a mesh (a coarse decoded grid may hold degenerate triangles: it is written as
-        it is, normals left to the reader).
+    normals : (n, 3) float64
+        Unit vectors: a surfel set's own, a mesh's area-weighted vertex normals
+        (:meth:`~surfidx.TriangleMesh.vertex_normals`, unit even where a coarse decoded grid
+        has degenerate triangles).
     colors : (n, 3) uint8 or None
     faces : (m, 3) int64 or None
 
@@ -29,7 +30,7 @@ def model_arrays(model):
         Another type.
     """
     if isinstance(model, TriangleMesh):
-        return model.vertices, None, model.vertex_colors, model.faces
+        return model.vertices, model.vertex_normals(), model.vertex_colors, model.faces
     if isinstance(model, SurfelSet):
         return model.positions, model.normals, model.colors, model.faces
     raise InputError(f"write_model needs a SurfelSet or TriangleMesh, got "

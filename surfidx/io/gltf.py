@@ -446,16 +446,16 @@ def _glb_bytes(positions, normals, colors, faces) -> bytes:
     if colors is not None:
         colors = np.hstack([colors, np.full((len(colors), 1), 255, np.uint8)])
     if faces is not None and len(faces):
-        tm = trimesh.Trimesh(positions, faces, vertex_normals=normals, vertex_colors=colors,
-                             process=False)
-    else:
-        tm = trimesh.PointCloud(positions, colors=colors)
-    return tm.export(file_type="glb")
+        tm = trimesh.Trimesh(positions, faces, vertex_colors=colors, process=False)
+        tm.vertex_normals = normals    # ours, set last: the constructor's caching may drop them
+        return tm.export(file_type="glb", include_normals=True)
+    return trimesh.PointCloud(positions, colors=colors).export(file_type="glb")
 
 
 def write_glb(model, path, *, text: bool = False) -> None:
-    """Write a model as GLB (through trimesh): a mesh with vertex colours and normals, or a
-    point cloud for surfels without faces.
+    """Write a model as GLB (through trimesh): a mesh whose primitive holds ``POSITION``,
+    ``NORMAL`` (unit, float32, per vertex: :func:`~surfidx.io.arrays.model_arrays`) and
+    ``COLOR_0`` when it has colours, or a point cloud for surfels without faces.
 
     Parameters
     ----------

@@ -269,8 +269,9 @@ def _obj_text(positions, normals, colors, faces) -> str:
 
 
 def write_obj(model, path, *, text: bool = False) -> None:
-    """Write a model as OBJ: ``v x y z r g b`` (colours 0..1), ``vn`` lines for surfels' normals
-    and ``f`` lines when it has faces (a mesh is written as it is, nothing dropped).
+    """Write a model as OBJ: ``v x y z r g b`` (colours 0..1), ``vn`` lines (surfels' normals, a
+    mesh's vertex normals) and ``f`` lines when it has faces (a mesh is written as it is,
+    nothing dropped).
 
     Parameters
     ----------

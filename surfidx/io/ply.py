@@ -290,7 +290,8 @@ def points_from_ply_data(points: PlyPoints, path: Path) -> SurfelSet:
     return points_to_surfels(pos, normals=normals, colors=colors, name=path.stem)
 
 
-def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool = False) -> None:
+def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool = False,
+              faces: bool = True) -> None:
     """Write a surfel PLY that plyfile, Open3D and MeshLab read.
 
     Parameters
@@ -301,12 +302,13 @@ def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool
         Additional per-surfel float64 properties (``{"sx": ..., "sy": ..., "sz": ...}``).
     text : bool
         ASCII instead of binary little-endian.
+    faces : bool
+        Write the surfels' ``faces``, when they have some, as a ``face`` element.
 
     Notes
     -----
     Positions, normals and radii are written as float32 (the raw format of the field: 96 bits of
     position per surfel); extra properties as float64; colours as uchar ``red green blue``.
-    ``faces`` are written as a ``face`` element when present.
     """
     from plyfile import PlyData, PlyElement
 
@@ -331,7 +333,7 @@ def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool
     for key, val in extra.items():
         data[key] = val
     elements = [PlyElement.describe(data, "vertex")]
-    if surfels.faces is not None and len(surfels.faces):
+    if faces and surfels.faces is not None and len(surfels.faces):
         fdata = np.empty(len(surfels.faces), dtype=[("vertex_indices", "i4", (3,))])
         fdata["vertex_indices"] = surfels.faces
         elements.append(PlyElement.describe(fdata, "face"))
@@ -340,8 +342,10 @@ def write_ply(surfels: SurfelSet, path, *, extra: dict | None = None, text: bool
 
 
 def write_ply_model(model, path, *, text: bool = False) -> None:
-    """Write a :class:`SurfelSet`, or a :class:`TriangleMesh`'s vertices as surfels (one per
-    vertex, none added) with its faces, as a surfel PLY (:func:`write_ply`).
+    """Write a :class:`SurfelSet` as a surfel PLY (:func:`write_ply`): its surfels only, no
+    ``face`` element (a model decoded to surfels keeps its grid's faces, but a surfel file is
+    points); or a :class:`TriangleMesh`'s vertices as surfels (one per vertex, none added) with
+    its faces.
 
     Parameters
     ----------
@@ -351,5 +355,6 @@ def write_ply_model(model, path, *, text: bool = False) -> None:
         ASCII instead of binary little-endian.
     """
     if isinstance(model, TriangleMesh):
-        model = model.to_surfels(max_edge_ratio=None)
-    write_ply(model, path, text=text)
+        write_ply(model.to_surfels(max_edge_ratio=None), path, text=text)
+        return
+    write_ply(model, path, text=text, faces=False)

@@ -45,7 +45,8 @@ def output_format(path, format: str | None = None, *, allowed=OUTPUT_FORMATS) ->
 
 
 def write_model(model, path, *, format: str | None = None, text: bool = False) -> str:
-    """Write a model as PLY (surfels, or a mesh's vertices as surfels with its faces), OBJ or GLB.
+    """Write a model as PLY (surfels without faces, or a mesh's vertices as surfels with its
+    faces), OBJ or GLB.
 
     Parameters
     ----------
@@ -64,9 +65,10 @@ def write_model(model, path, *, format: str | None = None, text: bool = False) -
     Notes
     -----
     The writer is the format's (:data:`~surfidx.io.registry.WRITERS`). OBJ holds
-    ``v x y z r g b`` (colours 0..1) and ``vn`` lines, and ``f`` lines when the model
-    has faces; GLB (written by trimesh) a mesh with vertex colours and normals, or a point cloud
-    for surfels without faces. Both are read by trimesh, Blender and MeshLab.
+    ``v x y z r g b`` (colours 0..1), ``vn`` lines (unit normals, a mesh's area-weighted vertex
+    normals) and ``f v//vn`` lines when the model has faces; GLB (written by trimesh) a mesh with
+    ``POSITION``, ``NORMAL`` and ``COLOR_0``, or a point cloud for surfels without faces. Both
+    are read by trimesh, Blender and MeshLab.
     """
     fmt = output_format(path, format)
     if not isinstance(model, (TriangleMesh, SurfelSet)):

@@ -1,0 +1,149 @@
+"""What ``get``/``decode`` write: PSNR_D2 of the default output level and of a vertex budget.
+
+For each model (a few shared models and one retrieval mesh), the model is read and repaired
+as ingest does, coded once at the top rate, and the stream's prefixes at each rate are decoded:
+
+* ``old``: at the level whose vertex count is closest to the input's surfel count (the former
+  default, one level or more below the stream's own);
+* ``default``: as :func:`surfidx.codec.decode` does now, at the stream's own level;
+* ``best``: the best PSNR_D2 over every level 0 … the stream's (and which level), so
+  ``default - best`` says what the default rule leaves on the table;
+* ``max_vertices``: ``decode(..., mesh=True, max_vertices=n)`` with ``n`` the input's vertex
+  count (the full-level mesh simplified by quadric-error edge collapses), measured on its
+  vertices (``vtx``) and, beside the full level's, as a surface (``surf``: 4 samples per input
+  surfel drawn on each mesh, so both are measured at the same density), and the CPU seconds of
+  the simplification.
+
+PSNR_D2 is symmetric point-to-plane against the scan's own surfels, peak = its bounding-box
+diagonal (:mod:`surfidx.geometry.metrics`).
+
+Run::
+
+    python benchmarks/output_level.py                       # spot, homer, armadillo, d000
+    python benchmarks/output_level.py --models spot d000 --rates 1 2 8 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+from surfidx.numerics import use_portable_profile
+
+use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
+import numpy as np  # noqa: E402
+
+from surfidx.codec import PartsEncoder, decode, max_file_bytes  # noqa: E402
+from surfidx.codec.container import truncate, unpack_parts, unpack  # noqa: E402
+from surfidx.geometry.icosphere import vertex_count  # noqa: E402
+from surfidx.geometry.metrics import Reference  # noqa: E402
+from surfidx.topology import read_model  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data"
+MODELS = {
+    "spot": ("models/spot/spot_triangulated.obj", "models/spot/spot_texture.png"),
+    "homer": ("models/homer.obj", None),
+    "armadillo": ("models/armadillo.obj", None),
+    "d000": ("retrieval/meshes/d000.off", None),
+    "bunny": ("models/bunny_hr.obj", None),
+    "banana": ("models/ycb_banana/textured_simple_reoriented.obj", None),
+}
+RATES = (1.0, 3.56, 8.0)
+SURFACE_SAMPLES = 4   # per input surfel, on both meshes of the surface comparison
+
+
+def old_level(n: int, level: int) -> int:
+    """The former default: the level (at most ``level``) whose vertex count is closest to
+    ``n`` (the lower on a tie)."""
+    return min(range(level + 1), key=lambda lv: (abs(vertex_count(lv) - n), lv))
+
+
+def measure(name: str, data_dir: Path, rates) -> list[dict]:
+    path, texture = MODELS[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = read_model(data_dir / path,
+                           texture=None if texture is None else data_dir / texture)
+    surfels = model.surfels
+    ref = Reference(surfels if surfels.patch is None else surfels.subset(~surfels.virtual))
+    n = len(surfels)
+    pe = PartsEncoder(list(model.parts))
+    stream = pe.encode(max(rates))
+    level = max(unpack(b)[0].level for b in unpack_parts(stream))
+    rows = []
+    for rate in rates:
+        data = truncate(stream, max_file_bytes(rate, pe.n_surfels))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            per_level = {lv: ref.psnr_d2(decode(data, level=lv)) for lv in range(level + 1)}
+            full = decode(data, mesh=True)
+            t0 = time.process_time()
+            small = decode(data, mesh=True, max_vertices=n)
+            seconds = time.process_time() - t0 - _decode_seconds(data)
+            surf_full = ref.psnr_d2(full.to_surfels(samples=SURFACE_SAMPLES * n))
+            surf_small = ref.psnr_d2(small.to_surfels(samples=SURFACE_SAMPLES * n))
+            vtx_small = ref.psnr_d2(small.to_surfels(max_edge_ratio=None))
+        best = max(per_level, key=per_level.get)
+        old = old_level(n, level)
+        rows.append({
+            "model": name, "n": n, "rate": rate, "level": level, "old_level": old,
+            "old": per_level[old], "default": ref.psnr_d2(decode(data)),
+            "best_level": best, "best": per_level[best],
+            "max_vertices": len(small.vertices), "simplified_vtx": vtx_small,
+            "full_surf": surf_full, "simplified_surf": surf_small,
+            "simplify_seconds": max(seconds, 0.0)})
+    return rows
+
+
+def _decode_seconds(data: bytes) -> float:
+    t0 = time.process_time()
+    decode(data, mesh=True)
+    return time.process_time() - t0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", nargs="+", choices=sorted(MODELS),
+                    default=["spot", "homer", "armadillo", "d000"])
+    ap.add_argument("--rates", nargs="+", type=float, default=list(RATES),
+                    help="bits per input surfel; the stream is coded at the largest and the "
+                         "others are its prefixes")
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--json", type=Path, metavar="OUT.json")
+    args = ap.parse_args(argv)
+    if not args.data.is_dir():
+        print(f"no shared data at {args.data}", file=sys.stderr)
+        return 1
+
+    head = (f"{'model':>10} {'n':>6} {'b/s':>5} {'L':>2} | {'old (L)':>10} {'default':>8} "
+            f"{'best (L)':>10} {'def-best':>8} | {'N':>6} {'vtx':>6} {'surf full':>9} "
+            f"{'surf N':>7} {'s':>5}")
+    print("PSNR_D2 in dB; old = the level closest to n, default = the stream's level; "
+          "N = max_vertices=n\n")
+    print(head)
+    print("-" * len(head))
+    rows = []
+    for name in args.models:
+        for r in measure(name, args.data, sorted(args.rates)):
+            rows.append(r)
+            print(f"{r['model']:>10} {r['n']:>6} {r['rate']:>5g} {r['level']:>2} | "
+                  f"{r['old']:>6.2f} ({r['old_level']}) {r['default']:>8.2f} "
+                  f"{r['best']:>6.2f} ({r['best_level']}) {r['default'] - r['best']:>8.2f} | "
+                  f"{r['max_vertices']:>6} {r['simplified_vtx']:>6.2f} {r['full_surf']:>9.2f} "
+                  f"{r['simplified_surf']:>7.2f} {r['simplify_seconds']:>5.2f}", flush=True)
+    worst = min(r["default"] - r["best"] for r in rows)
+    gap = min(r["simplified_surf"] - r["full_surf"] for r in rows)
+    print(f"\ndefault vs best level: worst {worst:+.2f} dB (target >= -0.2); "
+          f"max_vertices=n vs the full level as surfaces: worst {gap:+.2f} dB (target >= -1)")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
