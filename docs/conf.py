@@ -48,7 +48,7 @@ numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False              # "(n, 3) float64" is a shape, not a class
 numpydoc_validation_checks = set()
 
-myst_enable_extensions = ["colon_fence", "deflist"]
+myst_enable_extensions = ["colon_fence", "deflist", "dollarmath"]
 myst_heading_anchors = 3
 
 html_theme = "furo"
