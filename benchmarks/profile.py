@@ -126,9 +126,8 @@ def _instrument():
 
     import surfidx
     import surfidx.pipeline  # noqa: F401  (everything the ingest path imports)
-    for name in ("codec", "descriptors", "render", "metrics", "graph", "geodesics", "sphere",
-                 "sphere._map", "resample", "klt", "wavelets", "density", "io"):
-        importlib.import_module(f"surfidx.{name}")
+    for modname, _, _ in STAGES:           # the modules the stages live in, loaded first
+        importlib.import_module(modname)
     modules = [m for n, m in list(sys.modules.items())
                if m is not None and (n == "surfidx" or n.startswith("surfidx."))]
     for modname, attr, stage in STAGES:
