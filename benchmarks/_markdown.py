@@ -134,14 +134,14 @@ class Report:
         The page's file stem (``docs/benchmarks/<name>.md``), usually the script's.
     title : str
         The page's title.
-    markdown : pathlib.Path or None
+    output : pathlib.Path or None
         Where to write the page (the ``--markdown`` option's value); None: print only.
     note : str
         A paragraph under the header: what the tables show, on which subset.
     """
 
-    def __init__(self, name: str, title: str, markdown=None, *, note: str = ""):
-        self.name, self.title, self.markdown, self.note = name, title, markdown, note
+    def __init__(self, name: str, title: str, output=None, *, note: str = ""):
+        self.name, self.title, self.output, self.note = name, title, output, note
         self.parts: list[str] = []
         self._kind: str | None = None         # the open block: "text" (verbatim) or "markdown"
         self._lines: list[str] = []
@@ -199,9 +199,9 @@ class Report:
         self._add("markdown", line.strip("\n"))
 
     def finish(self, argv=None) -> Path | None:
-        """Write the page when ``markdown`` is set; returns its path."""
+        """Write the page when ``output`` is set; returns its path."""
         self._close()
-        if self.markdown is None:
+        if self.output is None:
             return None
         argv = sys.argv if argv is None else argv
         script = Path(argv[0])
@@ -212,7 +212,7 @@ class Report:
         command = shlex.join(["python", str(script), *argv[1:]])
         page = header(self.title, command, note=self.note) + "\n" \
             + "\n\n".join(self.parts) + "\n"
-        path = Path(self.markdown)
+        path = Path(self.output)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(page, encoding="utf-8")
         print(f"\n{path}: written", file=sys.stderr)

@@ -585,7 +585,7 @@ def main() -> None:
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
     add_markdown_option(ap, 'query_latency')
     args = ap.parse_args()
-    REPORT.markdown = args.markdown
+    REPORT.output = args.markdown
     if not args.real_npz and not args.real_db:
         ap.error("give --real-npz and/or --real-db")
     real = real_descriptors(args.real_db, args.real_npz)

@@ -743,7 +743,7 @@ def main(argv=None) -> int:
                     "tables (the descriptors are computed once for the study)")
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
-    REPORT.markdown = args.markdown
+    REPORT.output = args.markdown
     warnings.simplefilter("ignore")
 
     from surfidx.describe.descriptors import DEFAULT_LMAX

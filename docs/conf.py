@@ -55,3 +55,4 @@ html_theme = "furo"
 html_title = f"surfidx {release}"
 html_static_path = []
 numpydoc_attributes_as_param_list = False   # an attribute is a target of :attr:
+smartquotes = False                           # "--db" stays two hyphens in help texts
