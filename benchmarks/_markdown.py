@@ -57,13 +57,15 @@ def machine() -> str:
 
 
 def commit() -> str:
-    """The repository's commit (short hash), with ``+ changes`` when tracked files differ."""
+    """The repository's commit (short hash), with ``+ changes`` when tracked files outside
+    ``docs/`` differ from it."""
     def git(*args):
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True,
                                timeout=30).stdout.strip()
     try:
         head = git("rev-parse", "--short=12", "HEAD")
-        dirty = git("status", "--porcelain", "--untracked-files=no")
+        # the pages themselves (docs/) do not count: a run of several scripts writes them
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":!docs")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     if not head:
