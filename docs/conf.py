@@ -42,7 +42,6 @@ surfidx_external_roots = ("numpy", "np", "scipy", "trimesh", "click", "dask", "d
 
 autodoc_member_order = "bysource"
 autodoc_typehints = "none"                    # types are in the numpydoc sections
-autodoc_default_options = {"show-inheritance": True}
 numpydoc_show_class_members = False           # autodoc lists the members
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False              # "(n, 3) float64" is a shape, not a class

@@ -143,7 +143,8 @@ class PublicAPI(SphinxDirective):
             # the class's API; those of outside bases (Exception, tuple, dict) are not
             outside = sorted({base.__name__ for base in obj.__mro__[1:]
                               if base.__module__.split(".")[0] not in PROJECT})
-            return [f".. {kind}:: {full}", "   :members:", "   :show-inheritance:",
+            bases = ["   :show-inheritance:"] if obj.__bases__ != (object,) else []
+            return [f".. {kind}:: {full}", "   :members:", *bases,
                     f"   :inherited-members: {', '.join(outside)}", ""]
         if callable(obj):
             if not getattr(obj, "__doc__", None):
