@@ -56,11 +56,6 @@ def test_readme_example_runs(tmp_path, monkeypatch, capsys):
     text = (REPO / "README.md").read_text()
     block = re.search(r"^## Python.*?```python\n(.*?)```", text, re.S | re.M)
     monkeypatch.chdir(tmp_path)
-    if not hasattr(surfidx.TriangleMesh, "to_trimesh"):
-        # the tour uses .to_trimesh(), which arrives with the interop work; until then a
-        # stand-in lets the rest of the tour run here
-        monkeypatch.setattr(surfidx.TriangleMesh, "to_trimesh", lambda self: trimesh.Trimesh(
-            self.vertices, self.faces, process=False), raising=False)
     exec(compile(block.group(1), "README.md", "exec"), {})
     assert capsys.readouterr().out.splitlines()[:2] == ["['ball', 'capsule']", "capsule"]
     glb = trimesh.load(tmp_path / "capsule.glb", force="mesh")

@@ -31,9 +31,9 @@ def test_docs_build_without_warnings(tmp_path):
     # the generated references are there: a command with its options, the API with its names
     cli = (out / "cli.html").read_text(encoding="utf-8")
     assert "surfidx-ingest" in cli and "--bits-per-surfel" in cli
-    api = (out / "api" / "db.html").read_text(encoding="utf-8")
-    assert 'id="surfidx.db.Database.query"' in api
-    assert 'id="surfidx.db.Database.list_models"' in api      # inherited from the catalog
+    api = (out / "api" / "database.html").read_text(encoding="utf-8")
+    assert 'id="surfidx.database.Database.query"' in api
+    assert 'id="surfidx.database.Database.list_models"' in api    # inherited from the catalog
     assert (out / "benchmarks" / "index.html").exists()
 
 

@@ -284,10 +284,14 @@ def missing_reference(app, env, node, contnode):
                     return domain.resolve_xref(env, node["refdoc"], app.builder, "mod", package,
                                                node, contnode)
     # a unique documented object whose name ends so (``SurfelSet.patch`` from another module)
+    # (among several, the one in the module the reference is made from)
     ends = [name for name in domain.objects if name.endswith("." + target)]
-    if len(ends) == 1:
-        return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], ends[0],
-                                   node, contnode)
+    here = [name for name in ends if node.get("py:module")
+            and name.startswith(node["py:module"] + ".")]
+    for found in (ends, here):
+        if len(found) == 1:
+            return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"],
+                                       found[0], node, contnode)
     # an attribute a class sets from its parameter of that name (documented with the parameters)
     if node["reftype"] == "attr":
         for candidate in candidates:
