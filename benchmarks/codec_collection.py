@@ -33,6 +33,8 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
+from _markdown import Report, add_markdown_option
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 COLLECTION = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval"
@@ -72,15 +74,15 @@ def run(name: str, root: Path = COLLECTION) -> dict:
     return row
 
 
-def summarise(rows: list[dict]) -> None:
+def summarise(rows: list[dict], report) -> None:
     ok = [r for r in rows if "error" not in r]
-    print(f"{len(rows)} models, {len(rows) - len(ok)} not coded, density-weighted "
-          f"{sum(r['weighted'] for r in ok)}\n")
+    report.text(f"{len(rows)} models, {len(rows) - len(ok)} not coded, density-weighted "
+                f"{sum(r['weighted'] for r in ok)}\n")
     cols = ["b/s", "gain median", "mean", "worst", "best", "lose > 1 dB", "gain > 1 dB",
             "in Draco range", "< +10 dB (default)", "< +10 dB (plain)", "min margin (default)",
             "min margin (plain)"]
-    print(" | ".join(cols))
-    print(" | ".join("---" for _ in cols))
+    report.markdown(" | ".join(cols))
+    report.markdown(" | ".join("---" for _ in cols))
     for rate in RATES:
         k = f"{rate:g}"
         gain = np.array([r[f"default_{k}"] - r[f"plain_{k}"] for r in ok])
@@ -91,10 +93,10 @@ def summarise(rows: list[dict]) -> None:
                  f"{gain.max():+.2f}", str(int((gain < -1).sum())), str(int((gain > 1).sum())),
                  str(len(inr)), str(sum(m < MARGIN for m in md)), str(sum(m < MARGIN for m in mp)),
                  f"{min(md):+.2f}" if md else "-", f"{min(mp):+.2f}" if mp else "-"]
-        print(" | ".join(cells))
+        report.markdown(" | ".join(cells))
     for r in rows:
         if "error" in r:
-            print(f"not coded: {r['model']}: {r['error']}")
+            report.print(f"not coded: {r['model']}: {r['error']}")
 
 
 def main(argv=None) -> int:
@@ -104,7 +106,14 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--limit", type=int, default=None, help="first N models only")
     ap.add_argument("--rows", type=Path, metavar="OUT.csv", help="every model's figures")
+    add_markdown_option(ap, "codec_collection")
     args = ap.parse_args(argv)
+    report = Report("codec_collection", "The codec on the retrieval collection", args.markdown,
+                    note="Every genus-0 model of the retrieval collection (geometry only), one "
+                         "spherical map shared by the default encoder and the same without local "
+                         "frames and density weights (`plain`): per rate, the default's PSNR_D2 "
+                         "gain over the plain codec, and the margin over Draco where Draco "
+                         "reaches that rate (Draco needs the `bench` extra).")
     if not (COLLECTION / "meta.csv").is_file():
         ap.error(f"{COLLECTION / 'meta.csv'} not found")
     with open(COLLECTION / "meta.csv", newline="") as fh:
@@ -113,8 +122,9 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max(args.workers, 1)) as ex:
         rows = list(ex.map(run, names))
-    summarise(rows)
-    print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+    summarise(rows, report)
+    report.text(f"\ntotal {time.perf_counter() - t0:.0f} s")
+    report.finish()
     if args.rows:
         keys = sorted({k for r in rows for k in r}, key=lambda k: (k != "model", k))
         with open(args.rows, "w", newline="") as fh:

@@ -36,6 +36,8 @@ from surfidx.topology import read_model  # noqa: E402
 from surfidx.codec.klt import KLT  # noqa: E402
 from surfidx.pipeline import content_hash  # noqa: E402
 
+from _markdown import Report, add_markdown_option
+
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "models" / "igea.ply"
 DEFAULT_RATES = (1.0, 2.0, 4.0, 8.0)
 
@@ -122,10 +124,10 @@ def best(fn, repeat):
     return out, least
 
 
-def run(path: Path, rates, repeat: int, cache: Path) -> None:
+def run(path: Path, rates, repeat: int, cache: Path, report) -> None:
     model = read_model(path)
     n = sum(len(p) for p in model.parts)
-    print(f"\n{path.name}: {n:,} surfels, {len(model.parts)} part(s)")
+    report.heading(f"{path.name}: {n:,} surfels, {len(model.parts)} part(s)")
     maps = cached_maps(path, model, cache)
     warm, _ = build_encoder(model, maps)   # load the compiled kernels, build the grid tables
     warm_stream = warm.encode(rates[0])
@@ -133,32 +135,30 @@ def run(path: Path, rates, repeat: int, cache: Path) -> None:
     decode(warm_stream, mesh=True)
     del warm, warm_stream
     pe, steps = build_encoder(model, maps)
-    print(f"  grid level {pe.encoders[0].level}, {pe.encoders[0].grid.shape[0]:,} vertices")
-    print("  Encoder set-up (CPU s)")
-    for label, _, _ in SETUP_STEPS:
-        if label in steps:
-            print(f"    {label:<16}{steps[label]:8.3f}")
+    report.text(f"Grid level {pe.encoders[0].level}, {pe.encoders[0].grid.shape[0]:,} vertices.")
     inner = sum(v for k, v in steps.items() if k != "total")
-    print(f"    {'other':<16}{steps['total'] - inner:8.3f}")
-    print(f"    {'total':<16}{steps['total']:8.3f}")
+    report.table(["Encoder set-up step", "CPU s"],
+                 [[label, f"{steps[label]:.3f}"] for label, _, _ in SETUP_STEPS if label in steps]
+                 + [["other", f"{steps['total'] - inner:.3f}"],
+                    ["total", f"{steps['total']:.3f}"]])
     t0 = time.process_time()
     pe.encode(rates[0])
-    print(f"  first encode (the coder's per-model preparation included): "
-          f"{time.process_time() - t0:.3f} s at {rates[0]:g} b/s")
-    heads = ("bytes", "encode", "grid", "surfels", "mesh")
-    print(f"  {'rate':>5} " + " ".join(f"{h:>{9 if h == 'bytes' else 8}}" for h in heads)
-          + "  sha256")
+    report.text(f"First encode (the coder's per-model preparation included): "
+                f"{time.process_time() - t0:.3f} s at {rates[0]:g} b/s.")
+    rows = []
     for rate in rates:
         data, t_enc = best(lambda: pe.encode(rate), repeat)
         if len(pe.encoders) == 1:
             _, t_grid = best(lambda: decode_grid(data), repeat)
-            grid = f"{t_grid:8.3f}"
+            grid = f"{t_grid:.3f}"
         else:
-            grid = f"{'-':>8}"
+            grid = "-"
         _, t_surf = best(lambda: decode(data), repeat)
         _, t_mesh = best(lambda: decode(data, mesh=True), repeat)
-        print(f"  {rate:5g} {len(data):9,} {t_enc:8.3f} {grid} {t_surf:8.3f} {t_mesh:8.3f}  "
-              f"{hashlib.sha256(data).hexdigest()}")
+        rows.append([f"{rate:g}", f"{len(data):,}", f"{t_enc:.3f}", grid, f"{t_surf:.3f}",
+                     f"{t_mesh:.3f}", hashlib.sha256(data).hexdigest()[:16]])
+    report.table(["rate", "bytes", "encode s", "decode grid s", "decode surfels s",
+                  "decode mesh s", "sha256"], rows)
 
 
 def main() -> None:
@@ -168,10 +168,17 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--cache", type=Path,
                     default=Path(tempfile.gettempdir()) / "surfidx-codec-speed")
+    add_markdown_option(ap, "codec_speed")
     args = ap.parse_args()
-    print(f"surfidx codec speed; CPU seconds (best of {args.repeat})")
+    report = Report("codec_speed", "Codec speed", args.markdown,
+                    note=f"CPU seconds of one core (`time.process_time`), the best of "
+                         f"{args.repeat} runs: the Encoder's set-up by step (the spherical map "
+                         f"is cached and not timed), `encode(rate)` from a built Encoder, and "
+                         f"decoding to the grid, to surfels as ingest decodes and to a mesh; "
+                         f"each stream's size and the start of its SHA-256.")
     for path in args.models:
-        run(path, args.rates, args.repeat, args.cache)
+        run(path, args.rates, args.repeat, args.cache, report)
+    report.finish()
 
 
 if __name__ == "__main__":

@@ -39,6 +39,8 @@ from surfidx.geometry.mesh import TriangleMesh
 from surfidx.geometry.metrics import evaluate
 from surfidx.sphere import parameterize
 
+from _markdown import Report, add_markdown_option
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "models"
 MODELS = {
@@ -82,6 +84,7 @@ def main(argv=None) -> int:
     ap.add_argument("--level", type=int, default=None, help="grid level (default: auto)")
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--json", type=Path, metavar="OUT.json")
+    add_markdown_option(ap, "color_weight")
     args = ap.parse_args(argv)
 
     path, texture = MODELS[args.model]
@@ -97,11 +100,14 @@ def main(argv=None) -> int:
         return 1
     t0 = time.perf_counter()
     sphere_map = parameterize(surfels, stress=False)
-    print(f"{args.model}: {len(surfels)} surfels ({args.subdivide} subdivisions), map "
-          f"{time.perf_counter() - t0:.1f} s, {sphere_map.folded} folded triangles\n")
-    print(f"{'weight':>7} {'target':>7} {'bits/surfel':>11} {'PSNR_D1':>8} {'PSNR_D2':>8} "
-          f"{'PSNR_Y':>8}  colour target")
-    rows = []
+    report = Report("color_weight", "Geometry/colour weight of the KLT", args.markdown,
+                    note=f"For each weight, an Encoder of the textured model encoded at each rate "
+                         f"and decoded: PSNR_D1, PSNR_D2 (peak: the bounding-box diagonal) and "
+                         f"luma PSNR; the colour target at {TARGET_RATE:g} bits/surfel is "
+                         f"PSNR_Y >= {TARGET_Y:g} dB and PSNR_D2 >= {TARGET_D2:g} dB.")
+    report.text(f"{args.model}: {len(surfels)} surfels ({args.subdivide} subdivisions), map "
+                f"{time.perf_counter() - t0:.1f} s, {sphere_map.folded} folded triangles")
+    rows, table = [], []
     for w in args.weights:
         enc = codec.Encoder(surfels, sphere_map=sphere_map, color=True, color_weight=w,
                             level=args.level)
@@ -115,9 +121,12 @@ def main(argv=None) -> int:
             if rate == TARGET_RATE:
                 ok = row["psnr_y"] >= TARGET_Y and row["psnr_d2"] >= TARGET_D2
                 flag = "PASS" if ok else "FAIL"
-            print(f"{w:>7g} {rate:>7g} {row['rate']:>11.3f} {row['psnr_d1']:>8.2f} "
-                  f"{row['psnr_d2']:>8.2f} {row['psnr_y']:>8.2f}  {flag}", flush=True)
-        print()
+            table.append([f"{w:g}", f"{rate:g}", f"{row['rate']:.3f}", f"{row['psnr_d1']:.2f}",
+                          f"{row['psnr_d2']:.2f}", f"{row['psnr_y']:.2f}", flag])
+            print(f"  weight {w:g} at {rate:g} b/s measured", flush=True)
+    report.table(["weight", "target", "bits/surfel", "PSNR_D1", "PSNR_D2", "PSNR_Y",
+                  "colour target"], table)
+    report.finish()
     if args.json:
         args.json.write_text(json.dumps({"model": args.model, "n": len(surfels),
                                          "subdivide": args.subdivide, "rows": rows}, indent=1))

@@ -22,6 +22,8 @@ import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
+from _markdown import Report, add_markdown_option
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 
@@ -87,6 +89,7 @@ def main(argv=None):
     ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"))
     ap.add_argument("--ignore", nargs="*", default=[],
                     help="fields left out of --compare (e.g. params thumbnail)")
+    add_markdown_option(ap, "fingerprint")
     args = ap.parse_args(argv)
     if args.compare:
         a, b = (json.loads(Path(p).read_text()) for p in args.compare)
@@ -116,8 +119,25 @@ def main(argv=None):
     text = json.dumps(results, indent=1, sort_keys=True)
     if args.json:
         Path(args.json).write_text(text)
-    else:
+    elif not args.markdown:
         print(text)
+    if args.markdown:
+        report = Report("fingerprint", "Fingerprints of what an ingest stores", args.markdown,
+                        note="The first 16 hex digits of the SHA-256 of each model's stored "
+                             "stream, descriptors (all kinds together) and thumbnail, as "
+                             "`process_model` makes them in the portable numerics profile: the "
+                             "same file gives the same bytes, so these change only when the "
+                             "code changes what it stores.")
+        rows = []
+        for key, rec in results.items():
+            if "error" in rec:
+                rows.append([key, "-", "-", "-", "-", rec["error"][:80]])
+                continue
+            desc = _sha("".join(rec["descriptors"].values()).encode())
+            rows.append([key, rec["bytes"], rec["stream"][:16], desc[:16], rec["thumbnail"][:16],
+                         ""])
+        report.table(["model", "bytes", "stream", "descriptors", "thumbnail", "error"], rows)
+        report.finish()
     return 0
 
 

@@ -42,6 +42,7 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
+
 OUTCOMES = ("ok", "clean error", "crash", "hang", "memory kill")
 
 _INTERESTING_TOKENS = ("0", "-1", "1", "2", "3", "-0", "nan", "NaN", "inf", "-inf", "1e309",
@@ -487,6 +488,8 @@ class _Pool:
 
 
 def main(argv=None):
+    from _markdown import Report, add_markdown_option   # here: tests load this file by path
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--streams", type=int, default=10_000)
     ap.add_argument("--files", type=int, default=1_000)
@@ -495,7 +498,13 @@ def main(argv=None):
     ap.add_argument("--memory-mb", type=int, default=4096,
                     help="address-space limit of each worker (0: none)")
     ap.add_argument("--seed", type=int, default=0)
+    add_markdown_option(ap, "fuzz")
     args = ap.parse_args(argv)
+    report = Report("fuzz", "Fuzzing the readers and the decoder", args.markdown,
+                    note="Seeded mutations of small valid streams and model files, each run in "
+                         "a worker process with a time and an address-space limit: `ok` is a "
+                         "result with finite values, `clean errors` a surfidx error; crashes, "
+                         "hangs and memory kills are failures and are listed below the table.")
 
     t0 = time.perf_counter()
     sseeds, fseeds = stream_seeds(), file_seeds()
@@ -532,21 +541,24 @@ def main(argv=None):
             pool.close()
         elapsed = time.perf_counter() - t1
 
-    print(f"\n{args.streams} streams and {args.files} files, seed {args.seed}, {args.workers} "
-          f"workers, {args.timeout:g} s and {args.memory_mb} MB per case, {elapsed:.0f} s\n")
+    report.text(f"\n{args.streams} streams and {args.files} files, seed {args.seed}, "
+                f"{args.workers} workers, {args.timeout:g} s and {args.memory_mb} MB per case, "
+                f"{elapsed:.0f} s\n")
     head = ["input class", "cases", "ok", "clean errors", "crashes", "hangs", "memory kills"]
-    print("| " + " | ".join(head) + " |")
-    print("|" + "---|" * len(head))
+    report.markdown("| " + " | ".join(head) + " |")
+    report.markdown("|" + "---|" * len(head))
     total = dict.fromkeys(OUTCOMES, 0)
     for c in classes:
         n = sum(counts[c].values())
         for o in OUTCOMES:
             total[o] += counts[c][o]
-        print(f"| {c} | {n:,} | " + " | ".join(f"{counts[c][o]:,}" for o in OUTCOMES) + " |")
-    print(f"| all | {sum(total.values()):,} | "
-          + " | ".join(f"{total[o]:,}" for o in OUTCOMES) + " |")
+        report.markdown(f"| {c} | {n:,} | "
+                        + " | ".join(f"{counts[c][o]:,}" for o in OUTCOMES) + " |")
+    report.markdown(f"| all | {sum(total.values()):,} | "
+                    + " | ".join(f"{total[o]:,}" for o in OUTCOMES) + " |")
     for kind, outcome, detail in crashes:
-        print(f"{kind}: {outcome}: {detail}")
+        report.print(f"{kind}: {outcome}: {detail}")
+    report.finish()
     return 0 if not crashes else 1
 
 

@@ -40,6 +40,8 @@ from surfidx.geometry.icosphere import icosphere
 from surfidx.geometry import graph as sig
 from surfidx.geometry.graph import DEFAULT_MAX_ANGLE, DEFAULT_MAX_OFFSET, DEFAULT_SCALE
 
+from _markdown import Report, add_markdown_option
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 MODELS = {
     "igea": "igea.ply", "bunny_hr": "bunny_hr.obj", "horse": "horse.ply",
@@ -97,6 +99,9 @@ def rel_stats(d, exact):
     return 100 * np.mean(np.abs(e)), 100 * np.percentile(np.abs(e), 95), 100 * np.mean(e)
 
 
+REPORT = None
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=["sphere", *MODELS])
@@ -106,7 +111,14 @@ def main(argv=None):
     ap.add_argument("--ball", type=int, default=10000)
     ap.add_argument("--no-heat", action="store_true")
     ap.add_argument("--no-sweep", action="store_true")
+    add_markdown_option(ap, "geodesics")
     args = ap.parse_args(argv)
+    global REPORT
+    REPORT = Report("geodesics", "Geodesics against exact mesh geodesics", args.markdown,
+                    note="Relative error of the spheres-of-influence graph's distances (and of "
+                         "the refined paths and the heat method) against exact polyhedral "
+                         "geodesics (MMP, `pygeodesic`, the `bench` extra), a sweep of the "
+                         "graph's parameters, and the graph's build and query times on Igea.")
     rng = np.random.default_rng(0)
     rows, sweep = [], []
     t_all = time.time()
@@ -165,37 +177,37 @@ def main(argv=None):
         print(f"  {name}: {len(s)} surfels, exact {t_exact:.1f} s, total {time.time() - t0:.1f} s;"
               f" {stats}", file=sys.stderr, flush=True)
 
-    print("\nRelative error vs exact geodesics, % (|mean| / p95 / signed mean); "
+    REPORT.print("\nRelative error vs exact geodesics, % (|mean| / p95 / signed mean); "
           f"{args.sources} sources, {args.targets} targets each ({args.refine_targets} refined)")
     head = f"{'model':13s} {'surfels':>8s} | {'graph':^20s} | {'refined':^20s} | {'heat':^20s} | ms/ref"
-    print(head)
-    print("-" * len(head))
+    REPORT.print(head)
+    REPORT.print("-" * len(head))
     for r in rows:
         cells = []
         for key in ("graph", "refined", "heat"):
             v = r.get(key)
             cells.append("n/a".center(20) if v is None else f"{v[0]:5.2f} {v[1]:5.2f} {v[2]:+6.2f}  ")
-        print(f"{r['model']:13s} {r['n']:8d} | " + " | ".join(cells) + f" | {1e3 * r['t_ref']:6.1f}")
+        REPORT.print(f"{r['model']:13s} {r['n']:8d} | " + " | ".join(cells) + f" | {1e3 * r['t_ref']:6.1f}")
     mean = lambda key, i: np.mean([r[key][i] for r in rows if key in r])  # noqa: E731
-    print(f"{'mean':13s} {'':8s} | " + " | ".join(
+    REPORT.print(f"{'mean':13s} {'':8s} | " + " | ".join(
         f"{mean(k, 0):5.2f} {mean(k, 1):5.2f} {mean(k, 2):+6.2f}  " if any(k in r for r in rows)
         else "n/a".center(20) for k in ("graph", "refined", "heat")))
 
     if sweep:
-        print("\nGraph distances: mean |relative error| % by normal-angle threshold, scale, "
+        REPORT.print("\nGraph distances: mean |relative error| % by normal-angle threshold, scale, "
               "surface-test limit and its length limit (mean degree in brackets)")
         combos = list(dict.fromkeys(c for _, c, _, _ in sweep))
         label = lambda c: (f"{c[0]:g}d x{c[1]:g} o{c[2] if c[2] is not None else '-'}"  # noqa: E731
                            f" s{c[3]:g}")
-        print(f"{'model':13s} " + " ".join(f"{label(c):>22s}" for c in combos))
+        REPORT.print(f"{'model':13s} " + " ".join(f"{label(c):>22s}" for c in combos))
         for name in dict.fromkeys(m for m, *_ in sweep):
             cells = []
             for c in combos:
                 hit = [x for x in sweep if x[0] == name and x[1] == c][0]
                 cells.append(f"{hit[3][0]:6.2f} [{hit[2]:4.1f}]")
-            print(f"{name:13s} " + " ".join(f"{c:>22s}" for c in cells))
+            REPORT.print(f"{name:13s} " + " ".join(f"{c:>22s}" for c in cells))
         cells = [f"{np.mean([x[3][0] for x in sweep if x[1] == c]):6.2f}" for c in combos]
-        print(f"{'mean':13s} " + " ".join(f"{c:>22s}" for c in cells))
+        REPORT.print(f"{'mean':13s} " + " ".join(f"{c:>22s}" for c in cells))
 
     if "igea" in args.models:
         s = load("igea")
@@ -208,10 +220,11 @@ def main(argv=None):
             t = time.process_time()
             sv.distances([src])
             tq.append(time.process_time() - t)
-        print(f"\nIgea ({len(s)} surfels, {sv.graph.n_edges} edges): graph build "
+        REPORT.print(f"\nIgea ({len(s)} surfels, {sv.graph.n_edges} edges): graph build "
               f"{np.median(tb):.2f} s, one source to all {np.median(tq):.3f} s "
               "(CPU time, median; one core)")
-    print(f"\n(benchmark wall time {time.time() - t_all:.0f} s)")
+    REPORT.print(f"\n(benchmark wall time {time.time() - t_all:.0f} s)")
+    REPORT.finish()
 
 
 if __name__ == "__main__":

@@ -41,6 +41,9 @@ import ingest  # noqa: E402
 from surfidx.io import find_texture  # noqa: E402
 from surfidx.pipeline import process_model  # noqa: E402
 
+sys.path.append(str(Path(__file__).resolve().parent))   # after the package: the page helper
+from _markdown import Report, add_markdown_option  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 WARMUP = REPO / "examples" / "models" / "spot" / "spot_triangulated.obj"
 
@@ -123,14 +126,10 @@ COLUMNS = [("executor", "executor", "{}"), ("workers", "workers", "{}"), ("model
            ("dispatch_pct", "dispatch %", "{:.2f}"), ("startup_s", "cluster start s", "{:.1f}")]
 
 
-def print_table(rows):
+def print_table(rows, report):
     cells = [[(fmt.format(r[k]) if r.get(k) is not None else "-") for k, _, fmt in COLUMNS]
              for r in rows]
-    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, (_, h, _) in enumerate(COLUMNS)]
-    print("| " + " | ".join(h.ljust(w) for (_, h, _), w in zip(COLUMNS, widths)) + " |")
-    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    for c in cells:
-        print("| " + " | ".join(v.ljust(w) for v, w in zip(c, widths)) + " |")
+    report.table([h for _, h, _ in COLUMNS], cells)
 
 
 def main(argv=None):
@@ -144,6 +143,7 @@ def main(argv=None):
     ap.add_argument("--db-dir", default=None, help="folder for the databases (default: a "
                                                    "temporary one, removed afterwards)")
     ap.add_argument("--json", default=None, help="also write the rows as JSON here")
+    add_markdown_option(ap, "ingest")
     args = ap.parse_args(argv)
     counts = [int(x) for x in args.workers.split(",")]
     kinds = [k.strip() for k in args.executors.split(",") if k.strip()]
@@ -173,7 +173,14 @@ def main(argv=None):
         if not args.db_dir:
             shutil.rmtree(db_dir, ignore_errors=True)
     print()
-    print_table(rows)
+    report = Report("ingest", "Bulk ingestion throughput: process pool and Dask", args.markdown,
+                    note=f"{len(files)} model files ingested with the real processor into a "
+                         f"fresh database per executor and worker count: models per minute and "
+                         f"stored surfels per second (wall time of `ingest.run`), the mean "
+                         f"per-model time inside the workers, the overhead per model and, for "
+                         f"Dask, the dispatch overhead per model.")
+    print_table(rows, report)
+    report.finish()
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))
 

@@ -39,6 +39,8 @@ from surfidx.geometry.metrics import evaluate
 from surfidx.sphere import parameterize
 from surfidx.codec.resample import grid_to_surfels, resample
 
+from _markdown import Report, add_markdown_option
+
 MODELS = ["igea.ply", "bunny_hr.obj", "horse.ply", "armadillo.obj", "nefertiti.obj", "koala.obj",
           "scorpion.obj", "falconstatue.obj", "homer.obj", "spot/spot_triangulated.obj",
           "ycb_banana/textured_simple_reoriented.obj"]
@@ -84,7 +86,7 @@ def _collection_job(job):
         return {"model": name, "method": method, "error": str(exc)}
 
 
-def collection(methods, workers: int, *, rows_csv=None, points: bool = False) -> None:
+def collection(methods, workers: int, report, *, rows_csv=None, points: bool = False) -> None:
     """One summary row per method over the genus-0 models of the retrieval collection; with
     ``rows_csv``, every model's figures are written there too."""
     from concurrent.futures import ProcessPoolExecutor
@@ -94,8 +96,8 @@ def collection(methods, workers: int, *, rows_csv=None, points: bool = False) ->
     cols = ["method", "models", "errors", "fold-free", "folds<=0.01%", "folds<=0.1%", "folds>1%",
             "holes<=0.5%", "psnr_d2>=70", "all targets", "fallbacks", "median fold%",
             "mean fold%", "mean holes%", "median psnr_d2", "map s (sum)"]
-    print(" | ".join(cols))
-    print(" | ".join("---" for _ in cols))
+    report.markdown(" | ".join(cols))
+    report.markdown(" | ".join("---" for _ in cols))
     all_rows = []
     for method in methods:
         with ProcessPoolExecutor(max(workers, 1)) as ex:
@@ -111,7 +113,7 @@ def collection(methods, workers: int, *, rows_csv=None, points: bool = False) ->
                 sum(r["targets"] == "met" for r in ok), sum(r["fallback"] for r in ok),
                 f"{np.median(fr):.4f}", f"{fr.mean():.3f}", f"{ho.mean():.2f}",
                 f"{np.median(d2):.1f}", f"{sum(r['t_map'] for r in ok):.0f}"]
-        print(" | ".join(str(v) for v in vals), flush=True)
+        report.markdown(" | ".join(str(v) for v in vals), flush=True)
     if rows_csv is not None:
         keys = list(dict.fromkeys(k for r in all_rows for k in r))
         with open(rows_csv, "w", newline="") as fh:
@@ -130,24 +132,39 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", metavar="OUT.csv", help="--collection: every model's figures")
     ap.add_argument("--points", action="store_true",
                     help="--collection: drop the faces, map every model as a point cloud")
+    add_markdown_option(ap, "parameterization")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
+    if args.markdown is not None and args.collection and args.markdown.name == "parameterization.md":
+        args.markdown = args.markdown.with_name("parameterization_collection.md")
+    report = Report(args.markdown.stem if args.markdown else "parameterization",
+                    "Spherical parameterization" + (" over the retrieval collection"
+                                                    if args.collection else ""),
+                    args.markdown,
+                    note="Fold fraction of the spherical Delaunay triangulation, normalised "
+                         "landmark stress, area distortion (RMS of log area ratio), infinite-rate "
+                         "PSNR D1/D2 of the uncompressed grid reconstruction against the input, "
+                         "coverage holes and time; the issue's targets: folds <= 0.01 %, holes "
+                         "<= 0.5 %, PSNR_D2 >= 70 dB.")
     if args.collection:
-        collection(args.methods.split(","), args.workers, rows_csv=args.rows, points=args.points)
+        collection(args.methods.split(","), args.workers, report, rows_csv=args.rows,
+                   points=args.points)
+        report.finish()
         return 0
     cols = ["model", "method", "n", "folds", "fold%", "stress", "area_dist", "sparse", "level",
             "psnr_d1", "psnr_d2", "holes%", "t_map", "t_resample", "targets"]
-    print(" | ".join(cols))
-    print(" | ".join("---" for _ in cols))
+    report.markdown(" | ".join(cols))
+    report.markdown(" | ".join("---" for _ in cols))
     for name in args.models.split(","):
         for method in args.methods.split(","):
             try:
                 r = run(name, method)
             except surfidx.SurfidxError as exc:
-                print(f"{name} | {method} | error: {exc}")
+                report.markdown(f"{name} | {method} | error: {exc}")
                 continue
-            print(" | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c])
+            report.markdown(" | ".join(f"{r[c]:.4g}" if isinstance(r[c], float) else str(r[c])
                              for c in cols), flush=True)
+    report.finish()
     return 0
 
 

@@ -55,6 +55,8 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np  # noqa: E402
 
+from _markdown import Report, add_markdown_option
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 
@@ -124,9 +126,8 @@ def _instrument():
 
     import surfidx
     import surfidx.pipeline  # noqa: F401  (everything the ingest path imports)
-    for name in ("codec", "descriptors", "render", "metrics", "graph", "geodesics", "sphere",
-                 "sphere._map", "resample", "klt", "wavelets", "density", "io"):
-        importlib.import_module(f"surfidx.{name}")
+    for modname, _, _ in STAGES:           # the modules the stages live in, loaded first
+        importlib.import_module(modname)
     modules = [m for n, m in list(sys.modules.items())
                if m is not None and (n == "surfidx" or n.startswith("surfidx."))]
     for modname, attr, stage in STAGES:
@@ -212,20 +213,22 @@ def _pct(values, q):
     return float(np.percentile(values, q)) if values else math.nan
 
 
-def table(results: list[dict]) -> str:
+TABLE_HEADERS = ["stage", "median s", "p90 s", "max s", "med s/10k", "p90 s/10k", "exponent"]
+
+
+def table(results: list[dict]) -> list[list[str]]:
+    """Rows of :data:`TABLE_HEADERS`: each stage's CPU seconds over the models, and the total."""
     ok = [r for r in results if "stages" in r]
     names = sorted({s for r in ok for s in r["stages"]},
                    key=lambda s: ([x[2] for x in STAGES] + ["other"]).index(s))
-    lines = [f"{'stage':16s} {'median s':>9s} {'p90 s':>8s} {'max s':>8s} "
-             f"{'med s/10k':>9s} {'p90 s/10k':>9s} {'exponent':>8s}"]
-    rows = names + ["total"]
-    for s in rows:
+    rows = []
+    for s in names + ["total"]:
         t = [r["total"] if s == "total" else r["stages"].get(s, 0.0) for r in ok]
         per = [x / (r["n"] / 1e4) for x, r in zip(t, ok)]
-        lines.append(f"{s:16s} {_pct(t, 50):9.3f} {_pct(t, 90):8.3f} {max(t):8.3f} "
-                     f"{_pct(per, 50):9.3f} {_pct(per, 90):9.3f} "
-                     f"{_fit_exponent([r['n'] for r in ok], t):8.2f}")
-    return "\n".join(lines)
+        rows.append([s, f"{_pct(t, 50):.3f}", f"{_pct(t, 90):.3f}", f"{max(t):.3f}",
+                     f"{_pct(per, 50):.3f}", f"{_pct(per, 90):.3f}",
+                     f"{_fit_exponent([r['n'] for r in ok], t):.2f}"])
+    return rows
 
 
 def main(argv=None) -> int:
@@ -239,7 +242,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--mode", choices=["ingest", "query"], default="ingest",
                     help="time process_model (ingest) or describe_model (query FILE)")
+    add_markdown_option(ap, "profile")
     args = ap.parse_args(argv)
+    if args.markdown is not None and args.mode == "query" and args.markdown.name == "profile.md":
+        args.markdown = args.markdown.with_name("profile_query.md")
 
     import surfidx
 
@@ -248,9 +254,16 @@ def main(argv=None) -> int:
         files = model_set(s)[: args.limit]
         jobs += [(s, f) for f in files]
     warm = min(model_set("examples"), key=os.path.getsize)
-    print(f"surfidx {surfidx.__version__}: {args.mode}, {len(jobs)} models, {args.workers} workers; "
-          "CPU seconds "
-          "per model (time.process_time of the worker)", flush=True)
+    report = Report(args.markdown.stem if args.markdown else "profile",
+                    f"Per-stage CPU time ({args.mode})", args.markdown,
+                    note=f"Each model through `surfidx.pipeline."
+                         f"{'process_model' if args.mode == 'ingest' else 'describe_model'}` in a "
+                         f"worker process, the CPU seconds (`time.process_time` of the worker) "
+                         f"charged to each stage less the stages nested in it: median, 90th "
+                         f"percentile and maximum over the models, the same per 10k surfels, and "
+                         f"the exponent b of a fit seconds ~ a n^b over the surfel counts n.")
+    report.text(f"surfidx {surfidx.__version__}: {args.mode}, {len(jobs)} models, "
+                f"{args.workers} workers; CPU seconds per model.")
     results = []
     with ProcessPoolExecutor(args.workers, initializer=_warm, initargs=(warm, args.mode)) as ex:
         futures = [(s, ex.submit(_run, f, args.mode)) for s, f in jobs]
@@ -268,14 +281,15 @@ def main(argv=None) -> int:
         if not ok:
             continue
         n = [r["n"] for r in ok]
-        print(f"\n## {s}: {len(ok)} models ({min(n):,}-{max(n):,} surfels, median "
-              f"{int(statistics.median(n)):,})")
-        print(table(ok))
+        report.heading(f"{s}: {len(ok)} models ({min(n):,}-{max(n):,} surfels, median "
+                       f"{int(statistics.median(n)):,})")
+        report.table(TABLE_HEADERS, table(ok))
     failed = [r for r in results if "error" in r]
     if failed:
-        print(f"\nfailed ({len(failed)}):")
+        report.heading(f"failed ({len(failed)})")
         for r in failed:
-            print(f"  {Path(r['path']).name}: {r['error']}")
+            report.print(f"{Path(r['path']).name}: {r['error']}")
+    report.finish()
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

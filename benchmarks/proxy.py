@@ -3,11 +3,12 @@
 Prints, per model: surfels, proxy vertices, closed, genus (the automatic grid ladder asks for
 genus 0; '-' and the error when no grid gave it), distance surfels -> proxy relative to the
 bounding-box diagonal (max, mean) and seconds. Run: python benchmarks/proxy.py [NAME ...]
+[--markdown [FILE]]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 import warnings
 from pathlib import Path
@@ -22,6 +23,8 @@ from surfidx import SurfelSet, TriangleMesh
 from surfidx.errors import SurfidxError
 from surfidx.sphere.proxy import closest_points, proxy_mesh
 
+from _markdown import Report, add_markdown_option
+
 MODELS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "models"
 NAMES = ["armadillo.obj", "bunny_hr.obj", "cow.obj", "falconstatue.obj", "homer.obj",
          "horse.ply", "igea.ply", "koala.obj", "nefertiti.obj", "rocker-arm.obj", "scorpion.obj",
@@ -29,11 +32,20 @@ NAMES = ["armadillo.obj", "bunny_hr.obj", "cow.obj", "falconstatue.obj", "homer.
          "ycb_scissors/textured_simple_reoriented.obj"]
 
 
-def main(names):
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", default=NAMES, help="models under ../shared/data/models")
+    add_markdown_option(ap, "proxy")
+    args = ap.parse_args(argv)
+    report = Report("proxy", "Proxy meshes of point clouds", args.markdown,
+                    note="The closed models of `../shared/data/models` with their faces dropped, "
+                         "mapped through the proxy mesh reconstructed from the oriented surfels: "
+                         "the source's genus, the proxy's vertices, closedness and genus, the "
+                         "distance of the surfels to the proxy relative to the bounding-box "
+                         "diagonal, and wall seconds.")
     warnings.simplefilter("ignore")
-    print(f"{'model':44s} {'surfels':>8s} {'src g':>5s} {'proxy V':>8s} {'closed':>6s} "
-          f"{'genus':>5s} {'max d':>7s} {'mean d':>8s} {'s':>6s}")
-    for name in names:
+    rows = []
+    for name in args.names:
         mesh = surfidx.read_mesh(MODELS / name)
         src = mesh.topology()
         s = surfidx.read_surfels(MODELS / name)
@@ -43,16 +55,19 @@ def main(names):
         try:
             v, f = proxy_mesh(s)
         except SurfidxError as exc:
-            print(f"{name:44s} {len(s):8d} {str(src.genus):>5s} {'-':>8s} {'-':>6s} "
-                  f"{getattr(exc, 'genus', '-')!s:>5s} {time.perf_counter() - t:6.1f}s  {exc}")
+            rows.append([name, len(s), src.genus, "-", "-", getattr(exc, "genus", "-"), "-", "-",
+                         f"{time.perf_counter() - t:.1f}", str(exc)])
             continue
         sec = time.perf_counter() - t
         topo = TriangleMesh(v, f).topology()
         _, _, d = closest_points(s.positions, v, f)
-        print(f"{name:44s} {len(s):8d} {str(src.genus):>5s} {len(v):8d} {str(topo.closed):>6s} "
-              f"{str(topo.genus):>5s} {d.max() / diag:7.4f} {d.mean() / diag:8.5f} {sec:6.1f}",
-              flush=True)
+        rows.append([name, len(s), src.genus, len(v), topo.closed, topo.genus,
+                     f"{d.max() / diag:.4f}", f"{d.mean() / diag:.5f}", f"{sec:.1f}", ""])
+        print(f"  {name} done", flush=True)
+    report.table(["model", "surfels", "src genus", "proxy V", "closed", "genus", "max d",
+                  "mean d", "s", "error"], rows)
+    report.finish()
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or NAMES)
+    main()

@@ -59,6 +59,12 @@ from surfidx.db.catalog import utc_now
 from surfidx.db.search import SearchIndex  # noqa: E402
 from surfidx.describe.distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, weighted_l2
 
+from _markdown import Report, add_markdown_option
+
+#: What this script prints, kept for its documentation page (``--markdown``).
+REPORT = Report('query_latency', 'Query latency and recall at scale', None,
+                note=("Rows built from real descriptors, perturbed, at each size: the exact scan beside the approximate index (faiss IVF lists, re-ranked exactly): query CPU time p50/p99, recall@10 for shape-only and coloured queries, the index's build time, memory and size on disk."))
+
 LABELS = Path(__file__).resolve().parents[2] / "shared" / "data" / "retrieval" / "labels.csv"
 COLOUR = "texture"
 
@@ -353,7 +359,7 @@ def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
         t0 = time.process_time()
         exact_topk(q, stored, present, k)
         t_exact.append(time.process_time() - t0)
-    print(f"{m:>8} {'exact scan':>14} {'':>7} {'':>7} {'':>7} {'':>6} "
+    REPORT.print(f"{m:>8} {'exact scan':>14} {'':>7} {'':>7} {'':>7} {'':>6} "
           f"{pct(t_exact, 50):>7.2f} {pct(t_exact, 99):>7.2f} {1.0:>7.3f} {1.0:>7.3f}",
           flush=True)
     for lib in libs:
@@ -363,7 +369,7 @@ def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
         try:
             lib.build(shape, ef_add)
         except ImportError as exc:
-            print(f"{m:>8} {lib.name:>14} not installed ({exc})")
+            REPORT.print(f"{m:>8} {lib.name:>14} not installed ({exc})")
             continue
         t_build = time.process_time() - t0
         mem = rss_mb() - r0
@@ -381,7 +387,7 @@ def compare(gen, m, qs, *, k, factors, ef, ef_add, libs):
                 got = rerank(q, stored, present, cand, k)
                 times.append(time.process_time() - t0)
                 rec[COLOUR in q].append(len(t & set(got.tolist())) / k)
-            print(f"{m:>8} {lib.name:>14} {f:>7} {t_build:>7.1f} {mem:>7.0f} {size:>6.0f} "
+            REPORT.print(f"{m:>8} {lib.name:>14} {f:>7} {t_build:>7.1f} {mem:>7.0f} {size:>6.0f} "
                   f"{pct(times, 50):>7.2f} {pct(times, 99):>7.2f} {np.mean(rec[False]):>7.3f} "
                   f"{np.mean(rec[True]):>7.3f}", flush=True)
         del lib.ix
@@ -425,7 +431,7 @@ def cli_times(path, ids, *, k):
                                "--db", str(path), "-k", str(k)], stdout=subprocess.DEVNULL,
                               stderr=subprocess.PIPE, text=True, env=env)
         if done.returncode:
-            print(f"surfidx query id:{int(i)} failed: {done.stderr.strip()}", flush=True)
+            REPORT.print(f"surfidx query id:{int(i)} failed: {done.stderr.strip()}", flush=True)
             return {"wall50": float("nan"), "cpu50": float("nan"), "cpu_max": float("nan")}
         t1 = time.perf_counter()
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -577,12 +583,14 @@ def main() -> None:
     ap.add_argument("--ef-add", type=int, default=128, help="Build expansion (compare mode).")
     ap.add_argument("--tmp", default=None,
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
+    add_markdown_option(ap, 'query_latency')
     args = ap.parse_args()
+    REPORT.output = args.markdown
     if not args.real_npz and not args.real_db:
         ap.error("give --real-npz and/or --real-db")
     real = real_descriptors(args.real_db, args.real_npz)
     n_col = len(real["textures"])
-    print(f"real descriptors: {len(real['vectors'])} models ({len(set(real['classes']))} "
+    REPORT.print(f"real descriptors: {len(real['vectors'])} models ({len(set(real['classes']))} "
           f"classes), {n_col} coloured, kinds {real['dims']}; search kinds {DEFAULT_KINDS}; "
           f"{args.queries} queries (half coloured), k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; "
           f"load {os.getloadavg()[0]:.1f}", flush=True)
@@ -590,9 +598,9 @@ def main() -> None:
         make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "faiss-ivf": _FaissIvf,
                 "usearch-f32": lambda: _Usearch("f32"),
                 "usearch-f16": lambda: _Usearch("f16"), "usearch-i8": lambda: _Usearch("i8")}
-        print(f"HNSW M=16, ef_construction {args.ef_add}, ef_search max({args.ef}, candidates); "
+        REPORT.print(f"HNSW M=16, ef_construction {args.ef_add}, ef_search max({args.ef}, candidates); "
               "CPU ms per query incl. exact re-rank in memory")
-        print(f"{'models':>8} {'library':>14} {'factor':>7} {'build s':>7} {'mem MB':>7} "
+        REPORT.print(f"{'models':>8} {'library':>14} {'factor':>7} {'build s':>7} {'mem MB':>7} "
               f"{'MB':>6} {'p50 ms':>7} {'p99 ms':>7} {'rec sh':>7} {'rec col':>7}")
         for m in args.sizes:
             gen = Generator(real, m)
@@ -600,10 +608,10 @@ def main() -> None:
             compare(gen, m, qs, k=args.k, factors=args.factors, ef=args.ef, ef_add=args.ef_add,
                     libs=[make[n]() for n in args.libs])
         return
-    print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
+    REPORT.print("CPU times (process_time); memory = resident-set growth; 'search' = SearchIndex as "
           "it stands (surfidx.db.ann defaults), 'fN/pP' = AnnIndex.query with N*k candidates "
           "per index (P lists probed) re-ranked on the row copies", flush=True)
-    print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
+    REPORT.print(f"{'models':>8} {'db MB':>6} {'exact p50':>9} {'p99':>6} {'MB':>5} | {'build s':>7} "
           f"{'MB':>5} {'disk MB':>7} {'open ms':>7} {'MB':>5} | {'path':>9} {'p50':>6} "
           f"{'p99':>6} {'rec sh':>6} {'rec col':>7}")
     with (tempfile.TemporaryDirectory() if args.tmp is None
@@ -618,7 +626,7 @@ def main() -> None:
                     f"{r['size']:>7.0f} {r['open'] * 1e3:>7.1f} {r['mem_open']:>5.0f} |")
             lines = list(r["runs"].items()) + [("search", r["search"])]
             for j, (name, x) in enumerate(lines):
-                print(f"{head if j == 0 else ' ' * len(head)} {name:>9} {x['p50']:>6.2f} "
+                REPORT.print(f"{head if j == 0 else ' ' * len(head)} {name:>9} {x['p50']:>6.2f} "
                       f"{x['p99']:>6.2f} {x['rec_shape']:>6.3f} {x['rec_color']:>7.3f}",
                       flush=True)
             path = Path(tmp) / f"bench{m}.db"
@@ -627,7 +635,7 @@ def main() -> None:
                 ids = np.random.default_rng(3).choice(np.arange(1, m + 1), args.cli,
                                                       replace=False)
                 c = cli_times(path, ids, k=args.k)
-                print(f"{m:>8} surfidx query id:N, {args.cli} processes: wall p50 "
+                REPORT.print(f"{m:>8} surfidx query id:N, {args.cli} processes: wall p50 "
                       f"{c['wall50']:.3f} s, CPU (user+sys) p50 {c['cpu50']:.3f} s, max "
                       f"{c['cpu_max']:.3f} s", flush=True)
         if args.changes:
@@ -635,7 +643,7 @@ def main() -> None:
             gen = Generator(real, m, seed=1)
             c = changes(gen, Path(tmp) / f"bench{m}.db", k=args.k, n_changed=args.changes,
                         n_queries=min(args.changes, 50))
-            print(f"{m:>8} after removing {args.changes} and redescribing {args.changes} "
+            REPORT.print(f"{m:>8} after removing {args.changes} and redescribing {args.changes} "
                   f"models: index update {c['update']:.1f} s CPU; {c['queries']} queries "
                   f"(removed models' old rows and redescribed models' new rows, each coloured "
                   f"and shape-only): {c['same']} equal to the exact scan, removed models "
@@ -647,3 +655,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    REPORT.finish()

@@ -68,6 +68,8 @@ from surfidx.geometry.metrics import evaluate
 
 from _draco import DEFAULT_BITS, DEFAULT_LEVEL, draco_point
 
+from _markdown import Report, add_markdown_option
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "models"
 
@@ -224,19 +226,19 @@ def print_run(run: dict) -> None:
     title = f"== {run['model']} ({run['n']} surfels, {run['variant']})"
     if run.get("surfidx_setup_s") is not None:
         title += f"; surfidx Encoder setup {run['surfidx_setup_s']:.2f} s"
-    print(title + " ==")
+    REPORT.print(title + " ==")
     if run.get("surfidx_error"):
-        print(f"   surfidx FAILED: {run['surfidx_error']}")
-    print(HEADER)
+        REPORT.print(f"   surfidx FAILED: {run['surfidx_error']}")
+    REPORT.print(HEADER)
     for r in run["rows"]:
-        print(f"{r['coder']:<8} {r['setting']:<9} {r['rate']:>11.3f} {fmt(r['psnr_d1'])} "
+        REPORT.print(f"{r['coder']:<8} {r['setting']:<9} {r['rate']:>11.3f} {fmt(r['psnr_d1'])} "
               f"{fmt(r['psnr_d2'])} {fmt(r['psnr_y'])} {fmt(r['enc_s'], 7, 3)} "
               f"{fmt(r['dec_s'], 7, 3)}")
     if run.get("prefix"):
-        print("   prefix of the 8 b/s stream:  " + "  ".join(
+        REPORT.print("   prefix of the 8 b/s stream:  " + "  ".join(
             f"{p['rate']:g}: D2 {fmt(p['psnr_d2'], 0)} (direct {fmt(p['direct_psnr_d2'], 0)})"
             for p in run["prefix"]))
-    print(flush=True)
+    REPORT.print(flush=True)
 
 
 # ---------------------------------------------------------------------- targets
@@ -352,13 +354,13 @@ def check_targets(runs: list[dict], coders) -> list[dict]:
 
 
 def print_targets(targets: list[dict]) -> None:
-    print("== targets ==")
+    REPORT.print("== targets ==")
     for t in targets:
-        print(f"{t['status']:<20} {t['target']}: {t['detail']}")
+        REPORT.print(f"{t['status']:<20} {t['target']}: {t['detail']}")
     counts = {}
     for t in targets:
         counts[t["status"]] = counts.get(t["status"], 0) + 1
-    print("   " + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
+    REPORT.print("   " + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
 
 
 # ---------------------------------------------------------------------- plot / json
@@ -411,6 +413,9 @@ def _jsonable(x):
 
 
 # ---------------------------------------------------------------------- main
+REPORT = None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -437,7 +442,15 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DATA, help=f"models folder (default {DATA})")
     ap.add_argument("--json", type=Path, metavar="OUT.json", help="write every figure as JSON")
     ap.add_argument("--plot", type=Path, metavar="OUT.png", help="PSNR_D2 against rate, per model")
+    add_markdown_option(ap, "rate_distortion")
     args = ap.parse_args(argv)
+    global REPORT
+    REPORT = Report("rate_distortion", "Rate-distortion against Draco", args.markdown,
+                    note="surfidx's codec set up once per model and encoded at each rate, beside "
+                         "Google Draco's point-cloud coder (the `bench` extra) at quantisation "
+                         "6..14: rate in bits per input surfel (whole file), PSNR_D1, PSNR_D2 "
+                         "(peak: the bounding-box diagonal), PSNR_Y (colour runs), encode and "
+                         "decode seconds.")
 
     models = args.models or (list(QUICK_MODELS) if args.quick else list(MODELS))
     rates = sorted(set(args.rates or (QUICK_RATES if args.quick else RATES)))
@@ -457,7 +470,7 @@ def main(argv=None) -> int:
     if not args.data.is_dir():
         ap.error(f"models folder {args.data} not found; pass --data")
 
-    print(f"rates {', '.join(f'{r:g}' for r in rates)} bits/surfel; Draco q={args.draco_bits} "
+    REPORT.print(f"rates {', '.join(f'{r:g}' for r in rates)} bits/surfel; Draco q={args.draco_bits} "
           f"level {args.draco_level}; textured models: "
           f"{samples if samples else 'per-vertex'} samples; coders: {', '.join(coders)}\n",
           flush=True)
@@ -489,7 +502,8 @@ def main(argv=None) -> int:
     targets = check_targets(runs, coders)
     print_targets(targets)
     elapsed = time.perf_counter() - t_start
-    print(f"\ntotal {elapsed:.0f} s")
+    REPORT.print(f"\ntotal {elapsed:.0f} s")
+    REPORT.finish()
     if args.json:
         meta = {"rates": rates, "draco_bits": args.draco_bits, "draco_level": args.draco_level,
                 "samples": samples, "coders": coders, "models": models, "seconds": elapsed}

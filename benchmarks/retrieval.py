@@ -67,6 +67,12 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _shape_baselines as sb  # noqa: E402
 
+from _markdown import Report, add_markdown_option
+
+#: What this script prints, kept for its documentation page (``--markdown``).
+REPORT = Report('retrieval', 'Retrieval and invariance of the descriptors', None,
+                note=('Leave-one-out retrieval over the labelled models of `../shared/data/retrieval` (nearest neighbour, first and second tier, DCG, mean average precision), beside the D2 shape distribution, and the invariance of the descriptors to a random similarity and resampling.'))
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "retrieval"
 CACHE = Path("/tmp/surfidx_retrieval_cache")
@@ -223,7 +229,7 @@ def verify_cache(jobs, repaired, count):
                 if "grid" in z:
                     cached.append((meta["n_surfels"], j))
     cached.sort(key=lambda t: (t[0], t[1]["path"]))
-    print(f"\nCache check: {min(count, len(cached))} genus-0 maps recomputed against "
+    REPORT.print(f"\nCache check: {min(count, len(cached))} genus-0 maps recomputed against "
           f"{Path(jobs[0]['cache_file']).parent.name}\n", flush=True)
     for n, j in cached[:count]:
         old = compute(j)
@@ -233,7 +239,7 @@ def verify_cache(jobs, repaired, count):
                 and old["grid"].tobytes() == new["grid"].tobytes())
         diff = "" if same or new["grid"] is None or old["grid"].shape != new["grid"].shape \
             else f", max |difference| {float(np.abs(old['grid'] - new['grid']).max()):.3g}"
-        print(f"  {Path(j['path']).name} ({n} surfels, {time.process_time() - t0:.0f} s CPU): "
+        REPORT.print(f"  {Path(j['path']).name} ({n} surfels, {time.process_time() - t0:.0f} s CPU): "
               f"{'bitwise equal' if same else 'DIFFERENT'}{diff}", flush=True)
 
 
@@ -351,7 +357,7 @@ def per_query_table(new, old, classes, g0_idx, base_idx, *, label) -> dict:
                      rec["nn_gained"], rec["nn_lost"], f"{rec['mean_delta_ap']:+.3f}",
                      ", ".join(f"{c} {v:+.2f}" for c, v in moved[:2]),
                      ", ".join(f"{c} {v:+.2f}" for c, v in moved[::-1][:3])])
-    print(f"\nPer query: the default distance against {label} (same models, same run)\n")
+    REPORT.print(f"\nPer query: the default distance against {label} (same models, same run)\n")
     print_table(["queries", "n", "AP higher", "AP equal", "AP lower", "NN gained", "NN lost",
                  "mean ΔAP", "classes down most", "classes up most"], rows)
     return out
@@ -420,7 +426,7 @@ def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
     row(f"version 4 default, spectral level {lv}", np.sqrt(old_shape + sq["spectrum"]))
     new = np.sqrt(sum(scales[k] ** 2 * sq[k] for k in names) + sq["spectrum"])
     row(f"version {D.DESCRIPTOR_VERSION} default = descriptor_distance (spectral level {lv})", new)
-    print("\nStudy: each kind alone and the defaults (leave-one-out; invariance: max ratio of "
+    REPORT.print("\nStudy: each kind alone and the defaults (leave-one-out; invariance: max ratio of "
           "the copies)\n")
     print_table(header, rows)
     record["per query v4"] = per_query_table(new, v4, classes, g0_idx, base_idx,
@@ -439,7 +445,7 @@ def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
         vrows.append([G, L, t] + [f"{e[s][m]:.3f}" for s in ("genus-0", "all")
                                   for m in ("nn", "ft", "map")]
                      + [f"{100 * e['invariance_max']:.2f}"])
-    print("\nLayer energies alone, by DH grid degree, lmax and transform (plain L2)\n")
+    REPORT.print("\nLayer energies alone, by DH grid degree, lmax and transform (plain L2)\n")
     print_table(["grid", "lmax", "transform"] + header[1:], vrows)
 
     prow, irow, arow, prec = [], [], [], {}
@@ -463,12 +469,12 @@ def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
         arow.append(lab + acells)
         irow.append(lab + icells)
     wh = ["grid", "lmax", "transform", "spectral level", "g0 median"] + [f"w={w:g}" for w in weights]
-    print("\nPlateau: shape without layers + KLT spectrum + layers part of weight w (median-normalised on genus-0); "
+    REPORT.print("\nPlateau: shape without layers + KLT spectrum + layers part of weight w (median-normalised on genus-0); "
           "genus-0 NN/mAP\n")
     print_table(wh, prow)
-    print("\nPlateau, all models: NN/mAP\n")
+    REPORT.print("\nPlateau, all models: NN/mAP\n")
     print_table(wh, arow)
-    print("\nPlateau: invariance max ratio %\n")
+    REPORT.print("\nPlateau: invariance max ratio %\n")
     print_table(wh, irow)
     if json_out is not None:
         json_out.write_text(json.dumps({"kinds": record, "variants": vrec, "plateau": prec},
@@ -622,7 +628,7 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
         inv_rows.append([n, k, f"{count}→{ccount}", f"{level}→{clevel}", f"{100 * r:.2f}",
                          "yes" if r <= 0.05 else "NO",
                          f"{descriptor_distance(full[n], vfull):.4g}"])
-    print(f"\nTexture invariance: ‖Δtexture‖(model, rotated+scaled+translated+resampled copy) / "
+    REPORT.print(f"\nTexture invariance: ‖Δtexture‖(model, rotated+scaled+translated+resampled copy) / "
           f"median ‖Δtexture‖ between differently coloured models ({len(keys)} colourings, "
           f"median {med:.4g}); target <= 5%; last column the default distance\n")
     print_table(["model", "copy", "surfels", "level", "ratio %", "<= 5%", "default distance"],
@@ -637,10 +643,10 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
                 dis_rows.append([n, key[len(n) + 1:], f"{100 * r:.1f}",
                                  f"{r / worst:.1f}" if worst > 0 else "inf",
                                  "yes" if r > worst else "NO"])
-    print("\nTexture discrimination: the same shape recoloured, ‖Δtexture‖ / the median (%) "
+    REPORT.print("\nTexture discrimination: the same shape recoloured, ‖Δtexture‖ / the median (%) "
           "and over the largest invariance copy's\n")
     print_table(["model", "recolouring", "ratio %", "× largest copy", "farther"], dis_rows)
-    print(f"\ntexture table: {time.process_time() - cpu:.0f} s CPU")
+    REPORT.print(f"\ntexture table: {time.process_time() - cpu:.0f} s CPU")
     out = {"median": med, "invariance": inv, "discrimination": dis}
     if json_out is not None:
         json_out.write_text(json.dumps(out, indent=1))
@@ -653,10 +659,10 @@ def fmt_row(cells, widths):
 
 def print_table(header, rows):
     widths = [max(len(str(r[i])) for r in [header] + rows) for i in range(len(header))]
-    print(fmt_row(header, widths))
-    print(fmt_row(["-" * w for w in widths], widths))
+    REPORT.print(fmt_row(header, widths))
+    REPORT.print(fmt_row(["-" * w for w in widths], widths))
     for r in rows:
-        print(fmt_row(r, widths))
+        REPORT.print(fmt_row(r, widths))
 
 
 def run_jobs(jobs, workers):
@@ -735,7 +741,9 @@ def main(argv=None) -> int:
                          "cached map took at most this many seconds")
     ap.add_argument("--study-only", action="store_true", help="with --study: skip the main "
                     "tables (the descriptors are computed once for the study)")
+    add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
+    REPORT.output = args.markdown
     warnings.simplefilter("ignore")
 
     from surfidx.describe.descriptors import DEFAULT_LMAX
@@ -779,7 +787,7 @@ def main(argv=None) -> int:
         recs = run_jobs(todo, args.workers)
         for r in recs:
             rp = r.get("repair") or {}
-            print(f"{Path(r['path']).name}: {r['n_surfels']} surfels, "
+            REPORT.print(f"{Path(r['path']).name}: {r['n_surfels']} surfels, "
                   f"{'FAILED ' + r['error'] if r['error'] else 'ok'}, handles cut "
                   f"{rp.get('handles_cut')}, virtual share {rp.get('virtual_area_share', 0):.4f}",
                   flush=True)
@@ -859,7 +867,7 @@ def main(argv=None) -> int:
     for name, ref in REFERENCE.items():
         rows.append([name, "all" if "all 95" in name else "genus-0", "", f"{ref['nn']:.2f}", "",
                      "", "", f"{ref['map']:.2f}", ""])
-    print(f"\nRetrieval, leave-one-out ({len(paths)} models, {len(set(classes))} classes, "
+    REPORT.print(f"\nRetrieval, leave-one-out ({len(paths)} models, {len(set(classes))} classes, "
           f"{int(g0.sum())} genus-0, {int(repaired.sum())} repaired; lmax {lmax}; map "
           f"'{args.method}'; target genus-0 NN >= {TARGET['nn']}, mAP >= {TARGET['map']}; "
           f"all NN >= {TARGET_ALL['nn']}, mAP >= {TARGET_ALL['map']})\n")
@@ -867,7 +875,7 @@ def main(argv=None) -> int:
                 rows)
 
     if args.confusion:
-        print("\nPer class (genus-0 database): queries, NN and mAP, surfidx vs D2; "
+        REPORT.print("\nPer class (genus-0 database): queries, NN and mAP, surfidx vs D2; "
               "surfidx nearest-neighbour classes of the misses\n")
         idx = np.flatnonzero(g0)
         so, sd = stats[("surfidx", "genus-0")], stats[("D2", "genus-0")]
@@ -912,14 +920,14 @@ def main(argv=None) -> int:
                              f"{base[i]['level']}→{rec['level']}", f"{100 * r:.2f}",
                              "yes" if r < 0.05 else "NO", f"{100 * rd2:.2f}",
                              f"{base[i]['area_distortion']:.2f}/{rec['area_distortion']:.2f}"])
-        print(f"\nInvariance: distance(model, rotated+scaled+translated+resampled copy) / "
+        REPORT.print(f"\nInvariance: distance(model, rotated+scaled+translated+resampled copy) / "
               f"median distance between different models (surfidx median {med:.4g}); "
               f"target < 5%\n")
         print_table(["model", "class", "surfels", "level", "ratio %", "< 5%", "D2 ratio %",
                      "area dist. model/copy"], inv_rows)
         if ratios:
             a = np.asarray(ratios)
-            print(f"\nratio %: median {100 * np.median(a):.2f}, max {100 * a.max():.2f}, "
+            REPORT.print(f"\nratio %: median {100 * np.median(a):.2f}, max {100 * a.max():.2f}, "
                   f"{int(np.sum(a < 0.05))}/{len(a)} below 5%")
 
     # ----------------------------------------------------------------- repaired models
@@ -939,18 +947,18 @@ def main(argv=None) -> int:
                          f"{rp.get('read_cpu_seconds', float('nan')):.1f}",
                          f"{base[i].get('cpu_seconds', float('nan')):.0f}"])
     if rep_rows:
-        print("\nRepaired models (genus > 0): handles cut, virtual share of the area, surfels "
+        REPORT.print("\nRepaired models (genus > 0): handles cut, virtual share of the area, surfels "
               "mapped, nearest neighbour's class, average precision as a query (all 95), CPU s "
               "of read+repair and of read+repair+map+resample\n")
         print_table(["model", "class", "genus", "cut", "virtual %", "surfels", "mapped",
                      "NN class", "AP", "repair s", "total s"], rep_rows)
 
     # ----------------------------------------------------------------- failures
-    print(f"\nFailures ({len(failed)} of {len(paths)} models; genus from meta.csv):")
+    REPORT.print(f"\nFailures ({len(failed)} of {len(paths)} models; genus from meta.csv):")
     for i in failed:
-        print(f"  {paths[i]} ({classes[i]}, genus {genus[i]}): {base[i]['error']}")
+        REPORT.print(f"  {paths[i]} ({classes[i]}, genus {genus[i]}): {base[i]['error']}")
     t_map = sum(r.get("seconds", 0.0) for r in recs)
-    print(f"\nTime: map+resample {t_compute:.0f} s wall ({t_map:.0f} s CPU-sum incl. cached "
+    REPORT.print(f"\nTime: map+resample {t_compute:.0f} s wall ({t_map:.0f} s CPU-sum incl. cached "
           f"records' original times), describe {t_describe:.1f} s wall, {cpu_describe:.1f} s CPU "
           f"({cpu_describe / max(len(base) - len(failed), 1):.2f} s CPU per model); cache "
           f"{'off' if cache_dir is None else cache_dir}")
@@ -971,4 +979,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    REPORT.finish()
+    sys.exit(code)

@@ -65,6 +65,8 @@ import surfidx
 from surfidx.geometry.mesh import TriangleMesh
 from surfidx.topology import RepairOptions, analyse, close_surface, split_parts
 
+from _markdown import Report, add_markdown_option
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MODELS = ["stanford-bunny.obj", "cow.obj", "rocker-arm.obj",
           "ycb_scissors/textured_simple_reoriented.obj", "frag_115.ply"]
@@ -191,23 +193,24 @@ def ingest_row(path: Path, rates) -> dict:
     return row
 
 
-def ingest_table(paths, rates) -> None:
+def ingest_table(paths, rates, report) -> None:
     cols = ["model", "V", "holes", "genus", "pieces", "filled", "cut", "split", "parts",
             "virtual_area", "t_repair", "t_ingest", "share", "ingest"]
     for r in rates:
         cols += [f"{c}@{r:g}" for c in ("loops", "genus", "pieces", "same", "psnr_d2", "mask%")]
-    print("before: holes, genus (largest piece), pieces; added: filled, cut, split, parts "
-          "(dropped), virtual share of the area; CPU s: repair, whole ingest (8 b/s), repair "
-          "share %; decoded at each rate: input/decoded loops, genus, pieces, PSNR_D2 dB, mask "
-          "share of the stream %\n", flush=True)
-    print(" | ".join(cols), flush=True)
+    report.text("before: holes, genus (largest piece), pieces; added: filled, cut, split, parts "
+                "(dropped), virtual share of the area; CPU s: repair, whole ingest (8 b/s), "
+                "repair share %; decoded at each rate: input/decoded loops, genus, pieces, "
+                "PSNR_D2 dB, mask share of the stream %\n")
+    report.markdown(" | ".join(cols), flush=True)
+    report.markdown(" | ".join("---" for _ in cols))
     for p in paths:
         row = ingest_row(p, rates)
         cells = []
         for c in cols:
             v = row.get(c, "")
             cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
-        print(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
+        report.markdown(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
 
 
 def cone(rim: int):
@@ -218,12 +221,13 @@ def cone(rim: int):
     return v, np.c_[np.full(rim, rim), (i + 1) % rim, i]
 
 
-def dp_table(rims) -> None:
+def dp_table(rims, report) -> None:
     """CPU seconds of closing one hole by rim length, one programme on the whole rim and with
     the default split (see the module docstring)."""
     close_surface(*cone(20))                                 # compile the kernels first
     default = RepairOptions().dp_max_loop
-    print(f"rim | one programme (s) | default dp_max_loop={default} (s)")
+    report.markdown(f"rim | one programme (s) | default dp_max_loop={default} (s)")
+    report.markdown("--- | --- | ---")
     for rim in rims:
         v, f = cone(rim)
         cells = []
@@ -231,7 +235,7 @@ def dp_table(rims) -> None:
             t = time.process_time()
             close_surface(v, f, options=opts)
             cells.append(f"{time.process_time() - t:.3f}")
-        print(f"{rim} | " + " | ".join(cells), flush=True)
+        report.markdown(f"{rim} | " + " | ".join(cells), flush=True)
 
 
 def main(argv=None) -> None:
@@ -244,14 +248,33 @@ def main(argv=None) -> None:
     ap.add_argument("--rates", default="2,4", help="decoding rates of --ingest (bits/surfel)")
     ap.add_argument("--dp", action="store_true", help="hole-closing time by rim length")
     ap.add_argument("--rims", default="100,300,600,1000", help="rim lengths of --dp")
+    add_markdown_option(ap, "topology")
     args = ap.parse_args(argv)
+    if args.markdown is not None and args.markdown.name == "topology.md" and (args.ingest
+                                                                              or args.dp):
+        args.markdown = args.markdown.with_name("topology_ingest.md" if args.ingest
+                                                else "topology_dp.md")
     if args.dp:
-        dp_table([int(r) for r in args.rims.split(",")])
+        report = Report(args.markdown.stem if args.markdown else "topology_dp",
+                        "Closing a hole by rim length", args.markdown,
+                        note="CPU seconds of closing the one hole of an open cone, with one "
+                             "dynamic programme over the whole rim and with the default split "
+                             "of long rims (`RepairOptions.dp_max_loop`).")
+        dp_table([int(r) for r in args.rims.split(",")], report)
+        report.finish()
         return
+    report = Report(args.markdown.stem if args.markdown else "topology",
+                    "Topology repair" + (" through the ingest path" if args.ingest else ""),
+                    args.markdown,
+                    note="What each real model is (holes, pinched vertices, genus, pieces), "
+                         "what the repair adds (holes filled, handles cut, pinches split, the "
+                         "virtual share of the area, parts kept and dropped), whether every "
+                         "closed part maps, and the CPU seconds of the repair beside the map's.")
     if args.ingest:
         names = [m for m in args.models.split(",") if m]
         ingest_table([DATA / "models" / m if not m.startswith("retrieval/") else DATA / m
-                      for m in names], [float(r) for r in args.rates.split(",")])
+                      for m in names], [float(r) for r in args.rates.split(",")], report)
+        report.finish()
         return
     names = [m for m in args.models.split(",") if m]
     paths = [DATA / "models" / m if not m.startswith("retrieval/") else DATA / m for m in names]
@@ -263,14 +286,17 @@ def main(argv=None) -> None:
         cols += ["maps", "folds", "t_map", "ratio"]
         if args.mask:
             cols += ["grid", "mask_bytes", "mask_share_2bps"]
-    print(" | ".join(cols))
+    report.markdown(" | ".join(cols))
+    report.markdown(" | ".join("---" for _ in cols))
     for p in paths:
         row = run(p, do_map=not args.no_map, do_mask=args.mask)
         cells = []
         for c in cols:
             v = row.get(c, "")
             cells.append(f"{v:.3f}" if isinstance(v, float) else str(v))
-        print(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""), flush=True)
+        report.markdown(" | ".join(cells) + (f"  ({row['error']})" if "error" in row else ""),
+                        flush=True)
+    report.finish()
 
 
 if __name__ == "__main__":

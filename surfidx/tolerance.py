@@ -67,3 +67,4 @@ class Tolerances:
 
 
 TOL = Tolerances()
+"""The tolerances every check of the library uses (one :class:`Tolerances`)."""

@@ -54,7 +54,7 @@ def real(tmp_path_factory):
 
 def test_readme_example_runs(tmp_path, monkeypatch, capsys):
     text = (REPO / "README.md").read_text()
-    block = re.search(r"### The model database in Python.*?```python\n(.*?)```", text, re.S)
+    block = re.search(r"^## Python.*?```python\n(.*?)```", text, re.S | re.M)
     monkeypatch.chdir(tmp_path)
     exec(compile(block.group(1), "README.md", "exec"), {})
     assert capsys.readouterr().out.splitlines()[:2] == ["['ball', 'capsule']", "capsule"]

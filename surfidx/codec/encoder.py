@@ -64,6 +64,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "READ_LEVEL_MIN"]
 
 CODEC_VERSION = container.FORMAT_VERSION
+"""Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
 from .options import COLOR_WEIGHT, MAX_COLOR_WEIGHT, TANGENT_WEIGHT  # noqa: E402
 
 _PLANES = 30  # bit planes below the largest coefficient: finer than float32 positions

@@ -95,7 +95,9 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 
 from .options import DEFAULT_LMAX  # noqa: E402  (defined with DescribeOptions)
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
+"""Normalisation of the spherical harmonics the descriptors use (stored with them)."""
 DESCRIPTOR_VERSION = 7
+"""Version of the descriptor vectors; queries refuse to compare vectors of different versions."""
 
 SHELLS = 8
 SHELL_LMAX = 8

@@ -118,6 +118,7 @@ class TopologyReport:
         return self.holes + 2 * self.handles
 
     def as_dict(self) -> dict:
+        """The report as a plain dict (with ``is_sphere`` and ``patches``)."""
         d = dict(self.__dict__)
         d["is_sphere"], d["patches"] = self.is_sphere, self.patches
         return d
@@ -168,6 +169,7 @@ class RepairReport:
     genus_before: int
 
     def as_dict(self) -> dict:
+        """The report as a plain dict."""
         return dict(self.__dict__)
 
 
