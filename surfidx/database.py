@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import DatabaseError, InputError, SurfidxError
-from .io.files import find_texture
+from .io.files import pair_texture
 from .pipeline import unit_of_work
 from .validate import accepts_keyword
 from .db.catalog import Catalog, is_storage_failure
@@ -235,7 +235,7 @@ class Database(Catalog):
             if isinstance(ref, os.PathLike):
                 if not Path(ref).is_file():
                     raise InputError("no such model file", path=ref)
-                tex = texture if texture is not None else find_texture(ref)
+                tex = texture if texture is not None else pair_texture(ref)
                 processed = proc(str(ref), texture=tex, **extra)
             else:
                 processed = proc(ref, **extra)

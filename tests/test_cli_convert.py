@@ -161,3 +161,37 @@ def test_zero_surfel_stream_info_is_a_clean_error(tmp_path):
     sfz.write_bytes(bytes(d))
     _one_line_error(CliRunner().invoke(cli, ["info", str(sfz)]),
                     "zero.sfz: corrupt header (0 input surfels)")
+
+
+def test_every_command_pairs_the_texture_beside_an_obj(tmp_path):
+    """An OBJ with UVs whose MTL names no image takes the PNG beside it in every command, not only
+    ingest, and the command says which it paired; --texture still chooses another."""
+    from pathlib import Path
+
+    spot = Path(__file__).resolve().parents[1] / "examples/models/spot/spot_triangulated.obj"
+    r = CliRunner().invoke(cli, ["info", str(spot), "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["color"] is True
+    assert "using spot_texture.png beside it" in r.stderr
+    r = CliRunner().invoke(cli, ["encode", str(spot), "-o", str(tmp_path / "s.sfz"),
+                                 "--bits-per-surfel", "2", "--json"])
+    assert r.exit_code == 0, r.output
+    assert "using spot_texture.png beside it" in r.stderr
+    assert json.loads(r.stdout)["color"] is True or "color" not in json.loads(r.stdout)
+    r = CliRunner().invoke(cli, ["info", str(spot), "--texture", str(spot.parent / "spot_texture.png")])
+    assert r.exit_code == 0 and "beside it" not in r.stderr
+
+
+def test_pair_texture_says_what_it_paired(tmp_path):
+    from pathlib import Path
+
+    import pytest
+
+    from surfidx.io import pair_texture
+
+    spot = Path(__file__).resolve().parents[1] / "examples/models/spot/spot_triangulated.obj"
+    with pytest.warns(UserWarning, match="using spot_texture.png beside it"):
+        assert pair_texture(spot) == spot.parent / "spot_texture.png"
+    (tmp_path / "plain.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert pair_texture(tmp_path / "plain.obj") is None                # no UVs: nothing paired
+    assert pair_texture(tmp_path / "missing.obj") is None              # left to the reader

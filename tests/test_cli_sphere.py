@@ -14,7 +14,7 @@ def test_parameterize_writes_sphere_positions(tmp_path, models):
     r = CliRunner().invoke(cli, ["parameterize", str(models / "spot" / "spot_triangulated.obj"),
                                  "-o", str(out), "--json"])
     assert r.exit_code == 0, r.output
-    fig = json.loads(r.output)
+    fig = json.loads(r.stdout)
     assert fig["method"] == "tutte" and fig["surfels"] == 2930 and fig["mesh_folds"] == 0
     from plyfile import PlyData
 
@@ -35,7 +35,7 @@ def test_resample_writes_grid(tmp_path, models):
     r = CliRunner().invoke(cli, ["resample", str(models / "spot" / "spot_triangulated.obj"),
                                  "-o", str(out), "--level", "3", "--mesh", "--json"])
     assert r.exit_code == 0, r.output
-    assert json.loads(r.output)["grid_vertices"] == 642
+    assert json.loads(r.stdout)["grid_vertices"] == 642
 
 
 def test_genus_error_is_one_line(tmp_path, models):

@@ -119,11 +119,14 @@ def test_textured_obj_colours(models):
     assert banana.has_color
     r, g, b = banana.colors.astype(float).mean(0)
     assert r > 120 and g > 100 and b < 0.5 * g  # yellow
-    spot = read_surfels(models / "spot" / "spot_triangulated.obj")
-    assert not spot.has_color  # no mtllib: the texture must be given
+    # no mtllib: the image beside it is paired, with a warning naming it, as an ingest pairs it
+    with pytest.warns(UserWarning, match=r"spot_triangulated.obj: texture coordinates but no "
+                                         r"texture named by its MTL; using spot_texture.png"):
+        paired = read_surfels(models / "spot" / "spot_triangulated.obj")
     spot = read_surfels(models / "spot" / "spot_triangulated.obj",
                         texture=models / "spot" / "spot_texture.png")
     assert spot.has_color and spot.colors.std() > 10
+    np.testing.assert_array_equal(paired.colors, spot.colors)
 
 
 def test_uniform_sampling_keeps_texture_and_covers(models):

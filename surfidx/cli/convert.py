@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import click
@@ -76,7 +77,9 @@ def _input_mesh(input, surfels):
     has_faces = surfels.faces is not None and len(surfels.faces) > 0
     if has_faces or Path(input).suffix.lower() in MESH_SUFFIXES:
         try:
-            m = read_mesh(input, allow_outside_textures=allow_outside_textures())
+            with warnings.catch_warnings():     # the surfels' read said them already
+                warnings.simplefilter("ignore")
+                m = read_mesh(input, allow_outside_textures=allow_outside_textures())
             return m.vertices, m.faces
         except SurfidxError:
             if not has_faces:

@@ -11,4 +11,5 @@ from .ply import write_ply as write_ply
 from .writing import write_model as write_model, output_format as output_format
 from .atomic import write_atomic as write_atomic
 from .texture import read_texture as read_texture
-from .files import find_texture as find_texture, NotRegularFile as NotRegularFile
+from .files import (find_texture as find_texture, pair_texture as pair_texture,
+                    NotRegularFile as NotRegularFile)

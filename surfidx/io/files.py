@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import os
 import stat
+import warnings
 from pathlib import Path
 
 __all__ = ["NotRegularFile", "not_regular", "open_regular", "file_pieces", "read_regular",
-           "lines_of_regular", "find_texture"]
+           "lines_of_regular", "find_texture", "pair_texture"]
 
 
 class NotRegularFile(OSError):
@@ -138,3 +139,32 @@ def find_texture(path):
             return path.parent / name
     pngs = [p for p in path.parent.iterdir() if p.suffix.lower() == ".png" and p.is_file()]
     return pngs[0] if len(pngs) == 1 else None
+
+
+def pair_texture(path):
+    """:func:`find_texture` for a model a command reads without a texture given: the image it
+    pairs, with a warning naming it (so the pairing is never silent), or None. A file that
+    cannot be read for it gives None and is left to the reader's own error.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    pathlib.Path or None
+
+    Warns
+    -----
+    UserWarning
+        The image paired with an OBJ whose MTL names none.
+    """
+    try:
+        found = find_texture(path)
+    except OSError:
+        return None
+    if found is not None:
+        warnings.warn(f"{path}: texture coordinates but no texture named by its MTL; using "
+                      f"{found.name} beside it (pass a texture to choose another)", UserWarning,
+                      stacklevel=2)
+    return found

@@ -19,6 +19,7 @@ from ..geometry.mesh import MAX_EDGE_RATIO, TriangleMesh
 from ..geometry.pointcloud import points_to_surfels
 from ..geometry.surfels import SurfelSet
 from ..validate import as_array
+from .files import pair_texture
 from .limits import check_input_file
 from .ply import PlyPoints, ply_colors, points_from_ply_data
 from .points import Points
@@ -125,7 +126,9 @@ def read_mesh(path, *, texture=None, allow_outside_textures: bool = False,
     ----------
     path : str or os.PathLike
     texture : str or os.PathLike, optional
-        Texture image (OBJ only), overriding the MTL's.
+        Texture image (OBJ only), overriding the MTL's. Without it, an OBJ with texture
+        coordinates whose MTL names no image takes the image beside it
+        (:func:`surfidx.io.find_texture`), as an ingest does, and a warning names it.
     allow_outside_textures : bool
         Use an MTL texture outside the model's folder (see :func:`read_surfels`).
 
@@ -137,6 +140,11 @@ def read_mesh(path, *, texture=None, allow_outside_textures: bool = False,
     ------
     FileFormatError
         When the file cannot be read or holds no faces.
+
+    Warns
+    -----
+    UserWarning
+        The texture image paired with an OBJ whose MTL names none.
     """
     path = Path(path)
     check_input_file(path)
@@ -144,6 +152,8 @@ def read_mesh(path, *, texture=None, allow_outside_textures: bool = False,
     read = reader(suffix)
     if texture is not None and (read is None or not read.texture):
         raise InputError("--texture applies to OBJ files only", path=path)
+    if texture is None and read is not None and read.texture:
+        texture = pair_texture(path)
     try:
         if read is None:
             raise FileFormatError(
