@@ -24,6 +24,7 @@ surfidx query out/armadillo_moved.ply --db "$DB" -k 2 --sheet out/query.png
 
 # retrieval: the stored 8 bits/surfel stream, truncated to 2 bits/surfel
 surfidx get armadillo --db "$DB" --bits-per-surfel 2 -o out/armadillo_2bps.ply
+surfidx get spot_triangulated --db "$DB" --bits-per-surfel 4 -o out/spot_4bps.glb   # for any viewer
 surfidx eval "$M/armadillo.obj" out/armadillo_2bps.ply
 surfidx render out/armadillo_2bps.ply -o out/armadillo_2bps.png
-echo "demo finished: database $DB, outputs in ./out (query.png, armadillo_2bps.ply/.png)"
+echo "demo finished: database $DB, outputs in ./out (query.png, armadillo_2bps.ply/.png, spot_4bps.glb)"
