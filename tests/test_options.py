@@ -161,6 +161,7 @@ def test_up_reaches_the_thumbnail_and_the_stored_params(tmp_path):
     from conftest import icosphere_mesh
     from surfidx.cli import cli
     from surfidx.database import Database
+    from surfidx.pipeline import describe_model
 
     v, _ = icosphere_mesh(3)
     scan = tmp_path / "pole.xyz"
@@ -183,6 +184,9 @@ def test_up_reaches_the_thumbnail_and_the_stored_params(tmp_path):
     params, stream, desc, png = ingest(tmp_path / "a.db")
     assert params["up"] == "+z"                             # the XYZ format's
     h, w = extent(png)
+    assert h > 2 * w
+    # a query's example is drawn the same way (its contact sheet's first picture)
+    h, w = extent(describe_model(scan, level=3, thumbnail_size=64).thumbnail)
     assert h > 2 * w
     params_x, stream_x, desc_x, png_x = ingest(tmp_path / "b.db", "--up", "X")
     assert params_x["up"] == "+x"
