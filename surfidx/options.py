@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 from .codec.options import CodecOptions
 from .describe.options import DescribeOptions
 from .errors import InputError
+from .geometry.axes import UP_AXES
 from .sphere.options import MapOptions
 from .topology.options import RepairOptions
 from .validate import check_option_fields, option
@@ -37,6 +38,11 @@ class ProcessOptions:
         Sample this many surfels uniformly over a mesh instead of one per vertex (at least 4).
     thumbnail_size : int
         Thumbnail width and height in pixels, 1 … 8192.
+    up : str or None
+        The model axis that points up (one of :data:`surfidx.geometry.axes.UP_AXES`, ``"+z"``),
+        which the thumbnail shows upwards (:func:`surfidx.render.thumbnail_basis`); None: the
+        file format's (:func:`surfidx.io.up_axis`: +y for meshes, +z for scanners' point
+        clouds). Streams and descriptors do not depend on it.
     """
 
     repair: RepairOptions = field(default_factory=RepairOptions)
@@ -45,6 +51,7 @@ class ProcessOptions:
     describe: DescribeOptions = field(default_factory=DescribeOptions)
     samples: int | None = option(None, min=4)
     thumbnail_size: int = option(DEFAULT_THUMBNAIL_SIZE, min=1, max=8192)
+    up: str | None = option(None, choices=UP_AXES)
 
     def __post_init__(self):
         for name, cls in _PARTS.items():

@@ -273,13 +273,16 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
     Returns
     -------
     ProcessedModel
-        Its thumbnail looks along the model's smallest principal axis
-        (:func:`surfidx.render.principal_basis`); ``topology`` says what the repair added (None
-        for a model stored as read); ``n_surfels`` counts every coded surfel, virtual included
-        (the rate's denominator); ``params`` are the options as used (``options.to_dict()``),
-        what the codec reports of each part (:meth:`surfidx.codec.encoder.Prepared.report`:
-        grid level, map method, folds, weights), the descriptors' conventions and
-        ``provenance`` (:func:`surfidx.numerics.provenance`).
+        Its thumbnail shows the decoded model upright, its up axis (``options.up``, else the
+        file format's: :func:`surfidx.io.up_axis`) up, in a three-quarter view, or along its
+        smallest principal axis when it is flat (:func:`surfidx.render.thumbnail_basis`);
+        ``topology`` says what the repair added (None for a model stored as read);
+        ``n_surfels`` counts every coded surfel, virtual included (the rate's denominator);
+        ``params`` are the options as used (``options.to_dict()``, ``up`` the axis the
+        thumbnail used), what the codec reports of each part
+        (:meth:`surfidx.codec.encoder.Prepared.report`: grid level, map method, folds,
+        weights), the descriptors' conventions and ``provenance``
+        (:func:`surfidx.numerics.provenance`).
 
     Raises
     ------
@@ -294,9 +297,10 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
     from .describe.descriptors import describe_grid
     from .geometry.mesh import MAX_EDGE_RATIO
     from .geometry.metrics import evaluate
+    from .io import up_axis
     from .numerics import provenance
     from .options import ProcessOptions
-    from .render import render
+    from .render import THUMBNAIL, render
 
     opts = ProcessOptions.resolve(options, bits_per_surfel=bits_per_surfel, samples=samples,
                                   level=level, method=method, thumbnail_size=thumbnail_size,
@@ -323,11 +327,12 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
     desc = _timed(timings, "describe", progress, lambda: combine_descriptors(
         [describe_grid(e.grid, e.level, lmax=opts.describe.lmax) for e in encoders],
         [len(p) for p in model.parts]))
+    up = opts.up or up_axis(path)
     thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-        render(decoded, width=size, height=size, view="principal")))
+        render(decoded, width=size, height=size, view=THUMBNAIL, up=up)))
     reports = [e.prepared.report() for e in encoders]
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
-    params = {**opts.to_dict(), **reports[0],
+    params = {**opts.to_dict(), "up": up, **reports[0],
               "folded": int(sum(r["folded"] for r in reports)),
               "max_edge_ratio": MAX_EDGE_RATIO if from_mesh else None,
               "texture": None if texture is None else str(texture),
@@ -402,7 +407,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     texture, samples, level, method, lmax, allow_outside_textures, name
         As for :func:`process_model`.
     thumbnail_size : int, optional
-        Also draw a thumbnail of the input surfels this many pixels wide and high.
+        Also draw a thumbnail of the input surfels this many pixels wide and high, in the view
+        of a stored model's (upright, ``options.up`` or the format's up axis up).
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
         (``map`` per level, ``repair``, ``figures``), ``resample``, ``describe`` and, with a
@@ -420,8 +426,9 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     import time
 
     from .describe.descriptors import describe_grid
+    from .io import up_axis
     from .options import ProcessOptions
-    from .render import render
+    from .render import THUMBNAIL, render
     from .codec.resample import resample
     from .sphere import parameterize
 
@@ -448,8 +455,10 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     grid_level = levels[0]
     thumb = None
     if thumbnail_size is not None:
+        up = opts.up or up_axis(path)
         thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-            render(surfels, width=thumbnail_size, height=thumbnail_size, view="principal")))
+            render(surfels, width=thumbnail_size, height=thumbnail_size, view=THUMBNAIL,
+                   up=up)))
     label, source, digest = _identity(path, surfels, texture, name)
     return DescribedModel(name=label, source=source, content_hash=digest,
                           n_surfels=len(surfels), has_color=surfels.has_color,

@@ -15,13 +15,22 @@ two-sided (normals facing away from the camera are flipped). The image is render
 ``supersample`` times the size and box-filtered down, which anti-aliases silhouettes.
 
 The camera looks at the model's centre. Views are named or given as ``(azimuth, elevation)`` in
-degrees: azimuth 0 and elevation 0 look along ``-z`` (the camera sits on ``+z``, ``+y`` up, ``+x``
-right), positive azimuth moves the camera towards ``+x``, positive elevation raises it towards
-``+y``.
+degrees, in the frame turned so that the model's up axis (``up``, :mod:`surfidx.geometry.axes`)
+points up: for a +y-up model, azimuth 0 and elevation 0 look along ``-z`` (the camera sits on
+``+z``, ``+y`` up, ``+x`` right); for a +z-up model they look along ``+y`` (the camera on
+``-y``, ``+z`` up, ``+x`` right). Positive azimuth moves the camera towards ``+x``, positive
+elevation raises it towards the up axis.
 
 The view ``"principal"`` looks along the model's smallest principal axis (of its surfels'
 positions, weighted by disk area), with the largest axis across and the middle one up: a flat
-model (a bird, pliers) shows its largest silhouette. Thumbnails use it.
+model (a bird, pliers) shows its largest silhouette.
+
+The view ``"thumbnail"`` is the one thumbnails use (:func:`thumbnail_basis`): the
+``"three-quarter"`` view with the model's up axis up, so a standing figure stands and a chair
+shows its seat, back and legs at once (a view straight from the front shows a box as a square
+and a chair as its back); a model that is flat along its up axis (:func:`is_flat`: pliers or a
+bird with spread wings lying in the horizontal plane, which the three-quarter view shows edge
+on) falls back to ``"principal"``.
 """
 
 from __future__ import annotations
@@ -34,13 +43,18 @@ import numpy as np
 
 from .errors import FileFormatError, InputError
 from .validate import as_array, check_positive_int
+from .geometry.axes import MESH_UP, check_up, up_rotation
 from .geometry.surfels import SurfelSet
 
-__all__ = ["VIEWS", "PRINCIPAL", "render", "save_png", "camera_basis", "principal_basis",
+__all__ = ["VIEWS", "PRINCIPAL", "THUMBNAIL", "THUMBNAIL_VIEW", "FLAT_RATIO", "render",
+           "save_png", "camera_basis", "principal_basis", "thumbnail_basis", "is_flat",
            "read_polyline"]
 
 #: The view name that looks along the model's smallest principal axis (:func:`principal_basis`).
 PRINCIPAL = "principal"
+
+#: The view name of thumbnails (:func:`thumbnail_basis`).
+THUMBNAIL = "thumbnail"
 
 #: Named views as (azimuth, elevation) in degrees.
 VIEWS = {
@@ -53,15 +67,13 @@ VIEWS = {
     "bottom": (0.0, -90.0),
 }
 
-#: Rotations taking each allowed up axis to +y (rows: where x, y, z of the model go).
-_UP = {
-    "y": ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
-    "-y": ((1, 0, 0), (0, -1, 0), (0, 0, -1)),
-    "z": ((1, 0, 0), (0, 0, 1), (0, -1, 0)),
-    "-z": ((1, 0, 0), (0, 0, -1), (0, 1, 0)),
-    "x": ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
-    "-x": ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
-}
+#: The named view of an upright thumbnail (:func:`thumbnail_basis`).
+THUMBNAIL_VIEW = "three-quarter"
+
+#: A model is flat (:func:`is_flat`) when its bounding box's extent along the up axis is below
+#: this fraction of its larger horizontal extent. Lying pliers, glasses and spread-winged birds
+#: are flatter; a table, a bowl, a fish or a car on its wheels is not.
+FLAT_RATIO = 0.25
 
 _GREY = (200, 200, 200)
 _MARGIN = 0.06          # fraction of the image left free on each side
@@ -72,7 +84,7 @@ _HIDDEN_ALPHA = 0.3     # opacity of the hidden part of a path
 
 
 # ---------------------------------------------------------------------- camera
-def camera_basis(view="three-quarter", *, up: str = "y") -> np.ndarray:
+def camera_basis(view="three-quarter", *, up: str = MESH_UP) -> np.ndarray:
     """Orthonormal camera axes for a view.
 
     Parameters
@@ -80,9 +92,10 @@ def camera_basis(view="three-quarter", *, up: str = "y") -> np.ndarray:
     view : str or (2,) float
         A name of :data:`VIEWS` or ``(azimuth_deg, elevation_deg)``.
     up : str
-        The model axis shown upwards: ``"y"`` (default), ``"z"``, ``"x"``, or one of them with a
-        ``-`` sign. The angles are measured in a frame rotated so that this axis plays ``+y``'s
-        role (for ``"z"``: front looks along ``+y``, from ``-y``).
+        The model axis shown upwards (:func:`surfidx.geometry.axes.check_up`: ``"+y"``,
+        ``"+z"``, ``"-x"``...; ``"y"`` is ``"+y"``). The angles are measured in a frame rotated
+        so that this axis plays ``+y``'s role (for ``"+z"``: front looks along ``+y``, from
+        ``-y``).
 
     Returns
     -------
@@ -94,12 +107,11 @@ def camera_basis(view="three-quarter", *, up: str = "y") -> np.ndarray:
     InputError
         For an unknown view name, a malformed angle pair or an unknown up axis.
     """
-    if up not in _UP:
-        raise InputError(f"unknown up axis {up!r}; use one of {', '.join(_UP)}")
+    turn = up_rotation(up)
     if isinstance(view, str):
         if view not in VIEWS:
-            raise InputError(f"unknown view {view!r}; use one of {', '.join(VIEWS)} or "
-                             "(azimuth, elevation) in degrees")
+            raise InputError(f"unknown view {view!r}; use one of {', '.join(VIEWS)}, "
+                             f"{PRINCIPAL}, {THUMBNAIL} or (azimuth, elevation) in degrees")
         az, el = VIEWS[view]
     else:
         az, el = as_array(view, "view", shape=(2,))
@@ -107,7 +119,7 @@ def camera_basis(view="three-quarter", *, up: str = "y") -> np.ndarray:
     back = np.array([math.cos(e) * math.sin(a), math.sin(e), math.cos(e) * math.cos(a)])
     right = np.array([math.cos(a), 0.0, -math.sin(a)])  # perpendicular to back for every e
     upward = np.cross(back, right)
-    return np.stack([right, upward, back]) @ np.array(_UP[up], float)
+    return np.stack([right, upward, back]) @ turn
 
 
 def principal_basis(surfels: SurfelSet) -> np.ndarray:
@@ -136,6 +148,52 @@ def principal_basis(surfels: SurfelSet) -> np.ndarray:
             a *= -1.0
     axes[2] = np.cross(axes[0], axes[1])
     return axes
+
+
+def is_flat(surfels: SurfelSet, *, up: str = MESH_UP) -> bool:
+    """Whether a model is flat along its up axis (lies in the horizontal plane).
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+    up : str
+        The model's up axis (:func:`surfidx.geometry.axes.check_up`).
+
+    Returns
+    -------
+    bool
+        Whether the extent of the surfels' positions along ``up`` is below :data:`FLAT_RATIO`
+        times the larger of the two horizontal extents (of the axis-aligned bounding box).
+    """
+    extent = np.abs(up_rotation(up)) @ (surfels.bounds[1] - surfels.bounds[0])
+    return bool(extent[1] < FLAT_RATIO * max(extent[0], extent[2]))
+
+
+def thumbnail_basis(surfels: SurfelSet, *, up: str = MESH_UP) -> np.ndarray:
+    """Camera axes of a thumbnail: upright three-quarter view, principal view when flat.
+
+    Parameters
+    ----------
+    surfels : SurfelSet
+    up : str
+        The model's up axis, as its file format keeps it (:func:`surfidx.io.up_axis`) or as
+        the user said (``ProcessOptions.up``).
+
+    Returns
+    -------
+    (3, 3) float64
+        :func:`camera_basis` of :data:`THUMBNAIL_VIEW` with ``up`` up, or, for a model that
+        :func:`is_flat`, :func:`principal_basis` (its largest silhouette).
+
+    Raises
+    ------
+    InputError
+        For an unknown up axis.
+    """
+    up = check_up(up)
+    if is_flat(surfels, up=up):
+        return principal_basis(surfels)
+    return camera_basis(THUMBNAIL_VIEW, up=up)
 
 
 # ---------------------------------------------------------------------- kernels
@@ -266,8 +324,8 @@ def _draw_path(sx, sy, sz, half, depth_tol, zbuf, mark):
 
 # ---------------------------------------------------------------------- public API
 def render(surfels: SurfelSet, *, width: int = 800, height: int = 800, view="three-quarter",
-           up: str = "y", background=(255, 255, 255), path_points=None, path_color=(220, 30, 30),
-           light=(-0.45, 0.55, 1.0), supersample: int = 2) -> np.ndarray:
+           up: str = MESH_UP, background=(255, 255, 255), path_points=None,
+           path_color=(220, 30, 30), light=(-0.45, 0.55, 1.0), supersample: int = 2) -> np.ndarray:
     """Render surfels as lit, z-buffered disk splats.
 
     Parameters
@@ -278,10 +336,12 @@ def render(surfels: SurfelSet, *, width: int = 800, height: int = 800, view="thr
         Image size in pixels.
     view : str or (2,) float
         ``"three-quarter"``, ``"front"``, ``"back"``, ``"left"``, ``"right"``, ``"top"``,
-        ``"bottom"``, ``"principal"`` (along the smallest principal axis, ``up`` ignored) or
-        ``(azimuth_deg, elevation_deg)`` (see the module notes).
+        ``"bottom"``, ``"principal"`` (along the smallest principal axis, ``up`` ignored),
+        ``"thumbnail"`` (:func:`thumbnail_basis`) or ``(azimuth_deg, elevation_deg)`` (see the
+        module notes).
     up : str
-        Model axis shown upwards: ``"y"``, ``"z"``, ``"x"`` or negated (``"-z"``).
+        Model axis shown upwards: ``"+y"``, ``"+z"``, ``"+x"`` or negated (``"-z"``); the sign
+        may be left out for ``+`` (:func:`surfidx.geometry.axes.check_up`).
     background : (3,) int
         RGB 0..255 where no surfel covers the pixel.
     path_points : (k, 3) float64, optional
@@ -325,8 +385,13 @@ def render(surfels: SurfelSet, *, width: int = 800, height: int = 800, view="thr
     path = None
     if path_points is not None:
         path = as_array(path_points, "path_points", shape=(None, 3), min_len=1)
-    basis = principal_basis(surfels) if isinstance(view, str) and view == PRINCIPAL else \
-        camera_basis(view, up=up)
+    if isinstance(view, str) and view == PRINCIPAL:
+        check_up(up)
+        basis = principal_basis(surfels)
+    elif isinstance(view, str) and view == THUMBNAIL:
+        basis = thumbnail_basis(surfels, up=up)
+    else:
+        basis = camera_basis(view, up=up)
 
     # camera space: x right, y up, depth away from the camera
     cam = surfels.positions @ basis.T

@@ -24,7 +24,7 @@ def test_defaults_round_trip_through_json():
 def test_changed_tree_round_trips():
     o = ProcessOptions(map=MapOptions(iterations=7, flip_ladder=((True, 0.5),)),
                        codec=CodecOptions(bits_per_surfel=3.0, tangent_weight=None),
-                       describe=DescribeOptions(lmax=12), samples=500)
+                       describe=DescribeOptions(lmax=12), samples=500, up="+z")
     assert ProcessOptions.from_dict(json.loads(json.dumps(o.to_dict()))) == o
 
 
@@ -55,6 +55,8 @@ def test_load_json_and_toml(tmp_path):
     ('{"map": {"method": "magic"}}', r"MapOptions\.method must be one of 'tutte', 'mds'"),
     ('{"codec": {"tangent_weight": 2}}', r"CodecOptions\.tangent_weight must be at most 1"),
     ('{"samples": 2}', r"ProcessOptions\.samples must be at least 4, got 2"),
+    ('{"up": "z"}', r"ProcessOptions\.up must be one of '\+y', '\+z', '\+x', '-y', '-z', "
+                    r"'-x', got 'z'"),
     ('{"codec": {"level": "x"}}', r"CodecOptions\.level must be an integer >= 0 or None"),
     ('[1, 2]', r"o\.json: options must be a table of settings"),
     ('{"codec": ', r"o\.json: not valid JSON"),
@@ -147,3 +149,53 @@ def test_cli_options_file_reaches_the_map_and_the_stored_params(tmp_path, ball):
     assert params["grid_level"] >= 0 and params["map_method"] == "tutte"
     assert set(params["provenance"]) >= {"surfidx", "numpy", "scipy", "numba",
                                          "numerics_profile"}
+
+
+def test_up_reaches_the_thumbnail_and_the_stored_params(tmp_path):
+    """A +z-up scan (an XYZ file) of a standing figure is stored with an upright thumbnail;
+    ``--up`` overrides the format's axis, which changes the thumbnail and nothing else."""
+    import io
+
+    from PIL import Image
+
+    from conftest import icosphere_mesh
+    from surfidx.cli import cli
+    from surfidx.database import Database
+    from surfidx.pipeline import describe_model
+
+    v, _ = icosphere_mesh(3)
+    scan = tmp_path / "pole.xyz"
+    np.savetxt(scan, v * [0.5, 0.35, 2.0], fmt="%.6f")      # taller along z than wide
+
+    def ingest(db, *flags):
+        r = CliRunner().invoke(cli, ["ingest", str(scan), "--db", str(db), "--workers", "1",
+                                     "--no-progress", *flags], obj={})
+        assert r.exit_code == 0, r.output
+        with Database(db) as d:
+            png = d.get_thumbnail(1)
+            return d.get_model(1)["params"], d.get_stream(1), d.get_descriptors(1), png
+
+    def extent(png):
+        img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        cov = np.any(img != 255, axis=2)
+        rows, cols = np.flatnonzero(cov.any(axis=1)), np.flatnonzero(cov.any(axis=0))
+        return rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1
+
+    params, stream, desc, png = ingest(tmp_path / "a.db")
+    assert params["up"] == "+z"                             # the XYZ format's
+    h, w = extent(png)
+    assert h > 2 * w
+    # a query's example is drawn the same way (its contact sheet's first picture)
+    h, w = extent(describe_model(scan, level=3, thumbnail_size=64).thumbnail)
+    assert h > 2 * w
+    params_x, stream_x, desc_x, png_x = ingest(tmp_path / "b.db", "--up", "X")
+    assert params_x["up"] == "+x"
+    h, w = extent(png_x)
+    assert w > 1.3 * h                                      # told +x is up: it lies
+    assert stream_x == stream and desc_x.keys() == desc.keys()
+    assert all(np.array_equal(desc_x[k], desc[k]) for k in desc)
+    # a bad axis is a one-line error before anything is written
+    r = CliRunner().invoke(cli, ["ingest", str(scan), "--db", str(tmp_path / "c.db"),
+                                 "--up", "sideways"], obj={})
+    assert r.exit_code != 0 and "unknown up axis 'sideways'; use one of +y" in r.output
+    assert "Traceback" not in r.output and not (tmp_path / "c.db").exists()

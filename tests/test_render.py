@@ -1,4 +1,5 @@
-"""The splat renderer: colours where expected, background elsewhere, z-buffer, path overlay."""
+"""The splat renderer: colours where expected, background elsewhere, z-buffer, path overlay,
+upright thumbnails."""
 
 import numpy as np
 import pytest
@@ -6,7 +7,9 @@ from PIL import Image
 from scipy import ndimage
 
 from surfidx import FileFormatError, InputError, SurfelSet, TriangleMesh, read_surfels
-from surfidx.render import VIEWS, camera_basis, render, save_png
+from surfidx.io import up_axis
+from surfidx.render import (FLAT_RATIO, PRINCIPAL, THUMBNAIL, VIEWS, camera_basis, is_flat,
+                            principal_basis, render, save_png, thumbnail_basis)
 
 from conftest import icosphere_mesh
 
@@ -144,6 +147,71 @@ def test_camera_basis_is_orthonormal_and_right_handed():
     assert np.allclose(camera_basis("front", up="z")[1], [0, 0, 1])
 
 
+# ---------------------------------------------------------------------- thumbnails
+def ellipsoid(semi_axes, level=3):
+    """Surfels of an ellipsoid with these semi-axes (x, y, z): a standing figure when it is
+    taller along its up axis than wide."""
+    v, f = icosphere_mesh(level)
+    return TriangleMesh(v * semi_axes, f).to_surfels()
+
+
+def extent(img, bg=(255, 255, 255)):
+    """(height, width) in pixels of the bounding box of the pixels that are not background."""
+    cov = coverage(img, bg)
+    rows, cols = np.flatnonzero(cov.any(axis=1)), np.flatnonzero(cov.any(axis=0))
+    return rows[-1] - rows[0] + 1, cols[-1] - cols[0] + 1
+
+
+def test_a_standing_figure_stands_in_its_thumbnail():
+    figure = ellipsoid([0.5, 2.0, 0.35])              # +y up, as a mesh file keeps it
+    h, w = extent(render(figure, width=96, height=96, view=THUMBNAIL, up="+y"))
+    assert h > 2 * w
+    # the principal view lays it down (what thumbnails showed before they kept the up axis)
+    h, w = extent(render(figure, width=96, height=96, view=PRINCIPAL))
+    assert w > 2 * h
+    # the up axis decides, not the shape: told +x is up, the figure lies
+    h, w = extent(render(figure, width=96, height=96, view=THUMBNAIL, up="+x"))
+    assert w > 2 * h
+
+
+def test_a_z_up_scan_stands_in_its_thumbnail(tmp_path):
+    v, _ = icosphere_mesh(3)
+    path = tmp_path / "pole.xyz"
+    np.savetxt(path, v * [0.5, 0.35, 2.0], fmt="%.6f")   # a scanner's file: +z up
+    scan = read_surfels(path)
+    assert up_axis(path) == "+z"
+    h, w = extent(render(scan, width=96, height=96, view=THUMBNAIL, up=up_axis(path)))
+    assert h > 2 * w
+    h, w = extent(render(scan, width=96, height=96, view=THUMBNAIL, up="+y"))
+    assert w > h                                          # seen as a mesh would be, it lies
+
+
+def test_a_flat_model_falls_back_to_the_principal_view():
+    pliers = ellipsoid([2.0, 0.2, 1.4])                   # lying flat: thin along +y
+    assert is_flat(pliers, up="+y") and not is_flat(pliers, up="+z")
+    assert np.array_equal(thumbnail_basis(pliers, up="+y"), principal_basis(pliers))
+    assert np.array_equal(render(pliers, width=64, height=64, view=THUMBNAIL),
+                          render(pliers, width=64, height=64, view=PRINCIPAL))
+    # its largest silhouette: the principal view looks along +-y, down at it
+    assert np.allclose(np.abs(principal_basis(pliers)[2]), [0, 1, 0])
+    # flatness is the up extent against the larger horizontal one, at FLAT_RATIO
+    below = ellipsoid([2.0, 2.0 * FLAT_RATIO * 0.95, 1.4])
+    above = ellipsoid([2.0, 2.0 * FLAT_RATIO * 1.05, 1.4])   # a table, a car: stays upright
+    assert is_flat(below) and not is_flat(above)
+    assert np.allclose(thumbnail_basis(above), camera_basis("three-quarter"))
+    assert np.allclose(thumbnail_basis(above, up="z"), camera_basis("three-quarter", up="+z"))
+
+
+def test_the_thumbnail_is_deterministic(tmp_path):
+    figure = ellipsoid([0.5, 2.0, 0.35], level=4)
+    a = render(figure, width=80, height=80, view=THUMBNAIL)
+    b = render(ellipsoid([0.5, 2.0, 0.35], level=4), width=80, height=80, view=THUMBNAIL)
+    assert np.array_equal(a, b)
+    save_png(a, tmp_path / "a.png")
+    save_png(b, tmp_path / "b.png")
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
+
+
 def test_save_png_round_trip(tmp_path, halves_sphere):
     img = render(halves_sphere, width=64, height=48)
     out = tmp_path / "s.png"
@@ -160,12 +228,17 @@ def test_render_errors(sphere_surfels):
         render(empty)
     with pytest.raises(InputError, match="surfels must be a SurfelSet"):
         render(np.zeros((3, 3)))
-    with pytest.raises(InputError, match="unknown view 'side'"):
+    with pytest.raises(InputError, match="unknown view 'side'; .* principal, thumbnail or"):
         render(sphere_surfels, view="side")
     with pytest.raises(InputError, match=r"view must have shape \(2,\)"):
         render(sphere_surfels, view=(1.0, 2.0, 3.0))
     with pytest.raises(InputError, match="unknown up axis 'w'"):
         render(sphere_surfels, up="w")
+    for view in (THUMBNAIL, PRINCIPAL):
+        with pytest.raises(InputError, match=r"unknown up axis '\+w'; use one of \+y"):
+            render(sphere_surfels, view=view, up="+w")
+    with pytest.raises(InputError, match="unknown up axis 'w'"):
+        thumbnail_basis(sphere_surfels, up="w")
     with pytest.raises(InputError, match="width must be at least 1"):
         render(sphere_surfels, width=0)
     with pytest.raises(InputError, match="height must be an integer"):

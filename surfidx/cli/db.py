@@ -22,6 +22,7 @@ from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
 from ..describe.distance import DEFAULT_SHAPE_WEIGHT
 from ..codec.options import DEFAULT_BITS_PER_SURFEL
+from ..geometry.axes import UP_AXES
 from ..progress import report
 from .group import cli
 from .common import (allow_outside_textures, common_options, echo_json, export_options,
@@ -113,12 +114,16 @@ def _table(rows, columns):
               help="Name of the stored model (one file only; default: the file's stem, or when "
                    "another model has it the parent folder's name, then STEM-2, STEM-3...).")
 @click.option("--tag", "tags", multiple=True, help="Tag every stored model (repeatable).")
+@click.option("--up", default=None, metavar="AXIS",
+              help=f"The models' up axis, shown upwards in their thumbnails: {', '.join(UP_AXES)} "
+                   "(default: the options file's, else the format's: +y for meshes, +z for "
+                   "scanners' point clouds).")
 @outside_textures_option
 @click.option("--no-progress", is_flag=True, hidden=True,
               help="Hide the progress bar (the old spelling; -q also hides the notes).")
 @common_options(db=True)
 def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options, name, tags,
-                   no_progress, *, db_path, console):
+                   up, no_progress, *, db_path, console):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
@@ -134,6 +139,11 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
     """
     import ingest
 
+    from ..geometry.axes import check_up
+    from ..options import ProcessOptions
+
+    if up is not None:
+        options = (options or ProcessOptions()).updated(up=check_up(up))
     console.detail(f"database {db_path}")
     # ingest.run (what Database.ingest runs for files) opens the database itself, after every
     # argument and the scheduler were checked: a bad call leaves no new file behind

@@ -8,6 +8,7 @@ import re
 import click
 
 from ..errors import InputError
+from ..geometry.axes import UP_AXES
 from .common import common_options, echo_json, input_options, plain, reading
 from .group import cli
 
@@ -77,14 +78,16 @@ def _parse_size(text: str) -> tuple[int, int]:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="PNG file to write.")
 @click.option("--view", default=None,
-              help="three-quarter (default), front, back, left, right, top, bottom, or "
-                   "principal (along the model's smallest principal axis, as thumbnails).")
+              help="three-quarter (default), front, back, left, right, top, bottom, "
+                   "principal (along the model's smallest principal axis), or thumbnail (as "
+                   "stored thumbnails: three-quarter, principal when the model is flat).")
 @click.option("--azimuth", type=float, default=None,
               help="Camera azimuth in degrees (0 = front, 90 = right); instead of --view.")
 @click.option("--elevation", type=float, default=None,
               help="Camera elevation in degrees (90 = top); instead of --view.")
-@click.option("--up", default="y", show_default=True,
-              help="Model axis shown upwards: x, y, z, -x, -y or -z.")
+@click.option("--up", default=None, metavar="AXIS",
+              help=f"Model axis shown upwards: {', '.join(UP_AXES)} (default: the format's: +y "
+                   "for meshes, +z for scanners' point clouds).")
 @click.option("--size", default="800x800", show_default=True, help="Image size WIDTHxHEIGHT.")
 @click.option("--path", "path_file", type=click.Path(dir_okay=False), default=None,
               help="PLY polyline (vertex x y z in order) to overlay, e.g. a geodesic path.")
@@ -95,6 +98,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 def render_(input, output, view, azimuth, elevation, up, size, path_file, supersample, texture,
             samples, *, console):
     """Render a model to a PNG as lit, z-buffered disk splats (colours when present)."""
+    from ..io import up_axis
     from ..progress import report
     from ..render import read_polyline, render, save_png
 
@@ -109,7 +113,8 @@ def render_(input, output, view, azimuth, elevation, up, size, path_file, supers
     with console.progress() as progress:
         s = reading(progress, input, texture, samples)
         report(progress, "render", 0, 1)
-        img = render(s, width=width, height=height, view=view, up=up, path_points=path,
+        img = render(s, width=width, height=height, view=view,
+                     up=up_axis(input) if up is None else up, path_points=path,
                      supersample=supersample)
         report(progress, "write", 0, 1)
         save_png(img, output)

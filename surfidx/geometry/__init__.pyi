@@ -5,6 +5,8 @@ from .mesh import TriangleMesh as TriangleMesh
 from .simplify import (simplify_mesh as simplify_mesh,
                        check_max_vertices as check_max_vertices)
 from .pointcloud import points_to_surfels as points_to_surfels
+from .axes import (UP_AXES as UP_AXES, MESH_UP as MESH_UP, SCANNER_UP as SCANNER_UP,
+                   check_up as check_up, up_rotation as up_rotation)
 from .graph import (SphereOfInfluenceGraph as SphereOfInfluenceGraph,
                     sphere_of_influence_graph as sphere_of_influence_graph)
 from .geodesics import (GeodesicSolver as GeodesicSolver, GeodesicPath as GeodesicPath,

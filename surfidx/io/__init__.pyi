@@ -1,7 +1,8 @@
 """Public names of :mod:`surfidx.io` (imported on first use, see ``__init__.py``)."""
 
 from .registry import (SUPPORTED_SUFFIXES as SUPPORTED_SUFFIXES, MESH_SUFFIXES as MESH_SUFFIXES,
-                       POINT_SUFFIXES as POINT_SUFFIXES, OUTPUT_FORMATS as OUTPUT_FORMATS)
+                       POINT_SUFFIXES as POINT_SUFFIXES, OUTPUT_FORMATS as OUTPUT_FORMATS,
+                       up_axis as up_axis)
 from .limits import (MAX_TEXTURE_PIXELS as MAX_TEXTURE_PIXELS, MAX_COORDINATE as MAX_COORDINATE,
                      MAX_TEXT_BYTES as MAX_TEXT_BYTES)
 from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,

@@ -3,14 +3,18 @@ table that :func:`~surfidx.io.reading.read_mesh`, :func:`~surfidx.io.reading.rea
 :func:`~surfidx.io.writing.write_model` dispatch through.
 
 Adding a format is a module with a reader (``read(path) -> TriangleMesh | Points | PlyPoints``)
-or a writer (``write(model, path, *, text)``) and a line here.
+or a writer (``write(model, path, *, text)``) and a line here; a reader's line also says which
+axis is up in the format's files (:mod:`surfidx.geometry.axes`).
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
+from ..geometry.axes import MESH_UP, SCANNER_UP
 from .gltf import read_gltf, write_glb
 from .obj import read_obj, write_obj
 from .off import read_off
@@ -18,6 +22,9 @@ from .pcd import read_pcd
 from .ply import read_ply, write_ply_model
 from .stl import read_stl
 from .xyz import read_xyz
+
+__all__ = ["Reader", "MESH_READERS", "POINT_READERS", "WRITERS", "MESH_SUFFIXES", "POINT_SUFFIXES",
+           "SUPPORTED_SUFFIXES", "OUTPUT_FORMATS", "reader", "up_axis"]
 
 
 @dataclass(frozen=True)
@@ -33,11 +40,15 @@ class Reader:
         Whether it takes ``texture`` (an image given for the model's UVs).
     outside : bool
         Whether it takes ``allow_outside`` (files named outside the model's folder).
+    up : str
+        The format's up axis (:data:`~surfidx.geometry.axes.UP_AXES`): +y for the mesh
+        formats, +z for the scanners' point clouds.
     """
 
     read: Callable
     texture: bool = False
     outside: bool = False
+    up: str = MESH_UP
 
     def __call__(self, path, *, texture=None, allow_outside: bool = False):
         kwargs = {}
@@ -59,9 +70,9 @@ MESH_READERS = {
 }
 #: Readers of the point-cloud-only formats, by suffix.
 POINT_READERS = {
-    ".pcd": Reader(read_pcd),
-    ".xyz": Reader(read_xyz),
-    ".pts": Reader(read_xyz),
+    ".pcd": Reader(read_pcd, up=SCANNER_UP),
+    ".xyz": Reader(read_xyz, up=SCANNER_UP),
+    ".pts": Reader(read_xyz, up=SCANNER_UP),
 }
 #: Writers by format name: ``write(model, path, *, text)`` for a SurfelSet or TriangleMesh.
 WRITERS = {
@@ -95,3 +106,23 @@ def reader(suffix: str) -> Reader | None:
     Reader or None
     """
     return MESH_READERS.get(suffix) or POINT_READERS.get(suffix)
+
+
+def up_axis(path) -> str:
+    """The up axis of a model file's format (its reader's :attr:`Reader.up`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike, or a model in memory
+
+    Returns
+    -------
+    str
+        One of :data:`~surfidx.geometry.axes.UP_AXES`: the reader's for a file of a known
+        suffix; :data:`~surfidx.geometry.axes.MESH_UP` for a model in memory (trimesh and the
+        mesh formats it reads keep +y up) or an unknown suffix (reading that file fails anyway).
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        return MESH_UP
+    read = reader(Path(path).suffix.lower())
+    return MESH_UP if read is None else read.up
