@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+from .e57 import read_e57
 from .gltf import read_gltf, write_glb
+from .las import read_las
 from .obj import read_obj, write_obj
 from .off import read_off
 from .pcd import read_pcd
@@ -62,6 +64,9 @@ POINT_READERS = {
     ".pcd": Reader(read_pcd),
     ".xyz": Reader(read_xyz),
     ".pts": Reader(read_xyz),
+    ".las": Reader(read_las),
+    ".laz": Reader(read_las),
+    ".e57": Reader(read_e57),
 }
 #: Writers by format name: ``write(model, path, *, text)`` for a SurfelSet or TriangleMesh.
 WRITERS = {

@@ -1,0 +1,323 @@
+"""E57 (ASTM E2807, terrestrial laser scans): the point clouds of every scan of a file, each
+moved by its pose and merged (:func:`read_e57`), read through pye57 (libE57Format), the
+optional ``scanners`` extra.
+
+The file header is checked against the file's size, and each scan's point count against the
+bits its record needs, before libE57 reads anything; points are read a chunk at a time.
+"""
+
+from __future__ import annotations
+
+import struct
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FileFormatError
+from . import limits
+from .points import Points
+
+__all__ = ["read_e57"]
+
+#: Points read at a time (a few megabytes of buffers per field).
+_CHUNK = 1 << 18
+_HEADER = struct.Struct("<8sIIQQQQ")      # signature, version, lengths, XML section, page size
+_PAGE = 1024
+_CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
+_SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
+_RGB = ("colorRed", "colorGreen", "colorBlue")
+_GREY = 128                                # colour of points whose scan or flag gives none
+
+
+def _libe57(path: Path):
+    """pye57's libE57 binding; a missing pye57 is a clean error naming the extra."""
+    try:
+        from pye57 import libe57
+    except ImportError:
+        raise FileFormatError("reading E57 needs pye57; install it with "
+                              "pip install 'surfidx[scanners]'", path=path) from None
+    return libe57
+
+
+def _check_file_header(path: Path, size: int) -> None:
+    """Refuse what is not an E57 file, or one whose header disagrees with its size (truncated),
+    before libE57 opens it.
+
+    Raises
+    ------
+    FileFormatError
+        No ``ASTM-E57`` signature, a physical length other than the file's size, a page size
+        other than 1024, an XML section outside the file.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(_HEADER.size)
+    if not head.startswith(b"ASTM-E57"):
+        raise FileFormatError("not an E57 file (it does not start with the ASTM-E57 "
+                              "signature)", path=path)
+    if len(head) < _HEADER.size:
+        raise FileFormatError(f"E57 header is truncated ({len(head)} of {_HEADER.size} bytes)",
+                              path=path)
+    _, major, _, length, xml_offset, xml_length, page = _HEADER.unpack(head)
+    if major != 1:
+        raise FileFormatError(f"E57 version {major} is not supported (1 is)", path=path)
+    if length != size:
+        raise FileFormatError(f"E57 header gives a length of {length:,} bytes and the file has "
+                              f"{size:,}; it is truncated or damaged", path=path)
+    if page != _PAGE or size % _PAGE:
+        raise FileFormatError(f"E57 file of {size:,} bytes in pages of {page:,} is not "
+                              f"a whole number of {_PAGE}-byte pages; it is damaged", path=path)
+    if not (_HEADER.size <= xml_offset < size and xml_length <= size):
+        raise FileFormatError(f"E57 header puts its XML section ({xml_length:,} bytes at "
+                              f"byte {xml_offset:,}) outside the file; it is damaged", path=path)
+
+
+def _fields(node, libe57, prefix: str = "") -> dict:
+    """Name -> typed node of the leaves of a record prototype."""
+    out = {}
+    for i in range(node.childCount()):
+        child = node.get(i)
+        name = prefix + child.elementName()
+        kind = child.type()
+        if kind == libe57.E57_STRUCTURE:
+            out.update(_fields(libe57.StructureNode(child), libe57, name + "/"))
+        elif kind == libe57.E57_FLOAT:
+            out[name] = libe57.FloatNode(child)
+        elif kind == libe57.E57_INTEGER:
+            out[name] = libe57.IntegerNode(child)
+        elif kind == libe57.E57_SCALED_INTEGER:
+            out[name] = libe57.ScaledIntegerNode(child)
+        else:
+            out[name] = child
+    return out
+
+
+def _record_bits(fields: dict, libe57) -> int:
+    """Bits one record takes at least in libE57's bit-packed binary section: 32 or 64 per
+    float, the width of the range of each integer, 1 when every field is constant."""
+    bits = 0
+    for node in fields.values():
+        if isinstance(node, libe57.FloatNode):
+            bits += 32 if node.precision() == libe57.E57_SINGLE else 64
+        elif isinstance(node, (libe57.IntegerNode, libe57.ScaledIntegerNode)):
+            bits += max(int(node.maximum()) - int(node.minimum()), 0).bit_length()
+    return max(bits, 1)
+
+
+def _limits(scan, group: str, lo: str, hi: str, node, libe57):
+    """``(low, high)`` of a colour or intensity field: the scan's ``colorLimits`` /
+    ``intensityLimits``, else the integer range of its prototype node, else None."""
+    if scan.isDefined(group):
+        lim = scan[group]
+        if lim.isDefined(lo) and lim.isDefined(hi):
+            return float(lim[lo].value()), float(lim[hi].value())
+    if isinstance(node, (libe57.IntegerNode, libe57.ScaledIntegerNode)):
+        return float(node.minimum()), float(node.maximum())
+    return None
+
+
+def _scaled(values: np.ndarray, lim, path: Path, what: str, notes: list) -> np.ndarray | None:
+    """Values scaled from their limits ``(low, high)`` (or, without limits, their own range)
+    to 0..255; values outside the limits are clipped, counted in ``notes``. None when the
+    range is empty (the field carries nothing)."""
+    if values.size == 0:
+        return None
+    lo, hi = lim if lim is not None else (float(np.min(values)), float(np.max(values)))
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
+        return None
+    with np.errstate(invalid="ignore"):
+        out = (values - lo) * (255.0 / (hi - lo))
+        bad = ~((out >= -0.5) & (out <= 255.5))
+    if bad.any():
+        notes.append(f"{int(bad.sum()):,} points with {what} outside its limits "
+                     f"{lo:g}..{hi:g} clipped")
+        out = np.where(np.isfinite(out), out, 0.0)
+    return np.clip(np.round(out), 0, 255).astype(np.uint8)
+
+
+def _pose(scan, path: Path, index: int):
+    """``(rotation (3, 3), translation (3,))`` of a scan's pose (identity when it has none)."""
+    rot, shift = np.eye(3), np.zeros(3)
+    if not scan.isDefined("pose"):
+        return rot, shift
+    pose = scan["pose"]
+    if pose.isDefined("rotation"):
+        r = pose["rotation"]
+        w, x, y, z = (float(r[k].value()) for k in "wxyz")
+        norm = np.sqrt(w * w + x * x + y * y + z * z)
+        if not np.isfinite(norm) or norm == 0:
+            raise FileFormatError(f"E57 scan {index}'s pose rotation ({w}, {x}, {y}, {z}) is "
+                                  "not a rotation quaternion", path=path)
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    if pose.isDefined("translation"):
+        t = pose["translation"]
+        shift = np.array([float(t[k].value()) for k in "xyz"])
+    return rot, shift
+
+
+def _read_scan(imf, scan, fields: dict, count: int, libe57, path: Path, index: int, notes: list):
+    """One scan's valid points in the file's frame, their colour (or None) and how many were
+    invalid."""
+    spherical = not all(f in fields for f in _CARTESIAN)
+    coords = _SPHERICAL if spherical else _CARTESIAN
+    if not all(f in fields for f in coords):
+        raise FileFormatError(f"E57 scan {index} has neither cartesianX/Y/Z nor "
+                              "sphericalRange/Azimuth/Elevation fields", path=path)
+    state = "sphericalInvalidState" if spherical else "cartesianInvalidState"
+    rgb = all(f in fields for f in _RGB)
+    wanted = list(coords) + [f for f in (state, "intensity", "isIntensityInvalid")
+                             if f in fields]
+    if rgb:
+        wanted += list(_RGB) + (["isColorInvalid"] if "isColorInvalid" in fields else [])
+    arrays = {f: np.empty(_CHUNK, np.float64) for f in wanted}
+    buffers = libe57.VectorSourceDestBuffer()
+    for f in wanted:
+        buffers.append(libe57.SourceDestBuffer(imf, f, arrays[f], _CHUNK, True, True))
+    parts = {f: [] for f in wanted}
+    reader = scan["points"].reader(buffers)
+    try:
+        got = 0
+        while got < count:
+            n = reader.read()
+            if n == 0:
+                break
+            got += n
+            for f in wanted:
+                parts[f].append(arrays[f][:n].copy())
+    finally:
+        reader.close()
+    if got != count:
+        raise FileFormatError(f"E57 scan {index} announces {count:,} points and holds {got:,}; "
+                              "the file is damaged", path=path)
+    data = {f: np.concatenate(p) if p else np.empty(0) for f, p in parts.items()}
+    valid = data[state] == 0 if state in data else np.ones(count, bool)
+    pts = np.stack([data[f][valid] for f in coords], axis=1)
+    if spherical:
+        r, az, el = pts.T
+        pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
+                        r * np.sin(el)], axis=1)
+    rot, shift = _pose(scan, path, index)
+    pts = pts @ rot.T + shift
+    colors, flag = None, None
+    if rgb:
+        chans = []
+        for f in _RGB:
+            lim = _limits(scan, "colorLimits", f + "Minimum", f + "Maximum", fields[f], libe57)
+            chans.append(_scaled(data[f][valid], lim, path, "colour", notes))
+        if all(c is not None for c in chans):
+            colors = np.stack(chans, axis=1)
+            flag = "isColorInvalid"
+    if colors is None and "intensity" in data:
+        lim = _limits(scan, "intensityLimits", "intensityMinimum", "intensityMaximum",
+                      fields["intensity"], libe57)
+        grey = _scaled(data["intensity"][valid], lim, path, "intensity", notes)
+        if grey is not None:
+            colors = np.repeat(grey[:, None], 3, axis=1)
+            flag = "isIntensityInvalid"
+    if colors is not None and flag in data:
+        bad = data[flag][valid] != 0
+        if bad.any():
+            colors[bad] = _GREY
+            notes.append(f"{int(bad.sum()):,} points flagged {flag} coloured grey")
+    return pts, colors, int(count - valid.sum())
+
+
+def read_e57(path: Path) -> Points:
+    """The points of every scan of an E57 file, each moved into the file's frame by its pose
+    (rotation quaternion and translation) and merged in scan order.
+
+    Points marked invalid (``cartesianInvalidState`` or ``sphericalInvalidState`` other than 0)
+    are skipped with a warning saying how many. Spherical scans are converted to Cartesian
+    coordinates. Colour is ``colorRed/Green/Blue`` scaled from the scan's ``colorLimits`` (else
+    the fields' integer ranges) to 0..255; a scan without colour gets its ``intensity``, scaled
+    from ``intensityLimits`` (else its range), as grey, and intensity is not kept beside colour
+    (a surfel has one colour). Points whose colour is flagged invalid, and the points of a scan
+    with neither when other scans have colour, are mid grey, with a warning. The file's 2D
+    images are not read (a warning says so).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+
+    Returns
+    -------
+    Points
+        Positions (n, 3) float64, colours (n, 3) uint8 or None, no normals.
+
+    Raises
+    ------
+    FileFormatError
+        Not an E57 file, a header that disagrees with the file's size (truncated), a scan whose
+        point count its record size makes larger than the file, a damaged file (libE57's
+        checksums), a scan without coordinates or with a pose that is no rotation, no scans or
+        no valid points, pye57 missing.
+    InputError
+        Coordinates beyond :data:`~surfidx.io.limits.MAX_COORDINATE`; NaN coordinates of valid
+        points are refused as for every point cloud.
+
+    Warns
+    -----
+    UserWarning
+        Invalid points skipped, colours clipped to their limits or given grey, images not read.
+    """
+    size = path.stat().st_size
+    _check_file_header(path, size)
+    libe57 = _libe57(path)
+    notes, pos, cols, uncoloured, invalid = [], [], [], [], 0
+    try:
+        imf = libe57.ImageFile(str(path), "r")
+    except libe57.E57Exception as exc:
+        raise FileFormatError(f"E57 file cannot be read ({str(exc).splitlines()[0]}); it is "
+                              "truncated or damaged", path=path) from None
+    try:
+        root = imf.root()
+        scans = root["data3D"] if root.isDefined("data3D") else None
+        if scans is None or scans.childCount() == 0:
+            raise FileFormatError("E57 file holds no 3D scans", path=path)
+        prepared, need = [], 0
+        for i in range(scans.childCount()):
+            scan = scans[i]
+            fields = _fields(libe57.StructureNode(scan["points"].prototype()), libe57)
+            count = scan["points"].childCount()
+            need += count * _record_bits(fields, libe57)
+            if need > 8 * size:
+                raise FileFormatError(f"E57 scan {i} announces {count:,} points of "
+                                      f"{_record_bits(fields, libe57)} bits, more than the file "
+                                      f"of {size:,} bytes holds; it is damaged", path=path)
+            prepared.append((scan, fields, count))
+        for i, (scan, fields, count) in enumerate(prepared):
+            pts, colors, bad = _read_scan(imf, scan, fields, count, libe57, path, i, notes)
+            invalid += bad
+            pos.append(pts)
+            cols.append(colors)
+            if colors is None and len(pts):
+                uncoloured.append(i)
+        images = root["images2D"].childCount() if root.isDefined("images2D") else 0
+    except libe57.E57Exception as exc:
+        raise FileFormatError(f"E57 file cannot be read ({str(exc).splitlines()[0]}); it is "
+                              "truncated or damaged", path=path) from None
+    finally:
+        imf.close()
+    positions = np.concatenate(pos)
+    total = len(positions) + invalid
+    if invalid:
+        warnings.warn(f"{path}: skipped {invalid:,} of {total:,} points marked invalid "
+                      "(cartesianInvalidState/sphericalInvalidState)", UserWarning, stacklevel=2)
+    if len(positions) == 0:
+        raise FileFormatError(f"E57 file holds no valid points ({total:,} points, all marked "
+                              "invalid)", path=path)
+    colors = None
+    if len(uncoloured) < len(cols):
+        if uncoloured:
+            notes.append(f"scans {', '.join(map(str, uncoloured))} have neither colour nor "
+                         "intensity; their points are grey")
+        colors = np.concatenate([c if c is not None else np.full((len(p), 3), _GREY, np.uint8)
+                                 for c, p in zip(cols, pos)])
+    if images:
+        notes.append(f"its {images} 2D image{'s' if images > 1 else ''} not read")
+    for note in notes:
+        warnings.warn(f"{path}: {note}", UserWarning, stacklevel=2)
+    return Points(limits.check_coordinates(positions, path), None, colors)
