@@ -64,9 +64,12 @@ def _check_file_header(path: Path, size: int) -> None:
     if length != size:
         raise FileFormatError(f"E57 header gives a length of {length:,} bytes and the file has "
                               f"{size:,}; it is truncated or damaged", path=path)
-    if page != _PAGE or size % _PAGE:
-        raise FileFormatError(f"E57 file of {size:,} bytes in pages of {page:,} is not "
-                              f"a whole number of {_PAGE}-byte pages; it is damaged", path=path)
+    if page != _PAGE:
+        raise FileFormatError(f"E57 header gives a page size of {page:,} bytes; E57 pages have "
+                              f"{_PAGE}; the file is damaged", path=path)
+    if size % _PAGE:
+        raise FileFormatError(f"E57 file of {size:,} bytes is not a whole number of "
+                              f"{_PAGE}-byte pages; it is truncated or damaged", path=path)
     if not (_HEADER.size <= xml_offset < size and xml_length <= size):
         raise FileFormatError(f"E57 header puts its XML section ({xml_length:,} bytes at "
                               f"byte {xml_offset:,}) outside the file; it is damaged", path=path)
@@ -116,30 +119,43 @@ def _limits(scan, group: str, lo: str, hi: str, node, libe57):
     return None
 
 
-def _scaled(values: np.ndarray, lim, path: Path, what: str, notes: list) -> np.ndarray | None:
-    """Values scaled from their limits ``(low, high)`` (or, without limits, their own range)
-    to 0..255; values outside the limits are clipped, counted in ``notes``. None when the
-    range is empty (the field carries nothing)."""
+def _scaled(values: np.ndarray, lims, what: str, notes: list) -> np.ndarray | None:
+    """Values scaled from their limits to 0..255, a column each.
+
+    Parameters
+    ----------
+    values : (n, k) float64
+    lims : list of k (low, high) or None
+        A column's limits; None takes the column's own range.
+    what : str
+        Named in the note of values outside the limits (clipped, counted in ``notes``).
+
+    Returns
+    -------
+    (n, k) uint8 or None
+        None when a column's range is empty or not finite (the field carries nothing).
+    """
     if values.size == 0:
         return None
-    lo, hi = lim if lim is not None else (float(np.min(values)), float(np.max(values)))
-    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
+    lo, hi = np.array([lim if lim is not None else (np.min(v), np.max(v))
+                       for lim, v in zip(lims, values.T)], np.float64).T
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
         return None
     with np.errstate(invalid="ignore"):
         out = (values - lo) * (255.0 / (hi - lo))
         bad = ~((out >= -0.5) & (out <= 255.5))
     if bad.any():
-        notes.append(f"{int(bad.sum()):,} points with {what} outside its limits "
-                     f"{lo:g}..{hi:g} clipped")
+        rng = ", ".join(f"{a:g}..{b:g}" for a, b in zip(lo, hi))
+        notes.append(f"{int(bad.any(axis=1).sum()):,} points with {what} outside its limits "
+                     f"{rng} clipped")
         out = np.where(np.isfinite(out), out, 0.0)
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
 def _pose(scan, path: Path, index: int):
-    """``(rotation (3, 3), translation (3,))`` of a scan's pose (identity when it has none)."""
+    """``(rotation (3, 3), translation (3,))`` of a scan's pose (either part may be missing:
+    identity)."""
     rot, shift = np.eye(3), np.zeros(3)
-    if not scan.isDefined("pose"):
-        return rot, shift
     pose = scan["pose"]
     if pose.isDefined("rotation"):
         r = pose["rotation"]
@@ -163,9 +179,6 @@ def _read_scan(imf, scan, fields: dict, count: int, libe57, path: Path, index: i
     invalid."""
     spherical = not all(f in fields for f in _CARTESIAN)
     coords = _SPHERICAL if spherical else _CARTESIAN
-    if not all(f in fields for f in coords):
-        raise FileFormatError(f"E57 scan {index} has neither cartesianX/Y/Z nor "
-                              "sphericalRange/Azimuth/Elevation fields", path=path)
     state = "sphericalInvalidState" if spherical else "cartesianInvalidState"
     rgb = all(f in fields for f in _RGB)
     wanted = list(coords) + [f for f in (state, "intensity", "isIntensityInvalid")
@@ -199,23 +212,22 @@ def _read_scan(imf, scan, fields: dict, count: int, libe57, path: Path, index: i
         r, az, el = pts.T
         pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
                         r * np.sin(el)], axis=1)
-    rot, shift = _pose(scan, path, index)
-    pts = pts @ rot.T + shift
+    if scan.isDefined("pose"):
+        rot, shift = _pose(scan, path, index)
+        pts = pts @ rot.T + shift
     colors, flag = None, None
     if rgb:
-        chans = []
-        for f in _RGB:
-            lim = _limits(scan, "colorLimits", f + "Minimum", f + "Maximum", fields[f], libe57)
-            chans.append(_scaled(data[f][valid], lim, path, "colour", notes))
-        if all(c is not None for c in chans):
-            colors = np.stack(chans, axis=1)
-            flag = "isColorInvalid"
+        lims = [_limits(scan, "colorLimits", f + "Minimum", f + "Maximum", fields[f], libe57)
+                for f in _RGB]
+        colors = _scaled(np.stack([data[f][valid] for f in _RGB], axis=1), lims, "colour",
+                         notes)
+        flag = "isColorInvalid"
     if colors is None and "intensity" in data:
         lim = _limits(scan, "intensityLimits", "intensityMinimum", "intensityMaximum",
                       fields["intensity"], libe57)
-        grey = _scaled(data["intensity"][valid], lim, path, "intensity", notes)
+        grey = _scaled(data["intensity"][valid][:, None], [lim], "intensity", notes)
         if grey is not None:
-            colors = np.repeat(grey[:, None], 3, axis=1)
+            colors = np.repeat(grey, 3, axis=1)
             flag = "isIntensityInvalid"
     if colors is not None and flag in data:
         bad = data[flag][valid] != 0
@@ -282,6 +294,9 @@ def read_e57(path: Path) -> Points:
             scan = scans[i]
             fields = _fields(libe57.StructureNode(scan["points"].prototype()), libe57)
             count = scan["points"].childCount()
+            if not (all(f in fields for f in _CARTESIAN) or all(f in fields for f in _SPHERICAL)):
+                raise FileFormatError(f"E57 scan {i} has neither cartesianX/Y/Z nor "
+                                      "sphericalRange/Azimuth/Elevation fields", path=path)
             need += count * _record_bits(fields, libe57)
             if need > 8 * size:
                 raise FileFormatError(f"E57 scan {i} announces {count:,} points of "
@@ -289,6 +304,8 @@ def read_e57(path: Path) -> Points:
                                       f"of {size:,} bytes holds; it is damaged", path=path)
             prepared.append((scan, fields, count))
         for i, (scan, fields, count) in enumerate(prepared):
+            if count == 0:                  # libE57 refuses to read an empty scan
+                continue
             pts, colors, bad = _read_scan(imf, scan, fields, count, libe57, path, i, notes)
             invalid += bad
             pos.append(pts)
@@ -301,14 +318,15 @@ def read_e57(path: Path) -> Points:
                               "truncated or damaged", path=path) from None
     finally:
         imf.close()
-    positions = np.concatenate(pos)
+    positions = np.concatenate(pos) if pos else np.empty((0, 3))
     total = len(positions) + invalid
     if invalid:
         warnings.warn(f"{path}: skipped {invalid:,} of {total:,} points marked invalid "
                       "(cartesianInvalidState/sphericalInvalidState)", UserWarning, stacklevel=2)
     if len(positions) == 0:
         raise FileFormatError(f"E57 file holds no valid points ({total:,} points, all marked "
-                              "invalid)", path=path)
+                              "invalid)" if total else "E57 file's scans hold no points",
+                              path=path)
     colors = None
     if len(uncoloured) < len(cols):
         if uncoloured:

@@ -8,7 +8,10 @@ count, or an extended record's length, too large for the file is refused unread.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -68,7 +71,7 @@ def _walk_records(fh, pos: int, n: int, head: int, length: str, end: int, what: 
     return pos
 
 
-def _check_header(path: Path, size: int) -> tuple[int, bool]:
+def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
     """Check the public header, the record chain and the point count against the file's size.
 
     Returns
@@ -77,6 +80,9 @@ def _check_header(path: Path, size: int) -> tuple[int, bool]:
         The point count the header announces.
     bool
         Whether the points are LASzip-compressed.
+    int
+        Whole point records after the announced ones in an uncompressed file (its waveform
+        packets and extended records excepted), which laspy does not read.
 
     Raises
     ------
@@ -97,6 +103,7 @@ def _check_header(path: Path, size: int) -> tuple[int, bool]:
         if major != 1 or minor > 4:
             raise FileFormatError(f"LAS version {major}.{minor} is not supported (1.0 to 1.4 "
                                   "are)", path=path)
+        encoding = struct.unpack_from("<H", head, 6)[0]
         header_size, offset, n_vlrs, fmt, record = struct.unpack_from("<HIIBH", head, 94)
         count = struct.unpack_from("<I", head, 107)[0]
         n_evlrs = evlr_start = 0
@@ -129,11 +136,35 @@ def _check_header(path: Path, size: int) -> tuple[int, bool]:
             raise FileFormatError(f"LAZ header announces {count:,} points of {record} bytes, "
                                   f"more than {limits.MAX_LAZ_RATIO:,} times the {data:,} "
                                   "compressed bytes hold; the header is damaged", path=path)
-    elif count * record > data:
+        return count, compressed, 0
+    if count * record > data:
         raise FileFormatError(f"LAS header announces {count:,} points of {record} bytes, more "
                               f"than the {data:,} bytes of point data hold; the file is "
                               "truncated or its header is damaged", path=path)
-    return count, compressed
+    waveform_inside = bool(encoding & 2)
+    return count, compressed, 0 if waveform_inside else (data - count * record) // max(record, 1)
+
+
+@contextlib.contextmanager
+def _laspy_log(path: Path):
+    """Collect what laspy logs while it reads (a VLR it cannot parse, a short read) instead
+    of letting it reach the process's log: the caller raises the error or warns naming the
+    file."""
+    said: list = []
+
+    class _Collect(logging.Handler):
+        def emit(self, record):
+            said.append(record.getMessage())
+
+    log = logging.getLogger("laspy")
+    handler, propagate = _Collect(), log.propagate
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        yield said
+    finally:
+        log.removeHandler(handler)
+        log.propagate = propagate
 
 
 def _depth_scale(values: np.ndarray) -> float:
@@ -157,7 +188,9 @@ def read_las(path: Path) -> Points:
     colour) are kept as they are. Intensity becomes grey colour when there is no colour (a
     format without RGB, or RGB all zero), scaled from the 8-, 12- or 16-bit range its largest
     value falls in; with colour, intensity is not kept (a surfel has one colour). All points are
-    read, withheld and noise classes included; waveform packets are not read.
+    read, withheld and noise classes included; waveform packets are not read. Point records
+    beyond the header's count in a LAS file are not read, with a warning; in a LAZ file they
+    cannot be told from the compressed stream (LASzip records no count of its own).
 
     Parameters
     ----------
@@ -167,6 +200,11 @@ def read_las(path: Path) -> Points:
     -------
     Points
         Positions (n, 3) float64, colours (n, 3) uint8 or None, no normals.
+
+    Warns
+    -----
+    UserWarning
+        Point records after the announced count, what laspy logs while reading.
 
     Raises
     ------
@@ -179,12 +217,13 @@ def read_las(path: Path) -> Points:
         scale or offset) are refused as for every point cloud.
     """
     size = path.stat().st_size
-    count, compressed = _check_header(path, size)
+    count, compressed, extra = _check_header(path, size)
     laspy, errors = _laspy(path, compressed)
     pos, rgb, intensity = [], [], []
     what = "LAZ" if compressed else "LAS"
     try:
-        with laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as reader:
+        with _laspy_log(path) as said, \
+                laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as reader:
             has_rgb = reader.header.point_format.id in _COLOR_FORMATS
             for pts in reader.chunk_iterator(_CHUNK):
                 pos.append(np.stack([np.asarray(pts.x, np.float64), np.asarray(pts.y, np.float64),
@@ -196,6 +235,11 @@ def read_las(path: Path) -> Points:
     except errors as exc:
         raise FileFormatError(f"{what} file cannot be read ({exc}); it is truncated or damaged",
                               path=path) from None
+    for message in said:
+        warnings.warn(f"{path}: laspy: {message}", UserWarning, stacklevel=3)
+    if extra:
+        warnings.warn(f"{path}: {extra:,} point records follow the {count:,} the LAS header "
+                      "announces; they are not read", UserWarning, stacklevel=3)
     positions = np.concatenate(pos) if pos else np.empty((0, 3))
     if len(positions) != count:
         raise FileFormatError(f"{what} header announces {count:,} points and the file holds "
