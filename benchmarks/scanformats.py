@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -148,7 +149,10 @@ def main(argv=None) -> None:
                 ("LAZ", "surfidx"), ("LAZ", "laspy.read (Lazrs)"),
                 ("LAZ", "laspy.read (LazrsParallel)"),
                 ("E57", "surfidx"), ("E57", "pye57 read_scan")]
-        print(f"{args.points:,} points, best of {args.repeat}, each row in a fresh process")
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+        print(f"{args.points:,} points, best of {args.repeat}, each row in a fresh process; "
+              f"{os.cpu_count()} cores, load average {load:.1f} (wall time grows with it, "
+              "CPU time little)")
         print(f"{'format':6} {'reader':28} {'MB':>7} {'points':>10} {'wall s':>7} "
               f"{'CPU s':>7} {'Mpts/s':>7} {'peak RSS MB':>11}")
         for fmt, case in rows:
