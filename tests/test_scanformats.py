@@ -159,10 +159,43 @@ def test_hostile_las_and_laz(tmp_path):
     _patch(ev, 235, "<QI", len(data), 5)
     with pytest.raises(FileFormatError, match="announces 5 extended records; record 1 runs"):
         read_surfels(ev)
+    for name, off, fmt, value, msg in (
+            ("fmt", 104, "<B", 99, "LAS point data format 99 is not one of 0 to 10"),
+            ("rec", 105, "<H", 20, "LAS point records of 20 bytes are shorter than point data "
+                                   "format 3's 34")):
+        bad = tmp_path / f"{name}.las"
+        bad.write_bytes(las.read_bytes())
+        _patch(bad, off, fmt, value)
+        with pytest.raises(FileFormatError, match=f"{name}.las: {msg}"):
+            read_surfels(bad)
     empty = tmp_path / "empty.las"
     _las(empty, n=0)
     with pytest.raises(FileFormatError, match="empty.las: LAS file holds no points"):
         read_surfels(empty)
+
+
+def test_las_that_shrinks_while_read(tmp_path, monkeypatch):
+    """laspy returns what it could read of a file that shrank after its header was checked
+    (it logs the shortfall): the count is compared, and laspy's log goes nowhere else."""
+    path = tmp_path / "shrunk.las"
+    _las(path, rgb=_rgb8() * 257)
+
+    def short(self, n):
+        laspy.lasreader.logger.error("Could only read 150 of the requested 200 points")
+        yield self.read_points(150)
+
+    monkeypatch.setattr(laspy.LasReader, "chunk_iterator", short)
+    with pytest.raises(FileFormatError, match="shrunk.las: LAS header announces 200 points and "
+                                              "the file holds 150"):
+        read_surfels(path)
+
+    def chatty(self, n):
+        laspy.lasreader.logger.warning("a VLR it cannot parse")
+        yield self.read_points(n)
+
+    monkeypatch.setattr(laspy.LasReader, "chunk_iterator", chatty)
+    with pytest.warns(UserWarning, match="shrunk.las: laspy: a VLR it cannot parse"):
+        assert len(read_surfels(path)) == 200
 
 
 def test_las_nan_and_huge_coordinates(tmp_path):
@@ -199,7 +232,8 @@ def _e57(path, scans, *, images=False):
     A scan is a dict: ``xyz`` (n, 3) or ``rae`` (n, 3) spherical; optional ``rgb`` (n, 3) with
     ``rgb_range`` (default 0..255) and ``color_limits``; ``intensity`` (n,) float with
     ``intensity_limits``; ``invalid`` (n,) int; ``color_invalid`` (n,) int; ``pose``
-    ``(w, x, y, z), (tx, ty, tz)``. Coordinates are doubles.
+    ``(w, x, y, z), (tx, ty, tz)`` (a string entry is written as a string node; a string pose
+    as a string node in its place). Coordinates are doubles.
     """
     e = pye57.E57(str(path), mode="w")
     imf = e.image_file
@@ -241,11 +275,14 @@ def _e57(path, scans, *, images=False):
             if key in sc:
                 proto.set(name, libe57.IntegerNode(imf, 0, 0, 2))
                 data[name] = np.asarray(sc[key], np.float64)
-        if "pose" in sc:
+        if isinstance(sc.get("pose"), str):
+            node.set("pose", libe57.StringNode(imf, sc["pose"]))
+        elif "pose" in sc:
             (w, x, y, z), t = sc["pose"]
             pose, rot, tr = (libe57.StructureNode(imf) for _ in range(3))
             for k, v in zip("wxyz", (w, x, y, z)):
-                rot.set(k, libe57.FloatNode(imf, float(v)))
+                rot.set(k, libe57.StringNode(imf, v) if isinstance(v, str)
+                        else libe57.FloatNode(imf, float(v)))
             for k, v in zip("xyz", t):
                 tr.set(k, libe57.FloatNode(imf, float(v)))
             pose.set("rotation", rot)
@@ -444,19 +481,50 @@ def test_hostile_e57(tmp_path):
         read_surfels(nan)
 
 
-def test_e57_scan_without_coordinates(tmp_path):
-    path = tmp_path / "odd.e57"
+def _odd_e57(path, build):
+    """An E57 with one scan whose nodes ``build(imf, scan)`` sets."""
     e = pye57.E57(str(path), mode="w")
     imf = e.image_file
-    node, proto = libe57.StructureNode(imf), libe57.StructureNode(imf)
+    node = libe57.StructureNode(imf)
     node.set("guid", libe57.StringNode(imf, "{odd}"))
-    proto.set("intensity", libe57.FloatNode(imf, 0.0))
-    node.set("points", libe57.CompressedVectorNode(imf, proto, libe57.VectorNode(imf, True)))
+    build(imf, node)
     e.data3d.append(node)
     e.close()
+
+
+def test_e57_with_damaged_structure(tmp_path):
+    def no_coordinates(imf, node):
+        proto = libe57.StructureNode(imf)
+        proto.set("intensity", libe57.FloatNode(imf, 0.0))
+        node.set("points", libe57.CompressedVectorNode(imf, proto, libe57.VectorNode(imf, True)))
+
+    path = tmp_path / "odd.e57"
+    _odd_e57(path, no_coordinates)
     with pytest.raises(FileFormatError, match="odd.e57: E57 scan 0 has neither cartesianX/Y/Z "
                                               "nor sphericalRange"):
         read_surfels(path)
+    _odd_e57(path, lambda imf, node: node.set("points", libe57.StringNode(imf, "none")))
+    with pytest.raises(FileFormatError, match="odd.e57: E57 scan 0 has no point records"):
+        read_surfels(path)
+    _e57(path, [{"xyz": _ball(10), "pose": "upright"}])
+    with pytest.raises(FileFormatError, match="odd.e57: E57 scan 0's pose is not a structure"):
+        read_surfels(path)
+    _e57(path, [{"xyz": _ball(10), "pose": (("w", 0, 0, 0), (0, 0, 0))}])
+    with pytest.raises(FileFormatError, match="odd.e57: E57 scan 0's pose rotation w is not a "
+                                              "number"):
+        read_surfels(path)
+
+
+def test_e57_colour_or_intensity_without_range_is_said(tmp_path):
+    path = tmp_path / "flat.e57"
+    _e57(path, [{"xyz": _ball(20), "rgb": np.full((20, 3), 9), "color_limits": (5, 5),
+                 "intensity": np.full(20, 0.5)}])
+    with pytest.warns(UserWarning) as rec:
+        assert read_surfels(path).colors is None
+    said = " | ".join(str(w.message) for w in rec)
+    assert "flat.e57: scan 0's colour limits are empty or not finite; its colour is not used" \
+        in said
+    assert "scan 0's intensity has an empty or non-finite range; it is not used as grey" in said
 
 
 # --- discovery, command line, import cost -----------------------------------------------------

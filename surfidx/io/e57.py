@@ -75,23 +75,20 @@ def _check_file_header(path: Path, size: int) -> None:
                               f"byte {xml_offset:,}) outside the file; it is damaged", path=path)
 
 
-def _fields(node, libe57, prefix: str = "") -> dict:
-    """Name -> typed node of the leaves of a record prototype."""
+def _fields(node, libe57) -> dict:
+    """Name -> typed node of the fields of a record prototype (a nested structure is kept
+    as its untyped node: no standard field is one, and it adds nothing to the size bound)."""
     out = {}
     for i in range(node.childCount()):
         child = node.get(i)
-        name = prefix + child.elementName()
         kind = child.type()
-        if kind == libe57.E57_STRUCTURE:
-            out.update(_fields(libe57.StructureNode(child), libe57, name + "/"))
-        elif kind == libe57.E57_FLOAT:
-            out[name] = libe57.FloatNode(child)
+        if kind == libe57.E57_FLOAT:
+            child = libe57.FloatNode(child)
         elif kind == libe57.E57_INTEGER:
-            out[name] = libe57.IntegerNode(child)
+            child = libe57.IntegerNode(child)
         elif kind == libe57.E57_SCALED_INTEGER:
-            out[name] = libe57.ScaledIntegerNode(child)
-        else:
-            out[name] = child
+            child = libe57.ScaledIntegerNode(child)
+        out[child.elementName()] = child
     return out
 
 
@@ -107,13 +104,25 @@ def _record_bits(fields: dict, libe57) -> int:
     return max(bits, 1)
 
 
-def _limits(scan, group: str, lo: str, hi: str, node, libe57):
+def _number(node, libe57, what: str, path: Path) -> float:
+    """The value of a numeric node (float, integer or scaled integer).
+
+    Raises
+    ------
+    FileFormatError
+        The node holds a string, a structure or a vector.
+    """
+    if not isinstance(node, (libe57.FloatNode, libe57.IntegerNode, libe57.ScaledIntegerNode)):
+        raise FileFormatError(f"E57 {what} is not a number; the file is damaged", path=path)
+    return float(node.value())
+
+
+def _limits(scan, group: str, lo: str, hi: str, node, libe57, path: Path):
     """``(low, high)`` of a colour or intensity field: the scan's ``colorLimits`` /
     ``intensityLimits``, else the integer range of its prototype node, else None."""
-    if scan.isDefined(group):
-        lim = scan[group]
-        if lim.isDefined(lo) and lim.isDefined(hi):
-            return float(lim[lo].value()), float(lim[hi].value())
+    if scan.isDefined(f"{group}/{lo}") and scan.isDefined(f"{group}/{hi}"):
+        return (_number(scan[group][lo], libe57, f"{group} {lo}", path),
+                _number(scan[group][hi], libe57, f"{group} {hi}", path))
     if isinstance(node, (libe57.IntegerNode, libe57.ScaledIntegerNode)):
         return float(node.minimum()), float(node.maximum())
     return None
@@ -152,14 +161,20 @@ def _scaled(values: np.ndarray, lims, what: str, notes: list) -> np.ndarray | No
     return np.clip(np.round(out), 0, 255).astype(np.uint8)
 
 
-def _pose(scan, path: Path, index: int):
+def _pose(scan, libe57, path: Path, index: int):
     """``(rotation (3, 3), translation (3,))`` of a scan's pose (either part may be missing:
     identity)."""
     rot, shift = np.eye(3), np.zeros(3)
     pose = scan["pose"]
+    parts = [pose] + [pose[k] for k in ("rotation", "translation")
+                      if isinstance(pose, libe57.StructureNode) and pose.isDefined(k)]
+    if not all(isinstance(p, libe57.StructureNode) for p in parts):
+        raise FileFormatError(f"E57 scan {index}'s pose is not a structure of rotation and "
+                              "translation; the file is damaged", path=path)
     if pose.isDefined("rotation"):
         r = pose["rotation"]
-        w, x, y, z = (float(r[k].value()) for k in "wxyz")
+        w, x, y, z = (_number(r[k], libe57, f"scan {index}'s pose rotation {k}", path)
+                      for k in "wxyz")
         norm = np.sqrt(w * w + x * x + y * y + z * z)
         if not np.isfinite(norm) or norm == 0:
             raise FileFormatError(f"E57 scan {index}'s pose rotation ({w}, {x}, {y}, {z}) is "
@@ -170,7 +185,8 @@ def _pose(scan, path: Path, index: int):
                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
     if pose.isDefined("translation"):
         t = pose["translation"]
-        shift = np.array([float(t[k].value()) for k in "xyz"])
+        shift = np.array([_number(t[k], libe57, f"scan {index}'s pose translation {k}", path)
+                          for k in "xyz"])
     return rot, shift
 
 
@@ -213,24 +229,30 @@ def _read_scan(imf, scan, fields: dict, count: int, libe57, path: Path, index: i
         pts = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
                         r * np.sin(el)], axis=1)
     if scan.isDefined("pose"):
-        rot, shift = _pose(scan, path, index)
+        rot, shift = _pose(scan, libe57, path, index)
         # R p + t as three broadcast products: exact in the order written, whatever BLAS
         # numpy loads (and ten times faster than an (n, 3) @ (3, 3) product)
         pts = pts[:, :1] * rot[:, 0] + pts[:, 1:2] * rot[:, 1] + pts[:, 2:] * rot[:, 2] + shift
     colors, flag = None, None
     if rgb:
-        lims = [_limits(scan, "colorLimits", f + "Minimum", f + "Maximum", fields[f], libe57)
-                for f in _RGB]
+        lims = [_limits(scan, "colorLimits", f + "Minimum", f + "Maximum", fields[f], libe57,
+                        path) for f in _RGB]
         colors = _scaled(np.stack([data[f][valid] for f in _RGB], axis=1), lims, "colour",
                          notes)
         flag = "isColorInvalid"
+        if colors is None and valid.any():
+            notes.append(f"scan {index}'s colour limits are empty or not finite; its colour "
+                         "is not used")
     if colors is None and "intensity" in data:
         lim = _limits(scan, "intensityLimits", "intensityMinimum", "intensityMaximum",
-                      fields["intensity"], libe57)
+                      fields["intensity"], libe57, path)
         grey = _scaled(data["intensity"][valid][:, None], [lim], "intensity", notes)
         if grey is not None:
             colors = np.repeat(grey, 3, axis=1)
             flag = "isIntensityInvalid"
+        elif valid.any():
+            notes.append(f"scan {index}'s intensity has an empty or non-finite range; it is "
+                         "not used as grey")
     if colors is not None and flag in data:
         bad = data[flag][valid] != 0
         if bad.any():
@@ -266,8 +288,8 @@ def read_e57(path: Path) -> Points:
     FileFormatError
         Not an E57 file, a header that disagrees with the file's size (truncated), a scan whose
         point count its record size makes larger than the file, a damaged file (libE57's
-        checksums), a scan without coordinates or with a pose that is no rotation, no scans or
-        no valid points, pye57 missing.
+        checksums), a scan without point records or coordinates, a pose that is no rotation, a
+        limit or pose that is not a number, no scans or no valid points, pye57 missing.
     InputError
         Coordinates beyond :data:`~surfidx.io.limits.MAX_COORDINATE`; NaN coordinates of valid
         points are refused as for every point cloud.
@@ -275,7 +297,8 @@ def read_e57(path: Path) -> Points:
     Warns
     -----
     UserWarning
-        Invalid points skipped, colours clipped to their limits or given grey, images not read.
+        Invalid points skipped, colours clipped to their limits or given grey, colour or
+        intensity with an empty range not used, images not read.
     """
     size = path.stat().st_size
     _check_file_header(path, size)
@@ -289,11 +312,15 @@ def read_e57(path: Path) -> Points:
     try:
         root = imf.root()
         scans = root["data3D"] if root.isDefined("data3D") else None
-        if scans is None or scans.childCount() == 0:
+        if not isinstance(scans, libe57.VectorNode) or scans.childCount() == 0:
             raise FileFormatError("E57 file holds no 3D scans", path=path)
         prepared, need = [], 0
         for i in range(scans.childCount()):
             scan = scans[i]
+            if not isinstance(scan, libe57.StructureNode) or not scan.isDefined("points") or \
+                    not isinstance(scan["points"], libe57.CompressedVectorNode):
+                raise FileFormatError(f"E57 scan {i} has no point records; the file is damaged",
+                                      path=path)
             fields = _fields(libe57.StructureNode(scan["points"].prototype()), libe57)
             count = scan["points"].childCount()
             if not (all(f in fields for f in _CARTESIAN) or all(f in fields for f in _SPHERICAL)):
@@ -314,7 +341,8 @@ def read_e57(path: Path) -> Points:
             cols.append(colors)
             if colors is None and len(pts):
                 uncoloured.append(i)
-        images = root["images2D"].childCount() if root.isDefined("images2D") else 0
+        images = root["images2D"].childCount() if root.isDefined("images2D") and \
+            isinstance(root["images2D"], libe57.VectorNode) else 0
     except libe57.E57Exception as exc:
         raise FileFormatError(f"E57 file cannot be read ({str(exc).splitlines()[0]}); it is "
                               "truncated or damaged", path=path) from None

@@ -24,6 +24,8 @@ __all__ = ["read_las"]
 
 #: LAS point data formats whose records hold red, green and blue.
 _COLOR_FORMATS = frozenset({2, 3, 5, 7, 8, 10})
+#: Bytes of a point record of each LAS point data format (a record may add extra bytes).
+_RECORD_SIZES = (20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67)
 
 #: Points decoded at a time: laspy's arrays for one chunk stay a few tens of megabytes.
 _CHUNK = 1 << 20
@@ -87,9 +89,9 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
     Raises
     ------
     FileFormatError
-        No ``LASF`` signature, an unknown version, records or offsets outside the file, or more
-        points than the bytes after the header can hold (a LAZ: more than
-        :data:`~surfidx.io.limits.MAX_LAZ_RATIO` allows).
+        No ``LASF`` signature, an unknown version or point data format, records shorter than
+        their format, records or offsets outside the file, or more points than the bytes after
+        the header can hold (a LAZ: more than :data:`~surfidx.io.limits.MAX_LAZ_RATIO` allows).
     """
     with open(path, "rb") as fh:
         head = fh.read(_HEADER_14)
@@ -130,7 +132,15 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
                           "extended records", path)
             data_end = evlr_start
     data = data_end - offset
-    compressed = bool(fmt & 0x80)
+    compressed, raw, fmt = bool(fmt & 0x80), fmt, fmt & 0x3F   # LASzip sets bits 7 (and 6)
+    if fmt >= len(_RECORD_SIZES):
+        raise FileFormatError(f"LAS point data format {raw} is not one of 0 to "
+                              f"{len(_RECORD_SIZES) - 1} (plus 128 in a LAZ file); the header "
+                              "is damaged", path=path)
+    if record < _RECORD_SIZES[fmt]:
+        raise FileFormatError(f"LAS point records of {record} bytes are shorter than point data "
+                              f"format {fmt}'s {_RECORD_SIZES[fmt]}; the header is damaged",
+                              path=path)
     if compressed:
         if count * record > limits.MAX_LAZ_RATIO * data:
             raise FileFormatError(f"LAZ header announces {count:,} points of {record} bytes, "
@@ -146,7 +156,7 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
 
 
 @contextlib.contextmanager
-def _laspy_log(path: Path):
+def _laspy_log():
     """Collect what laspy logs while it reads (a VLR it cannot parse, a short read) instead
     of letting it reach the process's log: the caller raises the error or warns naming the
     file."""
@@ -222,7 +232,7 @@ def read_las(path: Path) -> Points:
     pos, rgb, intensity = [], [], []
     what = "LAZ" if compressed else "LAS"
     try:
-        with _laspy_log(path) as said, \
+        with _laspy_log() as said, \
                 laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as reader:
             has_rgb = reader.header.point_format.id in _COLOR_FORMATS
             for pts in reader.chunk_iterator(_CHUNK):
@@ -235,15 +245,15 @@ def read_las(path: Path) -> Points:
     except errors as exc:
         raise FileFormatError(f"{what} file cannot be read ({exc}); it is truncated or damaged",
                               path=path) from None
+    positions = np.concatenate(pos) if pos else np.empty((0, 3))
+    if len(positions) != count:                         # a file that shrank while read
+        raise FileFormatError(f"{what} header announces {count:,} points and the file holds "
+                              f"{len(positions):,}; it is truncated or damaged", path=path)
     for message in said:
         warnings.warn(f"{path}: laspy: {message}", UserWarning, stacklevel=3)
     if extra:
         warnings.warn(f"{path}: {extra:,} point records follow the {count:,} the LAS header "
                       "announces; they are not read", UserWarning, stacklevel=3)
-    positions = np.concatenate(pos) if pos else np.empty((0, 3))
-    if len(positions) != count:
-        raise FileFormatError(f"{what} header announces {count:,} points and the file holds "
-                              f"{len(positions):,}; it is truncated or damaged", path=path)
     if count == 0:
         raise FileFormatError(f"{what} file holds no points", path=path)
     colors = None
