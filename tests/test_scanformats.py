@@ -174,6 +174,55 @@ def test_hostile_las_and_laz(tmp_path):
         read_surfels(empty)
 
 
+def test_hostile_laz_chunk_table_and_layers(tmp_path):
+    """lazrs reserves an entry per chunk the table lists and a buffer per layer size a chunk
+    announces, and panics on some damaged data: refused before it reads, or caught."""
+    src = tmp_path / "src.laz"
+    _las(src, point_format=7, version="1.4", rgb=_rgb8() * 257)
+    data = src.read_bytes()
+    head, offset = struct.unpack_from("<HI", data, 94)
+    laszip = head + 54                               # the LASzip record's data
+    table = struct.unpack_from("<q", data, offset)[0]
+    cases = (
+        ("chunks", table + 4, "<I", 4_000_000_000, "LAZ chunk table lists 4,000,000,000 "
+                                                   "chunks, more than the"),
+        ("zero", laszip + 12, "<I", 0, "LAZ file.s LASzip record gives chunks of 0 points"),
+        ("few", laszip + 12, "<I", 10, "LAZ chunk table lists 1 chunks of 10 points, fewer "
+                                       "than the 200 points"),
+        ("short", head + 20, "<H", 20, "LAZ file's LASzip record is 20 bytes, shorter than "
+                                       "the 34"),
+        ("offset", 96, "<I", len(data) - 4, "LAZ point data is shorter than its 8-byte chunk "
+                                            "table offset"),
+        ("items", laszip + 40, "<H", 10, "LAZ chunk 0's layers announce [\\d,]+ bytes, more "
+                                         "than the 1,855 left"),
+        ("layer", offset + 8 + 36 + 4, "<I", 4_000_000_000, "LAZ chunk 0's layers announce "
+                                                            "4,000,001,045 bytes"),
+        ("empty", offset + 8 + 36, "<I", 0, "LAZ chunk 0 holds no points"),
+        ("more", 247, "<Q", 250, "LAZ chunk 1 runs past byte"))
+    for name, off, fmt, value, msg in cases:
+        bad = tmp_path / f"{name}.laz"
+        bad.write_bytes(data)
+        _patch(bad, off, fmt, value)
+        with pytest.raises(FileFormatError, match=f"{name}.laz: {msg}"):
+            read_surfels(bad)
+    class PanicException(BaseException):             # what lazrs raises when it panics
+        pass
+
+    def panic(self, n):
+        raise PanicException("mid > len")
+        yield
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(laspy.LasReader, "chunk_iterator", panic)
+        with pytest.raises(FileFormatError, match="src.laz: LAZ points cannot be decompressed "
+                                                  r"\(mid > len\); the file is damaged"):
+            read_surfels(src)
+    moved = tmp_path / "moved.laz"                   # the table's offset at the end instead
+    moved.write_bytes(data + struct.pack("<q", table))
+    _patch(moved, offset, "<q", -1)
+    assert len(read_surfels(moved)) == 200
+
+
 def test_las_that_shrinks_while_read(tmp_path, monkeypatch):
     """laspy returns what it could read of a file that shrank after its header was checked
     (it logs the shortfall): the count is compared, and laspy's log goes nowhere else."""

@@ -56,21 +56,114 @@ def _laspy(path: Path, compressed: bool):
 
 
 def _walk_records(fh, pos: int, n: int, head: int, length: str, end: int, what: str,
-                  path: Path) -> int:
-    """Follow ``n`` records from byte ``pos`` (each a ``head``-byte header whose length field,
-    of struct format ``length``, sits at byte 20) and return where they end; a record that
-    runs past ``end`` is refused, so a count of 4 billion stops at the first one out of
-    bounds."""
+                  path: Path) -> dict:
+    """Follow ``n`` records from byte ``pos`` (each a ``head``-byte header: user id at byte 2,
+    record id at 18, length of struct format ``length`` at 20); a record that runs past ``end``
+    is refused, so a count of 4 billion stops at the first one out of bounds.
+
+    Returns
+    -------
+    dict
+        ``(user id, record id) -> (start, length)`` of each record's data.
+    """
+    found = {}
     for i in range(n):
         if pos + head > end:
             raise FileFormatError(f"LAS header announces {n:,} {what}; record {i} runs past "
                                   f"byte {end:,}; the file is truncated or damaged", path=path)
-        fh.seek(pos + 20)
-        pos += head + struct.unpack(length, fh.read(struct.calcsize(length)))[0]
+        fh.seek(pos)
+        rec = fh.read(head)
+        (size,) = struct.unpack_from(length, rec, 20)
+        user, number = rec[2:18].rstrip(b"\0"), struct.unpack_from("<H", rec, 18)[0]
+        found.setdefault((user, number), (pos + head, size))
+        pos += head + size
     if pos > end:
         raise FileFormatError(f"LAS header announces {n:,} {what}; the last runs past byte "
                               f"{end:,}; the file is truncated or damaged", path=path)
-    return pos
+    return found
+
+
+#: Layers of each LASzip item type in the layered compression of point formats 6 to 10
+#: (POINT14, RGB14, RGBNIR14, WAVEPACKET14; BYTE14 has one a byte).
+_LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+
+
+def _check_laszip(fh, laszip, offset: int, end: int, size: int, count: int, record: int,
+                  path: Path) -> None:
+    """Check what lazrs allocates by before it reads: the chunk table's chunk count (an entry
+    is reserved for each) and, in the layered compression of point formats 6 to 10, each
+    chunk's layer sizes (a buffer of that size is made for each).
+
+    The first 8 bytes of the point data give the table's position (or, when a writer could not
+    go back, the file's last 8 bytes do); the table starts with its version and chunk count.
+    A layered chunk is its first point raw, its point count, a 32-bit size per layer of each
+    item, then the layers.
+
+    Raises
+    ------
+    FileFormatError
+        A LASzip record too short for its items, fixed chunks of 0 points, more chunks than
+        compressed bytes, fixed chunks too few for the points announced, a chunk of no points,
+        layers larger than the bytes left.
+    """
+    if laszip is None:
+        return                              # laspy names the missing LASzip record
+    start, length = laszip
+    fh.seek(start)
+    vlr = fh.read(length)
+    n_items = struct.unpack_from("<H", vlr, 32)[0] if length >= 34 else 0
+    if length < 34 + 6 * n_items:
+        raise FileFormatError(f"LAZ file's LASzip record is {length} bytes, shorter than the "
+                              f"{34 + 6 * n_items} it needs; the file is damaged", path=path)
+    compressor = struct.unpack_from("<H", vlr, 0)[0]
+    chunk = struct.unpack_from("<I", vlr, 12)[0]
+    items = [struct.unpack_from("<HH", vlr, 34 + 6 * i) for i in range(n_items)]
+    if chunk == 0:
+        raise FileFormatError("LAZ file's LASzip record gives chunks of 0 points; the file is "
+                              "damaged", path=path)
+    if end - offset < 8:
+        raise FileFormatError("LAZ point data is shorter than its 8-byte chunk table offset; "
+                              "the file is truncated", path=path)
+    fh.seek(offset)
+    (table,) = struct.unpack("<q", fh.read(8))
+    if table <= offset and size >= 8:
+        fh.seek(size - 8)
+        (table,) = struct.unpack("<q", fh.read(8))
+    if offset < table <= size - 8:
+        fh.seek(table)
+        _, chunks = struct.unpack("<II", fh.read(8))
+        if chunks > table - offset:
+            raise FileFormatError(f"LAZ chunk table lists {chunks:,} chunks, more than the "
+                                  f"{table - offset:,} compressed bytes before it hold; the "
+                                  "file is damaged", path=path)
+        if chunk != 0xFFFFFFFF and chunks * chunk < count:
+            raise FileFormatError(f"LAZ chunk table lists {chunks:,} chunks of {chunk:,} "
+                                  f"points, fewer than the {count:,} points the header "
+                                  "announces; the file is truncated or damaged", path=path)
+        end = table
+    layers = [_LAYERS.get(kind, size_ if kind == 14 else -1) for kind, size_ in items]
+    if compressor != 3 or -1 in layers:
+        return                              # pointwise: fixed-size models, nothing to reserve
+    n_layers = sum(layers)
+    pos, left, k = offset + 8, count, 0     # at most one step per record + 4 bytes of data
+    while left > 0:
+        head = record + 4 + 4 * n_layers
+        if pos + head > end:
+            raise FileFormatError(f"LAZ chunk {k} runs past byte {end:,}, the end of the "
+                                  "compressed points; the file is truncated or damaged",
+                                  path=path)
+        fh.seek(pos + record)
+        points, *sizes = struct.unpack(f"<I{n_layers}I", fh.read(4 + 4 * n_layers))
+        if points == 0:
+            raise FileFormatError(f"LAZ chunk {k} holds no points; the file is damaged",
+                                  path=path)
+        if sum(sizes) > end - pos - head:
+            raise FileFormatError(f"LAZ chunk {k}'s layers announce {sum(sizes):,} bytes, "
+                                  f"more than the {end - pos - head:,} left; the file is "
+                                  "truncated or damaged", path=path)
+        pos += head + sum(sizes)
+        left -= points
+        k += 1
 
 
 def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
@@ -91,7 +184,8 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
     FileFormatError
         No ``LASF`` signature, an unknown version or point data format, records shorter than
         their format, records or offsets outside the file, or more points than the bytes after
-        the header can hold (a LAZ: more than :data:`~surfidx.io.limits.MAX_LAZ_RATIO` allows).
+        the header can hold (a LAZ: more than :data:`~surfidx.io.limits.MAX_LAZ_RATIO` allows,
+        or a chunk table or chunk whose counts do not fit, see :func:`_check_laszip`).
     """
     with open(path, "rb") as fh:
         head = fh.read(_HEADER_14)
@@ -119,8 +213,8 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
             raise FileFormatError(f"LAS header size {header_size} and point data offset "
                                   f"{offset:,} do not fit a file of {size:,} bytes; it is "
                                   "truncated or damaged", path=path)
-        _walk_records(fh, header_size, n_vlrs, _VLR_HEADER, "<H", offset,
-                      "variable-length records", path)
+        vlrs = _walk_records(fh, header_size, n_vlrs, _VLR_HEADER, "<H", offset,
+                             "variable-length records", path)
         data_end = size
         if n_evlrs:
             if not offset <= evlr_start <= size:
@@ -146,6 +240,9 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
             raise FileFormatError(f"LAZ header announces {count:,} points of {record} bytes, "
                                   f"more than {limits.MAX_LAZ_RATIO:,} times the {data:,} "
                                   "compressed bytes hold; the header is damaged", path=path)
+        with open(path, "rb") as fh:
+            _check_laszip(fh, vlrs.get((b"laszip encoded", 22204)), offset, data_end, size,
+                          count, record, path)
         return count, compressed, 0
     if count * record > data:
         raise FileFormatError(f"LAS header announces {count:,} points of {record} bytes, more "
@@ -245,6 +342,11 @@ def read_las(path: Path) -> Points:
     except errors as exc:
         raise FileFormatError(f"{what} file cannot be read ({exc}); it is truncated or damaged",
                               path=path) from None
+    except BaseException as exc:                        # lazrs panics on some damaged data
+        if type(exc).__name__ != "PanicException":
+            raise
+        raise FileFormatError(f"{what} points cannot be decompressed ({exc}); the file is "
+                              "damaged", path=path) from None
     positions = np.concatenate(pos) if pos else np.empty((0, 3))
     if len(positions) != count:                         # a file that shrank while read
         raise FileFormatError(f"{what} header announces {count:,} points and the file holds "
