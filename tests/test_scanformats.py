@@ -217,6 +217,9 @@ def test_hostile_laz_chunk_table_and_layers(tmp_path):
         with pytest.raises(FileFormatError, match="src.laz: LAZ points cannot be decompressed "
                                                   r"\(mid > len\); the file is damaged"):
             read_surfels(src)
+    three = tmp_path / "three.laz"                   # layered chunks walked one by one
+    _las(three, point_format=6, version="1.4", n=120_000, intensity=np.arange(120_000) % 256)
+    assert len(read_surfels(three)) == 120_000
     moved = tmp_path / "moved.laz"                   # the table's offset at the end instead
     moved.write_bytes(data + struct.pack("<q", table))
     _patch(moved, offset, "<q", -1)
