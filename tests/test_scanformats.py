@@ -119,6 +119,12 @@ def test_hostile_las_and_laz(tmp_path):
     (tmp_path / "text.las").write_text("x y z\n0 0 0\n" * 30)
     with pytest.raises(FileFormatError, match="text.las: not a LAS/LAZ file .*LASF signature"):
         read_surfels(tmp_path / "text.las")
+    short14 = tmp_path / "short14.las"
+    _las(short14, point_format=6, version="1.4")
+    short14.write_bytes(short14.read_bytes()[:300])
+    with pytest.raises(FileFormatError, match="short14.las: LAS 1.4 header is truncated "
+                                              r"\(300 of 375 bytes\)"):
+        read_surfels(short14)
     (tmp_path / "short.las").write_bytes(b"LASF" + b"\0" * 100)
     with pytest.raises(FileFormatError, match="short.las: LAS header is truncated"):
         read_surfels(tmp_path / "short.las")
@@ -488,11 +494,15 @@ def test_hostile_e57(tmp_path):
     with pytest.raises(FileFormatError, match="odd.e57: E57 file of [\\d,]+ bytes is not a whole "
                                               "number of 1024-byte pages"):
         read_surfels(odd)
-    flip = tmp_path / "flip.e57"                     # a damaged page: libE57's checksum
-    flip.write_bytes(data[:1500] + bytes([data[1500] ^ 0xFF]) + data[1501:])
-    with pytest.raises(FileFormatError, match="flip.e57: E57 file cannot be read "
-                                              r"\(checksum mismatch"):
-        read_surfels(flip)
+    # a damaged page, found by libE57's checksums: in the XML (opening fails) or in the
+    # points (reading fails)
+    xml_at = struct.unpack_from("<Q", data, 24)[0]
+    for name, at in (("flipxml", xml_at + 10), ("flippoints", 2148)):
+        flip = tmp_path / f"{name}.e57"
+        flip.write_bytes(data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1:])
+        with pytest.raises(FileFormatError, match=f"{name}.e57: E57 file cannot be read "
+                                                  r"\(checksum mismatch"):
+            read_surfels(flip)
     huge = tmp_path / "huge.e57"
     huge.write_bytes(data)
     _edit_e57_xml(huge, b'recordCount="300"', b'recordCount="1000000000000"')
