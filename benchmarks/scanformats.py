@@ -8,7 +8,9 @@ coordinates (LAS scale 0.001, offset in the hundreds of thousands of metres), 16
 intensity; the E57 holds it as two scans of half the points, each with its own pose, 1 % of
 the points marked invalid, colour and intensity. Each measurement runs in a fresh process
 (import and numba set-up excluded from the time), best of ``--repeat``: wall time, CPU time of
-the process and its peak resident memory. Run: ``python benchmarks/scanformats.py [--points
+the process and its peak resident memory. It also prints how many times smaller than their
+records LASzip packs the scan, and how many identical points it packs in a byte in each point
+format, beside ``surfidx.io.MAX_LAZ_POINTS_PER_BYTE``, the most read. Run: ``python benchmarks/scanformats.py [--points
 1000000] [--repeat 3] [--dir DIR]``.
 """
 
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -71,6 +74,37 @@ def write_e57(path: Path, p, rgb, intensity) -> None:
                           "cartesianInvalidState": invalid[sl]},
                          rotation=rot, translation=shift + centre)
     e.close()
+
+
+def points_per_byte(path: Path) -> float:
+    """Points of a LAZ file per byte of its compressed point data."""
+    head = path.read_bytes()[:375]
+    (offset,) = struct.unpack_from("<I", head, 96)
+    count = struct.unpack_from("<I", head, 107)[0] or struct.unpack_from("<Q", head, 247)[0]
+    return count / (path.stat().st_size - offset)
+
+
+def compression_table(scan: Path, folder: Path, n: int) -> str:
+    """How densely LASzip packs the generated scan, and ``n`` identical points in each point
+    format (its best case), beside the most :func:`surfidx.io.las.read_las` reads."""
+    import laspy
+
+    from surfidx.io import MAX_LAZ_POINTS_PER_BYTE
+
+    lines = [f"LAZ points per compressed byte (surfidx.io.MAX_LAZ_POINTS_PER_BYTE = "
+             f"{MAX_LAZ_POINTS_PER_BYTE}): the scan {points_per_byte(scan):.2f}; "
+             f"{n:,} identical points, by point format:"]
+    cells = []
+    for pf in range(11):
+        h = laspy.LasHeader(point_format=pf, version="1.4" if pf >= 6 else "1.3")
+        las = laspy.LasData(h)
+        las.x = las.y = las.z = np.zeros(n)
+        path = folder / f"same{pf}.laz"
+        las.write(str(path))
+        cells.append(f"{pf}: {points_per_byte(path):.0f}")
+        path.unlink()
+    lines.append("  " + ", ".join(cells))
+    return "\n".join(lines)
 
 
 #: What each row runs; ``PATH`` is the file. The timed part is ``run()``.
@@ -145,6 +179,7 @@ def main(argv=None) -> None:
         write_las(files["LAS"], p, rgb, intensity)
         write_las(files["LAZ"], p, rgb, intensity)
         write_e57(files["E57"], p, rgb, intensity)
+        print(compression_table(files["LAZ"], folder, args.points))
         rows = [("LAS", "surfidx"), ("LAS", "laspy.read (Lazrs)"),
                 ("LAZ", "surfidx"), ("LAZ", "laspy.read (Lazrs)"),
                 ("LAZ", "laspy.read (LazrsParallel)"),

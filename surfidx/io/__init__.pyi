@@ -4,7 +4,7 @@ from .registry import (SUPPORTED_SUFFIXES as SUPPORTED_SUFFIXES, MESH_SUFFIXES a
                        POINT_SUFFIXES as POINT_SUFFIXES, OUTPUT_FORMATS as OUTPUT_FORMATS)
 from .limits import (MAX_TEXTURE_PIXELS as MAX_TEXTURE_PIXELS, MAX_COORDINATE as MAX_COORDINATE,
                      MAX_TEXT_BYTES as MAX_TEXT_BYTES)
-from .limits import MAX_LAZ_RATIO as MAX_LAZ_RATIO
+from .limits import MAX_LAZ_POINTS_PER_BYTE as MAX_LAZ_POINTS_PER_BYTE
 from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,
                       read_geometry as read_geometry, as_surfels as as_surfels,
                       model_hash as model_hash)

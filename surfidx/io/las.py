@@ -184,7 +184,8 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
     FileFormatError
         No ``LASF`` signature, an unknown version or point data format, records shorter than
         their format, records or offsets outside the file, or more points than the bytes after
-        the header can hold (a LAZ: more than :data:`~surfidx.io.limits.MAX_LAZ_RATIO` allows,
+        the header can hold (a LAZ: more than
+        :data:`~surfidx.io.limits.MAX_LAZ_POINTS_PER_BYTE` allow,
         or a chunk table or chunk whose counts do not fit, see :func:`_check_laszip`).
     """
     with open(path, "rb") as fh:
@@ -236,10 +237,11 @@ def _check_header(path: Path, size: int) -> tuple[int, bool, int]:
                               f"format {fmt}'s {_RECORD_SIZES[fmt]}; the header is damaged",
                               path=path)
     if compressed:
-        if count * record > limits.MAX_LAZ_RATIO * data:
-            raise FileFormatError(f"LAZ header announces {count:,} points of {record} bytes, "
-                                  f"more than {limits.MAX_LAZ_RATIO:,} times the {data:,} "
-                                  "compressed bytes hold; the header is damaged", path=path)
+        if count > limits.MAX_LAZ_POINTS_PER_BYTE * data:
+            raise FileFormatError(f"LAZ header announces {count:,} points, more than "
+                                  f"{limits.MAX_LAZ_POINTS_PER_BYTE} a byte of its {data:,} "
+                                  "compressed bytes; the header is damaged (or the points are "
+                                  "all alike)", path=path)
         with open(path, "rb") as fh:
             _check_laszip(fh, vlrs.get((b"laszip encoded", 22204)), offset, data_end, size,
                           count, record, path)

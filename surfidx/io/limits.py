@@ -25,11 +25,11 @@ MAX_COORDINATE = 1e30
 """Largest coordinate magnitude read: positions are stored as float32 (largest 3.4e38) and
 their squares and cross products must stay finite."""
 
-MAX_LAZ_RATIO = 4096
-"""Largest ratio of a LAZ file's point records to its compressed point bytes that is read.
-LASzip packs identical points about 3,000 times smaller than their records and real scans 5 to
-15 times; a header announcing more points than this allows is refused before decompression
-allocates them."""
+MAX_LAZ_POINTS_PER_BYTE = 256
+"""Most points a LAZ file may announce per byte of its compressed point data: above what LASzip
+reaches on identical points in every point format and far above real scans
+(``benchmarks/scanformats.py`` prints both), so a header announcing more points is refused
+before decompression allocates them."""
 
 
 def check_input_file(path: Path) -> None:
