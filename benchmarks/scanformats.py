@@ -8,10 +8,12 @@ coordinates (LAS scale 0.001, offset in the hundreds of thousands of metres), 16
 intensity; the E57 holds it as two scans of half the points, each with its own pose, 1 % of
 the points marked invalid, colour and intensity. Each measurement runs in a fresh process
 (import and numba set-up excluded from the time), best of ``--repeat``: wall time, CPU time of
-the process and its peak resident memory. It also prints how many times smaller than their
-records LASzip packs the scan, and how many identical points it packs in a byte in each point
-format, beside ``surfidx.io.MAX_LAZ_POINTS_PER_BYTE``, the most read. Run: ``python benchmarks/scanformats.py [--points
-1000000] [--repeat 3] [--dir DIR]``.
+the process and its peak resident memory. A first table says how densely LASzip packs the scan
+and, its best case, identical points in each point format, beside
+``surfidx.io.MAX_LAZ_POINTS_PER_BYTE``, the most a LAZ file may announce.
+
+Run: ``python benchmarks/scanformats.py [--points 1000000] [--repeat 3] [--dir DIR]
+[--markdown]``.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+
+from _markdown import Report, add_markdown_option
 
 
 def make_scan(n: int, seed: int = 0):
@@ -84,27 +88,25 @@ def points_per_byte(path: Path) -> float:
     return count / (path.stat().st_size - offset)
 
 
-def compression_table(scan: Path, folder: Path, n: int) -> str:
+def compression(report, scan: Path, folder: Path, n: int) -> None:
     """How densely LASzip packs the generated scan, and ``n`` identical points in each point
     format (its best case), beside the most :func:`surfidx.io.las.read_las` reads."""
     import laspy
 
     from surfidx.io import MAX_LAZ_POINTS_PER_BYTE
 
-    lines = [f"LAZ points per compressed byte (surfidx.io.MAX_LAZ_POINTS_PER_BYTE = "
-             f"{MAX_LAZ_POINTS_PER_BYTE}): the scan {points_per_byte(scan):.2f}; "
-             f"{n:,} identical points, by point format:"]
-    cells = []
+    rows = [["the generated scan (format 3)", f"{points_per_byte(scan):.2f}"]]
     for pf in range(11):
         h = laspy.LasHeader(point_format=pf, version="1.4" if pf >= 6 else "1.3")
         las = laspy.LasData(h)
         las.x = las.y = las.z = np.zeros(n)
         path = folder / f"same{pf}.laz"
         las.write(str(path))
-        cells.append(f"{pf}: {points_per_byte(path):.0f}")
+        rows.append([f"{n:,} identical points, format {pf}", f"{points_per_byte(path):.0f}"])
         path.unlink()
-    lines.append("  " + ", ".join(cells))
-    return "\n".join(lines)
+    report.table(["LAZ file", "points per compressed byte"], rows,
+                 title=f"LAZ density (surfidx.io.MAX_LAZ_POINTS_PER_BYTE = "
+                       f"{MAX_LAZ_POINTS_PER_BYTE})")
 
 
 #: What each row runs; ``PATH`` is the file. The timed part is ``run()``.
@@ -169,7 +171,17 @@ def main(argv=None) -> None:
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--dir", type=Path, default=None, help="where the files go (default: temp)")
+    add_markdown_option(ap, "scanformats")
     args = ap.parse_args(argv)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    report = Report("scanformats", "Scanner formats: read time", args.markdown,
+                    note=f"A generated scan of {args.points:,} points (a noisy sphere, "
+                         "millimetre coordinates, 16-bit RGB and intensity; the E57 as two "
+                         "posed scans with 1 % of the points invalid) read by surfidx's readers "
+                         "(the points before the surfel conversion) and by the libraries "
+                         f"directly; best of {args.repeat}, each row in a fresh process. The "
+                         f"load average was {load:.1f} on {os.cpu_count()} cores: wall time "
+                         "grows with it, CPU time little.")
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.dir or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
@@ -179,23 +191,20 @@ def main(argv=None) -> None:
         write_las(files["LAS"], p, rgb, intensity)
         write_las(files["LAZ"], p, rgb, intensity)
         write_e57(files["E57"], p, rgb, intensity)
-        print(compression_table(files["LAZ"], folder, args.points))
-        rows = [("LAS", "surfidx"), ("LAS", "laspy.read (Lazrs)"),
-                ("LAZ", "surfidx"), ("LAZ", "laspy.read (Lazrs)"),
-                ("LAZ", "laspy.read (LazrsParallel)"),
-                ("E57", "surfidx"), ("E57", "pye57 read_scan")]
-        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-        print(f"{args.points:,} points, best of {args.repeat}, each row in a fresh process; "
-              f"{os.cpu_count()} cores, load average {load:.1f} (wall time grows with it, "
-              "CPU time little)")
-        print(f"{'format':6} {'reader':28} {'MB':>7} {'points':>10} {'wall s':>7} "
-              f"{'CPU s':>7} {'Mpts/s':>7} {'peak RSS MB':>11}")
-        for fmt, case in rows:
+        compression(report, files["LAZ"], folder, args.points)
+        cases = [("LAS", "surfidx"), ("LAS", "laspy.read (Lazrs)"),
+                 ("LAZ", "surfidx"), ("LAZ", "laspy.read (Lazrs)"),
+                 ("LAZ", "laspy.read (LazrsParallel)"),
+                 ("E57", "surfidx"), ("E57", "pye57 read_scan")]
+        rows = []
+        for fmt, case in cases:
             r = measure(case, files[fmt], args.repeat)
-            size = files[fmt].stat().st_size / 1e6
-            print(f"{fmt:6} {case:28} {size:7.1f} {r['n']:10,} {r['wall']:7.3f} "
-                  f"{r['cpu']:7.3f} {r['n'] / r['wall'] / 1e6:7.2f} {r['rss_mb']:11.0f}")
-
+            rows.append([fmt, case, f"{files[fmt].stat().st_size / 1e6:.1f}", f"{r['n']:,}",
+                         f"{r['wall']:.3f}", f"{r['cpu']:.3f}", f"{r['n'] / r['cpu'] / 1e6:.2f}",
+                         f"{r['rss_mb']:.0f}"])
+        report.table(["format", "reader", "MB", "points", "wall s", "CPU s", "Mpts per CPU s",
+                      "peak RSS MB"], rows, title="Read time")
+    report.finish(None if argv is None else [sys.argv[0], *argv])
 
 if __name__ == "__main__":
     main()
