@@ -213,7 +213,7 @@ def test_folder_without_supported_files(tmp_path):
     import ingest
 
     (tmp_path / "notes.txt").write_text("x")
-    (tmp_path / "scan.e57").write_bytes(b"\0")
+    (tmp_path / "scan.fls").write_bytes(b"\0")
     with pytest.raises(InputError, match="holds no model file"):
         ingest.discover([tmp_path])
     from click.testing import CliRunner

@@ -24,8 +24,8 @@ __all__ = ["convert", "info"]
 @ascii_option
 @common_options
 def convert(input, output, fmt, texture, samples, text, *, console):
-    """Convert a mesh or point cloud (PLY, OBJ, OFF, STL, glTF/GLB, PCD, XYZ, PTS) to surfels,
-    written as PLY, OBJ or GLB."""
+    """Convert a mesh or point cloud (PLY, OBJ, OFF, STL, glTF/GLB, PCD, XYZ, PTS, LAS/LAZ,
+    E57) to surfels, written as PLY, OBJ or GLB."""
     from ..io import output_format, write_model
     from ..progress import report
 

@@ -132,8 +132,8 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
     An OBJ with UVs but no texture named gets <stem>_texture.png, <stem>.png or the folder's only
     PNG. With --scheduler the models are processed on a Dask cluster's workers (which need the
     package and read access to the paths); this process alone writes the database.
-    Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ and PTS files; a folder
-    with none is an error. The exit status is 1 when any file failed (what could be stored is).
+    Folders are searched for PLY, OBJ, OFF, STL, GLB/glTF, PCD, XYZ, PTS, LAS/LAZ and E57
+    files; a folder with none is an error. The exit status is 1 when any file failed (what could be stored is).
     Without --workers, as many worker processes run as the machine has cores; the progress bar
     (on a terminal) moves within each model as its stages finish (per model with --scheduler).
     """

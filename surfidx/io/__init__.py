@@ -1,7 +1,8 @@
 """Reading and writing surfel sets, one module per format: surfel PLY, meshes (:mod:`.ply` with
 faces or tristrips, :mod:`.obj` with MTL texture, :mod:`.off`, :mod:`.stl`, :mod:`.gltf` with
 vertex colours or a base-colour texture) and point clouds (PLY, :mod:`.pcd`, :mod:`.xyz` for
-XYZ and PTS); :mod:`.registry` says which module reads and writes which suffix.
+XYZ and PTS, and the scanner formats :mod:`.las` for LAS/LAZ and :mod:`.e57`, through the
+``scanners`` extra); :mod:`.registry` says which module reads and writes which suffix.
 
 :mod:`.reading` reads models as they are (:func:`read_surfels`, :func:`read_mesh`,
 :func:`as_surfels`, :func:`read_geometry`), never repairing (reading for storing, read then

@@ -5,6 +5,7 @@ from .registry import (SUPPORTED_SUFFIXES as SUPPORTED_SUFFIXES, MESH_SUFFIXES a
                        up_axis as up_axis)
 from .limits import (MAX_TEXTURE_PIXELS as MAX_TEXTURE_PIXELS, MAX_COORDINATE as MAX_COORDINATE,
                      MAX_TEXT_BYTES as MAX_TEXT_BYTES)
+from .limits import MAX_LAZ_POINTS_PER_BYTE as MAX_LAZ_POINTS_PER_BYTE
 from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,
                       read_geometry as read_geometry, as_surfels as as_surfels,
                       model_hash as model_hash)

@@ -25,6 +25,12 @@ MAX_COORDINATE = 1e30
 """Largest coordinate magnitude read: positions are stored as float32 (largest 3.4e38) and
 their squares and cross products must stay finite."""
 
+MAX_LAZ_POINTS_PER_BYTE = 256
+"""Most points a LAZ file may announce per byte of its compressed point data: above what LASzip
+reaches on identical points in every point format and far above real scans
+(``benchmarks/scanformats.py`` prints both), so a header announcing more points is refused
+before decompression allocates them."""
+
 
 def check_input_file(path: Path) -> None:
     """Refuse what is not a non-empty regular file, before opening it (a FIFO would block).

@@ -37,7 +37,7 @@ def read_surfels(path, *, texture=None, samples: int | None = None, seed: int = 
     path : str or os.PathLike, or a model in memory
         A surfel PLY (x y z nx ny nz radius [red green blue]), a mesh (PLY with ``face`` or
         ``tristrips``, OBJ, OFF, STL, glTF/GLB) or a point cloud (PLY with positions and
-        optional colours/normals, PCD, XYZ, PTS). A model in memory (a :class:`SurfelSet`,
+        optional colours/normals, PCD, XYZ, PTS, LAS/LAZ, E57). A model in memory (a :class:`SurfelSet`,
         :class:`TriangleMesh`, ``(vertices, faces[, colours])``, an (n, 3) point array or a
         ``trimesh.Trimesh``/``PointCloud``) is converted by :func:`as_surfels`.
     texture : str or os.PathLike, optional

@@ -15,7 +15,9 @@ from pathlib import Path
 from typing import Callable
 
 from ..geometry.axes import MESH_UP, SCANNER_UP
+from .e57 import read_e57
 from .gltf import read_gltf, write_glb
+from .las import read_las
 from .obj import read_obj, write_obj
 from .off import read_off
 from .pcd import read_pcd
@@ -73,6 +75,9 @@ POINT_READERS = {
     ".pcd": Reader(read_pcd, up=SCANNER_UP),
     ".xyz": Reader(read_xyz, up=SCANNER_UP),
     ".pts": Reader(read_xyz, up=SCANNER_UP),
+    ".las": Reader(read_las, up=SCANNER_UP),
+    ".laz": Reader(read_las, up=SCANNER_UP),
+    ".e57": Reader(read_e57, up=SCANNER_UP),
 }
 #: Writers by format name: ``write(model, path, *, text)`` for a SurfelSet or TriangleMesh.
 WRITERS = {
