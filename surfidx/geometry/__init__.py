@@ -7,7 +7,8 @@
 - :mod:`.unitsphere`, :mod:`.icosphere` — geometry on the unit sphere and the icosahedral grid;
 - :mod:`.sparse` — the sparse symmetric positive-definite solver the map and descriptors use;
 - :mod:`.metrics` — distortion as the field measures it (PSNR D1, D2, luma);
-- :mod:`.simplify` — a vertex budget met by quadric-error simplification.
+- :mod:`.simplify` — a vertex budget met by quadric-error simplification;
+- :mod:`.atlas` — a texture atlas of the icosahedral grid and colour baked into it.
 
 The modules are imported one by one (``from surfidx.geometry.mesh import TriangleMesh``); their
 public classes and functions are also top-level names of :mod:`surfidx`.
