@@ -17,5 +17,6 @@ from .metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_
 from .atlas import (GridAtlas as GridAtlas, grid_atlas as grid_atlas,
                     grid_face_index as grid_face_index, locate_on_grid as locate_on_grid,
                     GridColor as GridColor, bake_texture as bake_texture,
+                    atlas_uv_faces as atlas_uv_faces,
                     default_texture_size as default_texture_size,
                     check_texture_size as check_texture_size)

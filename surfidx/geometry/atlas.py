@@ -32,7 +32,7 @@ from ..jit import njit
 from .icosphere import MAX_LEVEL, check_level, icosphere
 
 __all__ = ["GridAtlas", "grid_atlas", "grid_face_index", "locate_on_grid", "GridColor",
-           "bake_texture", "default_texture_size", "check_texture_size", "GUTTER", "MIN_TEXTURE_SIZE",
+           "bake_texture", "atlas_uv_faces", "default_texture_size", "check_texture_size", "GUTTER", "MIN_TEXTURE_SIZE",
            "MAX_TEXTURE_SIZE"]
 
 #: Texels between a chart and its cell's border (the chart's gutter there).
@@ -425,3 +425,34 @@ def bake_texture(atlas: GridAtlas, color) -> np.ndarray:
     img = np.zeros((atlas.size * atlas.size, 3), np.uint8)
     img[rows] = np.clip(np.round(col), 0, 255).astype(np.uint8)
     return img.reshape(atlas.size, atlas.size, 3)
+
+
+def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
+    """The texture coordinates of the corners of triangles of grid vertices on an atlas: a
+    grid face's own, in the triangle's corner order; a triangle that is no grid face (a strip
+    that zips a cut) takes its first corner's texture coordinate at all three corners, so it
+    shows that vertex's colour and never spans charts.
+
+    Parameters
+    ----------
+    atlas : GridAtlas
+    faces : (m, 3) int64
+        Grid vertex ids of the level ``atlas.level``.
+
+    Returns
+    -------
+    (m, 3) int64
+        Indices into ``atlas.uv``.
+    """
+    f = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
+    idx = grid_face_index(atlas.level, f)
+    grid = idx >= 0
+    out = np.empty_like(f)
+    uvf = atlas.uv_faces[idx[grid]]
+    owner = atlas.uv_vertex[uvf]
+    for k in range(3):
+        pick = np.argmax(owner == f[grid, k][:, None], axis=1)
+        out[grid, k] = uvf[np.arange(len(uvf)), pick]
+    _, first = np.unique(atlas.uv_vertex, return_index=True)   # every grid vertex has one
+    out[~grid] = first[f[~grid, 0]][:, None]
+    return out
