@@ -364,7 +364,8 @@ class Database(Catalog):
 
     def get(self, model, *, bits_per_surfel: float | None = None, level: int | None = None,
             mesh: bool = False, max_surfels: int | None = None,
-            max_vertices: int | None = None, decoder=None):
+            max_vertices: int | None = None, texture: bool = False,
+            texture_size: int | None = None, decoder=None):
         """Decode a stored model.
 
         Parameters
@@ -382,6 +383,9 @@ class Database(Catalog):
             As for :func:`surfidx.codec.decode`.
         max_vertices : int, optional
             At most this many vertices (surfels): the decoded mesh simplified
+            (:func:`surfidx.codec.decode`).
+        texture, texture_size
+            A mesh's colour as a texture baked on the grid's atlas, and the image's side
             (:func:`surfidx.codec.decode`).
         decoder : callable, optional
             Instead of :func:`surfidx.codec.decode`.
@@ -406,6 +410,10 @@ class Database(Catalog):
             options["max_surfels"] = max_surfels
         if max_vertices is not None:
             options["max_vertices"] = max_vertices
+        if texture:
+            options["texture"] = True
+        if texture_size is not None:
+            options["texture_size"] = texture_size
         if decoder is None:
             from .codec import decode as decoder
 
@@ -417,7 +425,10 @@ class Database(Catalog):
     def export(self, model, path, *, format: str | None = None,
                bits_per_surfel: float | None = None, level: int | None = None,
                mesh: bool | None = None, max_surfels: int | None = None,
-               max_vertices: int | None = None, text: bool = False, decoder=None) -> dict:
+               max_vertices: int | None = None, text: bool = False,
+               texture: bool | None = None, texture_size: int | None = None,
+               image_format: str = "png", image_quality: int | None = None,
+               decoder=None) -> dict:
         """Write a stored model to a file: PLY, OBJ, GLB (decoded) or SFZ (the stream).
 
         Parameters
@@ -432,17 +443,31 @@ class Database(Catalog):
             Decode to the grid mesh (default for OBJ and GLB) or to surfels (default for PLY).
         text : bool
             ASCII PLY.
+        texture : bool, optional
+            Write a mesh's colour as a texture baked on the grid's atlas (OBJ: with a ``.mtl``
+            and the image beside it; GLB: ``TEXCOORD_0`` and a ``baseColorTexture``), or as
+            vertex colours (False). Default (None): a texture for an OBJ or GLB mesh without
+            ``max_vertices`` (a model without colour gets neither), else vertex colours.
+        texture_size : int, optional
+            The image's side in texels (:func:`surfidx.codec.decode`).
+        image_format : {"png", "jpeg", "webp"}
+            The image's format.
+        image_quality : int, optional
+            JPEG or WebP quality, 1 … 100 (:func:`surfidx.io.texture.check_image_options`).
 
         Returns
         -------
         dict
             ``id``, ``name``, ``output``, ``format``, ``bytes`` (sfz) or ``surfels``
             (and ``faces`` for a mesh), ``level`` (the grid level decoded, before any
-            simplification to ``max_vertices``), ``bits_per_surfel``.
+            simplification to ``max_vertices``), ``bits_per_surfel``, ``texture`` (the
+            image's side, or None for vertex colours; decoded models only).
         """
         from .io import output_format, write_atomic, write_model
+        from .io.texture import check_image_options
 
         fmt = output_format(path, format, allowed=("ply", "obj", "glb", "sfz"))
+        image_format, image_quality = check_image_options(image_format, image_quality)
         mid = self.resolve(model)
         name = self.get_model(mid)["name"]
         out = {"id": mid, "name": name, "output": str(path), "format": fmt,
@@ -452,17 +477,22 @@ class Database(Catalog):
             write_atomic(path, lambda tmp: tmp.write_bytes(data))
             out["bytes"] = len(data)
             return out
-        from .pipeline import output_level
+        from .pipeline import export_texture, output_level
 
         if level is None:
             level = output_level(self.get_stream(mid))
         as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
+        textured = export_texture(texture, fmt=fmt, mesh=as_mesh, max_vertices=max_vertices,
+                                  texture_size=texture_size)
         decoded = self.get(mid, bits_per_surfel=bits_per_surfel, level=level, mesh=as_mesh,
                            max_surfels=max_surfels, max_vertices=max_vertices,
-                           decoder=decoder)
-        write_model(decoded, path, format=fmt, text=text)
+                           texture=textured, texture_size=texture_size, decoder=decoder)
+        write_model(decoded, path, format=fmt, text=text, image_format=image_format,
+                    image_quality=image_quality)
         n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
-        out.update({"surfels": int(n), "level": level})
+        image = getattr(decoded, "texture", None)
+        out.update({"surfels": int(n), "level": level,
+                    "texture": None if image is None else int(image.shape[0])})
         if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:
             out["faces"] = int(len(decoded.faces))
         return out

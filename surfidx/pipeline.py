@@ -15,7 +15,7 @@ import numpy as np
 from .errors import SurfidxError
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
-           "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
+           "export_texture", "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
 
 
 @dataclass
@@ -490,6 +490,52 @@ def output_level(stream: bytes, *, path=None) -> int | None:
                    for b in unpack_parts(bytes(stream), path=path))
     except BitstreamError:
         return None
+
+
+def export_texture(texture, *, fmt: str, mesh: bool, max_vertices=None,
+                   texture_size=None) -> bool:
+    """Whether a decoded model is written with its colour as a texture (``surfidx get``,
+    ``decode``, :meth:`surfidx.Database.export`).
+
+    Parameters
+    ----------
+    texture : bool or None
+        Asked for (True), vertex colours asked for (False), or the default (None): a texture
+        for an OBJ or GLB mesh without ``max_vertices``.
+    fmt : str
+        The output format.
+    mesh : bool
+        Whether the model is decoded to a mesh.
+    max_vertices : int, optional
+    texture_size : int, optional
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    InputError
+        A texture asked for a format or a model that cannot carry it, or ``texture_size``
+        without a texture.
+    """
+    from .errors import InputError
+
+    if texture is None:
+        texture = fmt in ("obj", "glb") and mesh and max_vertices is None
+    elif texture:
+        if fmt not in ("obj", "glb") or not mesh:
+            raise InputError(f"a texture is written with an OBJ or GLB mesh, not {fmt} "
+                             f"{'mesh' if mesh else 'surfels'}; write .obj or .glb, or use "
+                             "vertex colours")
+        if max_vertices is not None:
+            raise InputError("a texture does not combine with max_vertices (a simplified mesh "
+                             "has no place on the grid's atlas); use vertex colours or drop "
+                             "max_vertices")
+    if not texture and texture_size is not None:
+        raise InputError(f"texture_size={texture_size!r} was given but the model is written "
+                         "with vertex colours; ask for the texture or drop texture_size")
+    return bool(texture)
 
 
 def describe_stream(stream: bytes, *, lmax: int | None = None, path=None):

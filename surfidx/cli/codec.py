@@ -117,6 +117,8 @@ def output_summary(out: dict) -> str:
     if out.get("faces") is not None:
         what = f"mesh of {out['surfels']:,} vertices and {out['faces']:,} faces"
     level = "" if out.get("level") is None else f", grid level {out['level']}"
+    if out.get("texture"):
+        level += f", {out['texture']}² texture"
     return f"{out['output']}: {what} ({out['format'].upper()}{level}) at {rate}"
 
 
@@ -128,17 +130,19 @@ def output_summary(out: dict) -> str:
                    "coded); by default they are dropped and handle cuts zipped again.")
 @common_options
 def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices, text,
-           keep_virtual, *, console):
+           texture, texture_size, image_format, image_quality, keep_virtual, *, console):
     """Decode a .sfz file (optionally at a lower rate) to PLY, OBJ or GLB, or cut it to a
     lower rate as a .sfz."""
     from ..codec import MAX_SURFELS, decode as _decode, max_file_bytes, read_sfz
     from ..codec.container import part_surfels, truncate, unpack_parts
     from ..io import output_format, write_atomic, write_model
-    from ..pipeline import output_level
+    from ..io.texture import check_image_options
+    from ..pipeline import export_texture, output_level
     from ..progress import report
 
     bits = bits_per_surfel
     fmt = output_format(output, fmt, allowed=("ply", "obj", "glb", "sfz"))
+    image_format, image_quality = check_image_options(image_format, image_quality)
     out = {"input": str(input), "output": str(output), "format": fmt, "bits_per_surfel": bits}
     with console.progress() as progress:
         report(progress, "read", 0, 1)
@@ -153,14 +157,20 @@ def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_ve
         else:
             level = output_level(data, path=input) if level is None else level
             as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
+            textured = export_texture(texture, fmt=fmt, mesh=as_mesh, max_vertices=max_vertices,
+                                      texture_size=texture_size)
             report(progress, "decode", 0, 1)
             model = _decode(data, bits_per_surfel=bits, mesh=as_mesh, level=level, path=input,
                             max_surfels=MAX_SURFELS if max_surfels is None else max_surfels,
-                            keep_virtual=keep_virtual, max_vertices=max_vertices)
+                            keep_virtual=keep_virtual, max_vertices=max_vertices,
+                            texture=textured, texture_size=texture_size)
             report(progress, "write", 0, 1)
-            write_model(model, output, format=fmt, text=text)
+            write_model(model, output, format=fmt, text=text, image_format=image_format,
+                        image_quality=image_quality)
+            image = getattr(model, "texture", None)
             out.update({"surfels": len(model.vertices) if as_mesh else len(model),
-                        "level": level, "faces": len(model.faces) if as_mesh else None})
+                        "level": level, "faces": len(model.faces) if as_mesh else None,
+                        "texture": None if image is None else int(image.shape[0])})
     if console.json:
         echo_json(out)
     else:

@@ -302,14 +302,31 @@ def ascii_option(func):
 
 #: What ``decode`` and ``get`` write, by the output's suffix.
 EXPORT_HELP = ("File to write, its format from the suffix (or --format): .ply (surfels, or a "
-               "mesh with --mesh), .obj or .glb (the grid mesh with normals and vertex colours), .sfz (the "
-               "stream, truncated to --bits-per-surfel).")
+               "mesh with --mesh), .obj or .glb (the grid mesh with normals and its colour as a "
+               "texture, or vertex colours with --vertex-colors; an OBJ's .mtl and image "
+               "beside it), .sfz (the stream, truncated to --bits-per-surfel).")
 
 
 def export_options(func):
     """The options of the commands that decode a stream to a file (``decode``, ``get``):
     ``-o/--output``, ``--format``, ``--bits-per-surfel`` (as ``bits_per_surfel``), ``--level``,
-    ``--mesh/--surfels``, ``--max-surfels``, ``--max-vertices`` and ``--ascii`` (as ``text``)."""
+    ``--mesh/--surfels``, ``--max-surfels``, ``--max-vertices``, ``--ascii`` (as ``text``),
+    ``--texture/--vertex-colors`` (as ``texture``, None unless given), ``--texture-size``,
+    ``--image-format`` and ``--image-quality``."""
+    func = click.option("--image-quality", type=int, default=None, metavar="Q",
+                        help="JPEG or WebP quality of the texture, 1 to 100 (default 90).")(func)
+    func = click.option("--image-format", type=click.Choice(["png", "jpeg", "webp"],
+                                                            case_sensitive=False),
+                        default="png", show_default=True,
+                        help="Format of the texture image (WebP in GLB through "
+                             "EXT_texture_webp).")(func)
+    func = click.option("--texture-size", type=int, default=None, metavar="N",
+                        help="Side of the texture image in texels, 64 to 8192 (default: about "
+                             "two texels per grid edge, 256 to 4096).")(func)
+    func = click.option("--texture/--vertex-colors", "texture", default=None,
+                        help="Write the colour of an OBJ or GLB mesh as a texture baked on the "
+                             "grid's atlas, or as vertex colours (default: a texture, vertex "
+                             "colours with --max-vertices).")(func)
     func = ascii_option(func)
     func = click.option("--max-vertices", type=int, default=None, metavar="N",
                         help="Write at most N vertices (surfels): the decoded mesh simplified "

@@ -267,8 +267,8 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 @click.argument("model")
 @export_options
 @common_options(db=True)
-def get(model, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices, text, *,
-        db_path, console):
+def get(model, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices, text,
+        texture, texture_size, image_format, image_quality, *, db_path, console):
     """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
     .sfz, optionally at a lower rate."""
     from .codec import output_summary
@@ -279,7 +279,8 @@ def get(model, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_verti
         out = db.export(parse_model_ref(model), output, format=fmt,
                         bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
                         max_surfels=max_surfels, max_vertices=max_vertices, text=text,
-                        decoder=None if sfz else _decoder())
+                        texture=texture, texture_size=texture_size, image_format=image_format,
+                        image_quality=image_quality, decoder=None if sfz else _decoder())
     if console.json:
         echo_json(out)
         return

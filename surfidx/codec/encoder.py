@@ -867,7 +867,8 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
            level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
-           keep_virtual: bool = False, max_vertices: int | None = None):
+           keep_virtual: bool = False, max_vertices: int | None = None,
+           texture: bool = False, texture_size: int | None = None):
     """Decode a container to surfels (or a triangle mesh with the grid's connectivity).
 
     Parameters
@@ -906,6 +907,18 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         simplified by quadric-error edge collapses (:func:`surfidx.geometry.simplify_mesh`),
         which keeps the shape far better than a coarser ``level``; surfels are then the
         simplified mesh's vertices with its normals, without faces.
+    texture : bool
+        With ``mesh``, return the colour of a stream that has colour as a texture instead of
+        vertex colours: the image baked on the grid's atlas (:class:`surfidx.geometry.GridAtlas`)
+        from the decoded colour layers as a function of sphere points
+        (:func:`surfidx.geometry.bake_texture`), the mesh's ``uv``/``uv_faces`` on it and
+        ``vertex_colors`` None. The parts of a multi-part file share one image, each part's
+        atlas in a tile of a ``k × k`` layout (``k = ceil(sqrt(parts))``). A stream without
+        colour decodes to a mesh without texture.
+    texture_size : int, optional
+        The image's side in texels, 64 … 8192 (default
+        :func:`surfidx.geometry.default_texture_size` of the finest part's level: about two
+        texels per grid edge); only with ``texture``.
 
     Returns
     -------
@@ -916,8 +929,9 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
     Raises
     ------
     InputError
-        A level outside 0 … the stream's level, more than ``max_surfels`` surfels, or a
-        ``max_vertices`` that is not an integer of at least 4.
+        A level outside 0 … the stream's level, more than ``max_surfels`` surfels, a
+        ``max_vertices`` that is not an integer of at least 4, ``texture`` without ``mesh`` or
+        with ``max_vertices``, or a ``texture_size`` out of range.
     BitstreamError
         See :func:`decode_grid`; a damaged virtual-region mask or region table.
     """
@@ -925,13 +939,39 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         from ..geometry.simplify import check_max_vertices
 
         check_max_vertices(max_vertices)
+    _texture_plan(texture, texture_size, mesh=mesh, max_vertices=max_vertices)
     parts = decode_parts(data, bits_per_surfel=bits_per_surfel, mesh=mesh, level=level,
-                         max_surfels=max_surfels, path=path, keep_virtual=keep_virtual)
+                         max_surfels=max_surfels, path=path, keep_virtual=keep_virtual,
+                         texture=texture, texture_size=texture_size)
     out = parts[0] if len(parts) == 1 else _concatenate(
         parts, mesh=mesh, name=Path(path).stem if path else None)
     if max_vertices is None or len(getattr(out, "vertices", out)) <= max_vertices:
         return out
     return _simplified(out, max_vertices)
+
+
+def _texture_plan(texture, texture_size, *, mesh, max_vertices):
+    """What :func:`decode` bakes: None (vertex colours) or ``{"size": texture_size}``, checked
+    before anything is decoded."""
+    if not isinstance(texture, (bool, np.bool_)):
+        raise InputError(f"texture must be True or False, got {texture!r}")
+    if not texture:
+        if texture_size is not None:
+            raise InputError("texture_size was given without texture=True; ask for the "
+                             "texture too, or drop texture_size")
+        return None
+    if not mesh:
+        raise InputError("texture=True needs mesh=True: surfels carry colours per surfel, a "
+                         "texture needs the mesh's faces")
+    if max_vertices is not None:
+        raise InputError("texture=True does not combine with max_vertices (a simplified mesh "
+                         "has no place on the grid's atlas); use vertex colours "
+                         "(texture=False) or drop max_vertices")
+    if texture_size is not None:
+        from ..geometry.atlas import check_texture_size
+
+        check_texture_size(texture_size)
+    return {"size": texture_size}
 
 
 def _simplified(model, max_vertices: int):
@@ -955,6 +995,11 @@ def _concatenate(parts, *, mesh, name):
         verts = [p.vertices for p in parts]
         off = np.cumsum([0] + [len(v) for v in verts[:-1]])
         faces = np.vstack([p.faces + o for p, o in zip(parts, off)])
+        if all(p.texture is not None for p in parts):
+            return TriangleMesh(np.vstack(verts), faces, uv=np.vstack([p.uv for p in parts]),
+                                uv_faces=np.vstack([p.uv_faces + o for p, o in zip(
+                                    parts, np.cumsum([0] + [len(p.uv) for p in parts[:-1]]))]),
+                                texture=_tiled([p.texture for p in parts]), name=name)
         cols = [p.vertex_colors for p in parts]
         col = np.vstack(cols) if all(c is not None for c in cols) else None
         return TriangleMesh(np.vstack(verts), faces, vertex_colors=col, name=name)
@@ -969,16 +1014,33 @@ def _concatenate(parts, *, mesh, name):
                      name=name)
 
 
+def _tiled(images):
+    """Square images of one size in a ``k × k`` layout, row by row from the top
+    (``k = ceil(sqrt(len(images)))``), empty tiles black."""
+    k = int(np.ceil(np.sqrt(len(images))))
+    t = images[0].shape[0]
+    out = np.zeros((k * t, k * t, 3), np.uint8)
+    for i, im in enumerate(images):
+        r, c = divmod(i, k)
+        out[r * t:(r + 1) * t, c * t:(c + 1) * t] = im
+    return out
+
+
 def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
                  level: int | None = None, max_surfels: int = MAX_SURFELS, path=None,
-                 keep_virtual: bool = False) -> list:
+                 keep_virtual: bool = False, texture: bool = False,
+                 texture_size: int | None = None) -> list:
     """Decode every part of a container on its own (see :func:`decode`).
+
+    With ``texture``, each part's texture coordinates address its tile of the layout that
+    :func:`decode` puts the parts' images in, and each part holds its own tile-sized image.
 
     Returns
     -------
     list of SurfelSet or TriangleMesh
         One per part (a single-part file gives a list of one).
     """
+    bake = _texture_plan(texture, texture_size, mesh=mesh, max_vertices=None)
     data = bytes(data)
     blobs = container.unpack_parts(data, path=path)
     unpacked = [container.unpack(b, path=path) for b in blobs]
@@ -1004,13 +1066,37 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
                          f"max_surfels = {limit:,}; decode at a coarser level or raise "
                          "max_surfels", path=path)
     name = Path(path).stem if path else None
+    tile = None
+    if bake is not None:
+        from ..geometry.atlas import MIN_TEXTURE_SIZE, default_texture_size
+
+        size = bake["size"] or default_texture_size(max(levels))
+        k = int(np.ceil(np.sqrt(len(blobs))))
+        tile = {"size": max(MIN_TEXTURE_SIZE, size // k), "k": k}
     out = []
-    for blob, (header, stream), chk, lv in zip(blobs, unpacked, checked, levels):
+    for i, (blob, (header, stream), chk, lv) in enumerate(zip(blobs, unpacked, checked, levels)):
         read = read_level(lv, header.level)
         values = _decode_values(blob, header, stream, bits_per_surfel, path, chk, read)
         out.append(_model(values, header, lv, read, mesh=mesh, keep_virtual=keep_virtual,
-                          name=name, path=path))
+                          name=name, path=path,
+                          tile=None if tile is None else {**tile, "part": i}))
     return out
+
+
+def _textured(mesh, grid_vertex, values, level, tile):
+    """A decoded grid mesh with its colour as a texture: the image baked on the level's atlas,
+    the atlas's texture coordinates in tile ``part`` of a ``k × k`` layout."""
+    from ..geometry.atlas import GridColor, atlas_uv_faces, bake_texture, grid_atlas
+    from ..geometry.mesh import TriangleMesh
+
+    atlas = grid_atlas(level, size=tile["size"])
+    image = bake_texture(atlas, GridColor(values[:vertex_count(level), 3:6]))
+    uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces])
+    k = tile["k"]
+    col, row = tile["part"] % k, tile["part"] // k
+    uv = np.stack([(col + atlas.uv[:, 0]) / k, (k - 1 - row + atlas.uv[:, 1]) / k], 1)
+    return TriangleMesh(mesh.vertices, mesh.faces, uv=uv, uv_faces=uv_faces,
+                        texture=image, name=mesh.name)
 
 
 def _regions(header, out_level, read, path):
@@ -1036,20 +1122,25 @@ def _regions(header, out_level, read, path):
     return regions_at(region, header.regions, read, out_level)
 
 
-def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path):
+def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, tile=None):
     from ..geometry.mesh import TriangleMesh
     from .resample import grid_to_mesh, grid_to_surfels
     from .restore import restore
 
     values = values[:vertex_count(out_level)]
+    bake = mesh and tile is not None and values.shape[1] == 6
     if not header.mask or keep_virtual:
-        return grid_to_mesh(values, name=name) if mesh else grid_to_surfels(values, name=name)
+        if not mesh:
+            return grid_to_surfels(values, name=name)
+        m = grid_to_mesh(values, name=name)
+        return _textured(m, np.arange(len(values)), values, out_level, tile) if bake else m
     region, codes = _regions(header, out_level, read, path)
     r = restore(values[:, :3], out_level, region, codes)
     if mesh:
         col = None if values.shape[1] < 6 else np.clip(
             np.round(values[r.vertices, 3:6]), 0, 255).astype(np.uint8)
-        return TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
+        m = TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
+        return _textured(m, r.vertices, values, out_level, tile) if bake else m
     s = grid_to_surfels(values, name=name)
     v = r.vertices
     return SurfelSet(s.positions[v], s.normals[v], s.radii[v],

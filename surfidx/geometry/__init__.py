@@ -9,6 +9,7 @@
 - :mod:`.metrics` — distortion as the field measures it (PSNR D1, D2, luma);
 - :mod:`.simplify` — a vertex budget met by quadric-error simplification;
 - :mod:`.axes` — a model's up axis, as its file format keeps it.
+- :mod:`.atlas` — a texture atlas of the icosahedral grid and colour baked into it.
 
 The modules are imported one by one (``from surfidx.geometry.mesh import TriangleMesh``); their
 public classes and functions are also top-level names of :mod:`surfidx`.

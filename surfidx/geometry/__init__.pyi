@@ -16,3 +16,9 @@ from .icosphere import (Icosphere as Icosphere, choose_level as choose_level,
                         vertex_count as vertex_count)
 from .metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_d2,
                       psnr_luma as psnr_luma, hausdorff as hausdorff, Reference as Reference)
+from .atlas import (GridAtlas as GridAtlas, grid_atlas as grid_atlas,
+                    grid_face_index as grid_face_index, locate_on_grid as locate_on_grid,
+                    GridColor as GridColor, bake_texture as bake_texture,
+                    atlas_uv_faces as atlas_uv_faces,
+                    default_texture_size as default_texture_size,
+                    check_texture_size as check_texture_size)

@@ -12,6 +12,7 @@ from .reading import (read_surfels as read_surfels, read_mesh as read_mesh,
 from .ply import write_ply as write_ply
 from .writing import write_model as write_model, output_format as output_format
 from .atomic import write_atomic as write_atomic
-from .texture import read_texture as read_texture
+from .texture import (read_texture as read_texture, encode_image as encode_image,
+                      check_image_options as check_image_options)
 from .files import (find_texture as find_texture, pair_texture as pair_texture,
                     NotRegularFile as NotRegularFile)

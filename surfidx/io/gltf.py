@@ -452,10 +452,115 @@ def _glb_bytes(positions, normals, colors, faces) -> bytes:
     return trimesh.PointCloud(positions, colors=colors).export(file_type="glb")
 
 
-def write_glb(model, path, *, text: bool = False) -> None:
-    """Write a model as GLB (through trimesh): a mesh whose primitive holds ``POSITION``,
-    ``NORMAL`` (unit, float32, per vertex: :func:`~surfidx.io.arrays.model_arrays`) and
-    ``COLOR_0`` when it has colours, or a point cloud for surfels without faces.
+def textured_arrays(model):
+    """A textured mesh's arrays split at its texture seams, as GLB (one index per corner) needs
+    them: one vertex per distinct (vertex, texture coordinate) pair of the faces, in order of
+    first use.
+
+    Parameters
+    ----------
+    model : TriangleMesh
+        With ``uv``, ``uv_faces`` and ``texture``.
+
+    Returns
+    -------
+    positions : (k, 3) float64
+    normals : (k, 3) float64
+        The mesh's unit vertex normals.
+    uv : (k, 2) float64
+        v upwards, as :attr:`surfidx.TriangleMesh.uv`.
+    faces : (m, 3) int64
+    """
+    positions, normals, _, faces = model_arrays(model)
+    key = faces.ravel() * np.int64(len(model.uv)) + model.uv_faces.ravel()
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    pairs = key[first[order]]
+    v, t = pairs // len(model.uv), pairs % len(model.uv)
+    return positions[v], normals[v], model.uv[t], rank[np.asarray(inverse).ravel()].reshape(-1, 3)
+
+
+def _textured_glb_bytes(model, image: bytes, image_format: str) -> bytes:
+    """GLB of a textured mesh: ``POSITION``, ``NORMAL``, ``TEXCOORD_0`` (glTF's v downwards)
+    and indices, and a material whose ``baseColorTexture`` is ``image`` (in the binary chunk;
+    WebP through ``EXT_texture_webp``). The sampler filters linearly without mipmaps and
+    clamps, so no look-up reads past a chart's gutter."""
+    from .texture import IMAGE_FORMATS
+
+    pos, nrm, uv, faces = textured_arrays(model)
+    pos = pos.astype("<f4")
+    nrm = nrm.astype("<f4")
+    tex = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1).astype("<f4")
+    idx = faces.astype("<u4").ravel()
+    blobs, views, accessors = [], [], []
+    offset = 0
+
+    def add(data: bytes, target=None):
+        nonlocal offset
+        view = {"buffer": 0, "byteOffset": offset, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        views.append(view)
+        blobs.append(data + b"\0" * (-len(data) % 4))
+        offset += len(blobs[-1])
+        return len(views) - 1
+
+    def accessor(arr, kind, ctype, target, bounds=False):
+        acc = {"bufferView": add(arr.tobytes(), target), "componentType": ctype,
+               "count": int(len(arr)), "type": kind}
+        if bounds:
+            acc["min"] = [float(x) for x in arr.min(axis=0)]
+            acc["max"] = [float(x) for x in arr.max(axis=0)]
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    a_pos = accessor(pos, "VEC3", 5126, 34962, bounds=True)
+    a_nrm = accessor(nrm, "VEC3", 5126, 34962)
+    a_tex = accessor(tex, "VEC2", 5126, 34962)
+    a_idx = accessor(idx, "SCALAR", 5125, 34963)
+    v_img = add(image)
+    mime = IMAGE_FORMATS[image_format][1]
+    texture = {"sampler": 0, "source": 0}
+    doc = {
+        "asset": {"version": "2.0", "generator": "surfidx"},
+        "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, **({"name": model.name} if model.name else {})}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": a_pos, "NORMAL": a_nrm,
+                                                   "TEXCOORD_0": a_tex},
+                                    "indices": a_idx, "material": 0, "mode": 4}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
+                                                "metallicFactor": 0.0,
+                                                "roughnessFactor": 1.0}}],
+        "samplers": [{"magFilter": 9729, "minFilter": 9729, "wrapS": 33071, "wrapT": 33071}],
+        "images": [{"bufferView": v_img, "mimeType": mime}],
+        "textures": [texture],
+        "accessors": accessors, "bufferViews": views,
+        "buffers": [{"byteLength": offset}],
+    }
+    if image_format == "webp":
+        del texture["source"]
+        texture["extensions"] = {"EXT_texture_webp": {"source": 0}}
+        doc["extensionsUsed"] = doc["extensionsRequired"] = ["EXT_texture_webp"]
+    text = json.dumps(doc, separators=(",", ":"), sort_keys=True).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    binary = b"".join(blobs)
+    total = 12 + 8 + len(text) + 8 + len(binary)
+    return (_GLB_MAGIC + struct.pack("<II", 2, total)
+            + struct.pack("<II", len(text), _CHUNK_JSON) + text
+            + struct.pack("<II", len(binary), _CHUNK_BIN) + binary)
+
+
+def write_glb(model, path, *, text: bool = False, image_format: str = "png",
+              image_quality: int | None = None) -> None:
+    """Write a model as GLB. A mesh with a texture (``uv``, ``uv_faces``, ``texture``): its
+    primitive holds ``POSITION``, ``NORMAL``, ``TEXCOORD_0`` and indices over the vertices split
+    at the texture seams (:func:`textured_arrays`), with a material whose ``baseColorTexture``
+    is the image (PNG, JPEG, or WebP with ``EXT_texture_webp``). Otherwise (through trimesh) a
+    mesh whose primitive holds ``POSITION``, ``NORMAL`` (unit, float32, per vertex:
+    :func:`~surfidx.io.arrays.model_arrays`) and ``COLOR_0`` when it has colours, or a point
+    cloud for surfels without faces.
 
     Parameters
     ----------
@@ -463,6 +568,17 @@ def write_glb(model, path, *, text: bool = False) -> None:
     path : str or os.PathLike
     text : bool
         Ignored (GLB is binary).
+    image_format : {"png", "jpeg", "webp"}
+        The texture image's format (a textured mesh only).
+    image_quality : int, optional
+        JPEG or WebP quality, 1 … 100 (:func:`~surfidx.io.texture.check_image_options`).
     """
-    data = _glb_bytes(*model_arrays(model))
+    from .texture import check_image_options, encode_image
+
+    fmt, quality = check_image_options(image_format, image_quality)
+    if getattr(model, "texture", None) is not None and model.uv is not None:
+        data = _textured_glb_bytes(model, encode_image(model.texture, image_format=fmt,
+                                                       image_quality=quality), fmt)
+    else:
+        data = _glb_bytes(*model_arrays(model))
     write_atomic(path, lambda tmp: tmp.write_bytes(data))

@@ -268,10 +268,50 @@ def _obj_text(positions, normals, colors, faces) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_obj(model, path, *, text: bool = False) -> None:
-    """Write a model as OBJ: ``v x y z r g b`` (colours 0..1), ``vn`` lines (surfels' normals, a
-    mesh's vertex normals) and ``f`` lines when it has faces (a mesh is written as it is,
-    nothing dropped).
+def _textured_obj_text(model, mtl_name: str) -> str:
+    positions, normals, _, faces = model_arrays(model)
+    out = [f"# written by surfidx: {len(positions)} vertices, texture in {mtl_name}",
+           f"mtllib {mtl_name}"]
+    out += ["v %.9g %.9g %.9g" % tuple(r) for r in positions.tolist()]
+    out += ["vt %.9g %.9g" % tuple(r) for r in model.uv.tolist()]
+    out += ["vn %.6g %.6g %.6g" % tuple(r) for r in normals.tolist()]
+    out.append("usemtl surfidx")
+    corners = np.stack([faces + 1, model.uv_faces + 1], 2)       # (m, 3, 2)
+    out += ["f {0}/{1}/{0} {2}/{3}/{2} {4}/{5}/{4}".format(*r)
+            for r in corners.reshape(-1, 6).tolist()]
+    return "\n".join(out) + "\n"
+
+
+def texture_files(path, image_format: str = "png") -> tuple[Path, Path]:
+    """The material library and the image written beside a textured OBJ: ``NAME.mtl`` and
+    ``NAME.png`` (``.jpg``, ``.webp``) in its folder.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The OBJ.
+    image_format : {"png", "jpeg", "webp"}
+
+    Returns
+    -------
+    mtl, image : pathlib.Path
+    """
+    from .texture import IMAGE_FORMATS, check_image_options
+
+    fmt = check_image_options(image_format)[0]
+    path = Path(path)
+    return path.with_suffix(".mtl"), path.with_suffix(IMAGE_FORMATS[fmt][0])
+
+
+def write_obj(model, path, *, text: bool = False, image_format: str = "png",
+              image_quality: int | None = None) -> None:
+    """Write a model as OBJ. A mesh with a texture (``uv``, ``uv_faces``, ``texture``): ``v``,
+    ``vt``, ``vn`` and ``f v/vt/vn`` lines (a vertex on a texture seam has one ``vt`` per
+    chart), a material library ``NAME.mtl`` whose material's ``map_Kd`` is the image
+    ``NAME.png`` (``.jpg``, ``.webp``) beside it (:func:`texture_files`); the image and the
+    library are written before the OBJ, each whole or not at all. Otherwise ``v x y z r g b``
+    (colours 0..1), ``vn`` lines (surfels' normals, a mesh's vertex normals) and ``f`` lines
+    when it has faces (a mesh is written as it is, nothing dropped).
 
     Parameters
     ----------
@@ -279,6 +319,24 @@ def write_obj(model, path, *, text: bool = False) -> None:
     path : str or os.PathLike
     text : bool
         Ignored (OBJ is text).
+    image_format : {"png", "jpeg", "webp"}
+        The texture image's format (a textured mesh only).
+    image_quality : int, optional
+        JPEG or WebP quality, 1 … 100 (:func:`~surfidx.io.texture.check_image_options`).
     """
+    from .texture import check_image_options, encode_image
+
+    fmt, quality = check_image_options(image_format, image_quality)
+    if getattr(model, "texture", None) is not None and model.uv is not None:
+        mtl, image = texture_files(path, fmt)
+        data = encode_image(model.texture, image_format=fmt, image_quality=quality)
+        material = ("# written by surfidx\nnewmtl surfidx\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\n"
+                    f"illum 1\nmap_Kd {image.name}\n")
+        content = _textured_obj_text(model, mtl.name)
+        write_atomic(image, lambda tmp: tmp.write_bytes(data), what="the texture image")
+        write_atomic(mtl, lambda tmp: tmp.write_text(material, encoding="utf-8"),
+                     what="the material library")
+        write_atomic(path, lambda tmp: tmp.write_text(content, encoding="utf-8"))
+        return
     content = _obj_text(*model_arrays(model))
     write_atomic(path, lambda tmp: tmp.write_text(content, encoding="ascii"))

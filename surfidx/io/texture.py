@@ -13,6 +13,9 @@ import numpy as np
 from ..errors import FileFormatError, SurfidxError
 from . import limits
 
+__all__ = ["read_texture", "check_texture", "image_array", "IMAGE_FORMATS",
+           "DEFAULT_IMAGE_QUALITY", "check_image_options", "encode_image"]
+
 #: Image formats a texture may have (Pillow is never asked to run an external decoder).
 _TEXTURE_FORMATS = ("PNG", "JPEG", "BMP", "TGA", "TIFF", "GIF", "WEBP", "PPM")
 
@@ -138,3 +141,81 @@ def image_array(image, path, where: str = "") -> np.ndarray | None:
         msg = str(exc).strip() or type(exc).__name__
         raise FileFormatError(f"cannot read the texture image ({msg}){where}", path=path) \
             from None
+
+
+#: Formats a texture is written in, with their file suffixes and MIME types.
+IMAGE_FORMATS = {"png": (".png", "image/png"), "jpeg": (".jpg", "image/jpeg"),
+                 "webp": (".webp", "image/webp")}
+#: Quality of a JPEG or WebP texture when none is given (1 … 100).
+DEFAULT_IMAGE_QUALITY = 90
+
+
+def check_image_options(image_format="png", image_quality=None) -> tuple[str, int | None]:
+    """The texture image's format and quality, checked once before anything is decoded.
+
+    Parameters
+    ----------
+    image_format : {"png", "jpeg", "webp"}
+        ``"jpg"`` is taken for ``"jpeg"``; any case.
+    image_quality : int, optional
+        1 … 100, JPEG and WebP only (default :data:`DEFAULT_IMAGE_QUALITY`); PNG is lossless.
+
+    Returns
+    -------
+    format : str
+    quality : int or None
+        None for PNG.
+
+    Raises
+    ------
+    InputError
+        An unknown format, a quality out of range, or a quality for PNG.
+    """
+    from ..errors import InputError
+
+    fmt = str(image_format).lower() if isinstance(image_format, str) else image_format
+    fmt = "jpeg" if fmt == "jpg" else fmt
+    if fmt not in IMAGE_FORMATS:
+        raise InputError(f"unknown texture image format {image_format!r}; use one of "
+                         + ", ".join(IMAGE_FORMATS))
+    if fmt == "png":
+        if image_quality is not None:
+            raise InputError(f"image_quality={image_quality!r} was given for a PNG texture, "
+                             "which is lossless; give it with jpeg or webp, or drop it")
+        return fmt, None
+    if image_quality is None:
+        return fmt, DEFAULT_IMAGE_QUALITY
+    if (isinstance(image_quality, bool) or not isinstance(image_quality, (int, np.integer))
+            or not 1 <= image_quality <= 100):
+        raise InputError(f"image_quality must be an integer from 1 to 100, got "
+                         f"{image_quality!r}")
+    return fmt, int(image_quality)
+
+
+def encode_image(image, *, image_format: str = "png", image_quality: int | None = None) -> bytes:
+    """A texture image's file bytes: PNG (lossless, zlib level 9), JPEG (4:2:0, baseline) or
+    WebP (lossy, method 6) at a quality, the same bytes for the same image.
+
+    Parameters
+    ----------
+    image : (h, w, 3) uint8
+    image_format : {"png", "jpeg", "webp"}
+    image_quality : int, optional
+        See :func:`check_image_options`.
+
+    Returns
+    -------
+    bytes
+    """
+    from PIL import Image
+
+    fmt, quality = check_image_options(image_format, image_quality)
+    im = Image.fromarray(np.ascontiguousarray(image, np.uint8), "RGB")
+    buf = io.BytesIO()
+    if fmt == "png":
+        im.save(buf, format="PNG", compress_level=9)
+    elif fmt == "jpeg":
+        im.save(buf, format="JPEG", quality=quality, subsampling=2, optimize=True)
+    else:
+        im.save(buf, format="WEBP", quality=quality, method=6, exact=False)
+    return buf.getvalue()

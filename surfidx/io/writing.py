@@ -44,7 +44,8 @@ def output_format(path, format: str | None = None, *, allowed=OUTPUT_FORMATS) ->
     return fmt
 
 
-def write_model(model, path, *, format: str | None = None, text: bool = False) -> str:
+def write_model(model, path, *, format: str | None = None, text: bool = False,
+                image_format: str = "png", image_quality: int | None = None) -> str:
     """Write a model as PLY (surfels without faces, or a mesh's vertices as surfels with its
     faces), OBJ or GLB.
 
@@ -56,6 +57,11 @@ def write_model(model, path, *, format: str | None = None, text: bool = False) -
         Default: from the suffix of ``path`` (:func:`output_format`).
     text : bool
         ASCII PLY (PLY only).
+    image_format : {"png", "jpeg", "webp"}
+        The image of a textured mesh (OBJ, GLB).
+    image_quality : int, optional
+        JPEG or WebP quality, 1 … 100 (default
+        :data:`~surfidx.io.texture.DEFAULT_IMAGE_QUALITY`).
 
     Returns
     -------
@@ -68,11 +74,22 @@ def write_model(model, path, *, format: str | None = None, text: bool = False) -
     ``v x y z r g b`` (colours 0..1), ``vn`` lines (unit normals, a mesh's area-weighted vertex
     normals) and ``f v//vn`` lines when the model has faces; GLB (written by trimesh) a mesh with
     ``POSITION``, ``NORMAL`` and ``COLOR_0``, or a point cloud for surfels without faces. Both
-    are read by trimesh, Blender and MeshLab.
+    are read by trimesh, Blender and MeshLab. A mesh with a texture
+    (:func:`surfidx.codec.decode` with ``texture=True``) is written with it: OBJ with ``vt``
+    lines, a ``.mtl`` and the image beside it (:func:`~surfidx.io.obj.write_obj`), GLB with
+    ``TEXCOORD_0`` and a ``baseColorTexture`` (:func:`~surfidx.io.gltf.write_glb`); PLY with
+    the texture read at the vertices as vertex colours.
     """
+    from .texture import check_image_options
+
+    image_format, image_quality = check_image_options(image_format, image_quality)
     fmt = output_format(path, format)
     if not isinstance(model, (TriangleMesh, SurfelSet)):
         raise InputError(f"write_model needs a SurfelSet or TriangleMesh, got "
                          f"{type(model).__name__}")
-    WRITERS[fmt](model, path, text=text)
+    if fmt in ("obj", "glb"):
+        WRITERS[fmt](model, path, text=text, image_format=image_format,
+                     image_quality=image_quality)
+    else:
+        WRITERS[fmt](model, path, text=text)
     return fmt
