@@ -422,6 +422,78 @@ class Database(Catalog):
         out.name = name
         return out
 
+    def export_many(self, models=None, folder=".", *, tag=None, format: str = "glb",
+                    thumbnails: bool = False, **options) -> tuple:
+        """Write several stored models into ``folder``, one file each named after the model
+        (``NAME.FORMAT``; ``NAME.png`` for thumbnails): the batch form of :meth:`export`.
+
+        A model that cannot be written is reported and the others are still written, as an
+        ingest goes on past a file it cannot read.
+
+        Parameters
+        ----------
+        models : sequence of int or str, optional
+            Ids or names; with neither ``models`` nor ``tag``, every stored model.
+        folder : str or os.PathLike
+            Created when missing.
+        tag : str or sequence of str, optional
+            Also every model carrying all of these tags.
+        format : {"glb", "obj", "ply", "sfz"}
+            The files' format (for ``thumbnails``, PNG whatever this says).
+        thumbnails : bool
+            Write each model's stored thumbnail (PNG) instead of the model.
+        **options
+            Keywords of :meth:`export` (``bits_per_surfel``, ``level``, ``max_vertices``...).
+
+        Returns
+        -------
+        written : list of dict
+            :meth:`export`'s record of each file written (for thumbnails: ``id``, ``name``,
+            ``output``, ``bytes``).
+        failed : list of (str, str)
+            ``(model, message)`` of each model that could not be written.
+
+        Raises
+        ------
+        InputError
+            An unknown format, or a selection that names no model.
+        """
+        from .io import write_atomic
+
+        fmt = str(format).lower().lstrip(".")
+        if fmt not in ("glb", "obj", "ply", "sfz"):
+            raise InputError(f"format must be one of glb, obj, ply, sfz; got {format!r}")
+        ids = [self.resolve(m) for m in (models or [])]
+        if tag is not None:
+            ids += [r["id"] for r in self.list_models(tag=tag)]
+        if not models and tag is None:
+            ids = [r["id"] for r in self.list_models()]
+        ids = list(dict.fromkeys(ids))
+        if not ids:
+            raise InputError("the selection names no stored model (give ids, names, a tag, "
+                             "or every model)")
+        out_dir = Path(folder)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written, failed = [], []
+        for mid in ids:
+            name = self.get_model(mid)["name"]
+            stem = _file_stem(name, mid)
+            try:
+                if thumbnails:
+                    png = self.get_thumbnail(mid)
+                    target = out_dir / f"{stem}.png"
+                    write_atomic(target, lambda tmp: tmp.write_bytes(png))
+                    written.append({"id": mid, "name": name, "output": str(target),
+                                    "bytes": len(png)})
+                else:
+                    written.append(self.export(mid, out_dir / f"{stem}.{fmt}", format=fmt,
+                                               **options))
+            except SurfidxError as exc:
+                if is_storage_failure(exc):
+                    raise
+                failed.append((name, str(exc)))
+        return written, failed
+
     def export(self, model, path, *, format: str | None = None,
                bits_per_surfel: float | None = None, level: int | None = None,
                mesh: bool | None = None, max_surfels: int | None = None,
@@ -496,3 +568,10 @@ class Database(Catalog):
         if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:
             out["faces"] = int(len(decoded.faces))
         return out
+
+
+def _file_stem(name: str, mid: int) -> str:
+    """A model's name as a file name in any folder: path separators and control characters
+    become ``_``, leading dots are dropped; an empty result becomes ``model-ID``."""
+    stem = re.sub(r"[\\/\x00-\x1f\x7f]", "_", name).lstrip(".") or f"model-{mid}"
+    return stem[:200]

@@ -307,12 +307,15 @@ EXPORT_HELP = ("File to write, its format from the suffix (or --format): .ply (s
                "beside it), .sfz (the stream, truncated to --bits-per-surfel).")
 
 
-def export_options(func):
+def export_options(func=None, *, folder: bool = False):
     """The options of the commands that decode a stream to a file (``decode``, ``get``):
     ``-o/--output``, ``--format``, ``--bits-per-surfel`` (as ``bits_per_surfel``), ``--level``,
     ``--mesh/--surfels``, ``--max-surfels``, ``--max-vertices``, ``--ascii`` (as ``text``),
     ``--texture/--vertex-colors`` (as ``texture``, None unless given), ``--texture-size``,
-    ``--image-format`` and ``--image-quality``."""
+    ``--image-format`` and ``--image-quality``. With ``folder``, ``-o`` may also name a folder
+    (``get`` of several models)."""
+    if func is None:
+        return functools.partial(export_options, folder=folder)
     func = click.option("--image-quality", type=int, default=None, metavar="Q",
                         help="JPEG or WebP quality of the texture, 1 to 100 (default 90).")(func)
     func = click.option("--image-format", type=click.Choice(["png", "jpeg", "webp"],
@@ -345,8 +348,10 @@ def export_options(func):
     func = rate_option(func, help="Decode (or keep, for .sfz) only the prefix of the stream "
                                   "that fits this rate (default: all of it).")
     func = output_format_option(func)
-    return click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-                        help=EXPORT_HELP)(func)
+    return click.option("-o", "--output", required=True, type=click.Path(dir_okay=folder),
+                        help=EXPORT_HELP + (" With several models: the folder to write them "
+                                            "into, one file each named after the model."
+                                            if folder else ""))(func)
 
 
 def read_input(path, texture=None, samples=None, allow_outside=None):

@@ -264,27 +264,65 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 
 # ---------------------------------------------------------------------- get
 @cli.command()
-@click.argument("model")
-@export_options
+@click.argument("models", nargs=-1)
+@click.option("--tag", "tags", multiple=True,
+              help="Also every model with this tag (repeatable: all of them); -o is a folder.")
+@click.option("--all", "every", is_flag=True, help="Every stored model; -o is a folder.")
+@click.option("--thumbnails", is_flag=True,
+              help="Write the models' stored thumbnails (NAME.png) instead of the models.")
+@export_options(folder=True)
 @common_options(db=True)
-def get(model, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_vertices, text,
-        texture, texture_size, image_format, image_quality, *, db_path, console):
-    """Export a stored model (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or its stream as
-    .sfz, optionally at a lower rate."""
+def get(models, tags, every, thumbnails, output, fmt, bits_per_surfel, level, mesh, max_surfels,
+        max_vertices, text, texture, texture_size, image_format, image_quality, *, db_path,
+        console):
+    """Export stored models (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or the stream as
+    .sfz, optionally at a lower rate. One model goes to the file -o names; several (or --tag,
+    --all, --thumbnails) go into the folder -o names, one file each, NAME.FORMAT (default
+    GLB)."""
     from .codec import output_summary
 
-    sfz = (fmt or Path(output).suffix).lower().endswith("sfz")
-    with _open(db_path, console) as db, console.progress() as progress:
-        report(progress, "write" if sfz else "decode", 0, 1)
-        out = db.export(parse_model_ref(model), output, format=fmt,
-                        bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
-                        max_surfels=max_surfels, max_vertices=max_vertices, text=text,
-                        texture=texture, texture_size=texture_size, image_format=image_format,
-                        image_quality=image_quality, decoder=None if sfz else _decoder())
-    if console.json:
-        echo_json(out)
+    if every and (models or tags):
+        raise InputError("--all selects every model; give it without models or --tag")
+    if not (models or tags or every):
+        raise InputError("name a model (ID, id:ID or NAME), several, --tag T or --all")
+    options = dict(bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
+                   max_surfels=max_surfels, max_vertices=max_vertices, text=text,
+                   texture=texture, texture_size=texture_size, image_format=image_format,
+                   image_quality=image_quality)
+    if len(models) == 1 and not (tags or every or thumbnails):
+        if Path(output).is_dir():
+            raise InputError(f"{output} is a folder; give a file to write one model to "
+                             f"(a folder takes several models, --tag, --all or --thumbnails)")
+        sfz = (fmt or Path(output).suffix).lower().endswith("sfz")
+        with _open(db_path, console) as db, console.progress() as progress:
+            report(progress, "write" if sfz else "decode", 0, 1)
+            out = db.export(parse_model_ref(models[0]), output, format=fmt,
+                            decoder=None if sfz else _decoder(), **options)
+        if console.json:
+            echo_json(out)
+            return
+        click.echo(plain(f"{output_summary(out)} (model {out['id']}, {out['name']})"))
         return
-    click.echo(plain(f"{output_summary(out)} (model {out['id']}, {out['name']})"))
+    if Path(output).exists() and not Path(output).is_dir():
+        raise InputError(f"{output} is a file; several models go into a folder")
+    fmt = fmt or "glb"
+    with _open(db_path, console) as db:
+        written, failed = db.export_many([parse_model_ref(m) for m in models] or None, output,
+                                         tag=(list(tags) or None) if not every else None,
+                                         format=fmt, thumbnails=thumbnails,
+                                         **({} if thumbnails or fmt == "sfz"
+                                            else {"decoder": _decoder()}),
+                                         **({} if thumbnails else options))
+    if console.json:
+        echo_json({"written": written, "failed": [{"model": m, "error": e} for m, e in failed]})
+    else:
+        for rec in written:
+            console.note(plain(f"{rec['output']} (model {rec['id']}, {rec['name']})"))
+        click.echo(plain(f"{output}: {len(written)} written, {len(failed)} failed"))
+        for m, e in failed:
+            click.echo(plain(f"Error: {m}: {e}"), err=True)
+    if failed:
+        raise click.exceptions.Exit(1)
 
 
 # ---------------------------------------------------------------------- ls, show, errors
