@@ -254,7 +254,7 @@ class Database(Catalog):
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, describer=None, texture=None,
               allow_outside_textures: bool = False, exact: bool = False,
-              progress=None, options=None) -> list:
+              progress=None, options=None, tag=None, where: str | None = None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
@@ -288,6 +288,13 @@ class Database(Catalog):
         exact : bool
             Scan every stored model, never the approximate index (:mod:`surfidx.db.ann`, used from
             :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models on).
+        tag : str or sequence of str, optional
+            Only models carrying every one of these tags.
+        where : str, optional
+            Only models passing this filter on their stored figures
+            (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
+            A filtered query ranks the models that pass by the exact distance (the approximate
+            index is not used), so it finds the true nearest ``k`` among them.
 
         Returns
         -------
@@ -315,9 +322,13 @@ class Database(Catalog):
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
         drop = None if include_self else ex.id
-        ids, dist = self._search_index(SearchIndex, exact=exact).query(
-            descriptors, k=k + (drop is not None),
-            shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
+        w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
+        if tag is not None or where is not None:
+            ids, dist = self._filtered_search(descriptors, self.select_ids(tag=tag, where=where),
+                                              k=k + (drop is not None), shape_weight=w)
+        else:
+            ids, dist = self._search_index(SearchIndex, exact=exact).query(
+                descriptors, k=k + (drop is not None), shape_weight=w)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
@@ -339,6 +350,22 @@ class Database(Catalog):
         if not exact:
             self.__dict__["_kept_search"] = index if index.approximate else None
         return index
+
+    def _filtered_search(self, descriptors, allowed, *, k, shape_weight):
+        """The ``k`` nearest of the models ``allowed`` (ids) by the exact distance, read by id."""
+        from .describe.distance import DEFAULT_KINDS, check_shape_weight, weighted_l2
+
+        w = check_shape_weight(shape_weight)
+        kinds = [kd for kd in DEFAULT_KINDS if kd in descriptors]
+        if allowed.size == 0 or "shape" not in kinds:
+            return np.zeros(0, np.int64), np.zeros(0)
+        ids, stored, present = self.descriptor_rows(allowed, kinds)
+        held = [kd for kd in kinds if stored[kd].shape[1] > 0]     # a kind no model holds: out
+        dist = weighted_l2({kd: descriptors[kd] for kd in held},
+                           {kd: stored[kd] for kd in held}, {kd: present[kd] for kd in held},
+                           shape_weight=w)
+        order = np.lexsort((ids, dist))[:k]          # ties by id: the same order every run
+        return ids[order], dist[order]
 
     def get_sfz(self, model, *, bits_per_surfel: float | None = None) -> bytes:
         """A stored model's stream as a ``.sfz`` file, truncated to ``bits_per_surfel`` (over

@@ -189,10 +189,17 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
               help="Scan every stored model instead of using the approximate index (which "
                    f"is used from {DEFAULT_THRESHOLD:,} stored models on; its results are "
                    "re-ranked by the exact distance).")
+@click.option("--tag", "tags", multiple=True,
+              help="Only models with this tag (repeatable: all of them).")
+@click.option("--where", default=None, metavar="FILTER",
+              help="Only models passing this filter on their stored figures, e.g. "
+                   "'surfels > 10000 and colour = true' (fields: surfels, colour, psnr_d1, "
+                   "psnr_d2, psnr_y, bytes, bits_per_surfel, ingested_at, name, id).")
 @outside_textures_option
 @options_file_option
 @common_options(db=True)
-def query(example, k, shape_weight, sheet, include_self, exact, options, *, db_path, console):
+def query(example, k, shape_weight, sheet, include_self, exact, tags, where, options, *,
+          db_path, console):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
@@ -212,7 +219,7 @@ def query(example, k, shape_weight, sheet, include_self, exact, options, *, db_p
         label, qthumb = ex.name, ex.thumbnail
         report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
-                        exact=exact)
+                        exact=exact, tag=list(tags) or None, where=where)
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])
@@ -331,13 +338,15 @@ def get(models, tags, every, thumbnails, output, fmt, bits_per_surfel, level, me
 @click.option("--tag", "tags", multiple=True, help="Only models with this tag (repeatable: all).")
 @click.option("--name-like", default=None,
               help="Only models whose name matches this SQL LIKE pattern (%: any text).")
+@click.option("--where", default=None, metavar="FILTER",
+              help="Only models passing this filter on their stored figures (as for query).")
 @common_options(db=True)
-def ls(show_errors, tags, name_like, *, db_path, console):
+def ls(show_errors, tags, name_like, where, *, db_path, console):
     """List the stored models (or, with --errors, the ingest failures)."""
     if show_errors:
         return _print_errors(db_path, None, console)
     with _open(db_path, console) as db:
-        rows = db.list_models(tag=list(tags) or None, name_like=name_like)
+        rows = db.list_models(tag=list(tags) or None, name_like=name_like, where=where)
     console.detail(f"{len(rows)} model(s)")
     if console.json:
         echo_json({"models": rows})

@@ -2,3 +2,4 @@
 
 from .catalog import Catalog as Catalog
 from .search import SearchIndex as SearchIndex
+from .filters import where_sql as where_sql, FIELDS as FIELDS

@@ -1316,7 +1316,23 @@ class Catalog:
                     "SELECT kind, vector FROM descriptors WHERE model_id = ? ORDER BY kind",
                     (model_id,))}
 
-    def list_models(self, *, tag=None, name_like: str | None = None) -> list:
+    def select_ids(self, *, tag=None, where: str | None = None):
+        """The ids of the models that carry every tag of ``tag`` and pass the filter ``where``
+        (:func:`surfidx.db.filters.where_sql`), ascending.
+
+        Parameters
+        ----------
+        tag : str or sequence of str, optional
+        where : str, optional
+
+        Returns
+        -------
+        (n,) int64
+        """
+        return np.array([r["id"] for r in self.list_models(tag=tag, where=where)], np.int64)
+
+    def list_models(self, *, tag=None, name_like: str | None = None,
+                    where: str | None = None) -> list:
         """The models, by id, with their asset figures and tags (no blobs).
 
         Parameters
@@ -1326,6 +1342,9 @@ class Catalog:
         name_like : str, optional
             Only models whose name matches this SQL ``LIKE`` pattern (``%`` any text, ``_`` one
             character; case-insensitive for ASCII).
+        where : str, optional
+            Only models passing this filter on their stored figures
+            (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
 
         Returns
         -------
@@ -1336,13 +1355,19 @@ class Catalog:
         """
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
                 "bits_per_surfel", "bytes", *QUALITY_KEYS)
-        where, args = [], []
+        filter_text, where, args = where, [], []
         for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
             where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
             args.append(str(t))
         if name_like is not None:
             where.append("m.name LIKE ?")
             args.append(str(name_like))
+        if filter_text is not None:
+            from .filters import where_sql
+
+            sql, more = where_sql(filter_text)
+            where.append(f"({sql})")
+            args += more
         cur = self.conn.execute(
             "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
             "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y "
