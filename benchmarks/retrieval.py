@@ -653,6 +653,309 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
     return out
 
 
+# --------------------------------------------------------------------- partial scans
+PARTIAL_KINDS = ("view", "base")
+"""``--partial``: a single view from a random camera, or the model without its base."""
+
+
+def partial_version() -> str:
+    """Hash of what makes a simulated scan (the simulation's settings and sources)."""
+    h = hashlib.sha256()
+    h.update((Path(__file__).resolve().parent / "_shape_baselines.py").read_bytes())
+    h.update(repair_version().encode())
+    return h.hexdigest()[:12]
+
+
+def make_scan(job: dict):
+    """(vertices, faces) of the simulated scan of ``job``: a view or base cut, jittered when
+    ``job["noise"]``; the same seed gives the same scan."""
+    import surfidx
+
+    mesh = surfidx.read_mesh(job["path"])
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    rng = np.random.default_rng(job["seed"])
+    if job["kind"] == "view":
+        v, f = sb.simulate_view(v, f, rng)
+    else:
+        v, f = sb.cut_base(v, f)
+    if job["noise"]:
+        v = sb.jitter(v, rng)
+    return v, f
+
+
+def compute_scan(job: dict) -> dict:
+    """Worker: a simulated scan written as an OFF file, read as a query file is (read and
+    repair, :func:`surfidx.topology.read_model`), every part mapped and resampled as
+    :func:`surfidx.pipeline.describe_model` does, with the grid vertices that sample a virtual
+    patch (:func:`surfidx.codec.resample.grid_patches`); D2 and SH of the scan. Cached. A job of
+    kind ``"sh"`` is the SH descriptor of a complete model."""
+    cache_file = Path(job["cache_file"])
+    if cache_file.exists():
+        with np.load(cache_file, allow_pickle=False) as z:
+            rec = json.loads(str(z["meta"]))
+            rec["arrays"] = {k: z[k] for k in z.files if k != "meta"}
+        rec["cached"] = True
+        return rec
+    import surfidx
+    from surfidx.codec.resample import grid_patches, resample
+    from surfidx.sphere import parameterize
+    from surfidx.topology import read_model
+
+    t0 = time.process_time()
+    rec = {"path": job["path"], "kind": job["kind"], "seed": job.get("seed"), "error": None,
+           "cached": False}
+    arrays = {}
+    if job["kind"] == "sh":
+        mesh = surfidx.read_mesh(job["path"])
+        arrays["sh"] = sb.sh_descriptor(mesh.vertices, mesh.faces)
+    else:
+        v, f = make_scan(job)
+        scan = Path(job["out_dir"]) / f"{Path(job['path']).stem}-{job['kind']}{job['seed']}" \
+            f"{'-noisy' if job['noise'] else ''}.off"
+        sb.write_off(scan, v, f)
+        rec["scan"] = str(scan)
+        mesh = surfidx.read_mesh(scan)
+        rec["vertices"] = int(len(mesh.vertices))
+        arrays["d2"] = sb.d2_histogram(mesh.vertices, mesh.faces)
+        arrays["sh"] = sb.sh_descriptor(mesh.vertices, mesh.faces)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                model = read_model(scan)
+            rec["virtual_area_share"] = float(model.summary()["virtual_area_share"])
+            rec["parts"], rec["levels"], rec["counts"] = len(model.parts), [], []
+            for k, part in enumerate(model.parts):
+                m = parameterize(part, stress=False)
+                level = m.grid_level
+                loc = m.location(level)
+                arrays[f"grid{k}"] = resample(part, m.points, level, location=loc)
+                arrays[f"mask{k}"] = grid_patches(part, m.points, level,
+                                                  face_patch=model.face_patch(k),
+                                                  location=loc) >= 0
+                rec["levels"].append(int(level))
+                rec["counts"].append(int(len(part)))
+        except surfidx.SurfidxError as exc:
+            rec["error"] = f"{type(exc).__name__}: {exc}"
+    rec["cpu_seconds"] = time.process_time() - t0
+    cache_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(cache_file) + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, meta=np.array(json.dumps(rec)), **arrays)
+    os.replace(tmp, cache_file)
+    rec["arrays"] = arrays
+    return rec
+
+
+def run_scan_jobs(jobs, workers):
+    """Run :func:`compute_scan` over ``jobs`` (cached ones in this process), in job order."""
+    out = [None] * len(jobs)
+    todo = []
+    for k, j in enumerate(jobs):
+        if Path(j["cache_file"]).exists():
+            out[k] = compute_scan(j)
+        else:
+            todo.append(k)
+    print(f"scans: {len(todo)} of {len(jobs)} to compute ({workers} workers)...",
+          file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    if workers <= 1:
+        for n, k in enumerate(todo):
+            out[k] = compute_scan(jobs[k])
+            print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
+                  f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
+                  flush=True)
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+            futs = {ex.submit(compute_scan, jobs[k]): k for k in todo}
+            for n, fut in enumerate(as_completed(futs)):
+                k = futs[fut]
+                out[k] = fut.result()
+                print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
+                      f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
+                      flush=True)
+    return out
+
+
+DESC_CACHE = Path("/tmp/partial-cache/descriptors")
+"""Cached descriptor vectors of grids, keyed by the grid's bytes and the descriptor sources."""
+
+
+def _describe_version() -> str:
+    h = hashlib.sha256()
+    for f in sorted((ROOT / "surfidx" / "describe").glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def describe_cached(grid, level, lmax, *, mask=None, extra=""):
+    """``describe_grid`` vectors of a grid (with ``mask``: of its real surface,
+    :func:`surfidx.describe.describe_grid`'s ``virtual=``), cached on disk."""
+    from surfidx.describe.descriptors import describe_grid
+
+    h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
+    h.update(f"{level}-{lmax}-{_describe_version()}-{extra}".encode())
+    if mask is not None:
+        h.update(np.packbits(mask).tobytes())
+    f = DESC_CACHE / f"{h.hexdigest()[:24]}.npz"
+    if f.exists():
+        with np.load(f) as z:
+            return {k: z[k] for k in z.files}
+    kw = {} if mask is None else {"virtual": mask}
+    vec = describe_grid(grid, level, lmax=lmax, **kw).vectors
+    f.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(f) + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, **vec)
+    os.replace(tmp, f)
+    return vec
+
+
+def scan_descriptors(rec, lmax, *, real_only=False):
+    """The query's descriptors as :func:`surfidx.pipeline.describe_model` makes them (parts
+    combined by :func:`surfidx.pipeline.combine_descriptors`); None when the scan failed."""
+    from surfidx.describe.descriptors import DescriptorSet, descriptor_params
+    from surfidx.pipeline import combine_descriptors
+
+    if rec["error"] is not None:
+        return None
+    sets = []
+    for k, level in enumerate(rec["levels"]):
+        mask = rec["arrays"][f"mask{k}"] if real_only else None
+        vec = describe_cached(rec["arrays"][f"grid{k}"], level, lmax, mask=mask)
+        sets.append(DescriptorSet(vec, descriptor_params(lmax=lmax)))
+    return combine_descriptors(sets, rec["counts"]).vectors
+
+
+def stack_descriptors(descs):
+    """``stored``/``present`` arrays of :func:`surfidx.describe.distance.weighted_l2`."""
+    from surfidx.describe.distance import DEFAULT_KINDS
+
+    stored, present = {}, {}
+    for kind in DEFAULT_KINDS:
+        dims = {len(d[kind]) for d in descs if d is not None and kind in d}
+        if not dims:
+            continue
+        dim = dims.pop()
+        stored[kind] = np.stack([np.asarray(d[kind], np.float32) if d is not None and kind in d
+                                 else np.zeros(dim, np.float32) for d in descs])
+        present[kind] = np.array([d is not None and kind in d for d in descs])
+    return stored, present
+
+
+def query_matrix(queries, stored, present, distance):
+    """(q, n) distances of every query (inf rows for a failed one; failed models inf)."""
+    n = len(present["shape"])
+    out = np.full((len(queries), n), np.inf)
+    for k, q in enumerate(queries):
+        if q is not None:
+            d = distance(q, stored, present)
+            out[k] = np.where(present["shape"], d, np.inf)
+    return out
+
+
+def partial_table(args, paths, classes, base_jobs, lmax, cache_dir):
+    """``--partial``: simulated scans of every model queried against the complete collection;
+    the retrieval table of surfidx (default distance and the partial-aware one) beside SH and
+    D2 on the same files, the per-query spread and the detection by the virtual share."""
+    import tempfile
+
+    from surfidx.describe.distance import weighted_l2
+
+    kinds = [args.partial] + (["noisy"] if args.noise else [])
+    out_dir = Path(tempfile.mkdtemp(prefix="surfidx-partial-"))
+    pver = partial_version()
+    views = args.views if args.partial == "view" else 1
+    sha = [file_hash(args.data / p) for p in paths]
+    jobs = []
+    for noisy in ([False, True] if args.noise else [False]):
+        for i, p in enumerate(paths):
+            for k in range(views):
+                seed = int(args.seed * 100_000 + i * 100 + k)
+                jobs.append({"path": str(args.data / p), "kind": args.partial, "seed": seed,
+                             "noise": noisy, "model": i, "out_dir": str(out_dir),
+                             "cache_file": str(cache_dir / f"partial-{pver}" /
+                                               f"{sha[i]}-{args.partial}{seed}"
+                                               f"{'-noisy' if noisy else ''}.npz")})
+    sh_jobs = [{"path": str(args.data / p), "kind": "sh",
+                "cache_file": str(cache_dir / f"partial-{pver}" / f"{sha[i]}-sh.npz")}
+               for i, p in enumerate(paths)]
+    recs = run_scan_jobs(sh_jobs + jobs, args.workers)
+    base = run_jobs(base_jobs, args.workers)
+    sh_base = np.stack([r["arrays"]["sh"] for r in recs[:len(paths)]])
+    scans = recs[len(paths):]
+    t0 = time.process_time()
+    descs = [None if r["grid"] is None else describe_cached(r["grid"], r["level"], lmax)
+             for r in base]
+    stored, present = stack_descriptors(descs)
+    d2_base = np.stack([r["d2"] for r in base])
+    print(f"collection described: {time.process_time() - t0:.0f} s CPU", file=sys.stderr,
+          flush=True)
+
+    results = {}
+    rows = []
+    for noisy in ([False, True] if args.noise else [False]):
+        sel = [k for k, j in enumerate(jobs) if j["noise"] == noisy]
+        own = np.array([jobs[k]["model"] for k in sel])
+        qcls = classes[own]
+        label = f"{args.partial}{' + jitter' if noisy else ''}"
+        q_default = [scan_descriptors(scans[k], lmax) for k in sel]
+        variants = {"surfidx": query_matrix(q_default, stored, present, weighted_l2)}
+        for name, fn in partial_variants(lmax).items():
+            variants[name] = fn([scans[k] for k in sel], q_default, stored, present)
+        variants["SH (Kazhdan)"] = sb.l2_distances(
+            np.stack([scans[k]["arrays"]["sh"] for k in sel]), sh_base)
+        variants["D2"] = np.abs(np.stack([scans[k]["arrays"]["d2"] for k in sel])[:, None, :]
+                                - d2_base[None, :, :]).sum(-1)
+        for name, dist in variants.items():
+            st = sb.query_statistics(dist, qcls, classes, own)
+            results[(label, name)] = st
+            pq = st["per_query"]["map"]
+            rows.append([label, name, st["n"], f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
+                         f"{100 * st['ft']:.1f}", f"{100 * st['map']:.1f}",
+                         f"{st['own_rank']:.0f}",
+                         f"{100 * np.percentile(pq, 25):.0f}/{100 * np.median(pq):.0f}/"
+                         f"{100 * np.percentile(pq, 75):.0f}"])
+    share = np.array([r.get("virtual_area_share", np.nan) for r in scans])
+    fails = [r for r in scans if r["error"] is not None]
+    REPORT.print(f"\nPartial scans ({args.partial}; {views} per model{', also jittered by ' + str(100 * sb.JITTER) + ' % of the diagonal' if args.noise else ''}; "
+                 f"{len(paths)} models) queried by file against the complete collection; "
+                 f"AP spread = per-query average precision, quartiles; failed scans: "
+                 f"{len(fails)}\n")
+    print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
+                 "own rank (median)", "AP q1/med/q3"], rows)
+    fin = share[np.isfinite(share)]
+    if fin.size:
+        REPORT.print(f"\nVirtual area share of the repaired scans: min {100 * fin.min():.1f} %, "
+                     f"quartiles {100 * np.percentile(fin, 25):.1f}/{100 * np.median(fin):.1f}/"
+                     f"{100 * np.percentile(fin, 75):.1f} %, max {100 * fin.max():.1f} %")
+    if args.confusion:
+        st = results[(f"{args.partial}", "surfidx")]
+        own = np.array([j["model"] for j in jobs if not j["noise"]])
+        crow = []
+        for c in dict.fromkeys(classes):
+            m = classes[own] == c
+            crow.append([c, int(m.sum()), f"{st['per_query']['nn'][m].mean():.2f}",
+                         f"{st['per_query']['map'][m].mean():.2f}"])
+        REPORT.print("\nPer class (default distance)\n")
+        print_table(["class", "queries", "NN", "mAP"], crow)
+    for r in fails:
+        REPORT.print(f"  failed: {r.get('scan')}: {r['error']}")
+    if args.json is not None:
+        out = {f"{a}/{b}": {k: v[k] for k in ("own", "nn", "ft", "map", "own_rank", "n")}
+               for (a, b), v in results.items()}
+        out["per_query"] = {f"{a}/{b}": {k: v["per_query"][k].tolist() for k in
+                                         ("own", "nn", "map")} for (a, b), v in results.items()}
+        out["virtual_area_share"] = share.tolist()
+        args.json.write_text(json.dumps(out, indent=1))
+    return results
+
+
+def partial_variants(lmax):
+    """Partial-aware candidates measured beside the default distance (name -> function of the
+    scan records, their default descriptors, the stored arrays)."""
+    return {}
+
+
 def fmt_row(cells, widths):
     return " | ".join(str(c).ljust(w) for c, w in zip(cells, widths))
 
@@ -741,6 +1044,15 @@ def main(argv=None) -> int:
                          "cached map took at most this many seconds")
     ap.add_argument("--study-only", action="store_true", help="with --study: skip the main "
                     "tables (the descriptors are computed once for the study)")
+    ap.add_argument("--partial", choices=PARTIAL_KINDS, default=None,
+                    help="query simulated partial scans (a single view or a base cut) of every "
+                         "model against the complete collection, instead of the leave-one-out "
+                         "tables")
+    ap.add_argument("--views", type=int, default=1,
+                    help="with --partial view: random cameras per model")
+    ap.add_argument("--noise", action="store_true",
+                    help="with --partial: also the scans jittered by "
+                         f"{100 * sb.JITTER:g} %% of the diagonal")
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
     REPORT.output = args.markdown
@@ -769,6 +1081,8 @@ def main(argv=None) -> int:
             if rank < len(idx):
                 order.append(idx[rank])
     n_inv = len(order) if args.invariance == "all" else int(args.invariance)
+    if args.partial is not None:
+        n_inv = 0
     inv_models = [int(i) for i in order[:n_inv]]
 
     version = code_version(args.method) if args.cache_key is None else args.cache_key
@@ -821,6 +1135,10 @@ def main(argv=None) -> int:
         classes, genus, g0 = classes[keep], genus[keep], g0[keep]
         inv_models = [i for i, _ in copies_kept]
         print(f"cached only: {len(paths)} models, {len(inv_models)} copies", file=sys.stderr)
+    if args.partial is not None:
+        partial_table(args, paths, classes, jobs[:len(paths)], lmax,
+                      args.cache if cache_dir is None else cache_dir)
+        return 0
     t0 = time.perf_counter()
     recs = run_jobs(jobs, args.workers)
     t_compute = time.perf_counter() - t0
