@@ -906,6 +906,8 @@ def partial_table(args, paths, classes, base_jobs, lmax, cache_dir):
             np.stack([scans[k]["arrays"]["sh"] for k in sel]), sh_base)
         variants["D2"] = np.abs(np.stack([scans[k]["arrays"]["d2"] for k in sel])[:, None, :]
                                 - d2_base[None, :, :]).sum(-1)
+        if args.partial_study and not noisy:
+            partial_study(scans, sel, own, qcls, classes, lmax, stored, present)
         for name, dist in variants.items():
             st = sb.query_statistics(dist, qcls, classes, own)
             results[(label, name)] = st
@@ -950,10 +952,108 @@ def partial_table(args, paths, classes, base_jobs, lmax, cache_dir):
     return results
 
 
+def part_slices():
+    """Name -> slice of each part of the ``shape`` vector (the library's)."""
+    from surfidx.describe.partial import part_slices as slices
+
+    return slices()
+
+
+def part_sq_distances(queries, stored, present):
+    """Per part (and ``spectrum``), the (q, n) squared distances of the query vectors to the
+    stored ones, as weighted in the default ``shape`` vector."""
+    from surfidx.describe.distance import squared_distances
+
+    out = {}
+    for name, sl in list(part_slices().items()) + [("spectrum", None)]:
+        kind = "shape" if sl is not None else "spectrum"
+        m = np.full((len(queries), len(present["shape"])), np.inf)
+        for k, q in enumerate(queries):
+            if q is None:
+                continue
+            a = stored[kind] if sl is None else stored[kind][:, sl]
+            b = q[kind] if sl is None else q[kind][sl]
+            m[k] = np.where(present["shape"], squared_distances(a, b), np.inf)
+        out[name] = m
+    return out
+
+
+PARTIAL_GRID = (0.0, 0.5, 1.0, 2.0)
+"""Relative weights tried for each shape part (times its default weight) by ``--partial``'s
+choice of the partial-aware weights."""
+
+
+def choose_part_weights(sq, qcls, classes, folds):
+    """The part weights (relative to the default, one of :data:`PARTIAL_GRID` each) of the best
+    mAP: on all queries, and per fold on the other folds' queries (the cross-validated figure
+    of the choice). Returns (weights, cross-validated per-query AP, per-query NN, own)."""
+    import itertools
+
+    names = list(sq)
+    best_all, cv_ap = None, np.zeros(len(qcls))
+    combos = [c for c in itertools.product(PARTIAL_GRID, repeat=len(names)) if any(c)]
+    scores = []
+    for c in combos:
+        d = sum(w * sq[n] for w, n in zip(c, names) if w)
+        st = sb.query_statistics(np.sqrt(d), qcls, classes)
+        scores.append(st["per_query"]["map"])
+    scores = np.stack(scores)
+    best_all = combos[int(np.argmax(scores.mean(axis=1)))]
+    for f in np.unique(folds):
+        train = folds != f
+        c = combos[int(np.argmax(scores[:, train].mean(axis=1)))]
+        cv_ap[~train] = scores[combos.index(c), ~train]
+    return dict(zip(names, best_all)), cv_ap
+
+
 def partial_variants(lmax):
     """Partial-aware candidates measured beside the default distance (name -> function of the
     scan records, their default descriptors, the stored arrays)."""
-    return {}
+    from surfidx.describe.distance import weighted_l2
+
+    def real_only(recs, default, stored, present):
+        return query_matrix([scan_descriptors(r, lmax, real_only=True) for r in recs], stored,
+                            present, weighted_l2)
+
+    out = {"real surface only": real_only}
+    try:
+        from surfidx.describe.partial import partial_l2
+    except ImportError:
+        return out
+
+    def weighted(recs, default, stored, present):
+        return query_matrix(default, stored, present, partial_l2)
+
+    def both(recs, default, stored, present):
+        return query_matrix([scan_descriptors(r, lmax, real_only=True) for r in recs], stored,
+                            present, partial_l2)
+
+    out["partial_l2"] = weighted
+    out["real only + partial_l2"] = both
+    return out
+
+
+def partial_study(scans, sel, own, qcls, classes, lmax, stored, present):
+    """Each shape part alone on the partial queries (default and real-surface descriptors), and
+    the part weights chosen on them, with a 2-fold cross-validated figure (folds by model)."""
+    rows, chosen = [], {}
+    for label, real in (("default", False), ("real only", True)):
+        q = [scan_descriptors(scans[k], lmax, real_only=real) for k in sel]
+        sq = part_sq_distances(q, stored, present)
+        for name, m in sq.items():
+            st = sb.query_statistics(np.sqrt(m), qcls, classes, own)
+            rows.append([label, name, f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
+                         f"{100 * st['map']:.1f}"])
+        folds = own % 2
+        w, cv = choose_part_weights(sq, qcls, classes, folds)
+        chosen[label] = w
+        rows.append([label, "chosen " + " ".join(f"{n}:{v:g}" for n, v in w.items()), "", "",
+                     f"{100 * cv.mean():.1f} (2-fold CV)"])
+    REPORT.print("\nShape parts alone on the partial queries, and the relative part weights of "
+                 "the best mAP (grid " + ",".join(f"{g:g}" for g in PARTIAL_GRID) + "; CV: "
+                 "chosen on the models of one parity, scored on the others)\n")
+    print_table(["query descriptors", "part", "own first %", "NN %", "mAP"], rows)
+    return chosen
 
 
 def fmt_row(cells, widths):
@@ -1050,6 +1150,9 @@ def main(argv=None) -> int:
                          "tables")
     ap.add_argument("--views", type=int, default=1,
                     help="with --partial view: random cameras per model")
+    ap.add_argument("--partial-study", action="store_true",
+                    help="with --partial: each shape part alone and the part weights chosen "
+                         "on the partial queries")
     ap.add_argument("--noise", action="store_true",
                     help="with --partial: also the scans jittered by "
                          f"{100 * sb.JITTER:g} %% of the diagonal")

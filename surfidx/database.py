@@ -48,6 +48,9 @@ class QueryExample:
         Descriptor vectors by kind, as an ingest stores them.
     thumbnail : bytes or None
         PNG of the example (a stored model's thumbnail, or one drawn of a file's surfels).
+    virtual_share : float
+        Share of the closed surface's area the topology repair added (0 for a model it left
+        alone): what tells a partial scan (:func:`surfidx.describe.is_partial`).
     """
 
     id: int | None
@@ -55,6 +58,7 @@ class QueryExample:
     has_color: bool
     descriptors: dict
     thumbnail: bytes | None = None
+    virtual_share: float = 0.0
 
 
 class Database(Catalog):
@@ -215,9 +219,11 @@ class Database(Catalog):
                                      path=model) from None
         if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
             rec = self.get_model(int(ref))
+            topo = rec.get("topology") or {}
             return QueryExample(id=rec["id"], name=rec["name"], has_color=rec["has_color"],
                                 descriptors=self.get_descriptors(rec["id"]),
-                                thumbnail=self.get_thumbnail(rec["id"]))
+                                thumbnail=self.get_thumbnail(rec["id"]),
+                                virtual_share=float(topo.get("virtual_area_share") or 0.0))
         from .codec.options import DEFAULT_BITS_PER_SURFEL
         from .options import DEFAULT_THUMBNAIL_SIZE
 
@@ -247,14 +253,16 @@ class Database(Catalog):
                                 (str(processed.content_hash),)).fetchone()
         vectors = processed.descriptors
         vectors = getattr(vectors, "vectors", vectors)       # a DescriptorSet, or a dict
+        topo = getattr(processed, "topology", None) or {}
         return QueryExample(id=None if row is None else int(row[0]), name=processed.name,
                             has_color=processed.has_color, descriptors=dict(vectors),
-                            thumbnail=processed.thumbnail)
+                            thumbnail=processed.thumbnail,
+                            virtual_share=float(topo.get("virtual_area_share") or 0.0))
 
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, describer=None, texture=None,
               allow_outside_textures: bool = False, exact: bool = False,
-              progress=None, options=None) -> list:
+              progress=None, options=None, partial: bool | None = None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
@@ -288,11 +296,17 @@ class Database(Catalog):
         exact : bool
             Scan every stored model, never the approximate index (:mod:`surfidx.db.ann`, used from
             :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models on).
+        partial : bool, optional
+            Whether the example is a scan of part of an object, compared by
+            :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
+            from the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
+            :attr:`QueryExample.virtual_share`).
 
         Returns
         -------
         list of dict
-            ``{"id", "name", "source", "distance"}``, nearest first.
+            ``{"id", "name", "source", "distance", "partial"}``, nearest first (``partial``:
+            whether the query was compared as a partial scan).
 
         Raises
         ------
@@ -314,17 +328,23 @@ class Database(Catalog):
         k = int(k)
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
+        from .describe.partial import is_partial, partial_l2
+
+        if partial is None:
+            partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         ids, dist = self._search_index(SearchIndex, exact=exact).query(
             descriptors, k=k + (drop is not None),
-            shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight)
+            shape_weight=DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight,
+            distance=partial_l2 if partial else None)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
                 continue
             rec = self.conn.execute("SELECT name, source FROM models WHERE id = ?",
                                     (i,)).fetchone()
-            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
+            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d),
+                         "partial": bool(partial)})
         return rows
 
     def _search_index(self, make, *, exact: bool):
