@@ -38,8 +38,27 @@ sources: for a cache whose maps are known to be those of today's code (an edit o
 smallest cached genus-0 models and compares them bitwise with the cached grids (the check of that
 claim, printed).
 
+Partial scans (``--partial view|base``, issue 56): every model is scanned in simulation — a single
+view from ``--views`` seeded random cameras (a pinhole camera 2.5 diagonals away; the faces that
+face it and are visible in a z-buffer of splatted surface samples; the largest connected piece),
+or a base cut (the faces of the lowest 6 % of the surface area along y removed); ``--noise`` adds
+the same scans with every vertex jittered by 0.2 % of the diagonal — written as OFF files to a
+temporary folder and read back as a query file is (:func:`surfidx.topology.read_model`: the open
+scan closed by virtual patches; mapped, resampled and described as
+:func:`surfidx.pipeline.describe_model` does), then ranked against the complete collection by
+:func:`surfidx.describe.weighted_l2` (what a database query computes) and by the partial-aware
+candidates (:func:`surfidx.describe.partial_l2`; descriptors of the real surface only,
+``describe_grid(virtual=)``), beside the SH descriptor (Kazhdan et al. 2003, on surface samples)
+and D2 of the same files. Statistics: own model first, class of the first result (NN), first tier,
+mAP (the stored model the scan was made from counts as one of its class's), the median rank of the
+own model and the per-query AP quartiles. ``--partial-study`` adds each shape part alone and the
+part weights of the best mAP, with a 2-fold cross-validated figure (chosen on half the models,
+scored on the others). Scans and their grids are cached beside the maps (``partial-<hash>/``),
+descriptors in ``/tmp/partial-cache/descriptors``.
+
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
-[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]``
+[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]
+[--partial view|base [--views N] [--noise] [--partial-study]]``
 """
 
 from __future__ import annotations
@@ -876,6 +895,8 @@ def partial_table(args, paths, classes, base_jobs, lmax, cache_dir):
                              "cache_file": str(cache_dir / f"partial-{pver}" /
                                                f"{sha[i]}-{args.partial}{seed}"
                                                f"{'-noisy' if noisy else ''}.npz")})
+    if args.cached_only:          # the scans already computed only (a first look)
+        jobs = [j for j in jobs if Path(j["cache_file"]).exists()]
     sh_jobs = [{"path": str(args.data / p), "kind": "sh",
                 "cache_file": str(cache_dir / f"partial-{pver}" / f"{sha[i]}-sh.npz")}
                for i, p in enumerate(paths)]
