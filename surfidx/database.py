@@ -305,8 +305,7 @@ class Database(Catalog):
         Returns
         -------
         list of dict
-            ``{"id", "name", "source", "distance", "partial"}``, nearest first (``partial``:
-            whether the query was compared as a partial scan).
+            ``{"id", "name", "source", "distance"}``, nearest first.
 
         Raises
         ------
@@ -343,8 +342,7 @@ class Database(Catalog):
                 continue
             rec = self.conn.execute("SELECT name, source FROM models WHERE id = ?",
                                     (i,)).fetchone()
-            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d),
-                         "partial": bool(partial)})
+            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
         return rows
 
     def _search_index(self, make, *, exact: bool):

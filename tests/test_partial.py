@@ -149,7 +149,20 @@ def capsule_db(tmp_path_factory):
     return db_path, models / "capsule.off", view
 
 
-def test_query_detects_a_partial_scan_and_partial_forces_either_way(capsule_db):
+def _distances(rows):
+    return [(r["name"], r["distance"]) for r in rows]
+
+
+@pytest.fixture
+def spectral_only(monkeypatch):
+    """Partial queries ranked by the spectral part alone, so that they rank differently."""
+    from surfidx.describe import partial as P
+
+    monkeypatch.setattr(P, "PARTIAL_PART_WEIGHTS",
+                        dict.fromkeys(P.PARTIAL_PART_WEIGHTS, 0.0) | {"spectral": 1.0})
+
+
+def test_query_detects_a_partial_scan_and_partial_forces_either_way(capsule_db, spectral_only):
     from surfidx.database import Database
 
     db_path, whole, view = capsule_db
@@ -157,18 +170,20 @@ def test_query_detects_a_partial_scan_and_partial_forces_either_way(capsule_db):
         warnings.simplefilter("ignore")
         with Database(db_path) as db:
             auto = db.query(str(view), k=3)
-            forced = db.query(str(view), k=3, partial=False)
+            as_partial = db.query(str(view), k=3, partial=True)
+            as_complete = db.query(str(view), k=3, partial=False)
             again = db.query(str(view), k=3)
             complete = db.query(str(whole), k=3, include_self=True)
-            as_partial = db.query(str(whole), k=3, include_self=True, partial=True)
-    assert all(r["partial"] for r in auto) and not any(r["partial"] for r in forced)
-    assert [r["distance"] for r in auto] == [r["distance"] for r in again]
-    assert [r["distance"] for r in auto] != [r["distance"] for r in forced]
-    assert not any(r["partial"] for r in complete) and all(r["partial"] for r in as_partial)
-    assert complete[0]["name"] == "capsule"
+            complete_default = db.query(str(whole), k=3, include_self=True, partial=False)
+            forced = db.query(str(whole), k=3, include_self=True, partial=True)
+    assert _distances(auto) == _distances(as_partial) == _distances(again)
+    assert _distances(auto) != _distances(as_complete)
+    assert _distances(complete) == _distances(complete_default) != _distances(forced)
+    assert complete[0]["name"] == "capsule" and set(auto[0]) == {"id", "name", "source",
+                                                                 "distance"}
 
 
-def test_cli_query_partial_and_complete(capsule_db):
+def test_cli_query_partial_and_complete(capsule_db, spectral_only):
     import json
 
     from click.testing import CliRunner
@@ -177,12 +192,15 @@ def test_cli_query_partial_and_complete(capsule_db):
 
     db_path, whole, view = capsule_db
     run = CliRunner().invoke
+
+    def results(*extra):
+        r = run(cli, ["query", str(view), "--db", str(db_path), "-k", "2", "--json", *extra])
+        assert r.exit_code == 0, r.output
+        return [(row["name"], row["distance"]) for row in json.loads(r.stdout)["results"]]
+
     r = run(cli, ["query", str(view), "--db", str(db_path), "-k", "2"])
     assert r.exit_code == 0, r.output
     assert "compared as a partial scan" in r.output
-    r = run(cli, ["query", str(view), "--db", str(db_path), "-k", "2", "--complete", "--json"])
-    assert r.exit_code == 0, r.output
-    assert not any(row["partial"] for row in json.loads(r.stdout)["results"])
-    r = run(cli, ["query", str(whole), "--db", str(db_path), "-k", "2", "--partial", "--json"])
-    assert r.exit_code == 0, r.output
-    assert all(row["partial"] for row in json.loads(r.stdout)["results"])
+    assert results() == results("--partial") != results("--complete")
+    r = run(cli, ["query", str(whole), "--db", str(db_path), "-k", "2"])
+    assert r.exit_code == 0 and "partial scan" not in r.output

@@ -21,7 +21,7 @@ import click
 from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
 from ..describe.distance import DEFAULT_SHAPE_WEIGHT
-from ..describe.partial import PARTIAL_SHARE
+from ..describe.partial import PARTIAL_SHARE, is_partial
 from ..codec.options import DEFAULT_BITS_PER_SURFEL
 from ..progress import report
 from .group import cli
@@ -212,7 +212,9 @@ def query(example, k, shape_weight, sheet, include_self, exact, partial, options
         report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
                         exact=exact, partial=partial)
-        if rows and rows[0]["partial"]:
+        if partial is None:
+            partial = is_partial(ex.virtual_share)
+        if partial:
             console.note(f"{label}: compared as a partial scan ({100 * ex.virtual_share:.0f} % "
                          "of its closed surface added by the repair)")
         if sheet:
