@@ -305,11 +305,18 @@ def query_statistics(dist: np.ndarray, query_labels, labels, own=None) -> dict:
     dict
         Means of ``own`` (own model first), ``nn`` (class of the first result), ``ft`` (first
         tier: share of the class among the first class-size results), ``map``; ``own_rank``
-        (median rank of the own model, 1 = first); ``per_query`` arrays.
+        (median rank of the own model, 1 = first); ``per_query`` arrays. A query whose row is
+        all ``inf`` (its scan could not be described) scores 0 and ranks its model last.
     """
     labels, query_labels = np.asarray(labels), np.asarray(query_labels)
     out = {k: [] for k in ("own", "nn", "ft", "map", "own_rank")}
     for q in range(len(dist)):
+        if not np.isfinite(dist[q]).any():     # the query failed: 0 everywhere, ranked last
+            for k, v in (("nn", 0.0), ("ft", 0.0), ("map", 0.0), ("own", 0.0),
+                         ("own_rank", len(labels))):
+                if k not in ("own", "own_rank") or own is not None:
+                    out[k].append(v)
+            continue
         order = np.argsort(dist[q], kind="stable")
         rel = (labels[order] == query_labels[q]).astype(float)
         c = rel.sum()

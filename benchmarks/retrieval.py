@@ -678,9 +678,17 @@ PARTIAL_KINDS = ("view", "base")
 
 
 def partial_version() -> str:
-    """Hash of what makes a simulated scan (the simulation's settings and sources)."""
+    """Hash of what makes a simulated scan and its baselines (the settings and the sources of
+    the functions that make them; the statistics are not part of it)."""
+    import inspect
+
     h = hashlib.sha256()
-    h.update((Path(__file__).resolve().parent / "_shape_baselines.py").read_bytes())
+    for fn in (sb.sample_surface, sb.d2_histogram, sb.sh_descriptor, sb._face_components,
+               sb.largest_piece, sb.simulate_view, sb.cut_base, sb.jitter, sb.write_off,
+               make_scan, compute_scan):
+        h.update(inspect.getsource(fn).encode())
+    h.update(json.dumps([sb.SH_PARAMS, sb.VIEW_PARAMS, sb.BASE_CUT, sb.JITTER, sb.D2_PARAMS],
+                        sort_keys=True).encode())
     h.update(repair_version().encode())
     return h.hexdigest()[:12]
 
