@@ -38,8 +38,27 @@ sources: for a cache whose maps are known to be those of today's code (an edit o
 smallest cached genus-0 models and compares them bitwise with the cached grids (the check of that
 claim, printed).
 
+Partial scans (``--partial view|base``, issue 56): every model is scanned in simulation — a single
+view from ``--views`` seeded random cameras (a pinhole camera 2.5 diagonals away; the faces that
+face it and are visible in a z-buffer of splatted surface samples; the largest connected piece),
+or a base cut (the faces of the lowest 6 % of the surface area along y removed); ``--noise`` adds
+the same scans with every vertex jittered by 0.2 % of the diagonal — written as OFF files to a
+temporary folder and read back as a query file is (:func:`surfidx.topology.read_model`: the open
+scan closed by virtual patches; mapped, resampled and described as
+:func:`surfidx.pipeline.describe_model` does), then ranked against the complete collection by
+:func:`surfidx.describe.weighted_l2` (what a database query computes) and by the partial-aware
+candidates (:func:`surfidx.describe.partial_l2`; descriptors of the real surface only,
+``describe_grid(virtual=)``), beside the SH descriptor (Kazhdan et al. 2003, on surface samples)
+and D2 of the same files. Statistics: own model first, class of the first result (NN), first tier,
+mAP (the stored model the scan was made from counts as one of its class's), the median rank of the
+own model and the per-query AP quartiles. ``--partial-study`` adds each shape part alone and the
+part weights of the best mAP, with a 2-fold cross-validated figure (chosen on half the models,
+scored on the others). Scans and their grids are cached beside the maps (``partial-<hash>/``),
+descriptors in ``/tmp/partial-cache/descriptors``.
+
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
-[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]``
+[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]
+[--partial view|base [--views N] [--noise] [--partial-study]]``
 """
 
 from __future__ import annotations
@@ -653,6 +672,419 @@ def texture_table(n_copies, seed, lmax, method="tutte", json_out=None):
     return out
 
 
+# --------------------------------------------------------------------- partial scans
+PARTIAL_KINDS = ("view", "base")
+"""``--partial``: a single view from a random camera, or the model without its base."""
+
+
+def partial_version() -> str:
+    """Hash of what makes a simulated scan and its baselines (the settings and the sources of
+    the functions that make them; the statistics are not part of it)."""
+    import inspect
+
+    h = hashlib.sha256()
+    for fn in (sb.sample_surface, sb.d2_histogram, sb.sh_descriptor, sb._face_components,
+               sb.largest_piece, sb.simulate_view, sb.cut_base, sb.jitter, sb.write_off,
+               make_scan, compute_scan):
+        h.update(inspect.getsource(fn).encode())
+    h.update(json.dumps([sb.SH_PARAMS, sb.VIEW_PARAMS, sb.BASE_CUT, sb.JITTER, sb.D2_PARAMS],
+                        sort_keys=True).encode())
+    h.update(repair_version().encode())
+    return h.hexdigest()[:12]
+
+
+def make_scan(job: dict):
+    """(vertices, faces) of the simulated scan of ``job``: a view or base cut, jittered when
+    ``job["noise"]``; the same seed gives the same scan."""
+    import surfidx
+
+    mesh = surfidx.read_mesh(job["path"])
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    rng = np.random.default_rng(job["seed"])
+    if job["kind"] == "view":
+        v, f = sb.simulate_view(v, f, rng)
+    else:
+        v, f = sb.cut_base(v, f)
+    if job["noise"]:
+        v = sb.jitter(v, rng)
+    return v, f
+
+
+def compute_scan(job: dict) -> dict:
+    """Worker: a simulated scan written as an OFF file, read as a query file is (read and
+    repair, :func:`surfidx.topology.read_model`), every part mapped and resampled as
+    :func:`surfidx.pipeline.describe_model` does, with the grid vertices that sample a virtual
+    patch (:func:`surfidx.codec.resample.grid_patches`); D2 and SH of the scan. Cached. A job of
+    kind ``"sh"`` is the SH descriptor of a complete model."""
+    cache_file = Path(job["cache_file"])
+    if cache_file.exists():
+        with np.load(cache_file, allow_pickle=False) as z:
+            rec = json.loads(str(z["meta"]))
+            rec["arrays"] = {k: z[k] for k in z.files if k != "meta"}
+        rec["cached"] = True
+        return rec
+    import surfidx
+    from surfidx.codec.resample import grid_patches, resample
+    from surfidx.sphere import parameterize
+    from surfidx.topology import read_model
+
+    t0 = time.process_time()
+    rec = {"path": job["path"], "kind": job["kind"], "seed": job.get("seed"), "error": None,
+           "cached": False}
+    arrays = {}
+    if job["kind"] == "sh":
+        mesh = surfidx.read_mesh(job["path"])
+        arrays["sh"] = sb.sh_descriptor(mesh.vertices, mesh.faces)
+    else:
+        v, f = make_scan(job)
+        scan = Path(job["out_dir"]) / f"{Path(job['path']).stem}-{job['kind']}{job['seed']}" \
+            f"{'-noisy' if job['noise'] else ''}.off"
+        sb.write_off(scan, v, f)
+        rec["scan"] = str(scan)
+        mesh = surfidx.read_mesh(scan)
+        rec["vertices"] = int(len(mesh.vertices))
+        arrays["d2"] = sb.d2_histogram(mesh.vertices, mesh.faces)
+        arrays["sh"] = sb.sh_descriptor(mesh.vertices, mesh.faces)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                model = read_model(scan)
+            rec["virtual_area_share"] = float(model.summary()["virtual_area_share"])
+            rec["parts"], rec["levels"], rec["counts"] = len(model.parts), [], []
+            for k, part in enumerate(model.parts):
+                m = parameterize(part, stress=False)
+                level = m.grid_level
+                loc = m.location(level)
+                arrays[f"grid{k}"] = resample(part, m.points, level, location=loc)
+                arrays[f"mask{k}"] = grid_patches(part, m.points, level,
+                                                  face_patch=model.face_patch(k),
+                                                  location=loc) >= 0
+                rec["levels"].append(int(level))
+                rec["counts"].append(int(len(part)))
+        except surfidx.SurfidxError as exc:
+            rec["error"] = f"{type(exc).__name__}: {exc}"
+    rec["cpu_seconds"] = time.process_time() - t0
+    cache_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(cache_file) + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, meta=np.array(json.dumps(rec)), **arrays)
+    os.replace(tmp, cache_file)
+    rec["arrays"] = arrays
+    return rec
+
+
+def run_scan_jobs(jobs, workers):
+    """Run :func:`compute_scan` over ``jobs`` (cached ones in this process), in job order."""
+    out = [None] * len(jobs)
+    todo = []
+    for k, j in enumerate(jobs):
+        if Path(j["cache_file"]).exists():
+            out[k] = compute_scan(j)
+        else:
+            todo.append(k)
+    print(f"scans: {len(todo)} of {len(jobs)} to compute ({workers} workers)...",
+          file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    if workers <= 1:
+        for n, k in enumerate(todo):
+            out[k] = compute_scan(jobs[k])
+            print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
+                  f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
+                  flush=True)
+    else:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+            futs = {ex.submit(compute_scan, jobs[k]): k for k in todo}
+            for n, fut in enumerate(as_completed(futs)):
+                k = futs[fut]
+                out[k] = fut.result()
+                print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
+                      f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
+                      flush=True)
+    return out
+
+
+DESC_CACHE = Path("/tmp/partial-cache/descriptors")
+"""Cached descriptor vectors of grids, keyed by the grid's bytes and the descriptor sources."""
+
+
+def _describe_version() -> str:
+    h = hashlib.sha256()
+    for f in sorted((ROOT / "surfidx" / "describe").glob("*.py")):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def describe_cached(grid, level, lmax, *, mask=None, extra=""):
+    """``describe_grid`` vectors of a grid (with ``mask``: of its real surface,
+    :func:`surfidx.describe.describe_grid`'s ``virtual=``), cached on disk."""
+    from surfidx.describe.descriptors import describe_grid
+
+    h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
+    h.update(f"{level}-{lmax}-{_describe_version()}-{extra}".encode())
+    if mask is not None:
+        h.update(np.packbits(mask).tobytes())
+    f = DESC_CACHE / f"{h.hexdigest()[:24]}.npz"
+    if f.exists():
+        with np.load(f) as z:
+            return {k: z[k] for k in z.files}
+    kw = {} if mask is None else {"virtual": mask}
+    vec = describe_grid(grid, level, lmax=lmax, **kw).vectors
+    f.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(f) + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, **vec)
+    os.replace(tmp, f)
+    return vec
+
+
+def scan_descriptors(rec, lmax, *, real_only=False):
+    """The query's descriptors as :func:`surfidx.pipeline.describe_model` makes them (parts
+    combined by :func:`surfidx.pipeline.combine_descriptors`); None when the scan failed."""
+    from surfidx.describe.descriptors import DescriptorSet, descriptor_params
+    from surfidx.pipeline import combine_descriptors
+
+    if rec["error"] is not None:
+        return None
+    sets = []
+    for k, level in enumerate(rec["levels"]):
+        mask = rec["arrays"][f"mask{k}"] if real_only else None
+        vec = describe_cached(rec["arrays"][f"grid{k}"], level, lmax, mask=mask)
+        sets.append(DescriptorSet(vec, descriptor_params(lmax=lmax)))
+    return combine_descriptors(sets, rec["counts"]).vectors
+
+
+def stack_descriptors(descs):
+    """``stored``/``present`` arrays of :func:`surfidx.describe.distance.weighted_l2`."""
+    from surfidx.describe.distance import DEFAULT_KINDS
+
+    stored, present = {}, {}
+    for kind in DEFAULT_KINDS:
+        dims = {len(d[kind]) for d in descs if d is not None and kind in d}
+        if not dims:
+            continue
+        dim = dims.pop()
+        stored[kind] = np.stack([np.asarray(d[kind], np.float32) if d is not None and kind in d
+                                 else np.zeros(dim, np.float32) for d in descs])
+        present[kind] = np.array([d is not None and kind in d for d in descs])
+    return stored, present
+
+
+def query_matrix(queries, stored, present, distance):
+    """(q, n) distances of every query (inf rows for a failed one; failed models inf)."""
+    n = len(present["shape"])
+    out = np.full((len(queries), n), np.inf)
+    for k, q in enumerate(queries):
+        if q is not None:
+            d = distance(q, stored, present)
+            out[k] = np.where(present["shape"], d, np.inf)
+    return out
+
+
+def partial_table(args, paths, classes, base_jobs, lmax, cache_dir):
+    """``--partial``: simulated scans of every model queried against the complete collection;
+    the retrieval table of surfidx (default distance and the partial-aware one) beside SH and
+    D2 on the same files, the per-query spread and the detection by the virtual share."""
+    import tempfile
+
+    from surfidx.describe.distance import weighted_l2
+
+    kinds = [args.partial] + (["noisy"] if args.noise else [])
+    out_dir = Path(tempfile.mkdtemp(prefix="surfidx-partial-"))
+    pver = partial_version()
+    views = args.views if args.partial == "view" else 1
+    sha = [file_hash(args.data / p) for p in paths]
+    jobs = []
+    for noisy in ([False, True] if args.noise else [False]):
+        for i, p in enumerate(paths):
+            for k in range(views):
+                seed = int(args.seed * 100_000 + i * 100 + k)
+                jobs.append({"path": str(args.data / p), "kind": args.partial, "seed": seed,
+                             "noise": noisy, "model": i, "out_dir": str(out_dir),
+                             "cache_file": str(cache_dir / f"partial-{pver}" /
+                                               f"{sha[i]}-{args.partial}{seed}"
+                                               f"{'-noisy' if noisy else ''}.npz")})
+    if args.cached_only:          # the scans already computed only (a first look)
+        jobs = [j for j in jobs if Path(j["cache_file"]).exists()]
+    sh_jobs = [{"path": str(args.data / p), "kind": "sh",
+                "cache_file": str(cache_dir / f"partial-{pver}" / f"{sha[i]}-sh.npz")}
+               for i, p in enumerate(paths)]
+    recs = run_scan_jobs(sh_jobs + jobs, args.workers)
+    base = run_jobs(base_jobs, args.workers)
+    sh_base = np.stack([r["arrays"]["sh"] for r in recs[:len(paths)]])
+    scans = recs[len(paths):]
+    t0 = time.process_time()
+    descs = [None if r["grid"] is None else describe_cached(r["grid"], r["level"], lmax)
+             for r in base]
+    stored, present = stack_descriptors(descs)
+    d2_base = np.stack([r["d2"] for r in base])
+    print(f"collection described: {time.process_time() - t0:.0f} s CPU", file=sys.stderr,
+          flush=True)
+
+    results = {}
+    rows = []
+    for noisy in ([False, True] if args.noise else [False]):
+        sel = [k for k, j in enumerate(jobs) if j["noise"] == noisy]
+        own = np.array([jobs[k]["model"] for k in sel])
+        qcls = classes[own]
+        label = f"{args.partial}{' + jitter' if noisy else ''}"
+        q_default = [scan_descriptors(scans[k], lmax) for k in sel]
+        variants = {"surfidx": query_matrix(q_default, stored, present, weighted_l2)}
+        for name, fn in partial_variants(lmax).items():
+            variants[name] = fn([scans[k] for k in sel], q_default, stored, present)
+        variants["SH (Kazhdan)"] = sb.l2_distances(
+            np.stack([scans[k]["arrays"]["sh"] for k in sel]), sh_base)
+        variants["D2"] = np.abs(np.stack([scans[k]["arrays"]["d2"] for k in sel])[:, None, :]
+                                - d2_base[None, :, :]).sum(-1)
+        if args.partial_study and not noisy:
+            partial_study(scans, sel, own, qcls, classes, lmax, stored, present)
+        for name, dist in variants.items():
+            st = sb.query_statistics(dist, qcls, classes, own)
+            results[(label, name)] = st
+            pq = st["per_query"]["map"]
+            rows.append([label, name, st["n"], f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
+                         f"{100 * st['ft']:.1f}", f"{100 * st['map']:.1f}",
+                         f"{st['own_rank']:.0f}",
+                         f"{100 * np.percentile(pq, 25):.0f}/{100 * np.median(pq):.0f}/"
+                         f"{100 * np.percentile(pq, 75):.0f}"])
+    share = np.array([r.get("virtual_area_share", np.nan) for r in scans])
+    fails = [r for r in scans if r["error"] is not None]
+    REPORT.print(f"\nPartial scans ({args.partial}; {views} per model{', also jittered by ' + str(100 * sb.JITTER) + ' % of the diagonal' if args.noise else ''}; "
+                 f"{len(paths)} models) queried by file against the complete collection; "
+                 f"AP spread = per-query average precision, quartiles; failed scans: "
+                 f"{len(fails)}\n")
+    print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
+                 "own rank (median)", "AP q1/med/q3"], rows)
+    fin = share[np.isfinite(share)]
+    if fin.size:
+        REPORT.print(f"\nVirtual area share of the repaired scans: min {100 * fin.min():.1f} %, "
+                     f"quartiles {100 * np.percentile(fin, 25):.1f}/{100 * np.median(fin):.1f}/"
+                     f"{100 * np.percentile(fin, 75):.1f} %, max {100 * fin.max():.1f} %")
+    if args.confusion:
+        st = results[(f"{args.partial}", "surfidx")]
+        own = np.array([j["model"] for j in jobs if not j["noise"]])
+        crow = []
+        for c in dict.fromkeys(classes):
+            m = classes[own] == c
+            crow.append([c, int(m.sum()), f"{st['per_query']['nn'][m].mean():.2f}",
+                         f"{st['per_query']['map'][m].mean():.2f}"])
+        REPORT.print("\nPer class (default distance)\n")
+        print_table(["class", "queries", "NN", "mAP"], crow)
+    for r in fails:
+        REPORT.print(f"  failed: {r.get('scan')}: {r['error']}")
+    if args.json is not None:
+        out = {f"{a}/{b}": {k: v[k] for k in ("own", "nn", "ft", "map", "own_rank", "n")}
+               for (a, b), v in results.items()}
+        out["per_query"] = {f"{a}/{b}": {k: v["per_query"][k].tolist() for k in
+                                         ("own", "nn", "map")} for (a, b), v in results.items()}
+        out["virtual_area_share"] = share.tolist()
+        args.json.write_text(json.dumps(out, indent=1))
+    return results
+
+
+def part_slices():
+    """Name -> slice of each part of the ``shape`` vector (the library's)."""
+    from surfidx.describe.partial import part_slices as slices
+
+    return slices()
+
+
+def part_sq_distances(queries, stored, present):
+    """Per part (and ``spectrum``), the (q, n) squared distances of the query vectors to the
+    stored ones, as weighted in the default ``shape`` vector."""
+    from surfidx.describe.distance import squared_distances
+
+    out = {}
+    for name, sl in list(part_slices().items()) + [("spectrum", None)]:
+        kind = "shape" if sl is not None else "spectrum"
+        m = np.full((len(queries), len(present["shape"])), np.inf)
+        for k, q in enumerate(queries):
+            if q is None:
+                continue
+            a = stored[kind] if sl is None else stored[kind][:, sl]
+            b = q[kind] if sl is None else q[kind][sl]
+            m[k] = np.where(present["shape"], squared_distances(a, b), np.inf)
+        out[name] = m
+    return out
+
+
+PARTIAL_GRID = (0.0, 0.5, 1.0, 2.0)
+"""Relative weights tried for each shape part (times its default weight) by ``--partial``'s
+choice of the partial-aware weights."""
+
+
+def choose_part_weights(sq, qcls, classes, folds):
+    """The part weights (relative to the default, one of :data:`PARTIAL_GRID` each) of the best
+    mAP: on all queries, and per fold on the other folds' queries (the cross-validated figure
+    of the choice). Returns (weights, cross-validated per-query AP, per-query NN, own)."""
+    import itertools
+
+    names = list(sq)
+    best_all, cv_ap = None, np.zeros(len(qcls))
+    combos = [c for c in itertools.product(PARTIAL_GRID, repeat=len(names)) if any(c)]
+    scores = []
+    for c in combos:
+        d = sum(w * sq[n] for w, n in zip(c, names) if w)
+        st = sb.query_statistics(np.sqrt(d), qcls, classes)
+        scores.append(st["per_query"]["map"])
+    scores = np.stack(scores)
+    best_all = combos[int(np.argmax(scores.mean(axis=1)))]
+    for f in np.unique(folds):
+        train = folds != f
+        c = combos[int(np.argmax(scores[:, train].mean(axis=1)))]
+        cv_ap[~train] = scores[combos.index(c), ~train]
+    return dict(zip(names, best_all)), cv_ap
+
+
+def partial_variants(lmax):
+    """Partial-aware candidates measured beside the default distance (name -> function of the
+    scan records, their default descriptors, the stored arrays)."""
+    from surfidx.describe.distance import weighted_l2
+
+    def real_only(recs, default, stored, present):
+        return query_matrix([scan_descriptors(r, lmax, real_only=True) for r in recs], stored,
+                            present, weighted_l2)
+
+    out = {"real surface only": real_only}
+    try:
+        from surfidx.describe.partial import partial_l2
+    except ImportError:
+        return out
+
+    def weighted(recs, default, stored, present):
+        return query_matrix(default, stored, present, partial_l2)
+
+    def both(recs, default, stored, present):
+        return query_matrix([scan_descriptors(r, lmax, real_only=True) for r in recs], stored,
+                            present, partial_l2)
+
+    out["partial_l2"] = weighted
+    out["real only + partial_l2"] = both
+    return out
+
+
+def partial_study(scans, sel, own, qcls, classes, lmax, stored, present):
+    """Each shape part alone on the partial queries (default and real-surface descriptors), and
+    the part weights chosen on them, with a 2-fold cross-validated figure (folds by model)."""
+    rows, chosen = [], {}
+    for label, real in (("default", False), ("real only", True)):
+        q = [scan_descriptors(scans[k], lmax, real_only=real) for k in sel]
+        sq = part_sq_distances(q, stored, present)
+        for name, m in sq.items():
+            st = sb.query_statistics(np.sqrt(m), qcls, classes, own)
+            rows.append([label, name, f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
+                         f"{100 * st['map']:.1f}"])
+        folds = own % 2
+        w, cv = choose_part_weights(sq, qcls, classes, folds)
+        chosen[label] = w
+        rows.append([label, "chosen " + " ".join(f"{n}:{v:g}" for n, v in w.items()), "", "",
+                     f"{100 * cv.mean():.1f} (2-fold CV)"])
+    REPORT.print("\nShape parts alone on the partial queries, and the relative part weights of "
+                 "the best mAP (grid " + ",".join(f"{g:g}" for g in PARTIAL_GRID) + "; CV: "
+                 "chosen on the models of one parity, scored on the others)\n")
+    print_table(["query descriptors", "part", "own first %", "NN %", "mAP"], rows)
+    return chosen
+
+
 def fmt_row(cells, widths):
     return " | ".join(str(c).ljust(w) for c, w in zip(cells, widths))
 
@@ -741,6 +1173,18 @@ def main(argv=None) -> int:
                          "cached map took at most this many seconds")
     ap.add_argument("--study-only", action="store_true", help="with --study: skip the main "
                     "tables (the descriptors are computed once for the study)")
+    ap.add_argument("--partial", choices=PARTIAL_KINDS, default=None,
+                    help="query simulated partial scans (a single view or a base cut) of every "
+                         "model against the complete collection, instead of the leave-one-out "
+                         "tables")
+    ap.add_argument("--views", type=int, default=1,
+                    help="with --partial view: random cameras per model")
+    ap.add_argument("--partial-study", action="store_true",
+                    help="with --partial: each shape part alone and the part weights chosen "
+                         "on the partial queries")
+    ap.add_argument("--noise", action="store_true",
+                    help="with --partial: also the scans jittered by "
+                         f"{100 * sb.JITTER:g} %% of the diagonal")
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
     REPORT.output = args.markdown
@@ -769,6 +1213,8 @@ def main(argv=None) -> int:
             if rank < len(idx):
                 order.append(idx[rank])
     n_inv = len(order) if args.invariance == "all" else int(args.invariance)
+    if args.partial is not None:
+        n_inv = 0
     inv_models = [int(i) for i in order[:n_inv]]
 
     version = code_version(args.method) if args.cache_key is None else args.cache_key
@@ -821,6 +1267,10 @@ def main(argv=None) -> int:
         classes, genus, g0 = classes[keep], genus[keep], g0[keep]
         inv_models = [i for i, _ in copies_kept]
         print(f"cached only: {len(paths)} models, {len(inv_models)} copies", file=sys.stderr)
+    if args.partial is not None:
+        partial_table(args, paths, classes, jobs[:len(paths)], lmax,
+                      args.cache if cache_dir is None else cache_dir)
+        return 0
     t0 = time.perf_counter()
     recs = run_jobs(jobs, args.workers)
     t_compute = time.perf_counter() - t0

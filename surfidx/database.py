@@ -48,6 +48,9 @@ class QueryExample:
         Descriptor vectors by kind, as an ingest stores them.
     thumbnail : bytes or None
         PNG of the example (a stored model's thumbnail, or one drawn of a file's surfels).
+    virtual_share : float
+        Share of the closed surface's area the topology repair added (0 for a model it left
+        alone): what tells a partial scan (:func:`surfidx.describe.is_partial`).
     """
 
     id: int | None
@@ -55,6 +58,7 @@ class QueryExample:
     has_color: bool
     descriptors: dict
     thumbnail: bytes | None = None
+    virtual_share: float = 0.0
 
 
 class Database(Catalog):
@@ -215,9 +219,11 @@ class Database(Catalog):
                                      path=model) from None
         if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
             rec = self.get_model(int(ref))
+            topo = rec.get("topology") or {}
             return QueryExample(id=rec["id"], name=rec["name"], has_color=rec["has_color"],
                                 descriptors=self.get_descriptors(rec["id"]),
-                                thumbnail=self.get_thumbnail(rec["id"]))
+                                thumbnail=self.get_thumbnail(rec["id"]),
+                                virtual_share=float(topo.get("virtual_area_share") or 0.0))
         from .codec.options import DEFAULT_BITS_PER_SURFEL
         from .options import DEFAULT_THUMBNAIL_SIZE
 
@@ -247,14 +253,17 @@ class Database(Catalog):
                                 (str(processed.content_hash),)).fetchone()
         vectors = processed.descriptors
         vectors = getattr(vectors, "vectors", vectors)       # a DescriptorSet, or a dict
+        topo = getattr(processed, "topology", None) or {}
         return QueryExample(id=None if row is None else int(row[0]), name=processed.name,
                             has_color=processed.has_color, descriptors=dict(vectors),
-                            thumbnail=processed.thumbnail)
+                            thumbnail=processed.thumbnail,
+                            virtual_share=float(topo.get("virtual_area_share") or 0.0))
 
     def query(self, model, *, k: int = 10, shape_weight: float | None = None,
               include_self: bool = False, processor=None, describer=None, texture=None,
               allow_outside_textures: bool = False, exact: bool = False,
-              progress=None, options=None, tag=None, where: str | None = None) -> list:
+              progress=None, options=None, tag=None, where: str | None = None,
+              partial: bool | None = None) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
@@ -295,6 +304,11 @@ class Database(Catalog):
             (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
             A filtered query ranks the models that pass by the exact distance (the approximate
             index is not used), so it finds the true nearest ``k`` among them.
+        partial : bool, optional
+            Whether the example is a scan of part of an object, compared by
+            :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
+            from the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
+            :attr:`QueryExample.virtual_share`).
 
         Returns
         -------
@@ -321,14 +335,20 @@ class Database(Catalog):
         k = int(k)
         if k < 1:
             raise InputError(f"k must be at least 1, got {k}")
+        from .describe.partial import is_partial, partial_l2
+
+        if partial is None:
+            partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
         if tag is not None or where is not None:
             ids, dist = self._filtered_search(descriptors, self.select_ids(tag=tag, where=where),
-                                              k=k + (drop is not None), shape_weight=w)
+                                              k=k + (drop is not None), shape_weight=w,
+                                              distance=partial_l2 if partial else None)
         else:
             ids, dist = self._search_index(SearchIndex, exact=exact).query(
-                descriptors, k=k + (drop is not None), shape_weight=w)
+                descriptors, k=k + (drop is not None), shape_weight=w,
+                distance=partial_l2 if partial else None)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
@@ -351,8 +371,10 @@ class Database(Catalog):
             self.__dict__["_kept_search"] = index if index.approximate else None
         return index
 
-    def _filtered_search(self, descriptors, allowed, *, k, shape_weight):
-        """The ``k`` nearest of the models ``allowed`` (ids) by the exact distance, read by id."""
+    def _filtered_search(self, descriptors, allowed, *, k, shape_weight, distance=None):
+        """The ``k`` nearest of the models ``allowed`` (ids) by the exact distance (``distance``,
+        with :func:`surfidx.describe.distance.weighted_l2`'s signature; that one by default),
+        read by id."""
         from .describe.distance import DEFAULT_KINDS, check_shape_weight, weighted_l2
 
         w = check_shape_weight(shape_weight)
@@ -361,7 +383,7 @@ class Database(Catalog):
             return np.zeros(0, np.int64), np.zeros(0)
         ids, stored, present = self.descriptor_rows(allowed, kinds)
         held = [kd for kd in kinds if stored[kd].shape[1] > 0]     # a kind no model holds: out
-        dist = weighted_l2({kd: descriptors[kd] for kd in held},
+        dist = (distance or weighted_l2)({kd: descriptors[kd] for kd in held},
                            {kd: stored[kd] for kd in held}, {kd: present[kd] for kd in held},
                            shape_weight=w)
         order = np.lexsort((ids, dist))[:k]          # ties by id: the same order every run

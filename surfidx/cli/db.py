@@ -21,6 +21,7 @@ import click
 from ..errors import DatabaseError, InputError, SurfidxError
 from ..db.ann import DEFAULT_THRESHOLD
 from ..describe.distance import DEFAULT_SHAPE_WEIGHT
+from ..describe.partial import PARTIAL_SHARE, is_partial
 from ..codec.options import DEFAULT_BITS_PER_SURFEL
 from ..geometry.axes import UP_AXES
 from ..progress import report
@@ -195,19 +196,26 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
               help="Only models passing this filter on their stored figures, e.g. "
                    "'surfels > 10000 and colour = true' (fields: surfels, colour, psnr_d1, "
                    "psnr_d2, psnr_y, bytes, bits_per_surfel, ingested_at, name, id).")
+@click.option("--partial/--complete", "partial", default=None,
+              help="Compare EXAMPLE as a scan of part of an object (--partial) or as a complete "
+                   "model (--complete); default: partial when the repair added more than "
+                   f"{100 * PARTIAL_SHARE:g} % of its surface.")
 @outside_textures_option
 @options_file_option
 @common_options(db=True)
-def query(example, k, shape_weight, sheet, include_self, exact, tags, where, options, *,
-          db_path, console):
+def query(example, k, shape_weight, sheet, include_self, exact, tags, where, partial, options,
+          *, db_path, console):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
     or stored), a stored model's NAME, or id:N. The query model itself is left out of the
     results when it is stored (--include-self keeps it). Distance: w*|shape difference| +
     (1-w)*|texture difference| when both have colour, else the shape difference alone (shape:
-    the shape descriptor with the KLT spectrum appended). A model file's stages are shown on
-    stderr when it is a terminal (--quiet: never; --verbose: their times).
+    the shape descriptor with the KLT spectrum appended). A partial scan (one view, a scan
+    with holes: a large share of its closed surface added by the repair, or --partial) is
+    compared by the partial distance, which weighs the descriptor parts the added surface
+    changes least. A model file's stages are shown on stderr when it is a terminal (--quiet:
+    never; --verbose: their times).
     """
     with _open(db_path, console) as db, console.progress() as progress:
         # a model file is described by surfidx.pipeline.describe_model (imported then), or
@@ -219,7 +227,13 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, opt
         label, qthumb = ex.name, ex.thumbnail
         report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
-                        exact=exact, tag=list(tags) or None, where=where)
+                        exact=exact, tag=list(tags) or None, where=where,
+                        partial=partial)
+        if partial is None:
+            partial = is_partial(ex.virtual_share)
+        if partial:
+            console.note(f"{label}: compared as a partial scan ({100 * ex.virtual_share:.0f} % "
+                         "of its closed surface added by the repair)")
         if sheet:
             thumbs = [db.get_thumbnail(r["id"]) for r in rows]
             _contact_sheet(sheet, (label, qthumb), [(r, t) for r, t in zip(rows, thumbs)])

@@ -8,3 +8,6 @@ from .descriptors import (DescriptorSet as DescriptorSet, describe_grid as descr
 from .options import DescribeOptions as DescribeOptions
 from .distance import (weighted_l2 as weighted_l2, DEFAULT_SHAPE_WEIGHT as DEFAULT_SHAPE_WEIGHT,
                        DEFAULT_KINDS as DEFAULT_KINDS)
+from .partial import (partial_l2 as partial_l2, is_partial as is_partial,
+                      PARTIAL_SHARE as PARTIAL_SHARE,
+                      PARTIAL_PART_WEIGHTS as PARTIAL_PART_WEIGHTS, part_slices as part_slices)

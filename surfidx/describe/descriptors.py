@@ -229,7 +229,7 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(out) * damp
 
 
-def shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
+def shape_parts(x: np.ndarray, level: int, layers: np.ndarray, *, virtual=None) -> dict:
     """The unscaled parts of the ``shape`` descriptor, by name (:data:`SHAPE_PARTS`).
 
     Parameters
@@ -238,6 +238,10 @@ def shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
         Grid positions at level ``level``.
     layers : (n_grid, 3) float64
         The geometric KLT layers over the square root of the total geometric variance.
+    virtual : (n_grid,) bool, optional
+        Grid vertices that sample a virtual patch: the measure parts (shells, D2, radial) then
+        weigh them by zero, so they describe the scanned surface only (centroid and scale
+        included); the spectral and layers parts need the closed surface and keep it.
 
     The measure parts (shells, D2, radial) use the grid of level ``min(level, SHAPE_LEVEL)`` (a
     prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms.
@@ -247,6 +251,8 @@ def shape_parts(x: np.ndarray, level: int, layers: np.ndarray) -> dict:
     level = min(level, SHAPE_LEVEL)
     x = x[:vertex_count(level)]
     a = _grid_areas(x, level)
+    if virtual is not None:
+        a = np.where(virtual[:vertex_count(level)], 0.0, a)
     if not a.sum() > 0:
         raise InputError("the resampled surface has zero area; cannot normalise its scale")
     w = a / a.sum()
@@ -380,7 +386,8 @@ def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) 
     return np.log(lam / np.arange(1, k + 1))
 
 
-def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> DescriptorSet:
+def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX,
+                  virtual=None) -> DescriptorSet:
     """Descriptors of a model from its layers on the icosahedral grid.
 
     Parameters
@@ -391,6 +398,10 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         Grid level.
     lmax : int
         Largest spherical-harmonic degree (keyword-only; stored in ``params``).
+    virtual : (n_grid,) bool, optional
+        The grid vertices that sample a virtual patch (the codec's mask): the measure parts of
+        the ``shape`` vector then describe the real surface only (:func:`shape_parts`), which is
+        what a partial scan holds. Default: every vertex counts.
 
     Returns
     -------
@@ -399,7 +410,8 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
     Raises
     ------
     InputError
-        On a wrong shape for the level, NaNs, a degenerate (zero-variance) geometry or a bad lmax.
+        On a wrong shape for the level, NaNs, a degenerate (zero-variance) geometry, a bad lmax,
+        or a ``virtual`` mask of another length than the grid or that covers every vertex.
     """
     ico = icosphere(level)
     values = as_array(values, "values", shape=(ico.n_vertices, None))
@@ -410,6 +422,11 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
                          f"level {level}; resample on a finer grid")
     if not (isinstance(lmax, (int, np.integer)) and 2 <= lmax <= 128):
         raise InputError(f"lmax must be an integer in 2..128, got {lmax!r}")
+    if virtual is not None:
+        virtual = as_array(virtual, "virtual", dtype=bool, shape=(ico.n_vertices,))
+        if virtual.all():
+            raise InputError("the virtual mask covers every grid vertex; there is no real "
+                             "surface to describe (pass virtual=None)")
     area = ico.vertex_areas()
     geo = KLT.fit(values[:, :3], sample_weights=area)
     total = float(np.sum(geo.eigenvalues))
@@ -417,7 +434,7 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX) -> Descriptor
         raise InputError("the geometry has zero variance; cannot normalise its scale")
     g = geo.forward(values[:, :3]) / np.sqrt(total)
     vectors = {
-        "shape": _shape_vector(shape_parts(values[:, :3], level, g)),
+        "shape": _shape_vector(shape_parts(values[:, :3], level, g, virtual=virtual)),
         "layers": np.sqrt(np.maximum(degree_energies(g, level, lmax), 0)).ravel(),
         "spectrum": np.asarray(geo.eigenvalues) / total,
     }
