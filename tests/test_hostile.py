@@ -612,3 +612,51 @@ def test_intact_database_passes_and_missing_ids_stay_missing(tmp_path):
             db.get_model(7)
         with pytest.raises(DatabaseError, match=r"ok.db: no model named 'nope'"):
             db.resolve("nope")
+
+
+# -- data past the header's counts, intensity as grey ---------------------------------------------
+
+def _ply_tet(tmp_path, name, *, ascii, extra):
+    from plyfile import PlyData, PlyElement
+    v = np.array([tuple(p) for p in TET], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    f = np.array([(list(t),) for t in TET_FACES], dtype=[("vertex_indices", "i4", (3,))])
+    path = tmp_path / name
+    PlyData([PlyElement.describe(v, "vertex"), PlyElement.describe(f, "face")],
+            text=ascii).write(str(path))
+    with open(path, "ab") as fh:
+        fh.write(extra)
+    return path
+
+
+@pytest.mark.parametrize("ascii, extra, message", [
+    (False, b"\x03" + np.array([0, 1, 2], "<i4").tobytes(),
+     r"t.ply: 13 bytes after the elements the PLY header counts are ignored"),
+    (True, b"3 0 1 2\n3 1 2 3\n", r"t.ply: 2 lines after the 8 rows the PLY header counts are "
+                                   r"ignored"),
+])
+def test_ply_data_past_the_header_counts_is_named(tmp_path, ascii, extra, message):
+    path = _ply_tet(tmp_path, "t.ply", ascii=ascii, extra=extra)
+    with pytest.warns(UserWarning, match=message):
+        m = sio.read_mesh(path)
+    assert len(m.faces) == len(TET_FACES)
+
+
+@pytest.mark.parametrize("ascii", [False, True])
+def test_ply_as_counted_reads_without_a_warning(tmp_path, ascii):
+    path = _ply_tet(tmp_path, "t.ply", ascii=ascii, extra=b"")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(sio.read_mesh(path).faces) == len(TET_FACES)
+
+
+def test_pts_intensity_becomes_grey(tmp_path):
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(60, 3))
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    intensity = np.linspace(-2048, 2047, 60)
+    (tmp_path / "i.pts").write_text(f"60\n" + "\n".join(
+        f"{a:.6f} {b:.6f} {c:.6f} {i:.0f}" for (a, b, c), i in zip(pts, intensity)) + "\n")
+    s = read_surfels(tmp_path / "i.pts")
+    grey = s.colors[np.argsort(intensity)]
+    assert np.all(grey[:, 0] == grey[:, 1]) and np.all(grey[:, 1] == grey[:, 2])
+    assert grey[0, 0] == 0 and grey[-1, 0] == 255 and np.all(np.diff(grey[:, 0].astype(int)) >= 0)

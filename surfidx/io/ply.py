@@ -5,6 +5,7 @@ counts checked against the file's size first; surfel PLY written (:func:`write_p
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,53 @@ def _ply_data(path: Path):
     return PlyData.read(str(path))
 
 
+def _data_start(path: Path) -> int:
+    """Offset of the first byte after the header's ``end_header`` line."""
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    end = head.find(b"end_header")
+    nl = head.find(b"\n", end)
+    return len(head) if nl < 0 else nl + 1
+
+
+def _element_bytes(element) -> int:
+    """Bytes a binary PLY element's rows take, list lengths as read."""
+    total = 0
+    for prop in element.properties:
+        val = np.dtype(prop.val_dtype).itemsize
+        if hasattr(prop, "len_dtype"):
+            column = element.data[prop.name]
+            lengths = (np.full(len(column), column.shape[1]) if column.dtype != object
+                       else np.fromiter((len(r) for r in column), np.int64, len(column)))
+            total += len(column) * np.dtype(prop.len_dtype).itemsize + int(lengths.sum()) * val
+        else:
+            total += element.count * val
+    return total
+
+
+def _warn_trailing(ply, path: Path) -> None:
+    """Warn when the file holds data past the elements its header counts (plyfile reads the
+    counted rows and ignores the rest, so a header count that is too small would drop part of
+    the model without a word)."""
+    start = _data_start(path)
+    size = os.path.getsize(path)
+    if ply.text:
+        rows = sum(e.count for e in ply.elements)
+        with open(path, "rb") as fh:
+            fh.seek(start)
+            lines = sum(1 for line in fh if line.strip())
+        if lines > rows:
+            warnings.warn(f"{path}: {lines - rows:,} lines after the {rows:,} rows the PLY header "
+                          "counts are ignored; if they belong to the model, correct the "
+                          "header's element counts", UserWarning, stacklevel=3)
+        return
+    extra = size - start - sum(_element_bytes(e) for e in ply.elements)
+    if extra > 0:
+        warnings.warn(f"{path}: {extra:,} bytes after the elements the PLY header counts are "
+                      "ignored; if they belong to the model, correct the header's element "
+                      "counts", UserWarning, stacklevel=3)
+
+
 def read_ply(path: Path):
     """Read a PLY file: a mesh (``face`` or ``tristrips``), surfels or a point cloud.
 
@@ -106,6 +154,11 @@ def read_ply(path: Path):
     FileFormatError
         An unreadable, truncated or corrupt file, a header announcing more than the file holds,
         no vertices or no ``x y z``.
+
+    Warns
+    -----
+    UserWarning
+        Data past the rows the header counts (ignored).
     """
     try:
         with open(path, "rb") as fh:
@@ -119,6 +172,7 @@ def read_ply(path: Path):
         msg = str(exc).strip() or type(exc).__name__
         raise FileFormatError(f"not a readable PLY file ({msg}); the file may be truncated or "
                               "corrupt", path=path) from exc
+    _warn_trailing(ply, path)
     names = [e.name for e in ply.elements]
     if "vertex" not in names:
         raise FileFormatError("PLY has no 'vertex' element", path=path)

@@ -16,6 +16,8 @@ def read_xyz(path: Path) -> Points:
     """XYZ (``x y z``, ``x y z r g b``, ``x y z nx ny nz``, ``x y z nx ny nz r g b``) or PTS
     (an optional first line with the point count, then ``x y z [intensity] [r g b]``), told
     apart by the suffix; XYZ's 6 columns are normals when they are unit vectors, else colours.
+    A PTS intensity without colour becomes grey, stretched from its own range to 0..255 (PTS
+    writers disagree on its scale); beside colour it is not kept (a surfel has one colour).
 
     Parameters
     ----------
@@ -56,6 +58,8 @@ def read_xyz(path: Path) -> Points:
                                   "intensity, x y z r g b or x y z intensity r g b", path=path)
         if k >= 6:
             colors = colors_of(arr[:, k - 3:], what, path, where)
+        elif k == 4:
+            colors = _intensity_grey(arr[:, 3])
     else:
         if k not in (3, 6, 9):
             raise FileFormatError(f"XYZ lines hold {k} numbers; expected x y z, x y z r g b, "
@@ -73,3 +77,13 @@ def read_xyz(path: Path) -> Points:
                 raise FileFormatError("XYZ columns 4-6 are neither unit normals nor colours "
                                       "(0..1 or 0..255)", path=path)
     return Points(check_coordinates(pos, path), normals, colors)
+
+
+def _intensity_grey(intensity: np.ndarray) -> np.ndarray | None:
+    """``(n, 3) uint8`` grey from an intensity column stretched from its own range, or None
+    when the column is constant (it carries nothing)."""
+    lo, hi = float(intensity.min()), float(intensity.max())
+    if not hi > lo:
+        return None
+    grey = np.rint((intensity - lo) * (255.0 / (hi - lo))).astype(np.uint8)
+    return np.repeat(grey[:, None], 3, axis=1)
