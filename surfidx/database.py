@@ -190,7 +190,9 @@ class Database(Catalog):
     def load(self, id_or_name):
         """Read a stored model back as a :class:`surfidx.pipeline.ProcessedModel`.
 
-        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
+        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys;
+        ``source`` is the absolute path (``source_abs``) where one is stored, ``source_rel``
+        the stored relative one.
         """
         from .pipeline import ProcessedModel
         from .db.catalog import QUALITY_KEYS
@@ -198,12 +200,14 @@ class Database(Catalog):
         rec = self.get_model(id_or_name)
         a = rec["asset"]
         return ProcessedModel(
-            name=rec["name"], source=rec["source"], content_hash=rec["content_hash"],
+            name=rec["name"], source=rec["source_abs"] or rec["source"],
+            content_hash=rec["content_hash"],
             n_surfels=rec["n_surfels"], has_color=rec["has_color"], bbox=rec["bbox"],
             stream=self.get_stream(rec["id"]), format_version=a["format_version"],
             rate=a["bits_per_surfel"], quality={k: a[k] for k in QUALITY_KEYS},
             descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
-            params=rec["params"], timings={})
+            params=rec["params"], timings={}, source_rel=rec["source"],
+            source_bytes=rec["source_bytes"], source_mtime=_posix(rec["source_mtime"]))
 
     def example(self, model, *, processor=None, describer=None, texture=None,
                 allow_outside_textures: bool = False, thumbnail: bool = True,
@@ -711,6 +715,16 @@ class Database(Catalog):
             written.append({"path": f["path"], "bytes": f["bytes"], "role": f["role"]})
         return {"id": mid, "name": rec[0], "version": int(rec[1]), "output": str(out_dir),
                 "files": written}
+
+
+def _posix(text):
+    """POSIX seconds of the database's ISO 8601 UTC text (None stays None)."""
+    if text is None:
+        return None
+    import datetime as dt
+
+    t = dt.datetime.fromisoformat(str(text).removesuffix("Z"))
+    return t.replace(tzinfo=dt.timezone.utc).timestamp()
 
 
 def _file_stem(name: str, mid: int) -> str:

@@ -451,19 +451,19 @@ def show(model, *, db_path, console):
         val = rec[key]
         if isinstance(val, list):
             val = " ".join(f"{x:.6g}" for x in val)
-        click.echo(f"{key:18s} {plain(_fmt(val))}")
-    click.echo(f"{'params':18s} {plain(echo_params(rec['params']))}")
+        click.echo(f"{key:16s} {plain(_fmt(val))}")
+    click.echo(f"{'params':16s} {plain(echo_params(rec['params']))}")
     asset = rec["asset"] or {}
     for key in ("format_version", "bits_per_surfel", "bytes", "psnr_d1", "psnr_d2", "psnr_y"):
-        click.echo(f"{key:18s} {_fmt(asset.get(key), '.4g')}")
+        click.echo(f"{key:16s} {_fmt(asset.get(key), '.4g')}")
     kinds = ", ".join(f"{k} ({d})" for k, d in rec["descriptors"].items()) or "-"
-    click.echo(f"{'descriptors':18s} {plain(kinds)}")
-    click.echo(f"{'topology':18s} {plain(topology_line(rec.get('topology')))}")
+    click.echo(f"{'descriptors':16s} {plain(kinds)}")
+    click.echo(f"{'topology':16s} {plain(topology_line(rec.get('topology')))}")
     files = rec["original"]
-    click.echo(f"{'original':18s} " + (plain(", ".join(f"{f['path']} ({f['bytes']:,} bytes)"
+    click.echo(f"{'original':16s} " + (plain(", ".join(f"{f['path']} ({f['bytes']:,} bytes)"
                                                        for f in files)) if files else
                                        "not kept (ingest --keep-original keeps it)"))
-    click.echo(f"{'versions':18s} {len(rec['versions'])}")
+    click.echo(f"{'versions':16s} {len(rec['versions'])}")
     for v in rec["versions"]:
         mark = "*" if v["id"] == rec["id"] else " "
         click.echo(plain(f" {mark}{v['version']:>4}  id {v['id']}  {v['ingested_at']}  "
@@ -471,7 +471,7 @@ def show(model, *, db_path, console):
                          f"{_fmt(v['bytes'])} bytes  original "
                          f"{'kept' if v['has_original'] else '-'}  {v['source']}"))
     if run is not None:
-        click.echo(f"{'last run':18s} {run['id']} {run['status']}: stored {run['stored']}, "
+        click.echo(f"{'last run':16s} {run['id']} {run['status']}: stored {run['stored']}, "
                    f"skipped {run['skipped']}, failed {run['failed']}")
         for e in run_errors:
             click.echo(plain(f"  failed {e['path']}: {e['error']}"))
