@@ -1082,7 +1082,7 @@ class Catalog:
 
     # ------------------------------------------------------------------ original files
     def keep_original(self, model_id: int, files, *, content_hash: str | None = None,
-                      hashed=()) -> dict:
+                      hashed=(), max_bytes: int = MAX_ORIGINAL_BYTES) -> dict:
         """Store a model version's original files as blobs (deduplicated by SHA-256), in one
         transaction (joins an open one).
 
@@ -1100,6 +1100,8 @@ class Catalog:
             must equal it (the files are those the model was made of, unchanged since).
         hashed : sequence of os.PathLike
             The files of ``content_hash`` (the model file, then its texture).
+        max_bytes : int
+            Largest file stored (at most :data:`MAX_ORIGINAL_BYTES`).
 
         Returns
         -------
@@ -1110,7 +1112,7 @@ class Catalog:
         Raises
         ------
         InputError
-            A file larger than :data:`MAX_ORIGINAL_BYTES`, one that changed while it was read,
+            A file larger than ``max_bytes``, one that changed while it was read,
             or files that do not give ``content_hash``.
         DatabaseError
             No model has this id.
@@ -1126,10 +1128,10 @@ class Catalog:
         digests = []
         for rel, path, _ in files:
             size = os.stat(path).st_size
-            if size > MAX_ORIGINAL_BYTES:
+            limit = min(int(max_bytes), MAX_ORIGINAL_BYTES)
+            if size > limit:
                 raise InputError(f"{size:,} bytes, more than an original file may have "
-                                 f"({MAX_ORIGINAL_BYTES:,}); ingest it without --keep-original",
-                                 path=path)
+                                 f"({limit:,}); ingest it without --keep-original", path=path)
             h = hashlib.sha256()
             n = 0
             for chunk in file_pieces(path, lambda fh, k: fh.read(min(k, 1 << 20))):
