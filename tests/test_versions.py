@@ -46,6 +46,7 @@ def _schema_of(conn) -> dict:
 
 
 def _old_copy(tmp_path) -> Path:
+    tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "old.db"
     shutil.copy(SCHEMA3, path)
     return path
@@ -122,8 +123,10 @@ def test_failed_migration_leaves_the_file_as_it_was(tmp_path, monkeypatch):
     path = _old_copy(tmp_path)
     digest = hashlib.sha256(path.read_bytes()).hexdigest()
 
+    real = dbmod.MIGRATIONS[2]
+
     def broken(conn):
-        dbmod._v3_to_v4(conn)
+        real(conn)
         conn.execute("SELECT * FROM no_such_table")
 
     monkeypatch.setattr(dbmod, "MIGRATIONS", [*dbmod.MIGRATIONS[:2], broken])
@@ -137,6 +140,31 @@ def test_failed_migration_leaves_the_file_as_it_was(tmp_path, monkeypatch):
     conn.close()
     assert _raw_rows(path) == _raw_rows(SCHEMA3)
     assert hashlib.sha256(path.read_bytes()).hexdigest() == digest
+
+
+def test_migration_removes_orphans_and_checks_foreign_keys(tmp_path, monkeypatch):
+    path = _old_copy(tmp_path)
+    conn = sqlite3.connect(path)                    # a client without foreign keys or triggers
+    conn.execute("DROP TRIGGER models_delete_rows")
+    conn.execute("DELETE FROM models WHERE name = 'armadillo'")
+    conn.commit()
+    conn.close()
+    with pytest.warns(UserWarning, match="upgraded"), Database(path) as db:
+        assert db.count() == 1
+        for table in ("assets", "descriptors", "thumbnails", "tags"):
+            ids = {r[0] for r in db.conn.execute(f"SELECT model_id FROM {table}")}
+            assert ids == {1}, table
+    path = _old_copy(tmp_path / "again")
+    real = dbmod.MIGRATIONS[2]
+
+    def orphan(conn):
+        real(conn)
+        conn.execute("INSERT INTO tags (model_id, tag) VALUES (99, 'lost')")
+
+    monkeypatch.setattr(dbmod, "MIGRATIONS", [*dbmod.MIGRATIONS[:2], orphan])
+    with pytest.raises(DatabaseError, match=r"failed \(.*row \d+ of table tags refers to a "
+                                            r"missing row of models\)\); the file is unchanged"):
+        Database(path)
 
 
 def test_migration_refused_when_the_copy_cannot_be_kept(tmp_path, monkeypatch):
@@ -485,6 +513,51 @@ def test_keep_original_refuses_large_changed_and_damaged(tmp_path):
                                                 r"match its SHA-256; the database is damaged"):
             d.export_original("m0", tmp_path / "out")
         assert not (tmp_path / "out" / "m0.ply").exists()           # nothing half-written
+
+
+def test_original_damage_and_bad_paths_are_named(tmp_path, monkeypatch):
+    import surfidx.io.files as files_mod
+
+    root = make_tree(tmp_path / "data", 1)
+    f = root / "m0.ply"
+    with Database(tmp_path / "d.db") as d:
+        d.ingest([root], processor=fake_processor, workers=1)
+        with pytest.raises(DatabaseError, match=r"no original file with SHA-256 0000"):
+            list(d.original_pieces("0" * 64))
+        calls = []
+        real = files_mod.file_pieces
+
+        def changing(path, read):                  # the second read sees other bytes
+            calls.append(path)
+            for piece in real(path, read):
+                yield piece if len(calls) == 1 else piece[::-1]
+
+        monkeypatch.setattr(files_mod, "file_pieces", changing)
+        with pytest.raises(InputError, match=r"m0\.ply: changed while it was kept as an "
+                                             r"original"):
+            d.keep_original(1, original_files(f))
+        monkeypatch.setattr(files_mod, "file_pieces", real)
+        assert d.conn.execute("SELECT count(*) FROM blobs").fetchone()[0] == 0
+        d.keep_original(1, original_files(f))
+        d.conn.execute("UPDATE blobs SET data = zeroblob(4)")
+        with pytest.raises(DatabaseError, match=r"damaged .*holds 4 bytes, its row says 8"):
+            d.export_original("m0", tmp_path / "out")
+        d.conn.execute("UPDATE original_files SET path = '../escape.ply'")
+        with pytest.raises(DatabaseError, match=r"path '\.\./escape\.ply' of model 1 leaves "
+                                                r"the output folder"):
+            d.export_original("m0", tmp_path / "out")
+    assert not (tmp_path / "escape.ply").exists()
+    r = invoke(["get", "m0", "--original", "-o", f, "--db", tmp_path / "d.db"])
+    assert r.exit_code == 1 and "is a file; --original writes into a folder" in r.stderr
+    r = invoke(["get", "--tag", "none", "--original", "-o", tmp_path / "o",
+                "--db", tmp_path / "d.db"])
+    assert r.exit_code == 1 and "the selection names no stored model" in r.stderr
+    bad = tmp_path / "bad.gltf"
+    bad.write_text("{not json")
+    from surfidx import FileFormatError
+
+    with pytest.raises(FileFormatError, match=r"bad\.gltf: not a readable glTF file"):
+        original_files(bad)
 
 
 def test_an_oversized_original_fails_only_its_model(tmp_path, monkeypatch):

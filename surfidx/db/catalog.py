@@ -361,7 +361,8 @@ def _v3_to_v4(conn) -> None:
     the numerics profile taken from the record's ``params`` and asset, NULL where they say
     nothing; file size and time unknown, NULL); the ``blobs`` and ``original_files`` tables.
     Runs with foreign keys off (:meth:`Catalog._migrate`), so rebuilding ``models`` touches no
-    row that refers to it; the ids stay."""
+    row that refers to it; the ids stay. Rows left behind by a client that deleted a model with
+    foreign keys off and no trigger are removed (as in :func:`_v1_to_v2`)."""
     for (view,) in conn.execute("SELECT name FROM sqlite_master WHERE type = 'view'").fetchall():
         conn.execute(f'DROP VIEW "{view}"')
     conn.execute("DROP TRIGGER IF EXISTS models_delete_rows")
@@ -385,6 +386,11 @@ def _v3_to_v4(conn) -> None:
     conn.executemany("UPDATE models SET source = ? WHERE id = ?",
                      [(src, mid) for mid, src in relative.items()])
     conn.execute("DROP TABLE models_schema3")
+    have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    for table in ("assets", "descriptors", "thumbnails", "tags", "model_topology"):
+        if table in have:
+            conn.execute(f"DELETE FROM {table} WHERE model_id NOT IN (SELECT id FROM models)")
+    conn.execute("DELETE FROM ingest_errors WHERE run_id NOT IN (SELECT id FROM ingest_runs)")
 
 
 MIGRATIONS.append(_v3_to_v4)
@@ -490,6 +496,10 @@ class Catalog:
     ----------
     path : pathlib.Path
     readonly : bool
+    upgraded_from : int or None
+        The schema version this open upgraded the file from (None: nothing was upgraded).
+    backup_path : pathlib.Path or None
+        The copy of the file kept before that upgrade (:meth:`backup_name`).
     db : sqlite_utils.Database
         The underlying connection wrapper, for ad-hoc queries (``db.db["models"].rows``).
 
