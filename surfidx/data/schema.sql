@@ -15,8 +15,9 @@
 -- digits, lossless). Statements must not contain semicolons inside comments or strings (the file
 -- is split on statement boundaries).
 --
--- Deleting a model row removes its asset, descriptors, thumbnail and tags, and deleting a run
--- its error records, whatever the client: the foreign keys cascade where PRAGMA foreign_keys is
+-- Deleting a model row removes its asset, descriptors, thumbnail, tags, topology record and
+-- original files (and a blob when no row refers to it any more), and deleting a run its error
+-- records, whatever the client: the foreign keys cascade where PRAGMA foreign_keys is
 -- on, and the AFTER DELETE triggers below do it where it is off (the sqlite3 shell's and
 -- sqlite-utils' default). Views join the model's name to its asset and thumbnail for browsing
 -- (datasette surfidx.db --metadata datasette.json shows the thumbnails as images with the
