@@ -367,7 +367,9 @@ class Database(Catalog):
             partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
-        older = 0 if all_versions else self.superseded()
+        # rows past version 1: at least every superseded one, counted on a partial index
+        older = 0 if all_versions else int(self.conn.execute(
+            "SELECT count(*) FROM models WHERE version > 1").fetchone()[0])
         if tag is not None or where is not None or older > _WIDEN_MAX:
             ids, dist = self._filtered_search(
                 descriptors, self.select_ids(tag=tag, where=where, all_versions=all_versions),

@@ -271,6 +271,9 @@ def test_query_uses_latest_versions_unless_told(tree):
         assert [r["name"] for r in d.list_models(where="version = 2")] == ["m0"]
     r = invoke(["query", "m2", "--db", db, "--all-versions", "--json"])
     assert r.exit_code == 0 and len(json.loads(r.stdout)["results"]) == 4
+    with Database(db) as d:                 # version 2 left alone: no row is superseded
+        d.remove("m0@1")
+        assert d.superseded() == 0 and len(d.query("m2", k=10)) == 3
 
 
 def test_replace_adds_a_version_from_another_path(tree, tmp_path):
@@ -362,6 +365,12 @@ def test_show_and_ls_list_versions(tree):
     root, db = tree
     (root / "m0.ply").write_text("model 0, edited\n")
     ingest.run([root], db=db, processor=fake_processor, progress=False, workers=1)
+    r = invoke(["tag", "m0", "both", "--db", db])          # a name: every version
+    assert r.exit_code == 0 and "added 2" in r.stdout
+    r = invoke(["untag", "m0@1", "both", "--db", db, "--json"])   # one version
+    assert json.loads(r.stdout) == {"id": 1, "removed": 1, "tags": []}
+    with Database(db) as d:
+        assert d.tags("m0") == ["both"] and d.tags("m0@1") == []
     r = invoke(["show", "m0@1", "--db", db])
     assert r.exit_code == 0, r.output
     assert "version          1\n" in r.stdout and "versions         2\n" in r.stdout

@@ -575,15 +575,17 @@ def rename(model, new_name, *, db_path, console):
 
 
 def _tag_command(name, method, verb):
-    @cli.command(name, help=f"{method.capitalize()} a stored model (ID, id:ID or NAME): "
+    @cli.command(name, help=f"{method.capitalize()} a stored model (NAME: every version of "
+                            f"it; NAME@N, ID or id:ID: one version): "
                             f"{'add' if method == 'tag' else 'remove'} the TAGS given.")
     @click.argument("model")
     @click.argument("tags", nargs=-1, required=True)
     @common_options(db=True)
     def command(model, tags, *, db_path, console):
         with _open(db_path, console, readonly=False) as db:
-            mid = db.resolve(parse_model_ref(model))
-            changed = getattr(db, method)(mid, list(tags))
+            ref = parse_model_ref(model)
+            mid = db.resolve(ref)
+            changed = getattr(db, method)(ref, list(tags))       # a name: every version
             now = db.tags(mid)
         if console.json:
             echo_json({"id": mid, verb: changed, "tags": now})

@@ -62,6 +62,8 @@ CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
 -- parent folder, and when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Catalog.add).
 CREATE UNIQUE INDEX models_name_version ON models (name, version);
 CREATE INDEX models_source_abs ON models (source_abs);
+-- The rows that may be superseded (a query widens its search by their count).
+CREATE INDEX models_later_versions ON models (version) WHERE version > 1;
 
 -- The compressed asset of a model: one container file holding the embedded bitstream, and its
 -- size and quality at its full rate.
