@@ -62,7 +62,7 @@ from ..validate import as_array
 
 __all__ = ["Catalog", "QUALITY_KEYS", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
            "escape_name", "unescape_name", "storable_text", "is_storage_failure",
-           "datasette_metadata"]
+           "datasette_metadata", "MAX_ORIGINAL_BYTES", "PROVENANCE_COLUMNS", "LATEST_SQL"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
 #: delete triggers that do not depend on the client's foreign-key setting, browsing views;
