@@ -17,7 +17,9 @@ The bundled examples (``examples/models``: the armadillo OBJ, spot's OBJ with it
 ingested with the real pipeline at the default rate, without and with ``--keep-original``; the
 table gives each database's size (pages in use, after a checkpoint), the original files'
 bytes and the blobs' bytes. Then spot's OBJ is edited (a comment line appended) and ingested
-again as its next version: only the OBJ's bytes are added, the texture's blob is shared.
+again as its next version: only the OBJ's bytes are added, the texture's blob is shared. The
+ingests' wall time is mostly the pipeline's and follows the machine's load; the originals'
+own cost is reading and writing their bytes once more.
 
 Run: ``python benchmarks/versions.py [--sizes 1000 10000] [--markdown]``.
 """
@@ -25,7 +27,7 @@ Run: ``python benchmarks/versions.py [--sizes 1000 10000] [--markdown]``.
 from __future__ import annotations
 
 import argparse
-import hashlib
+import os
 import shutil
 import sqlite3
 import sys
@@ -165,7 +167,9 @@ def main(argv=None) -> None:
                     args.markdown,
                     note="The upgrade of a schema-3 database (surfidx 0.1.0 before model "
                          "versions) on its first open, and the size `ingest --keep-original` "
-                         "adds to the bundled examples; see the script's notes.")
+                         "adds to the bundled examples; see the script's notes. The ingests' "
+                         "wall time is mostly the pipeline's and follows the machine's load "
+                         f"(load average {os.getloadavg()[0]:.1f} at the start).")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         report.table(["models", "file MB", "open + upgrade s", "CPU s", "backup alone s",
