@@ -643,7 +643,8 @@ class Catalog:
             return False
         except sqlite3.Error as exc:
             raise self._error(exc) from exc
-        return set(_LEGACY_MODEL_COLUMNS) <= columns and row is not None and str(row[0]) == str(version)
+        return (set(_LEGACY_MODEL_COLUMNS) <= columns and row is not None
+                and str(row[0]) == str(version))
 
     def _check_and_prepare(self) -> None:
         conn = self._conn
@@ -679,8 +680,8 @@ class Catalog:
         with foreign keys off (a table rebuilt must not cascade into the rows that refer to
         it) and end with ``PRAGMA foreign_key_check``; any failure rolls everything back."""
         conn = self._conn
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
-        backup = self._backup(version) if version > 0 else None
+        before = conn.execute("PRAGMA user_version").fetchone()[0]
+        backup = self._backup(before) if before > 0 else None
         try:
             conn.execute("PRAGMA foreign_keys = OFF")
             conn.execute("PRAGMA legacy_alter_table = ON")
@@ -725,8 +726,12 @@ class Catalog:
                 conn.execute("PRAGMA foreign_keys = ON")
             except sqlite3.Error:  # pragma: no cover - the connection is unusable anyway
                 pass
-        self.upgraded_from = version if version > 0 else None
-        self.backup_path = backup
+        if not 0 < version < SCHEMA_VERSION:        # new, or upgraded meanwhile by another
+            if backup is not None:
+                with contextlib.suppress(OSError):
+                    backup.unlink()
+            return
+        self.upgraded_from, self.backup_path = version, backup
         if backup is not None:
             import warnings
 
@@ -749,9 +754,15 @@ class Catalog:
         DatabaseError
             The copy cannot be written (full disk, read-only folder): nothing is upgraded.
         """
+        import tempfile
+
         target = self.backup_name(version)
-        tmp = target.with_name(target.name + ".tmp")
+        tmp = None
         try:
+            fd, name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
+                                        suffix=".part")
+            os.close(fd)
+            tmp = Path(name)                # a fresh file of its own: no link is followed
             dest = sqlite3.connect(tmp)
             try:
                 self._conn.backup(dest)
@@ -759,8 +770,9 @@ class Catalog:
                 dest.close()
             os.replace(tmp, target)
         except (sqlite3.Error, OSError) as exc:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
             raise DatabaseError(f"schema version {version} must be upgraded to "
                                 f"{SCHEMA_VERSION}, and the copy kept before that cannot be "
                                 f"written to {target} ({exc}); free some space or make the "
