@@ -421,14 +421,15 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
     ------
     InputError
         A path does not exist, bad ``workers``/``bits_per_surfel``/``batch``/``retries``, a
-        processor that cannot be sent to worker processes, or both ``executor`` and
-        ``scheduler``.
+        processor that cannot be sent to worker processes, both ``executor`` and
+        ``scheduler``, ``replace`` with several files or with ``name``.
     SurfidxError
         ``scheduler`` without dask.distributed installed, or a scheduler that cannot be reached
         (before anything is written).
     DatabaseError
         The database cannot be opened or written (not a surfidx database, read-only, full disk,
-        damaged, locked past the timeout): the run stops; every model committed is whole. A
+        damaged, locked past the timeout), or ``replace`` names no stored model: the run
+        stops; every model committed is whole. A
         file that fails SQLite's ``PRAGMA quick_check`` is refused before anything is written
         (:meth:`surfidx.db.catalog.Catalog.check_intact`).
 
