@@ -103,7 +103,7 @@ def figure(db_path: Path, work: Path) -> Image.Image:
             top.append(tile(Image.open(io.BytesIO(png)),
                             [f"#{rank} {hit['name'][:18]}", f"distance {hit['distance']:.3g}"]))
         spot = db.list_models(name_like="spot%")[0]
-        reference = surfidx.read_surfels(spot["source"],
+        reference = surfidx.read_surfels(spot["source_abs"],
                                          texture=MODELS / "spot" / "spot_texture.png")
         bottom = []
         for rate in RATES:

@@ -17,7 +17,7 @@ __all__ = ["discover", "hash_files"]
 
 
 # ---------------------------------------------------------------------- discovery
-def discover(paths) -> list:
+def discover(paths, *, roots: bool = False):
     """The model files named by ``paths``, absolute (symbolic links kept), deduplicated, sorted.
 
     Parameters
@@ -28,9 +28,14 @@ def discover(paths) -> list:
         skipped). Entries that are not regular files are listed too: :func:`make_tasks` skips
         them with the reason.
 
+    roots : bool
+        Also return each file's root: the deepest folder of ``paths`` holding it (its own
+        folder for a file named itself), which the stored source path is relative to.
+
     Returns
     -------
     list of pathlib.Path
+        And with ``roots`` a dict file -> root folder (absolute).
 
     Raises
     ------
@@ -46,6 +51,7 @@ def discover(paths) -> list:
     if not paths:
         raise InputError("give at least one model file or folder to ingest")
     found = set()
+    root_of = {}
     empty_folders = []
     for p in paths:
         p = Path(p)
@@ -55,11 +61,17 @@ def discover(paths) -> list:
                 dirs[:] = [d for d in dirs if not d.startswith(".")]
                 for f in files:
                     if not f.startswith(".") and Path(f).suffix.lower() in SUPPORTED_SUFFIXES:
-                        found.add(Path(os.path.abspath(Path(root, f))))
+                        file = Path(os.path.abspath(Path(root, f)))
+                        found.add(file)
+                        top = Path(os.path.abspath(p))
+                        if file not in root_of or len(top.parts) > len(root_of[file].parts):
+                            root_of[file] = top
             if len(found) == before:
                 empty_folders.append(p)
         elif p.exists():                            # a file, or a FIFO/device (skipped later)
-            found.add(Path(os.path.abspath(p)))
+            file = Path(os.path.abspath(p))
+            found.add(file)
+            root_of.setdefault(file, file.parent)
         else:
             raise InputError("no such file or folder", path=p)
     if not found:
@@ -70,7 +82,7 @@ def discover(paths) -> list:
 
         warnings.warn(f"{folder}: holds no model file (supported: "
                       + ", ".join(SUPPORTED_SUFFIXES) + ")", UserWarning, stacklevel=2)
-    return sorted(found)
+    return (sorted(found), root_of) if roots else sorted(found)
 
 
 def hash_files(path, *, texture=None) -> str:

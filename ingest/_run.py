@@ -353,7 +353,8 @@ class IngestSummary:
 def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None = None,
         options=None, processor=None, progress: bool = True, executor=None, batch: int = 8,
         flush_seconds: float = 2.0, scheduler=None, retries: int = 2, name: str | None = None,
-        tags=(), allow_outside_textures: bool = False) -> IngestSummary:
+        tags=(), allow_outside_textures: bool = False, replace=None,
+        keep_original: bool = False) -> IngestSummary:
     """Ingest model files and folders into a database, skipping models already stored.
 
     Parameters
@@ -401,7 +402,16 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
         Tags given to every model this run stores.
     allow_outside_textures : bool
         Passed to the processor (``surfidx.pipeline.process_model``): use textures an OBJ's MTL
-        names outside the model's folder.
+        names outside the model's folder (and keep them with ``keep_original``).
+    replace : int or str, optional
+        A stored model (name, ``NAME@N`` or id): the one file ``paths`` names is stored as its
+        next version. Without it a changed file read from the absolute path of a stored model
+        becomes that model's next version (:meth:`surfidx.db.catalog.Catalog.add`).
+    keep_original : bool
+        Also store each new model's original files (:func:`surfidx.io.original_files`: the
+        file, its material libraries, textures and buffers) as deduplicated blobs
+        (:meth:`surfidx.db.catalog.Catalog.keep_original`); a file larger than
+        :data:`surfidx.db.catalog.MAX_ORIGINAL_BYTES` fails its model.
 
     Returns
     -------
@@ -411,14 +421,15 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
     ------
     InputError
         A path does not exist, bad ``workers``/``bits_per_surfel``/``batch``/``retries``, a
-        processor that cannot be sent to worker processes, or both ``executor`` and
-        ``scheduler``.
+        processor that cannot be sent to worker processes, both ``executor`` and
+        ``scheduler``, ``replace`` with several files or with ``name``.
     SurfidxError
         ``scheduler`` without dask.distributed installed, or a scheduler that cannot be reached
         (before anything is written).
     DatabaseError
         The database cannot be opened or written (not a surfidx database, read-only, full disk,
-        damaged, locked past the timeout): the run stops; every model committed is whole. A
+        damaged, locked past the timeout), or ``replace`` names no stored model: the run
+        stops; every model committed is whole. A
         file that fails SQLite's ``PRAGMA quick_check`` is refused before anything is written
         (:meth:`surfidx.db.catalog.Catalog.check_intact`).
 
@@ -446,9 +457,15 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
     else:
         bits_per_surfel = (ProcessOptions() if options is None else options).codec.bits_per_surfel
     paths = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
-    files = discover(paths)
+    files, roots = discover(paths, roots=True)
     if name is not None and len(files) != 1:
         raise InputError(f"a name names one model; the paths hold {len(files)} model files")
+    if replace is not None and len(files) != 1:
+        raise InputError(f"--replace stores one file as the next version of a model; the paths "
+                         f"hold {len(files)} model files")
+    if replace is not None and name is not None:
+        raise InputError("give either a name (a new model) or replace (a new version of a "
+                         "stored one), not both")
     processor = resolve_processor(processor)
     if scheduler is not None and executor is not None:
         raise InputError("give either executor or scheduler, not both")
@@ -469,11 +486,24 @@ def run(paths, *, db, workers: int | None = None, bits_per_surfel: float | None 
                                                         retries=retries))
         if not isinstance(db, Catalog):
             db = stack.enter_context(Catalog(db))
+        if replace is not None:
+            db.resolve(replace)         # a model to replace must exist before any work
         return _ingest(files, [str(p) for p in paths], db=db, workers=workers,
                        bits_per_surfel=bits_per_surfel, options=options, processor=processor,
                        progress=progress, executor=executor, batch=batch, flush_seconds=flush_seconds, name=name,
                        tags=[tags] if isinstance(tags, str) else list(tags),
-                       allow_outside_textures=allow_outside_textures)
+                       allow_outside_textures=allow_outside_textures, roots=roots,
+                       replace=replace, keep_original=keep_original)
+
+
+def _keep_original(db, model_id, task, allow_outside) -> None:
+    """Store the original files of the model a task made (the file, the files it names, the
+    texture paired with it), checked against the task's content hash."""
+    from surfidx.io.originals import original_files
+
+    files = original_files(task.path, texture=task.texture, allow_outside=allow_outside)
+    db.keep_original(model_id, files, content_hash=task.content_hash,
+                     hashed=[p for p in (task.path, task.texture) if p is not None])
 
 
 class _BarMoves:
@@ -507,7 +537,8 @@ class _BarMoves:
 
 
 def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, progress, executor,
-            batch, flush_seconds, name, tags, allow_outside_textures) -> IngestSummary:
+            batch, flush_seconds, name, tags, allow_outside_textures, roots=None, replace=None,
+            keep_original=False) -> IngestSummary:
     """The run of :func:`run` on its checked arguments: ``files`` found once by
     :func:`discover`, ``db`` open, ``executor`` None or ready."""
     from surfidx.db.catalog import escape_name, is_storage_failure, storable_text
@@ -548,12 +579,15 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, p
                         with db.transaction():
                             if name is not None:
                                 outcome.model.name = name
-                            mid = db.add(outcome.model, exact_name=name is not None)
+                            mid = db.add(outcome.model, exact_name=name is not None,
+                                         replace=replace)
                             if tags:
                                 db.tag(mid, tags)
+                            if keep_original:
+                                _keep_original(db, mid, outcome.task, allow_outside_textures)
                         summary.ids.append(mid)
                         summary.stored += 1
-                    except (SurfidxError, ValueError, TypeError, AttributeError) as exc:
+                    except (SurfidxError, ValueError, TypeError, AttributeError, OSError) as exc:
                         if is_storage_failure(exc):
                             raise                       # the database, not the model
                         fail(outcome.task.path, error_message(exc))
@@ -577,7 +611,7 @@ def _ingest(files, paths, *, db, workers, bits_per_surfel, options, processor, p
     try:
         known = []
         tasks = make_tasks(files, known_hashes=db.hashes(), on_error=fail, on_skip=skip,
-                           on_known=lambda path, h: known.append(h))
+                           on_known=lambda path, h: known.append(h), roots=roots)
         if tags and known:          # a re-run with tags tags the models it finds stored
             with db.transaction():
                 db.tag(db.ids_of_hashes(known), tags)

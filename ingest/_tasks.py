@@ -12,6 +12,7 @@ import os
 import stat
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 from surfidx.errors import SurfidxError
 
@@ -36,11 +37,21 @@ class Task:
         Texture image found by :func:`find_texture`.
     content_hash : str
         SHA-256 hex of the file's bytes and then the texture's (``surfidx.pipeline.content_hash``).
+    source_rel : str or None
+        ``path`` relative to the folder the ingest was given that holds it (its name for a file
+        given itself).
+    size : int or None
+        The file's size when it was hashed.
+    mtime : float or None
+        Its modification time then (POSIX seconds).
     """
 
     path: str
     texture: str | None
     content_hash: str
+    source_rel: str | None = None
+    size: int | None = None
+    mtime: float | None = None
 
 
 @dataclass
@@ -100,18 +111,23 @@ def process_task(task: Task, *, processor, bits_per_surfel: float, options=None,
         model = processor(task.path, bits_per_surfel=bits_per_surfel, texture=task.texture,
                           **extra)
         model.content_hash = task.content_hash
+        model.source_rel, model.source_bytes, model.source_mtime = (task.source_rel, task.size,
+                                                                    task.mtime)
         return Outcome(task, model=model, seconds=time.perf_counter() - t0)
     except Exception as exc:
         return Outcome(task, error=error_message(exc), seconds=time.perf_counter() - t0)
 
 
 def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None,
-               on_known=None) -> list:
+               on_known=None, roots=None) -> list:
     """Hash the files (with their textures) and make a :class:`Task` for each new one.
 
     Parameters
     ----------
     files : sequence of pathlib.Path
+    roots : dict of pathlib.Path -> pathlib.Path, optional
+        The folder the ingest was given that holds each file (:func:`ingest.discover` with
+        ``roots=True``); a file missing here is relative to its own folder.
     known_hashes : set of str
         Hashes already stored: those files are skipped.
     on_error : callable, optional
@@ -152,5 +168,8 @@ def make_tasks(files, *, known_hashes=frozenset(), on_error=None, on_skip=None,
                 on_known(f, h)
             continue
         seen.add(h)
-        tasks.append(Task(str(f), None if tex is None else str(tex), h))
+        root = (roots or {}).get(f, Path(f).parent)
+        tasks.append(Task(str(f), None if tex is None else str(tex), h,
+                          source_rel=Path(os.path.relpath(f, root)).as_posix(),
+                          size=int(st.st_size), mtime=float(st.st_mtime)))
     return tasks

@@ -28,9 +28,13 @@ from .errors import DatabaseError, InputError, SurfidxError
 from .io.files import pair_texture
 from .pipeline import unit_of_work
 from .validate import accepts_keyword
-from .db.catalog import Catalog, is_storage_failure
+from .db.catalog import LATEST_SQL, Catalog, is_storage_failure
 
 __all__ = ["Database", "QueryExample"]
+
+#: Most superseded versions a query skips by widening the index search (k + their count);
+#: beyond, it ranks the latest versions by the exact distance read by id.
+_WIDEN_MAX = 1000
 
 
 
@@ -67,7 +71,8 @@ class Database(Catalog):
 
     def ingest(self, models, *, workers: int | None = None, bits_per_surfel: float | None = None,
                options=None, name=None, tags=(), processor=None, progress: bool = False,
-               allow_outside_textures: bool = False, **run_options):
+               allow_outside_textures: bool = False, replace=None, keep_original: bool = False,
+               **run_options):
         """Process and store models: files, folders (recursively) or models in memory.
 
         Parameters
@@ -93,6 +98,13 @@ class Database(Catalog):
             A progress bar on stderr.
         allow_outside_textures : bool
             As for :func:`surfidx.read_surfels`.
+        replace : int or str, optional
+            A stored model (name, ``NAME@N`` or id): store the one file or model given as its
+            next version. Without it, a changed file read from the absolute path of a stored
+            model becomes that model's next version (:meth:`add`).
+        keep_original : bool
+            Also store each new model's original files, deduplicated (files only; see
+            :func:`ingest.run`).
         **run_options
             Further keywords of :func:`ingest.run` (``scheduler``, ``retries``, ``batch``...).
 
@@ -120,6 +132,9 @@ class Database(Catalog):
         memory = [m for m in items if not isinstance(m, (str, os.PathLike))]
         if name is not None and len(items) != 1:
             raise InputError(f"name= names one model; {len(items)} were given")
+        if replace is not None and len(items) != 1:
+            raise InputError(f"replace= stores one model as a new version; {len(items)} were "
+                             "given")
         tags = [] if not tags else self._tags_of(tags)
         from .options import ProcessOptions
 
@@ -134,8 +149,11 @@ class Database(Catalog):
             summary = _ingest.run(paths, db=self, workers=workers,
                                   bits_per_surfel=bits_per_surfel, options=options,
                                   processor=processor, progress=progress, name=name, tags=tags,
-                                  allow_outside_textures=allow_outside_textures, **run_options)
+                                  allow_outside_textures=allow_outside_textures,
+                                  replace=replace, keep_original=keep_original, **run_options)
         if memory:
+            if replace is not None:
+                self.resolve(replace)
             proc = _ingest.resolve_processor(processor)
             run = summary or _ingest.IngestSummary(run_id=self.start_run(
                 ["<memory>"], workers=1, bits_per_surfel=bits_per_surfel))
@@ -150,7 +168,8 @@ class Database(Catalog):
                         run.skipped += 1
                         continue
                     with self.transaction():
-                        mid = self.add(processed, exact_name=name is not None)
+                        mid = self.add(processed, exact_name=name is not None,
+                                       replace=replace)
                         if tags:
                             self.tag(mid, tags)
                     run.ids.append(mid)
@@ -171,7 +190,9 @@ class Database(Catalog):
     def load(self, id_or_name):
         """Read a stored model back as a :class:`surfidx.pipeline.ProcessedModel`.
 
-        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys.
+        ``timings`` are not stored and come back empty; ``quality`` holds the three PSNR keys;
+        ``source`` is the absolute path (``source_abs``) where one is stored, ``source_rel``
+        the stored relative one.
         """
         from .pipeline import ProcessedModel
         from .db.catalog import QUALITY_KEYS
@@ -179,12 +200,14 @@ class Database(Catalog):
         rec = self.get_model(id_or_name)
         a = rec["asset"]
         return ProcessedModel(
-            name=rec["name"], source=rec["source"], content_hash=rec["content_hash"],
+            name=rec["name"], source=rec["source_abs"] or rec["source"],
+            content_hash=rec["content_hash"],
             n_surfels=rec["n_surfels"], has_color=rec["has_color"], bbox=rec["bbox"],
             stream=self.get_stream(rec["id"]), format_version=a["format_version"],
             rate=a["bits_per_surfel"], quality={k: a[k] for k in QUALITY_KEYS},
             descriptors=self.get_descriptors(rec["id"]), thumbnail=self.get_thumbnail(rec["id"]),
-            params=rec["params"], timings={})
+            params=rec["params"], timings={}, source_rel=rec["source"],
+            source_bytes=rec["source_bytes"], source_mtime=_posix(rec["source_mtime"]))
 
     def example(self, model, *, processor=None, describer=None, texture=None,
                 allow_outside_textures: bool = False, thumbnail: bool = True,
@@ -263,7 +286,7 @@ class Database(Catalog):
               include_self: bool = False, processor=None, describer=None, texture=None,
               allow_outside_textures: bool = False, exact: bool = False,
               progress=None, options=None, tag=None, where: str | None = None,
-              partial: bool | None = None) -> list:
+              partial: bool | None = None, all_versions: bool = False) -> list:
         """The stored models most similar to ``model`` (:class:`surfidx.db.search.SearchIndex`).
 
         Parameters
@@ -310,10 +333,13 @@ class Database(Catalog):
             from the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
             :attr:`QueryExample.virtual_share`).
 
+        all_versions : bool
+            Compare with every stored version, not only each model's latest.
+
         Returns
         -------
         list of dict
-            ``{"id", "name", "source", "distance"}``, nearest first.
+            ``{"id", "name", "version", "source", "distance"}``, nearest first.
 
         Raises
         ------
@@ -341,21 +367,30 @@ class Database(Catalog):
             partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
-        if tag is not None or where is not None:
-            ids, dist = self._filtered_search(descriptors, self.select_ids(tag=tag, where=where),
-                                              k=k + (drop is not None), shape_weight=w,
-                                              distance=partial_l2 if partial else None)
+        # rows past version 1: at least every superseded one, counted on a partial index
+        older = 0 if all_versions else int(self.conn.execute(
+            "SELECT count(*) FROM models WHERE version > 1").fetchone()[0])
+        if tag is not None or where is not None or older > _WIDEN_MAX:
+            ids, dist = self._filtered_search(
+                descriptors, self.select_ids(tag=tag, where=where, all_versions=all_versions),
+                k=k + (drop is not None), shape_weight=w,
+                distance=partial_l2 if partial else None)
+            older = 0
         else:
+            # every version is indexed: k + (older versions) nearest hold the k nearest latest
             ids, dist = self._search_index(SearchIndex, exact=exact).query(
-                descriptors, k=k + (drop is not None), shape_weight=w,
+                descriptors, k=k + (drop is not None) + older, shape_weight=w,
                 distance=partial_l2 if partial else None)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
                 continue
-            rec = self.conn.execute("SELECT name, source FROM models WHERE id = ?",
-                                    (i,)).fetchone()
-            rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
+            rec = self.conn.execute(f"SELECT name, version, source, {LATEST_SQL} FROM models m "
+                                    "WHERE id = ?", (i,)).fetchone()
+            if older and not rec[3]:
+                continue
+            rows.append({"id": int(i), "name": rec[0], "version": int(rec[1]), "source": rec[2],
+                         "distance": float(d)})
         return rows
 
     def _search_index(self, make, *, exact: bool):
@@ -617,6 +652,81 @@ class Database(Catalog):
         if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:
             out["faces"] = int(len(decoded.faces))
         return out
+
+
+    def export_original(self, model, folder, *, subfolder: bool = False) -> dict:
+        """Write a model version's original files (``ingest --keep-original``) into ``folder``
+        byte for byte, with the relative layout they were read in (the model file beside its
+        material library and textures), each written atomically and checked against its SHA-256.
+
+        Parameters
+        ----------
+        model : int or str
+            Id, name (the latest version) or ``NAME@N``.
+        folder : str or os.PathLike
+            Created when missing; files in it with the same names are replaced.
+        subfolder : bool
+            Write into ``folder/NAME`` (the model's name made file-safe) instead.
+
+        Returns
+        -------
+        dict
+            ``id``, ``name``, ``version``, ``output`` (the folder), ``files`` (``path``,
+            ``bytes``, ``role`` of each file written; the source file first).
+
+        Raises
+        ------
+        InputError
+            The version has no original (it was ingested without ``--keep-original``).
+        DatabaseError
+            A stored file does not match its SHA-256 (the database is damaged), or a stored
+            path that would leave ``folder``.
+        """
+        import hashlib
+
+        from .io import write_atomic
+
+        mid = self.resolve(model)
+        rec = self.conn.execute("SELECT name, version FROM models WHERE id = ?", (mid,)).fetchone()
+        files = self.original_files(mid)
+        if not files:
+            raise InputError(f"model {rec[0]}@{rec[1]} (id {mid}) has no original: it was "
+                             "ingested without --keep-original")
+        out_dir = Path(folder) / _file_stem(rec[0], mid) if subfolder else Path(folder)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = []
+        for f in files:
+            target = out_dir.joinpath(*Path(f["path"]).parts)
+            if Path(f["path"]).is_absolute() or ".." in Path(f["path"]).parts:
+                raise DatabaseError(f"original file path {f['path']!r} of model {mid} leaves "
+                                    "the output folder; the database is damaged", path=self.path)
+            target.parent.mkdir(parents=True, exist_ok=True)
+
+            def write(tmp, sha=f["sha256"]):
+                h = hashlib.sha256()
+                with open(tmp, "wb") as fh:
+                    for piece in self.original_pieces(sha):
+                        h.update(piece)
+                        fh.write(piece)
+                if h.hexdigest() != sha:
+                    raise DatabaseError(f"original file {f['path']!r} of model {mid} does not "
+                                        "match its SHA-256; the database is damaged",
+                                        path=self.path)
+
+            write_atomic(target, write)
+            written.append({"path": f["path"], "bytes": f["bytes"], "role": f["role"]})
+        return {"id": mid, "name": rec[0], "version": int(rec[1]), "output": str(out_dir),
+                "files": written}
+
+
+def _posix(text):
+    """POSIX seconds of the database's ISO 8601 UTC text (None stays None)."""
+    if text is None:
+        return None
+    import datetime as dt
+
+    t = dt.datetime.fromisoformat(str(text).removesuffix("Z"))
+    return t.replace(tzinfo=dt.timezone.utc).timestamp()
 
 
 def _file_stem(name: str, mid: int) -> str:

@@ -58,6 +58,13 @@ class ProcessedModel:
         ``parts_dropped``, ``holes_filled``, ``handles_cut``, ``pinched_vertices``,
         ``virtual_surfels``, ``virtual_area_share``, ...), stored in ``model_topology``; None
         for a model stored as it was read.
+    source_rel : str or None
+        ``source`` relative to the folder an ingest was given (set by the ingest; None: the
+        database stores the file's name).
+    source_bytes : int or None
+        Size of the file when it was hashed (set by the ingest).
+    source_mtime : float or None
+        Its modification time then, POSIX seconds (set by the ingest).
 
     Notes
     -----
@@ -81,6 +88,9 @@ class ProcessedModel:
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     topology: dict | None = None
+    source_rel: str | None = None
+    source_bytes: int | None = None
+    source_mtime: float | None = None
 
 
 def content_hash(path, *, texture=None) -> str:

@@ -165,7 +165,8 @@ def test_api_with_stub_processor(tmp_path):
         with pytest.raises(DatabaseError, match="no model named 'gone'"):
             db.remove("first", "gone")                   # nothing removed
         assert db.count() == 3
-        assert db.remove("first", 2) == [{"id": 1, "name": "first"}, {"id": 2, "name": "m2"}]
+        assert db.remove("first", 2) == [{"id": 1, "name": "first", "version": 1},
+                                             {"id": 2, "name": "m2", "version": 1}]
         with pytest.raises(InputError, match="name at least one model"):
             db.remove()
         assert db.conn.execute("SELECT count(*) FROM tags").fetchone()[0] == 2   # m1's

@@ -64,10 +64,10 @@ def test_query_by_file_returns_example_first(filled, tmp_path):
     out = json.loads(r.stdout)
     assert list(out) == ["results"] and len(out["results"]) == 3
     first = out["results"][0]
-    assert set(first) == {"id", "name", "source", "distance"}
+    assert set(first) == {"id", "name", "version", "source", "distance"}
     assert (first["name"], first["distance"]) == ("m3", pytest.approx(0.0, abs=1e-6))
     assert isinstance(first["id"], int) and isinstance(first["distance"], float)
-    assert first["source"] == str(root / "sub" / "m3.ply")
+    assert first["source"] == "sub/m3.ply"
     d = [x["distance"] for x in out["results"]]
     assert d == sorted(d)
     with Database(db) as database:                    # the example was not stored
@@ -79,7 +79,7 @@ def test_query_by_id_table_and_weights(filled):
     r = invoke(["query", "id:4", "--db", db, "-k", 10, "--include-self"])   # m1, coloured
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()
-    assert lines[0].split() == ["rank", "id", "name", "distance", "source"]
+    assert lines[0].split() == ["rank", "id", "name", "version", "distance", "source"]
     assert lines[1].split()[:3] == ["1", "4", "m1"] and len(lines) == 7
     shape_only = json.loads(invoke(["query", "id:4", "--db", db, "--json", "--include-self",
                                     "--shape-weight", 1]).stdout)["results"]

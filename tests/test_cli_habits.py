@@ -23,7 +23,7 @@ from helpers import OBJ, foreign_database, make_tree
 #: The commands that use the model database; every other command is in OTHER_COMMANDS. A new
 #: command must be put in one of the two (the walk below fails on an unlisted one).
 DB_COMMANDS = {"ingest", "query", "get", "ls", "show", "errors", "redescribe", "rm", "rename",
-               "tag", "untag"}
+               "tag", "untag", "upgrade"}
 OTHER_COMMANDS = {"convert", "info", "eval", "render", "geodesic", "parameterize", "resample",
                   "encode", "decode", "datasette-metadata"}
 
@@ -148,6 +148,7 @@ def _failing(tmp_path):
         "rename": (["rename", "1", "new", *db], not_ours),
         "tag": (["tag", "1", "t", *db], not_ours),
         "untag": (["untag", "1", "t", *db], not_ours),
+        "upgrade": (["upgrade", *db], not_ours),
     }
 
 

@@ -125,7 +125,8 @@ def test_built_package_finds_schema(tmp_path):
 
 def test_new_database_layout(db):
     assert db.schema_version == SCHEMA_VERSION
-    assert set(db.db.table_names()) == set(dbmod.TABLES) | {"tags", "model_topology"}
+    assert set(db.db.table_names()) == set(dbmod.TABLES) | {"tags", "model_topology", "blobs",
+                                                            "original_files"}
     assert db.conn.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert db.conn.execute("PRAGMA foreign_keys").fetchone()[0] == 1
     meta = dict(db.conn.execute("SELECT key, value FROM meta"))
@@ -133,7 +134,7 @@ def test_new_database_layout(db):
     assert meta["created_by"] == f"surfidx {surfidx.__version__}"
     indexed = {tuple(ix.columns) for t in ("models", "descriptors")
                for ix in db.db[t].indexes}
-    assert {("content_hash",), ("name",), ("kind",)} <= indexed
+    assert {("content_hash",), ("name", "version"), ("source_abs",), ("kind",)} <= indexed
     fks = {(fk.table, fk.other_table) for t in ("assets", "descriptors", "thumbnails",
                                                 "ingest_errors") for fk in db.db[t].foreign_keys}
     assert fks == {("assets", "models"), ("descriptors", "models"), ("thumbnails", "models"),
@@ -831,7 +832,8 @@ def test_non_utf8_names_are_stored(db):
     m = make_model(1, name=name, source=os.fsdecode(b"/d/caf\xe9.ply"))
     mid = db.add(m)
     rec = db.get_model(mid)
-    assert (rec["name"], rec["source"]) == ("caf\\xe9", "/d/caf\\xe9.ply")
+    assert (rec["name"], rec["source"], rec["source_abs"]) == ("caf\\xe9", "caf\\xe9.ply",
+                                                             "/d/caf\\xe9.ply")
     assert db.resolve(name) == db.resolve("caf\\xe9") == mid
     run = db.start_run([os.fsdecode(b"/d/\xff")])
     db.record_error(run, os.fsdecode(b"/d/\xff.ply"), os.fsdecode(b"/d/\xff.ply: bad"))
@@ -910,7 +912,7 @@ def test_real_migration_2_to_3(tmp_path):
     conn.commit()
     conn.close()
     with Database(path) as d:
-        assert d.schema_version == SCHEMA_VERSION == 3
+        assert d.schema_version == SCHEMA_VERSION
         assert d.get_model("old")["topology"] is None
         d.conn.execute("INSERT INTO model_topology (model_id, parts) VALUES (1, 1)")
         d.conn.execute("PRAGMA foreign_keys = OFF")

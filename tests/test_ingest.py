@@ -428,8 +428,9 @@ def test_non_utf8_file_names_are_ingested_and_stored_escaped(tmp_path):
     assert s.errors[0][0].endswith("bad\\xff\\\\x.ply")            # the byte and the backslash
     with Database(db) as d:
         m, = d.list_models()
-        assert m["name"] == "caf\\xe9" and m["source"] == escape_name(good)
-        assert os.fsencode(unescape_name(m["source"])) == os.fsencode(good)   # lossless
+        assert m["name"] == "caf\\xe9" and m["source"] == "caf\\xe9.ply"
+        assert m["source_abs"] == escape_name(good)
+        assert os.fsencode(unescape_name(m["source_abs"])) == os.fsencode(good)   # lossless
         assert d.get_model("caf\\xe9")["id"] == d.get_model(os.fsdecode(b"caf\xe9"))["id"]
         err, = d.errors()
         assert err["path"] == escape_name(bad)

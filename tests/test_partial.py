@@ -179,8 +179,8 @@ def test_query_detects_a_partial_scan_and_partial_forces_either_way(capsule_db, 
     assert _distances(auto) == _distances(as_partial) == _distances(again)
     assert _distances(auto) != _distances(as_complete)
     assert _distances(complete) == _distances(complete_default) != _distances(forced)
-    assert complete[0]["name"] == "capsule" and set(auto[0]) == {"id", "name", "source",
-                                                                 "distance"}
+    assert complete[0]["name"] == "capsule" and set(auto[0]) == {"id", "name", "version",
+                                                                 "source", "distance"}
 
 
 def test_cli_query_partial_and_complete(capsule_db, spectral_only):

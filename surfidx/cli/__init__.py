@@ -17,7 +17,8 @@ __all__ = ["cli", "main", "load_all", "COMMAND_MODULES"]
 #: Command name -> the module of this package that registers it.
 COMMAND_MODULES = {
     **{name: "db" for name in ("ingest", "query", "get", "ls", "show", "errors", "redescribe",
-                                "rm", "rename", "tag", "untag", "datasette-metadata")},
+                                "rm", "rename", "tag", "untag", "datasette-metadata",
+                                "upgrade")},
     "encode": "codec", "decode": "codec",
     "convert": "convert", "info": "convert",
     "geodesic": "geodesic",

@@ -1,5 +1,5 @@
 """``surfidx ingest``, ``query``, ``get``, ``ls``, ``show``, ``errors``, ``redescribe``, ``rm``,
-``rename``, ``tag``, ``untag`` and ``datasette-metadata``: the model database, each a thin
+``rename``, ``tag``, ``untag``, ``upgrade`` and ``datasette-metadata``: the model database, each a thin
 layer over a :class:`surfidx.Database` method. Each takes ``--db PATH`` (``$SURFIDX_DB``) but
 ``datasette-metadata``, whose metadata fits any surfidx database.
 
@@ -31,7 +31,7 @@ from .common import (allow_outside_textures, common_options, echo_json, export_o
 
 __all__ = ["ingest_command", "query", "get", "ls", "show", "errors", "redescribe_command",
            "parse_model_ref", "rm", "rename", "tag", "untag", "datasette_metadata_command",
-           "topology_line", "echo_params"]
+           "topology_line", "echo_params", "upgrade"]
 
 
 def _injected(key):
@@ -59,7 +59,8 @@ def _decoder():
 
 
 def parse_model_ref(text: str):
-    """``"id:12"`` or ``"12"`` → 12 (an id); anything else is a model name (str)."""
+    """``"id:12"`` or ``"12"`` → 12 (an id); anything else is a model name (str: a name for
+    its latest version, ``NAME@N`` for version N, :meth:`surfidx.Database.resolve`)."""
     m = re.fullmatch(r"(?:id:)?(\d+)", text.strip())
     if m:
         return int(m.group(1))
@@ -115,6 +116,14 @@ def _table(rows, columns):
               help="Name of the stored model (one file only; default: the file's stem, or when "
                    "another model has it the parent folder's name, then STEM-2, STEM-3...).")
 @click.option("--tag", "tags", multiple=True, help="Tag every stored model (repeatable).")
+@click.option("--replace", default=None, metavar="MODEL",
+              help="Store the one file given as the next version of this stored model (NAME, "
+                   "NAME@N or id:N). Without it, a changed file ingested again from the same "
+                   "path becomes the next version of its model.")
+@click.option("--keep-original", is_flag=True,
+              help="Also store each new model's original files (the file, its MTL and "
+                   "textures, glTF buffers), deduplicated by SHA-256; `get --original` writes "
+                   "them back. Files over 512 MiB fail their model.")
 @click.option("--up", default=None, metavar="AXIS",
               help=f"The models' up axis, shown upwards in their thumbnails: {', '.join(UP_AXES)} "
                    "(default: the options file's, else the format's: +y for meshes, +z for "
@@ -124,7 +133,7 @@ def _table(rows, columns):
               help="Hide the progress bar (the old spelling; -q also hides the notes).")
 @common_options(db=True)
 def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options, name, tags,
-                   up, no_progress, *, db_path, console):
+                   replace, keep_original, up, no_progress, *, db_path, console):
     """Process model files and folders (recursively) into the database.
 
     Models already stored (same file and texture bytes) are skipped, so re-running an interrupted
@@ -137,6 +146,10 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
     files; a folder with none is an error. The exit status is 1 when any file failed (what could be stored is).
     Without --workers, as many worker processes run as the machine has cores; the progress bar
     (on a terminal) moves within each model as its stages finish (per model with --scheduler).
+    A model is a name with versions: a changed file ingested again from the same path (or
+    with --replace NAME) is stored as the next version of its model, and commands that name a
+    model use its latest version unless told NAME@N. Stored sources are paths relative to the
+    folder given (the absolute path in the source_abs column).
     """
     import ingest
 
@@ -153,7 +166,9 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
                          processor=_processor(),
                          progress=console.live and not no_progress, scheduler=scheduler,
                          retries=retries, name=name, tags=list(tags),
-                         allow_outside_textures=allow_outside_textures())
+                         allow_outside_textures=allow_outside_textures(),
+                         replace=None if replace is None else parse_model_ref(replace),
+                         keep_original=keep_original)
     console.detail(f"stored ids: {', '.join(map(str, summary.ids)) or '-'}")
     if console.json:
         echo_json({"run": summary.run_id, "stored": summary.stored, "skipped": summary.skipped,
@@ -196,6 +211,8 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
               help="Only models passing this filter on their stored figures, e.g. "
                    "'surfels > 10000 and colour = true' (fields: surfels, colour, psnr_d1, "
                    "psnr_d2, psnr_y, bytes, bits_per_surfel, ingested_at, name, id).")
+@click.option("--all-versions", is_flag=True,
+              help="Compare with every stored version, not only each model's latest.")
 @click.option("--partial/--complete", "partial", default=None,
               help="Compare EXAMPLE as a scan of part of an object (--partial) or as a complete "
                    "model (--complete); default: partial when the repair added more than "
@@ -203,8 +220,8 @@ def ingest_command(paths, workers, scheduler, retries, bits_per_surfel, options,
 @outside_textures_option
 @options_file_option
 @common_options(db=True)
-def query(example, k, shape_weight, sheet, include_self, exact, tags, where, partial, options,
-          *, db_path, console):
+def query(example, k, shape_weight, sheet, include_self, exact, tags, where, all_versions,
+          partial, options, *, db_path, console):
     """Find the stored models most similar to EXAMPLE.
 
     EXAMPLE is a model file (mapped, resampled and described as an ingest would, nothing coded
@@ -228,7 +245,7 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, par
         report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,
                         exact=exact, tag=list(tags) or None, where=where,
-                        partial=partial)
+                        partial=partial, all_versions=all_versions)
         if partial is None:
             partial = is_partial(ex.virtual_share)
         if partial:
@@ -243,8 +260,8 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, par
     for rank, r in enumerate(rows, 1):
         r["rank"] = rank
         r["distance_s"] = f"{r['distance']:.6g}"
-    _table(rows, [("rank", "rank"), ("id", "id"), ("name", "name"), ("distance_s", "distance"),
-                  ("source", "source")])
+    _table(rows, [("rank", "rank"), ("id", "id"), ("name", "name"), ("version", "version"),
+                  ("distance_s", "distance"), ("source", "source")])
     if sheet:
         console.note(f"{sheet}: query and {len(rows)} results")
 
@@ -291,21 +308,27 @@ def _contact_sheet(out, query_item, results, *, tile: int = 160, cols: int = 6):
 @click.option("--all", "every", is_flag=True, help="Every stored model; -o is a folder.")
 @click.option("--thumbnails", is_flag=True,
               help="Write the models' stored thumbnails (NAME.png) instead of the models.")
+@click.option("--original", is_flag=True,
+              help="Write the original files kept by `ingest --keep-original` (the file, its "
+                   "MTL and textures, byte for byte, in their layout) into the folder -o "
+                   "names (several models: one subfolder each, NAME).")
 @export_options(folder=True)
 @common_options(db=True)
-def get(models, tags, every, thumbnails, output, fmt, bits_per_surfel, level, mesh, max_surfels,
-        max_vertices, text, texture, texture_size, image_format, image_quality, *, db_path,
-        console):
-    """Export stored models (ID, id:ID or NAME): decoded to PLY, OBJ or GLB, or the stream as
-    .sfz, optionally at a lower rate. One model goes to the file -o names; several (or --tag,
-    --all, --thumbnails) go into the folder -o names, one file each, NAME.FORMAT (default
-    GLB)."""
+def get(models, tags, every, thumbnails, original, output, fmt, bits_per_surfel, level, mesh,
+        max_surfels, max_vertices, text, texture, texture_size, image_format, image_quality, *,
+        db_path, console):
+    """Export stored models (ID, id:ID, NAME for its latest version or NAME@N): decoded to PLY,
+    OBJ or GLB, or the stream as .sfz, optionally at a lower rate. One model goes to the file -o
+    names; several (or --tag, --all, --thumbnails) go into the folder -o names, one file each,
+    NAME.FORMAT (default GLB). --original writes the files the model was ingested from."""
     from .codec import output_summary
 
     if every and (models or tags):
         raise InputError("--all selects every model; give it without models or --tag")
     if not (models or tags or every):
         raise InputError("name a model (ID, id:ID or NAME), several, --tag T or --all")
+    if original:
+        return _get_original(models, tags, every, thumbnails, output, db_path, console)
     options = dict(bits_per_surfel=bits_per_surfel, level=level, mesh=mesh,
                    max_surfels=max_surfels, max_vertices=max_vertices, text=text,
                    texture=texture, texture_size=texture_size, image_format=image_format,
@@ -346,6 +369,33 @@ def get(models, tags, every, thumbnails, output, fmt, bits_per_surfel, level, me
         raise click.exceptions.Exit(1)
 
 
+def _get_original(models, tags, every, thumbnails, output, db_path, console):
+    """``get --original``: the original files of each model selected, into ``output``."""
+    if thumbnails:
+        raise InputError("give either --original or --thumbnails")
+    if Path(output).exists() and not Path(output).is_dir():
+        raise InputError(f"{output} is a file; --original writes into a folder")
+    with _open(db_path, console) as db:
+        ids = [db.resolve(parse_model_ref(m)) for m in models]
+        if tags:
+            ids += [r["id"] for r in db.list_models(tag=list(tags))]
+        if every:
+            ids = [r["id"] for r in db.list_models()]
+        ids = list(dict.fromkeys(ids))
+        if not ids:
+            raise InputError("the selection names no stored model")
+        single = len(ids) == 1 and len(models) == 1 and not (tags or every)
+        out = [db.export_original(mid, output, subfolder=not single) for mid in ids]
+    if console.json:
+        echo_json(out[0] if single else {"written": out})
+        return
+    for rec in out:
+        for f in rec["files"]:
+            console.note(plain(f"{Path(rec['output']) / f['path']} ({f['bytes']:,} bytes)"))
+        click.echo(plain(f"{rec['output']}: original of model {rec['id']} ({rec['name']}@"
+                         f"{rec['version']}), {len(rec['files'])} file(s)"))
+
+
 # ---------------------------------------------------------------------- ls, show, errors
 @cli.command()
 @click.option("--errors", "show_errors", is_flag=True, help="List ingest failures instead.")
@@ -354,20 +404,26 @@ def get(models, tags, every, thumbnails, output, fmt, bits_per_surfel, level, me
               help="Only models whose name matches this SQL LIKE pattern (%: any text).")
 @click.option("--where", default=None, metavar="FILTER",
               help="Only models passing this filter on their stored figures (as for query).")
+@click.option("--all-versions", is_flag=True,
+              help="Every stored version, not only each model's latest.")
 @common_options(db=True)
-def ls(show_errors, tags, name_like, where, *, db_path, console):
-    """List the stored models (or, with --errors, the ingest failures)."""
+def ls(show_errors, tags, name_like, where, all_versions, *, db_path, console):
+    """List the stored models, each by its latest version (or, with --errors, the ingest
+    failures)."""
     if show_errors:
         return _print_errors(db_path, None, console)
     with _open(db_path, console) as db:
-        rows = db.list_models(tag=list(tags) or None, name_like=name_like, where=where)
+        rows = db.list_models(tag=list(tags) or None, name_like=name_like, where=where,
+                              all_versions=all_versions)
     console.detail(f"{len(rows)} model(s)")
     if console.json:
         echo_json({"models": rows})
         return
     for r in rows:
         r["tags_s"] = ",".join(r["tags"]) or None
-    _table(rows, [("id", "id"), ("name", "name"), ("tags_s", "tags"), ("n_surfels", "surfels"),
+        r["version_s"] = f"{r['version']}/{r['versions']}"
+    _table(rows, [("id", "id"), ("name", "name"), ("version_s", "version"), ("tags_s", "tags"),
+                  ("n_surfels", "surfels"),
                   ("has_color", "colour"), ("bytes", "bytes"), ("bits_per_surfel", "bits/surfel"),
                   ("psnr_d1", "PSNR D1"), ("psnr_y", "PSNR Y"), ("source", "source")])
 
@@ -376,9 +432,11 @@ def ls(show_errors, tags, name_like, where, *, db_path, console):
 @click.argument("model")
 @common_options(db=True)
 def show(model, *, db_path, console):
-    """One model's record, asset figures and descriptors, and the last ingest run's errors."""
+    """One model's record (NAME: its latest version, NAME@N: version N), its provenance, asset
+    figures, descriptors, original files and versions, and the last ingest run's errors."""
     with _open(db_path, console) as db:
         rec = db.get_model(parse_model_ref(model))
+        rec["versions"] = db.versions(rec["id"])
         run = db.last_run()
         run_errors = db.errors(run["id"]) if run else []
     rec["bbox_min"], rec["bbox_max"] = rec["bbox"][0].tolist(), rec["bbox"][1].tolist()
@@ -387,12 +445,13 @@ def show(model, *, db_path, console):
     if console.json:
         echo_json(out)
         return
-    for key in ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min",
-                "bbox_max", "ingested_at"):
+    for key in ("id", "name", "version", "source", "source_abs", "content_hash", "source_bytes",
+                "source_mtime", "n_surfels", "has_color", "bbox_min", "bbox_max", "ingested_at",
+                "surfidx_version", "codec_version", "descriptor_version", "numerics_profile"):
         val = rec[key]
         if isinstance(val, list):
             val = " ".join(f"{x:.6g}" for x in val)
-        click.echo(f"{key:16s} {plain(val)}")
+        click.echo(f"{key:16s} {plain(_fmt(val))}")
     click.echo(f"{'params':16s} {plain(echo_params(rec['params']))}")
     asset = rec["asset"] or {}
     for key in ("format_version", "bits_per_surfel", "bytes", "psnr_d1", "psnr_d2", "psnr_y"):
@@ -400,6 +459,17 @@ def show(model, *, db_path, console):
     kinds = ", ".join(f"{k} ({d})" for k, d in rec["descriptors"].items()) or "-"
     click.echo(f"{'descriptors':16s} {plain(kinds)}")
     click.echo(f"{'topology':16s} {plain(topology_line(rec.get('topology')))}")
+    files = rec["original"]
+    click.echo(f"{'original':16s} " + (plain(", ".join(f"{f['path']} ({f['bytes']:,} bytes)"
+                                                       for f in files)) if files else
+                                       "not kept (ingest --keep-original keeps it)"))
+    click.echo(f"{'versions':16s} {len(rec['versions'])}")
+    for v in rec["versions"]:
+        mark = "*" if v["id"] == rec["id"] else " "
+        click.echo(plain(f" {mark}{v['version']:>4}  id {v['id']}  {v['ingested_at']}  "
+                         f"{v['content_hash'][:12]}  {v['n_surfels']} surfels  "
+                         f"{_fmt(v['bytes'])} bytes  original "
+                         f"{'kept' if v['has_original'] else '-'}  {v['source']}"))
     if run is not None:
         click.echo(f"{'last run':16s} {run['id']} {run['status']}: stored {run['stored']}, "
                    f"skipped {run['skipped']}, failed {run['failed']}")
@@ -478,15 +548,16 @@ def redescribe_command(everything, *, db_path, console):
 @click.argument("models", nargs=-1, required=True)
 @common_options(db=True)
 def rm(models, *, db_path, console):
-    """Remove stored models (ID, id:ID or NAME, several at once) with their assets, descriptors,
-    thumbnails and tags; none is removed when one is not found."""
+    """Remove stored models (NAME: every version; NAME@N, ID or id:ID: one version; several at
+    once) with their assets, descriptors, thumbnails, tags and original files (and the blobs no
+    other version holds); none is removed when one is not found."""
     with _open(db_path, console, readonly=False) as db:
         removed = db.remove(*[parse_model_ref(m) for m in models])
     if console.json:
         echo_json({"removed": removed})
         return
     for r in removed:
-        click.echo(plain(f"removed model {r['id']} ({r['name']})"))
+        click.echo(plain(f"removed model {r['id']} ({r['name']}@{r['version']})"))
 
 
 @cli.command()
@@ -504,15 +575,17 @@ def rename(model, new_name, *, db_path, console):
 
 
 def _tag_command(name, method, verb):
-    @cli.command(name, help=f"{method.capitalize()} a stored model (ID, id:ID or NAME): "
+    @cli.command(name, help=f"{method.capitalize()} a stored model (NAME: every version of "
+                            f"it; NAME@N, ID or id:ID: one version): "
                             f"{'add' if method == 'tag' else 'remove'} the TAGS given.")
     @click.argument("model")
     @click.argument("tags", nargs=-1, required=True)
     @common_options(db=True)
     def command(model, tags, *, db_path, console):
         with _open(db_path, console, readonly=False) as db:
-            mid = db.resolve(parse_model_ref(model))
-            changed = getattr(db, method)(mid, list(tags))
+            ref = parse_model_ref(model)
+            mid = db.resolve(ref)
+            changed = getattr(db, method)(ref, list(tags))       # a name: every version
             now = db.tags(mid)
         if console.json:
             echo_json({"id": mid, verb: changed, "tags": now})
@@ -524,6 +597,35 @@ def _tag_command(name, method, verb):
 
 tag = _tag_command("tag", "tag", "added")
 untag = _tag_command("untag", "untag", "removed")
+
+
+# ---------------------------------------------------------------------- upgrade
+@cli.command()
+@common_options(db=True)
+def upgrade(*, db_path, console):
+    """Bring a database made by an older surfidx to this one's schema, in one transaction,
+    after keeping a copy of the file as it was (NAME.schema-N.bak beside it). The read-only
+    commands (ls, show, query, get) ask for it; the writing ones upgrade by themselves."""
+    import warnings
+
+    from ..database import Database
+    from ..db.catalog import SCHEMA_VERSION
+
+    console.detail(f"database {db_path}")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)        # said below
+        with Database(db_path, create=False) as db:
+            before, backup = db.upgraded_from, db.backup_path
+    out = {"database": str(db_path), "schema_version": SCHEMA_VERSION, "upgraded_from": before,
+           "backup": None if backup is None else str(backup)}
+    if console.json:
+        echo_json(out)
+        return
+    if before is None:
+        click.echo(plain(f"{db_path}: schema version {SCHEMA_VERSION} already"))
+    else:
+        click.echo(plain(f"{db_path}: upgraded from schema version {before} to "
+                         f"{SCHEMA_VERSION}; the file as it was is kept as {backup}"))
 
 
 # ---------------------------------------------------------------------- datasette

@@ -1,4 +1,4 @@
--- surfidx model database: the one source of truth of the schema (current schema version 3).
+-- surfidx model database: the one source of truth of the schema (current schema version 4).
 --
 -- surfidx.db.catalog creates a new database by executing this file in one transaction and then
 -- setting PRAGMA user_version to surfidx.db.catalog.SCHEMA_VERSION and PRAGMA application_id to
@@ -15,8 +15,9 @@
 -- digits, lossless). Statements must not contain semicolons inside comments or strings (the file
 -- is split on statement boundaries).
 --
--- Deleting a model row removes its asset, descriptors, thumbnail and tags, and deleting a run
--- its error records, whatever the client: the foreign keys cascade where PRAGMA foreign_keys is
+-- Deleting a model row removes its asset, descriptors, thumbnail, tags, topology record and
+-- original files (and a blob when no row refers to it any more), and deleting a run its error
+-- records, whatever the client: the foreign keys cascade where PRAGMA foreign_keys is
 -- on, and the AFTER DELETE triggers below do it where it is off (the sqlite3 shell's and
 -- sqlite-utils' default). Views join the model's name to its asset and thumbnail for browsing
 -- (datasette surfidx.db --metadata datasette.json shows the thumbnails as images with the
@@ -28,11 +29,14 @@ CREATE TABLE meta (
     value TEXT NOT NULL
 );
 
--- One row per model: what was read and how it was processed.
+-- One row per model version: what was read, how it was processed and by what. A model is a
+-- name with versions 1, 2, ...: re-ingesting a changed file from the same absolute path (or
+-- ingest --replace NAME) stores the next version under the same name, and a command given NAME
+-- uses its latest version (NAME@N names one). The id names one version.
 CREATE TABLE models (
     id           INTEGER PRIMARY KEY,
-    name         TEXT    NOT NULL,                      -- unique: file stem, else see below
-    source       TEXT    NOT NULL,                      -- absolute path read at ingest time
+    name         TEXT    NOT NULL,                      -- file stem, else see below
+    source       TEXT    NOT NULL,                      -- path relative to the ingest root
     content_hash TEXT    NOT NULL,                      -- SHA-256 hex of file (+ texture) bytes
     n_surfels    INTEGER NOT NULL CHECK (n_surfels >= 0),
     has_color    INTEGER NOT NULL CHECK (has_color IN (0, 1)),
@@ -43,12 +47,23 @@ CREATE TABLE models (
     bbox_max_y   REAL    NOT NULL,
     bbox_max_z   REAL    NOT NULL,
     ingested_at  TEXT    NOT NULL,                      -- ISO 8601 UTC
-    params       TEXT    NOT NULL DEFAULT '{}'          -- JSON: parameters that made the record
+    params       TEXT    NOT NULL DEFAULT '{}',         -- JSON: options used, codec reports...
+    version      INTEGER NOT NULL DEFAULT 1 CHECK (version >= 1),
+    source_abs   TEXT,                                  -- absolute path, NULL: not from a file
+    source_bytes INTEGER CHECK (source_bytes >= 0),     -- size of the file, NULL if unknown
+    source_mtime TEXT,                                  -- its modification time, ISO 8601 UTC
+    surfidx_version    TEXT,                            -- the surfidx release that made it
+    codec_version      INTEGER,                         -- container format of the stream
+    descriptor_version INTEGER,                         -- descriptors' convention version
+    numerics_profile   TEXT                             -- surfidx.numerics profile of the run
 );
 CREATE UNIQUE INDEX models_content_hash ON models (content_hash);
--- Names are unique: a model whose file stem is taken is named after its parent folder, and
--- when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Catalog.add).
-CREATE UNIQUE INDEX models_name ON models (name);
+-- A name and version are unique: a new model whose file stem is taken is named after its
+-- parent folder, and when that is taken too, STEM-2, STEM-3, ... (surfidx.db.catalog.Catalog.add).
+CREATE UNIQUE INDEX models_name_version ON models (name, version);
+CREATE INDEX models_source_abs ON models (source_abs);
+-- The rows that may be superseded (a query widens its search by their count).
+CREATE INDEX models_later_versions ON models (version) WHERE version > 1;
 
 -- The compressed asset of a model: one container file holding the embedded bitstream, and its
 -- size and quality at its full rate.
@@ -131,6 +146,26 @@ CREATE TABLE tags (
 );
 CREATE INDEX tags_tag ON tags (tag);
 
+-- Original files kept by ingest --keep-original, one row per distinct content (SHA-256 hex),
+-- shared by every model version that holds it. A blob nothing refers to is deleted.
+CREATE TABLE blobs (
+    sha256 TEXT    PRIMARY KEY CHECK (length(sha256) = 64),
+    bytes  INTEGER NOT NULL CHECK (bytes >= 0),
+    data   BLOB    NOT NULL
+);
+
+-- The original files of a model version: its source file (role 'source') and the files it
+-- references (role 'companion': material libraries, textures, glTF buffers), by their path
+-- relative to the folder holding them all, so that written back together the model opens.
+CREATE TABLE original_files (
+    model_id INTEGER NOT NULL REFERENCES models (id) ON DELETE CASCADE,
+    path     TEXT    NOT NULL CHECK (length(path) > 0),
+    role     TEXT    NOT NULL CHECK (role IN ('source', 'companion')),
+    sha256   TEXT    NOT NULL REFERENCES blobs (sha256),
+    PRIMARY KEY (model_id, path)
+);
+CREATE INDEX original_files_sha256 ON original_files (sha256);
+
 -- A model's rows go with it, whether the client enforces foreign keys or not.
 CREATE TRIGGER models_delete_rows AFTER DELETE ON models
 BEGIN
@@ -139,6 +174,13 @@ BEGIN
     DELETE FROM thumbnails WHERE model_id = OLD.id;
     DELETE FROM tags WHERE model_id = OLD.id;
     DELETE FROM model_topology WHERE model_id = OLD.id;
+    DELETE FROM original_files WHERE model_id = OLD.id;
+END;
+
+CREATE TRIGGER original_files_delete_blob AFTER DELETE ON original_files
+WHEN NOT EXISTS (SELECT 1 FROM original_files WHERE sha256 = OLD.sha256)
+BEGIN
+    DELETE FROM blobs WHERE sha256 = OLD.sha256;
 END;
 
 CREATE TRIGGER ingest_runs_delete_errors AFTER DELETE ON ingest_runs
@@ -153,7 +195,8 @@ SELECT m.id, m.name, t.png AS thumbnail,
        (SELECT group_concat(tag, ', ') FROM (SELECT tag FROM tags WHERE model_id = m.id
                                              ORDER BY tag)) AS tags,
        m.n_surfels, m.has_color, a.bytes, a.bits_per_surfel, a.psnr_d1, a.psnr_y, m.source,
-       m.ingested_at
+       m.ingested_at, m.version, m.source_abs,
+       EXISTS (SELECT 1 FROM original_files WHERE model_id = m.id) AS has_original
 FROM models m LEFT JOIN assets a ON a.model_id = m.id LEFT JOIN thumbnails t ON t.model_id = m.id;
 
 CREATE VIEW assets_named AS

@@ -62,12 +62,18 @@ from ..validate import as_array
 
 __all__ = ["Catalog", "QUALITY_KEYS", "SCHEMA_VERSION", "APPLICATION_ID", "schema_sql", "utc_now",
            "escape_name", "unescape_name", "storable_text", "is_storage_failure",
-           "datasette_metadata"]
+           "datasette_metadata", "MAX_ORIGINAL_BYTES", "PROVENANCE_COLUMNS", "LATEST_SQL"]
 
 #: Schema version written to ``PRAGMA user_version`` by this surfidx (2: unique names, tags,
 #: delete triggers that do not depend on the client's foreign-key setting, browsing views;
-#: 3: ``model_topology``, what topology repair added to a model).
-SCHEMA_VERSION = 3
+#: 3: ``model_topology``, what topology repair added to a model; 4: model versions and their
+#: provenance columns, the source path relative to the ingest root beside ``source_abs``, the
+#: original files of ``ingest --keep-original`` in ``blobs`` and ``original_files``).
+SCHEMA_VERSION = 4
+
+#: Largest original file ``ingest --keep-original`` stores (one blob per file, written and read
+#: in pieces; SQLite's own limit on a value is 10^9 bytes).
+MAX_ORIGINAL_BYTES = 2 ** 29
 
 #: ``PRAGMA application_id`` of a surfidx database: the bytes ``b"SFDX"``.
 APPLICATION_ID = int.from_bytes(b"SFDX", "big")
@@ -84,9 +90,19 @@ TABLES = ("meta", "models", "assets", "descriptors", "thumbnails", "ingest_runs"
 MIGRATIONS: list = []
 
 QUALITY_KEYS = ("psnr_d1", "psnr_d2", "psnr_y")
-_MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "bbox_min_x",
-                  "bbox_min_y", "bbox_min_z", "bbox_max_x", "bbox_max_y", "bbox_max_z",
-                  "ingested_at", "params")
+#: The ``models`` columns of schema versions 1 to 3 (what tells a surfidx database made before
+#: the application id).
+_LEGACY_MODEL_COLUMNS = ("id", "name", "source", "content_hash", "n_surfels", "has_color",
+                         "bbox_min_x", "bbox_min_y", "bbox_min_z", "bbox_max_x", "bbox_max_y",
+                         "bbox_max_z", "ingested_at", "params")
+#: What each model version records of how it was made (schema 4).
+PROVENANCE_COLUMNS = ("source_abs", "source_bytes", "source_mtime", "surfidx_version",
+                      "codec_version", "descriptor_version", "numerics_profile")
+_MODEL_COLUMNS = (*_LEGACY_MODEL_COLUMNS, "version", *PROVENANCE_COLUMNS)
+#: A row that is the latest version of its name (``m`` is the ``models`` row).
+LATEST_SQL = ("NOT EXISTS (SELECT 1 FROM models n WHERE n.name = m.name "
+              "AND n.version > m.version)")
+_VERSION_REF = re.compile(r"(?s)(.+)@([0-9]+)")
 
 
 def schema_sql() -> str:
@@ -265,15 +281,17 @@ def _create_missing(conn) -> None:
             conn.execute(stmt)
 
 
-def _free_name(conn, name: str, source: str, *, exclude=None) -> str:
-    """``name`` if no model has it, else the source's parent folder's name, else ``name-2``,
-    ``name-3``, ... (the first free one); ``exclude`` is a model id that does not count."""
+def _free_name(conn, name: str, source, *, exclude=None) -> str:
+    """``name`` if no model has it, else the parent folder's name of ``source`` (an absolute
+    path, or None), else ``name-2``, ``name-3``, ... (the first free one); ``exclude`` is a model
+    id that does not count."""
     def taken(n):
         row = conn.execute("SELECT id FROM models WHERE name = ?", (n,)).fetchone()
         return row is not None and row[0] != exclude
 
     if not taken(name):
         return name
+    source = source or ""
     parent = escape_name(Path(unescape_name(source)).parent.name) if source.startswith("/") \
         else ""
     if parent and not taken(parent):
@@ -301,7 +319,6 @@ def _v1_to_v2(conn) -> None:
     for table in ("assets", "descriptors", "thumbnails"):
         conn.execute(f"DELETE FROM {table} WHERE model_id NOT IN (SELECT id FROM models)")
     conn.execute("DELETE FROM ingest_errors WHERE run_id NOT IN (SELECT id FROM ingest_runs)")
-    _create_missing(conn)
 
 
 MIGRATIONS.append(_v1_to_v2)
@@ -311,10 +328,72 @@ def _v2_to_v3(conn) -> None:
     """Schema 2 → 3: the ``model_topology`` table, and the delete trigger of ``models`` that
     also removes its rows (the old trigger is dropped and created as ``schema.sql`` has it)."""
     conn.execute("DROP TRIGGER IF EXISTS models_delete_rows")
-    _create_missing(conn)
 
 
 MIGRATIONS.append(_v2_to_v3)
+
+
+def _relative_sources(conn) -> dict:
+    """``{id: source}`` of the models whose stored source is an absolute path: the path
+    relative to the longest absolute folder an ingest run was given that holds it, else the
+    file's name (the folder it was read from is its root)."""
+    roots = set()
+    for (paths,) in conn.execute("SELECT paths FROM ingest_runs"):
+        try:
+            roots.update(p.rstrip("/") for p in json.loads(paths)
+                         if isinstance(p, str) and p.startswith("/") and p.rstrip("/"))
+        except ValueError:
+            continue
+    roots = sorted(roots, key=len, reverse=True)
+    out = {}
+    for mid, source in conn.execute("SELECT id, source FROM models"):
+        if not str(source).startswith("/"):
+            continue
+        root = next((r for r in roots if source.startswith(r + "/")), None)
+        out[mid] = source[len(root) + 1:] if root else source.rsplit("/", 1)[-1]
+    return out
+
+
+def _v3_to_v4(conn) -> None:
+    """Schema 3 → 4: ``models`` rebuilt as ``schema.sql`` has it (every row version 1; the
+    stored absolute path moves to ``source_abs`` and ``source`` becomes the path relative to
+    the ingest root, :func:`_relative_sources`; the surfidx, codec and descriptor versions and
+    the numerics profile taken from the record's ``params`` and asset, NULL where they say
+    nothing; file size and time unknown, NULL); the ``blobs`` and ``original_files`` tables.
+    Runs with foreign keys off (:meth:`Catalog._migrate`), so rebuilding ``models`` touches no
+    row that refers to it; the ids stay. Rows left behind by a client that deleted a model with
+    foreign keys off and no trigger are removed (as in :func:`_v1_to_v2`)."""
+    for (view,) in conn.execute("SELECT name FROM sqlite_master WHERE type = 'view'").fetchall():
+        conn.execute(f'DROP VIEW "{view}"')
+    conn.execute("DROP TRIGGER IF EXISTS models_delete_rows")
+    relative = _relative_sources(conn)
+    conn.execute("ALTER TABLE models RENAME TO models_schema3")
+    create = re.compile(r"CREATE\s+TABLE\s+models\s*\(", re.I)
+    conn.execute(next(s for s in split_statements(schema_sql()) if create.search(s)))
+    assets = "assets" in {r[0] for r in conn.execute("SELECT name FROM sqlite_master")}
+    legacy = ", ".join(_LEGACY_MODEL_COLUMNS)
+    json_of = "CASE WHEN json_valid(o.params) THEN json_extract(o.params, '{}') END"
+    conn.execute(
+        f"INSERT INTO models ({legacy}, version, source_abs, surfidx_version, codec_version, "
+        "descriptor_version, numerics_profile) "
+        f"SELECT {', '.join('o.' + c for c in _LEGACY_MODEL_COLUMNS)}, 1, "
+        "CASE WHEN o.source LIKE '/%' THEN o.source END, "
+        f"{json_of.format('$.provenance.surfidx')}, "
+        + ("(SELECT format_version FROM assets a WHERE a.model_id = o.id), " if assets else
+           "NULL, ")
+        + f"{json_of.format('$.descriptors.version')}, "
+        f"{json_of.format('$.provenance.numerics_profile')} FROM models_schema3 o")
+    conn.executemany("UPDATE models SET source = ? WHERE id = ?",
+                     [(src, mid) for mid, src in relative.items()])
+    conn.execute("DROP TABLE models_schema3")
+    have = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    for table in ("assets", "descriptors", "thumbnails", "tags", "model_topology"):
+        if table in have:
+            conn.execute(f"DELETE FROM {table} WHERE model_id NOT IN (SELECT id FROM models)")
+    conn.execute("DELETE FROM ingest_errors WHERE run_id NOT IN (SELECT id FROM ingest_runs)")
+
+
+MIGRATIONS.append(_v3_to_v4)
 
 _TOPOLOGY_COLUMNS = ("parts", "parts_dropped", "holes_filled", "handles_cut", "pinched_vertices",
                      "virtual_surfels", "virtual_area_share")
@@ -341,6 +420,16 @@ def _topology_row(topology, name):
                              "(parts >= 1, counts >= 0, virtual_area_share in 0..1)")
         vals.append(v)
     return (*vals, _to_json(topology, f"model {name!r} topology"))
+
+
+def _iso_utc(seconds: float) -> str:
+    """A POSIX time as the database's ISO 8601 UTC text (microseconds, ``Z``)."""
+    t = _dt.datetime.fromtimestamp(seconds, _dt.timezone.utc).replace(tzinfo=None)
+    return t.isoformat(timespec="microseconds") + "Z"
+
+
+def _text_or_none(value):
+    return None if value is None else str(value)
 
 
 def datasette_metadata() -> dict:
@@ -407,6 +496,10 @@ class Catalog:
     ----------
     path : pathlib.Path
     readonly : bool
+    upgraded_from : int or None
+        The schema version this open upgraded the file from (None: nothing was upgraded).
+    backup_path : pathlib.Path or None
+        The copy of the file kept before that upgrade (:meth:`backup_name`).
     db : sqlite_utils.Database
         The underlying connection wrapper, for ad-hoc queries (``db.db["models"].rows``).
 
@@ -433,6 +526,8 @@ class Catalog:
         self.timeout = float(timeout)
         self._conn = None
         self._needs_marker = False
+        self.upgraded_from = None
+        self.backup_path = None
         if self.path.is_dir():
             raise DatabaseError("is a directory, not a database file", path=self.path)
         if self.path.exists() and not self.path.is_file():     # SQLite would block on a FIFO
@@ -548,7 +643,8 @@ class Catalog:
             return False
         except sqlite3.Error as exc:
             raise self._error(exc) from exc
-        return set(_MODEL_COLUMNS) <= columns and row is not None and str(row[0]) == str(version)
+        return (set(_LEGACY_MODEL_COLUMNS) <= columns and row is not None
+                and str(row[0]) == str(version))
 
     def _check_and_prepare(self) -> None:
         conn = self._conn
@@ -564,8 +660,9 @@ class Catalog:
                 if version < SCHEMA_VERSION:
                     raise DatabaseError(
                         f"schema version {version} is older than this surfidx's "
-                        f"({SCHEMA_VERSION}) and a read-only open cannot upgrade it; open it "
-                        "once for writing (e.g. `surfidx redescribe`)", path=self.path)
+                        f"({SCHEMA_VERSION}) and a read-only open cannot upgrade it; run "
+                        "`surfidx upgrade` once (it keeps a copy of the file as it was)",
+                        path=self.path)
                 return
             # Known to be ours (or empty) from here on: writing is allowed.
             conn.execute("PRAGMA journal_mode = WAL")
@@ -576,9 +673,18 @@ class Catalog:
             self._migrate()
 
     def _migrate(self) -> None:
-        """Create the schema (empty file) or run the migrations, in one transaction."""
+        """Create the schema (empty file) or run the migrations, in one transaction.
+
+        Before an existing database is upgraded, a copy of it as it is is written beside it
+        (:meth:`_backup`): the older surfidx that made it still opens that. The migrations run
+        with foreign keys off (a table rebuilt must not cascade into the rows that refer to
+        it) and end with ``PRAGMA foreign_key_check``; any failure rolls everything back."""
         conn = self._conn
+        before = conn.execute("PRAGMA user_version").fetchone()[0]
+        backup = self._backup(before) if before > 0 else None
         try:
+            conn.execute("PRAGMA foreign_keys = OFF")
+            conn.execute("PRAGMA legacy_alter_table = ON")
             conn.execute("BEGIN IMMEDIATE")
         except sqlite3.Error as exc:
             raise self._error(exc) from exc
@@ -596,6 +702,11 @@ class Catalog:
             else:
                 for k in range(version, SCHEMA_VERSION):
                     MIGRATIONS[k - 1](conn)
+                _create_missing(conn)
+                broken = conn.execute("PRAGMA foreign_key_check").fetchone()
+                if broken is not None:
+                    raise sqlite3.IntegrityError(f"row {broken[1]} of table {broken[0]} refers "
+                                                 f"to a missing row of {broken[2]}")
             conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('schema_version', ?)",
                          (str(SCHEMA_VERSION),))
             conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
@@ -609,6 +720,65 @@ class Catalog:
                                     f"({self._error(exc).reason}); the file is unchanged",
                                     path=self.path) from exc
             raise
+        finally:
+            try:
+                conn.execute("PRAGMA legacy_alter_table = OFF")
+                conn.execute("PRAGMA foreign_keys = ON")
+            except sqlite3.Error:  # pragma: no cover - the connection is unusable anyway
+                pass
+        if not 0 < version < SCHEMA_VERSION:        # new, or upgraded meanwhile by another
+            if backup is not None:
+                with contextlib.suppress(OSError):
+                    backup.unlink()
+            return
+        self.upgraded_from, self.backup_path = version, backup
+        if backup is not None:
+            import warnings
+
+            warnings.warn(f"{self.path}: upgraded from schema version {version} to "
+                          f"{SCHEMA_VERSION}; the file as it was is kept as {backup} (the older "
+                          "surfidx that made it opens that one; delete it when not needed)",
+                          UserWarning, stacklevel=4)
+
+    def backup_name(self, version: int) -> Path:
+        """Where :meth:`_backup` keeps the schema-``version`` file before an upgrade:
+        ``NAME.schema-VERSION.bak`` beside it."""
+        return self.path.with_name(f"{self.path.name}.schema-{int(version)}.bak")
+
+    def _backup(self, version: int) -> Path:
+        """Copy the database as it is (SQLite's online backup: consistent, WAL content
+        included) to :meth:`backup_name`, through a temporary file renamed into place.
+
+        Raises
+        ------
+        DatabaseError
+            The copy cannot be written (full disk, read-only folder): nothing is upgraded.
+        """
+        import tempfile
+
+        target = self.backup_name(version)
+        tmp = None
+        try:
+            fd, name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
+                                        suffix=".part")
+            os.close(fd)
+            tmp = Path(name)                # a fresh file of its own: no link is followed
+            dest = sqlite3.connect(tmp)
+            try:
+                self._conn.backup(dest)
+            finally:
+                dest.close()
+            os.replace(tmp, target)
+        except (sqlite3.Error, OSError) as exc:
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+            raise DatabaseError(f"schema version {version} must be upgraded to "
+                                f"{SCHEMA_VERSION}, and the copy kept before that cannot be "
+                                f"written to {target} ({exc}); free some space or make the "
+                                "folder writable; the file is unchanged", path=self.path) \
+                from exc
+        return target
 
     def _rollback(self) -> None:
         """ROLLBACK if a transaction is open (SQLite may have rolled back already, e.g. after
@@ -785,29 +955,35 @@ class Catalog:
             self._cache.clear()
 
     # ------------------------------------------------------------------ writing models
-    def add(self, model, *, exact_name: bool = False) -> int:
+    def add(self, model, *, exact_name: bool = False, replace=None) -> int:
         """Store one processed model: its row, asset, descriptors and thumbnail, in one transaction.
+
+        A model read from the absolute path of a stored model (``source_abs``) is stored as
+        that model's next version (same name, version + 1, its tags copied), unless
+        ``exact_name`` names it; ``replace`` makes it the next version of the model it names.
 
         Parameters
         ----------
         model : surfidx.pipeline.ProcessedModel
         exact_name : bool
-            Store ``model.name`` or fail; by default a name another model has is replaced by
-            the model's parent folder's name, or else ``NAME-2``, ``NAME-3``, ... (the first
-            free one; ``model.name`` is left as it was).
+            Store ``model.name`` as a new model or fail; by default a name another model has
+            is replaced by the model's parent folder's name, or else ``NAME-2``, ``NAME-3``, ...
+            (the first free one; ``model.name`` is left as it was).
+        replace : int or str, optional
+            A stored model (:meth:`resolve`): store this one as its next version.
 
         Returns
         -------
         int
-            The new model's id.
+            The new model's (version's) id.
 
         Raises
         ------
         InputError
             A field of ``model`` is invalid (bbox shape, non-finite descriptor, non-JSON params).
         DatabaseError
-            A model with the same content hash is already stored, or (``exact_name``) one with
-            the same name.
+            A model with the same content hash is already stored, ``replace`` names no model,
+            or (``exact_name``) one with the same name.
 
         Notes
         -----
@@ -819,14 +995,28 @@ class Catalog:
         row, asset, descs, png = self._rows_of(model)
         topo = _topology_row(getattr(model, "topology", None), row["name"])
         with self.transaction():
-            existing = self.conn.execute("SELECT id, name FROM models WHERE content_hash = ?",
+            existing = self.conn.execute("SELECT id, name, version FROM models "
+                                         "WHERE content_hash = ?",
                                          (row["content_hash"],)).fetchone()
             if existing is not None:
                 raise DatabaseError(
                     f"model {row['name']!r} is already stored as id {existing[0]} "
-                    f"({existing[1]!r}, same content hash {row['content_hash'][:12]}...)",
-                    path=self.path)
-            if exact_name:
+                    f"({existing[1]}@{existing[2]}, same content hash "
+                    f"{row['content_hash'][:12]}...)", path=self.path)
+            previous = None
+            if replace is not None:
+                previous = self.resolve(replace)
+            elif not exact_name and row["source_abs"] is not None:
+                hit = self.conn.execute("SELECT name FROM models WHERE source_abs = ? "
+                                        "ORDER BY id DESC LIMIT 1",
+                                        (row["source_abs"],)).fetchone()
+                if hit is not None:
+                    previous = self.resolve(hit[0])
+            if previous is not None:
+                row["name"], row["version"] = self.conn.execute(
+                    "SELECT name, (SELECT max(version) FROM models n WHERE n.name = m.name) + 1 "
+                    "FROM models m WHERE id = ?", (previous,)).fetchone()
+            elif exact_name:
                 other = self.conn.execute("SELECT id FROM models WHERE name = ?",
                                           (row["name"],)).fetchone()
                 if other is not None:
@@ -834,7 +1024,7 @@ class Catalog:
                                         "choose another name (or rename that model)",
                                         path=self.path)
             else:
-                row["name"] = _free_name(self.conn, row["name"], row["source"])
+                row["name"] = _free_name(self.conn, row["name"], row["source_abs"])
             cols = list(row)
             cur = self.conn.execute(
                 f"INSERT INTO models ({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
@@ -852,6 +1042,9 @@ class Catalog:
                     f"INSERT INTO model_topology (model_id, {', '.join(_TOPOLOGY_COLUMNS)}, "
                     f"details) VALUES ({', '.join('?' * (len(_TOPOLOGY_COLUMNS) + 2))})",
                     (model_id, *topo))
+            if previous is not None:
+                self.conn.execute("INSERT INTO tags (model_id, tag) SELECT ?, tag FROM tags "
+                                  "WHERE model_id = ?", (model_id, previous))
             self._descriptors_touched()
         return model_id
 
@@ -872,11 +1065,31 @@ class Catalog:
                 raise InputError(f"model {name!r}: {what} must be bytes, "
                                  f"got {type(getattr(model, what)).__name__}")
         params = dict(model.params or {})
-        row = {"name": name, "source": escape_name(model.source), "content_hash": h,
+        provenance = params.get("provenance") if isinstance(params.get("provenance"),
+                                                            dict) else {}
+        conventions = params.get("descriptors") if isinstance(params.get("descriptors"),
+                                                              dict) else {}
+        source = os.fspath(model.source) if isinstance(model.source, os.PathLike) \
+            else str(model.source)
+        absolute = os.path.isabs(source)
+        relative = getattr(model, "source_rel", None) or (os.path.basename(source) if absolute
+                                                          else source)
+        size = getattr(model, "source_bytes", None)
+        mtime = getattr(model, "source_mtime", None)
+        descriptor_version = conventions.get("version")
+        row = {"name": name, "source": escape_name(relative), "content_hash": h,
                "n_surfels": n, "has_color": int(bool(model.has_color)),
                **{f"bbox_{c}_{a}": float(bbox[i, j])
                   for i, c in enumerate(("min", "max")) for j, a in enumerate("xyz")},
-               "ingested_at": utc_now(), "params": _to_json(params, f"model {name!r} params")}
+               "ingested_at": utc_now(), "params": _to_json(params, f"model {name!r} params"),
+               "version": 1, "source_abs": escape_name(source) if absolute else None,
+               "source_bytes": None if size is None else int(size),
+               "source_mtime": None if mtime is None else _iso_utc(float(mtime)),
+               "surfidx_version": _text_or_none(provenance.get("surfidx")),
+               "codec_version": int(model.format_version),
+               "descriptor_version": descriptor_version
+               if isinstance(descriptor_version, int) else None,
+               "numerics_profile": _text_or_none(provenance.get("numerics_profile"))}
         quality = dict(model.quality or {})
         q = []
         for key in QUALITY_KEYS:
@@ -888,6 +1101,134 @@ class Catalog:
                               f"model {name!r} params['descriptors']")
         descs = _descriptor_rows(model.descriptors or {}, convention, f"model {name!r}")
         return row, asset, descs, bytes(model.thumbnail)
+
+    # ------------------------------------------------------------------ original files
+    def keep_original(self, model_id: int, files, *, content_hash: str | None = None,
+                      hashed=(), max_bytes: int = MAX_ORIGINAL_BYTES) -> dict:
+        """Store a model version's original files as blobs (deduplicated by SHA-256), in one
+        transaction (joins an open one).
+
+        Each file is read twice in pieces of 1 MiB (never whole in memory): once for its hash
+        (the blob's key; a blob stored already is not written again), once into the blob, and
+        the second read must give the same hash.
+
+        Parameters
+        ----------
+        model_id : int
+        files : sequence of (str, os.PathLike, str)
+            ``(relative path, file, role)`` as :func:`surfidx.io.original_files` gives them.
+        content_hash : str, optional
+            The model's content hash: the SHA-256 of the files ``hashed`` names, in that order,
+            must equal it (the files are those the model was made of, unchanged since).
+        hashed : sequence of os.PathLike
+            The files of ``content_hash`` (the model file, then its texture).
+        max_bytes : int
+            Largest file stored (at most :data:`MAX_ORIGINAL_BYTES`).
+
+        Returns
+        -------
+        dict
+            ``files`` (count), ``bytes`` (their sizes' sum), ``new_bytes`` (of blobs not
+            stored before).
+
+        Raises
+        ------
+        InputError
+            A file larger than ``max_bytes``, one that changed while it was read,
+            or files that do not give ``content_hash``.
+        DatabaseError
+            No model has this id.
+        """
+        import hashlib
+
+        from ..io.files import file_pieces
+
+        model_id = self._check_id(model_id)
+        order = {os.path.abspath(p): k for k, p in enumerate(hashed)}
+        files = sorted(files, key=lambda f: order.get(os.path.abspath(f[1]), len(order)))
+        whole = hashlib.sha256()
+        digests = []
+        for rel, path, _ in files:
+            size = os.stat(path).st_size
+            limit = min(int(max_bytes), MAX_ORIGINAL_BYTES)
+            if size > limit:
+                raise InputError(f"{size:,} bytes, more than an original file may have "
+                                 f"({limit:,}); ingest it without --keep-original", path=path)
+            h = hashlib.sha256()
+            n = 0
+            for chunk in file_pieces(path, lambda fh, k: fh.read(min(k, 1 << 20))):
+                h.update(chunk)
+                n += len(chunk)
+                if os.path.abspath(path) in order:
+                    whole.update(chunk)
+            digests.append((h.hexdigest(), n))
+        if content_hash is not None and order and whole.hexdigest() != content_hash:
+            raise InputError("changed since it was read for this model (its content hash "
+                             "differs); ingest it again", path=files[0][1])
+        stored = new = 0
+        with self.transaction():
+            self._check_id(model_id)
+            self._one("SELECT 1 FROM models WHERE id = ?", (model_id,),
+                      f"no model with id {model_id}")
+            for (rel, path, role), (digest, n) in zip(files, digests):
+                stored += n
+                if self.conn.execute("SELECT 1 FROM blobs WHERE sha256 = ?",
+                                     (digest,)).fetchone() is None:
+                    cur = self.conn.execute("INSERT INTO blobs (sha256, bytes, data) "
+                                            "VALUES (?, ?, zeroblob(?))", (digest, n, n))
+                    h = hashlib.sha256()
+                    at = 0
+                    with self.conn.blobopen("blobs", "data", cur.lastrowid) as blob:
+                        for chunk in file_pieces(path, lambda fh, k: fh.read(min(k, 1 << 20))):
+                            if at + len(chunk) > n:
+                                break
+                            blob.write(chunk)
+                            h.update(chunk)
+                            at += len(chunk)
+                    if at != n or h.hexdigest() != digest:
+                        raise InputError("changed while it was kept as an original; ingest it "
+                                         "again", path=path)
+                    new += n
+                self.conn.execute("INSERT INTO original_files (model_id, path, role, sha256) "
+                                  "VALUES (?, ?, ?, ?)",
+                                  (model_id, escape_name(rel), str(role), digest))
+        return {"files": len(files), "bytes": stored, "new_bytes": new}
+
+    def original_files(self, id_or_name) -> list:
+        """A model version's original files (none unless it was ingested with
+        ``--keep-original``), the source file first.
+
+        Returns
+        -------
+        list of dict
+            Keys ``path`` (relative, as written back), ``role``, ``bytes``, ``sha256``.
+        """
+        model_id = self.resolve(id_or_name)
+        keys = ("path", "role", "bytes", "sha256")
+        return [dict(zip(keys, r)) for r in self.conn.execute(
+            "SELECT o.path, o.role, b.bytes, o.sha256 FROM original_files o JOIN blobs b "
+            "ON b.sha256 = o.sha256 WHERE o.model_id = ? ORDER BY o.role = 'companion', o.path",
+            (model_id,))]
+
+    def original_pieces(self, sha256: str, *, size: int = 1 << 20):
+        """The bytes of a stored original file, in pieces of at most ``size`` bytes.
+
+        Raises
+        ------
+        DatabaseError
+            No blob has this hash.
+        """
+        rowid, n = self._one("SELECT rowid, bytes FROM blobs WHERE sha256 = ?", (str(sha256),),
+                             f"no original file with SHA-256 {sha256}")
+        with self.conn.blobopen("blobs", "data", rowid, readonly=True) as blob:
+            if len(blob) != n:
+                raise self._damaged(f"blob {sha256} holds {len(blob):,} bytes, its row says "
+                                    f"{n:,}")
+            while True:
+                chunk = blob.read(int(size))
+                if not chunk:
+                    return
+                yield chunk
 
     def delete(self, model_id: int) -> None:
         """Delete a model with its asset, descriptors and thumbnail.
@@ -904,18 +1245,20 @@ class Catalog:
             self._descriptors_touched()
 
     def remove(self, *models) -> list:
-        """Delete models given by id or name, with their assets, descriptors, thumbnails and
-        tags, all in one transaction (none is deleted if one is not found).
+        """Delete models given by name (every version), or versions given by id or
+        ``NAME@N``, with their assets, descriptors, thumbnails, tags and original files (and
+        the blobs no other version holds), all in one transaction (none is deleted if one is
+        not found).
 
         Parameters
         ----------
         *models : int or str
-            Ids or names (:meth:`resolve`).
+            Ids, names or ``NAME@N`` (:meth:`resolve_all`).
 
         Returns
         -------
         list of dict
-            ``{"id", "name"}`` of each model removed, in the order given.
+            ``{"id", "name", "version"}`` of each version removed, in the order given.
 
         Raises
         ------
@@ -929,15 +1272,16 @@ class Catalog:
         if not models:
             raise InputError("name at least one model to remove")
         with self.transaction():
-            ids = list(dict.fromkeys(self.resolve(m) for m in models))
-            names = [self._one("SELECT name FROM models WHERE id = ?", (i,),
-                               f"no model with id {i}")[0] for i in ids]
-            for i in ids:
+            rows = {}
+            for m in models:
+                for r in self._ref_rows(m)[0]:
+                    rows.setdefault(int(r[0]), r)
+            for i in rows:
                 self.delete(i)
-        return [{"id": i, "name": n} for i, n in zip(ids, names)]
+        return [{"id": i, "name": r[1], "version": int(r[2])} for i, r in rows.items()]
 
     def rename(self, model, new_name: str) -> dict:
-        """Give a model another (unique) name.
+        """Give a model (every version of it) another (unique) name.
 
         Returns
         -------
@@ -958,15 +1302,18 @@ class Catalog:
             mid = self.resolve(model)
             old = self._one("SELECT name FROM models WHERE id = ?", (mid,),
                             f"no model with id {mid}")[0]
-            other = self.conn.execute("SELECT id FROM models WHERE name = ?", (name,)).fetchone()
-            if other is not None and other[0] != mid:
+            other = self.conn.execute("SELECT id FROM models WHERE name = ? AND name != ?",
+                                      (name, old)).fetchone()
+            if other is not None:
                 raise DatabaseError(f"the name {name!r} is taken by model {other[0]}; choose "
                                     "another", path=self.path)
-            self.conn.execute("UPDATE models SET name = ? WHERE id = ?", (name, mid))
+            self.conn.execute("UPDATE models SET name = ? WHERE name = ?", (name, old))
         return {"id": mid, "old_name": old, "name": name}
 
     def tag(self, models, tags) -> int:
-        """Add tags to models (tags they already carry are kept once).
+        """Add tags to models (tags they already carry are kept once): a name tags every
+        version of it, an id or ``NAME@N`` one version (:meth:`resolve_all`); a new version
+        gets the tags of the latest one.
 
         Parameters
         ----------
@@ -999,7 +1346,7 @@ class Catalog:
         models = [models] if isinstance(models, (str, int, np.integer)) else list(models)
         changed = 0
         with self.transaction():
-            for mid in dict.fromkeys(self.resolve(m) for m in models):
+            for mid in dict.fromkeys(i for m in models for i in self.resolve_all(m)):
                 for t in tags:
                     changed += self.conn.execute(sql, (mid, t)).rowcount
         return changed
@@ -1204,30 +1551,94 @@ class Catalog:
                                 path=self.path)
         return int(model_id)
 
-    def resolve(self, id_or_name) -> int:
-        """The id of a model given by id (int) or by name (str).
+    def _versions_named(self, text: str) -> list:
+        """``(id, name, version)`` of every version of the model named ``text`` (as stored,
+        :func:`escape_name` of the OS text, or as printed), by version; several names matching
+        is an error."""
+        rows = self.conn.execute(
+            "SELECT id, name, version FROM models WHERE name IN (?, ?) ORDER BY version",
+            (escape_name(text), storable_text(text))).fetchall()
+        if len({r[1] for r in rows}) > 1:
+            ids = ", ".join(str(r[0]) for r in rows)
+            raise DatabaseError(f"name {text!r} matches {len(rows)} models (ids {ids}); give "
+                                "the id", path=self.path)
+        return rows
 
-        A name is matched as stored (:func:`escape_name` of the OS text) or as printed.
+    def _ref_rows(self, id_or_name) -> tuple:
+        """``(rows, whole)``: the ``(id, name, version)`` rows a reference names, and whether
+        it names a whole model (a name: every version) rather than one version (an id, or
+        ``NAME@N``)."""
+        if isinstance(id_or_name, str):
+            rows = self._versions_named(id_or_name)
+            if rows:
+                return rows, True
+            m = _VERSION_REF.fullmatch(id_or_name)
+            if m is not None:
+                rows = self._versions_named(m.group(1))
+                if rows:
+                    want = int(m.group(2))
+                    hit = [r for r in rows if r[2] == want]
+                    if not hit:
+                        have = ", ".join(str(r[2]) for r in rows)
+                        raise DatabaseError(f"model {storable_text(m.group(1))!r} has no "
+                                            f"version {want} (it has {have})", path=self.path)
+                    return hit, False
+            raise self._missing(f"no model named {storable_text(id_or_name)!r}")
+        model_id = self._check_id(id_or_name)
+        row = self._one("SELECT id, name, version FROM models WHERE id = ?", (model_id,),
+                        f"no model with id {model_id}")
+        return [tuple(row)], False
+
+    def resolve(self, id_or_name) -> int:
+        """The id of a model version given by id (int), by name (str: its latest version) or
+        by ``NAME@N`` (version N of NAME).
+
+        A name is matched as stored (:func:`escape_name` of the OS text) or as printed;
+        ``NAME@N`` is read as a version only when no model is named so.
 
         Raises
         ------
         DatabaseError
-            No such model, or the name is shared by several models.
+            No such model or version, or the name is shared by several models.
         """
-        if isinstance(id_or_name, str):
-            stored = escape_name(id_or_name)      # the name as given, or as printed (escaped)
-            rows = self.conn.execute("SELECT id FROM models WHERE name IN (?, ?) ORDER BY id",
-                                     (stored, storable_text(id_or_name))).fetchall()
-            if not rows:
-                raise self._missing(f"no model named {storable_text(id_or_name)!r}")
-            if len(rows) > 1:
-                ids = ", ".join(str(r[0]) for r in rows)
-                raise DatabaseError(f"name {id_or_name!r} matches {len(rows)} models (ids {ids});"
-                                    " give the id", path=self.path)
-            return int(rows[0][0])
-        model_id = self._check_id(id_or_name)
-        self._one("SELECT 1 FROM models WHERE id = ?", (model_id,), f"no model with id {model_id}")
-        return model_id
+        rows, _ = self._ref_rows(id_or_name)
+        return int(rows[-1][0])
+
+    def resolve_all(self, id_or_name) -> list:
+        """The ids a reference names: every version of a model given by name, the one version
+        of an id or ``NAME@N`` (:meth:`resolve`), ascending by version.
+
+        Returns
+        -------
+        list of int
+        """
+        rows, _ = self._ref_rows(id_or_name)
+        return [int(r[0]) for r in rows]
+
+    def versions(self, id_or_name) -> list:
+        """Every version of the model a reference names (any of its versions), oldest first.
+
+        Returns
+        -------
+        list of dict
+            Keys ``id``, ``version``, ``ingested_at``, ``content_hash``, ``n_surfels``,
+            ``bytes``, ``source``, ``source_abs``, ``source_bytes``, ``source_mtime``,
+            ``surfidx_version``, ``has_original``.
+        """
+        mid = self.resolve(id_or_name)
+        keys = ("id", "version", "ingested_at", "content_hash", "n_surfels", "bytes", "source",
+                "source_abs", "source_bytes", "source_mtime", "surfidx_version", "has_original")
+        rows = self.conn.execute(
+            "SELECT m.id, m.version, m.ingested_at, m.content_hash, m.n_surfels, a.bytes, "
+            "m.source, m.source_abs, m.source_bytes, m.source_mtime, m.surfidx_version, "
+            "EXISTS (SELECT 1 FROM original_files o WHERE o.model_id = m.id) "
+            "FROM models m LEFT JOIN assets a ON a.model_id = m.id "
+            "WHERE m.name = (SELECT name FROM models WHERE id = ?) ORDER BY m.version",
+            (mid,)).fetchall()
+        out = [dict(zip(keys, r)) for r in rows]
+        for r in out:
+            r["has_original"] = bool(r["has_original"])
+        return out
 
     def get_model(self, id_or_name) -> dict:
         """One model's record with its asset figures and descriptor kinds.
@@ -1243,9 +1654,11 @@ class Catalog:
             The ``models`` row (``params`` decoded, ``has_color`` bool, ``bbox`` a (2, 3) float64
             array instead of the six columns), plus ``"asset"`` (``format_version``,
             ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``, ``psnr_y``),
-            ``"descriptors"`` (kind -> dimension), ``"tags"`` and ``"topology"`` (what topology
+            ``"descriptors"`` (kind -> dimension), ``"tags"``, ``"topology"`` (what topology
             repair added: the ``model_topology`` row with its ``details``, or None for a model
-            stored as it was read).
+            stored as it was read), ``"latest"`` (whether no later version of the name exists)
+            and ``"original"`` (:meth:`original_files`, empty without one). ``id_or_name``
+            is read as :meth:`resolve` reads it (a name: its latest version).
 
         Raises
         ------
@@ -1259,6 +1672,9 @@ class Catalog:
             f"no model with id {model_id}")))
         rec["has_color"] = bool(rec["has_color"])
         rec["params"] = json.loads(rec["params"])
+        rec["latest"] = bool(conn.execute(f"SELECT {LATEST_SQL} FROM models m WHERE id = ?",
+                                          (model_id,)).fetchone()[0])
+        rec["original"] = self.original_files(model_id)
         rec["bbox"] = np.array([[rec.pop(f"bbox_{c}_{a}") for a in "xyz"] for c in ("min", "max")])
         a = conn.execute("SELECT format_version, bits_per_surfel, bytes, psnr_d1, psnr_d2, psnr_y "
                          "FROM assets WHERE model_id = ?", (model_id,)).fetchone()
@@ -1316,24 +1732,34 @@ class Catalog:
                     "SELECT kind, vector FROM descriptors WHERE model_id = ? ORDER BY kind",
                     (model_id,))}
 
-    def select_ids(self, *, tag=None, where: str | None = None):
+    def select_ids(self, *, tag=None, where: str | None = None, all_versions: bool = False):
         """The ids of the models that carry every tag of ``tag`` and pass the filter ``where``
-        (:func:`surfidx.db.filters.where_sql`), ascending.
+        (:func:`surfidx.db.filters.where_sql`), ascending; latest versions only unless
+        ``all_versions``.
 
         Parameters
         ----------
         tag : str or sequence of str, optional
         where : str, optional
+        all_versions : bool
 
         Returns
         -------
         (n,) int64
         """
-        return np.array([r["id"] for r in self.list_models(tag=tag, where=where)], np.int64)
+        return np.array([r["id"] for r in self.list_models(tag=tag, where=where,
+                                                            all_versions=all_versions)],
+                        np.int64)
+
+    def superseded(self) -> int:
+        """Number of stored versions that are not their model's latest."""
+        return int(self.conn.execute(f"SELECT count(*) FROM models m WHERE NOT ({LATEST_SQL})")
+                   .fetchone()[0])
 
     def list_models(self, *, tag=None, name_like: str | None = None,
-                    where: str | None = None) -> list:
-        """The models, by id, with their asset figures and tags (no blobs).
+                    where: str | None = None, all_versions: bool = False) -> list:
+        """The models (their latest versions, or every version), by id, with their asset
+        figures and tags (no blobs).
 
         Parameters
         ----------
@@ -1345,17 +1771,21 @@ class Catalog:
         where : str, optional
             Only models passing this filter on their stored figures
             (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
+        all_versions : bool
+            Every stored version instead of each model's latest.
 
         Returns
         -------
         list of dict
             Keys ``id``, ``name``, ``source``, ``content_hash``, ``n_surfels``, ``has_color``,
             ``ingested_at``, ``bits_per_surfel``, ``bytes``, ``psnr_d1``, ``psnr_d2``,
-            ``psnr_y``, ``tags`` (sorted list).
+            ``psnr_y``, ``version``, ``versions`` (how many the name has), ``source_abs``,
+            ``has_original``, ``tags`` (sorted list).
         """
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
-                "bits_per_surfel", "bytes", *QUALITY_KEYS)
-        filter_text, where, args = where, [], []
+                "bits_per_surfel", "bytes", *QUALITY_KEYS, "version", "versions", "source_abs",
+                "has_original")
+        filter_text, where, args = where, [] if all_versions else [LATEST_SQL], []
         for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
             where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
             args.append(str(t))
@@ -1370,7 +1800,9 @@ class Catalog:
             args += more
         cur = self.conn.execute(
             "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
-            "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y "
+            "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y, "
+            "m.version, (SELECT count(*) FROM models n WHERE n.name = m.name), m.source_abs, "
+            "EXISTS (SELECT 1 FROM original_files o WHERE o.model_id = m.id) "
             "FROM models m LEFT JOIN assets a ON a.model_id = m.id"
             + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY m.id", args)
         out = [dict(zip(keys, r)) for r in cur]
@@ -1379,11 +1811,12 @@ class Catalog:
             tags.setdefault(mid, []).append(t)
         for r in out:
             r["has_color"] = bool(r["has_color"])
+            r["has_original"] = bool(r["has_original"])
             r["tags"] = tags.get(r["id"], [])
         return out
 
     def count(self) -> int:
-        """Number of stored models."""
+        """Number of stored model versions (rows of ``models``)."""
         return int(self.conn.execute("SELECT count(*) FROM models").fetchone()[0])
 
     def color_mask(self, ids) -> np.ndarray:

@@ -21,7 +21,8 @@ FIELDS = {
     "id": "m.id", "name": "m.name", "surfels": "m.n_surfels", "colour": "m.has_color",
     "color": "m.has_color", "has_color": "m.has_color", "ingested_at": "m.ingested_at",
     "bytes": "a.bytes", "bits_per_surfel": "a.bits_per_surfel", "psnr_d1": "a.psnr_d1",
-    "psnr_d2": "a.psnr_d2", "psnr_y": "a.psnr_y",
+    "psnr_d2": "a.psnr_d2", "psnr_y": "a.psnr_y", "version": "m.version",
+    "source": "m.source", "source_bytes": "m.source_bytes", "surfidx_version": "m.surfidx_version",
 }
 
 #: The comparison operators, as written in a filter and as SQL.

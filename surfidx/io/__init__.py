@@ -9,6 +9,7 @@ XYZ and PTS, and the scanner formats :mod:`.las` for LAS/LAZ and :mod:`.e57`, th
 repaired to closed genus-0 parts, is :func:`surfidx.topology.read_model`); :mod:`.writing` writes
 PLY, OBJ and GLB (:func:`write_model`). Shared: :mod:`.limits` (bounds on what is read),
 :mod:`.files` (regular files read within bounds, the texture beside an OBJ that names none),
+:mod:`.originals` (the files a model is made of, for ``ingest --keep-original``),
 :mod:`.texture`, :mod:`.atomic` (:func:`write_atomic`), :mod:`.points`, :mod:`.trimeshio`
 (STL and glTF through trimesh), :mod:`.arrays`.
 """

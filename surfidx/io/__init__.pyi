@@ -16,3 +16,4 @@ from .texture import (read_texture as read_texture, encode_image as encode_image
                       check_image_options as check_image_options)
 from .files import (find_texture as find_texture, pair_texture as pair_texture,
                     NotRegularFile as NotRegularFile)
+from .originals import original_files as original_files

@@ -582,3 +582,36 @@ def write_glb(model, path, *, text: bool = False, image_format: str = "png",
     else:
         data = _glb_bytes(*model_arrays(model))
     write_atomic(path, lambda tmp: tmp.write_bytes(data))
+
+
+def referenced_uris(path) -> list:
+    """The relative URIs a glTF or GLB file names for its buffers and images (data URIs left
+    out), percent-escapes decoded, in the file's order: the files it needs beside it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    list of str
+
+    Raises
+    ------
+    FileFormatError
+        Not a readable glTF or GLB file.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".glb":
+        doc, _ = _glb_layout(path, path.stat().st_size)
+    else:
+        from .files import read_regular
+
+        doc = _parse_json(read_regular(path), path)
+    out = []
+    for key in ("buffers", "images"):
+        for item in _list(doc, key, path):
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if isinstance(uri, str) and uri and not _inline(uri) and not uri.startswith("data:"):
+                out.append(urllib.parse.unquote(uri))
+    return list(dict.fromkeys(out))
