@@ -219,18 +219,26 @@ class Generator:
         return out, rng.random(n) < color_fraction
 
 
+def surfel_counts(m: int) -> np.ndarray:
+    """The stored surfel count of models 1..m: a fixed permutation of 1..m, unrelated to the
+    descriptors, so that the filter ``surfels <= p * m`` passes exactly that share."""
+    return np.random.default_rng(11).permutation(m) + 1
+
+
 def fill(db: Database, kinds: dict, color) -> None:
-    """Bulk-insert rows (every kind of ``kinds``; texture where coloured) as models 1..m."""
+    """Bulk-insert rows (every kind of ``kinds``; texture where coloured) as models 1..m, with
+    the surfel counts of :func:`surfel_counts`."""
     m = len(color)
     now = utc_now()
     conv = "{}"
+    surfels = surfel_counts(m).tolist()
     with db.transaction():
         db.conn.executemany(
             "INSERT INTO models (id, name, source, content_hash, n_surfels, has_color, bbox_min_x,"
             " bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, ingested_at, params)"
-            " VALUES (?, ?, ?, ?, 1000, ?, 0, 0, 0, 1, 1, 1, ?, '{}')",
-            ((i + 1, f"m{i}", f"/synthetic/m{i}.ply", f"{i:064x}", int(color[i]), now)
-             for i in range(m)))
+            " VALUES (?, ?, ?, ?, ?, ?, 0, 0, 0, 1, 1, 1, ?, '{}')",
+            ((i + 1, f"m{i}", f"/synthetic/m{i}.ply", f"{i:064x}", surfels[i], int(color[i]),
+              now) for i in range(m)))
         db.conn.executemany("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                             ((i + 1, b"") for i in range(m)))
         ins = ("INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
@@ -498,6 +506,78 @@ def changes(gen, path, *, k, n_changed, n_queries):
     return out
 
 
+def prepared(gen, m, tmp) -> Path:
+    """``tmp/filtered{m}.db`` with ``m`` generated rows and its index, made when missing (or
+    left by an unfinished run: no index manifest); kept for the next run."""
+    from surfidx.db import ann
+
+    path = Path(tmp) / f"filtered{m}.db"
+    if path.exists() and (ann.index_dir(path) / "manifest.json").exists():
+        return path
+    for old in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
+        old.unlink(missing_ok=True)
+    kinds, color = gen.rows(m)
+    with Database(path) as db:
+        fill(db, kinds, color)
+        db._index_dirty = False                     # built below, in its own process step
+    del kinds, color
+    gc.collect()
+    with Database(path, readonly=True) as db:
+        ann.build(db, kinds=DEFAULT_KINDS)
+    return path
+
+
+#: Shares of the models a filter passes in the ``--filtered`` run (1.0: no filter).
+FILTER_SHARES = (1.0, 0.5, 0.05, 0.001)
+
+
+def _timed(db, examples, truth, *, k, where, exact):
+    """CPU ms per ``Database.query`` (median, p90) and recall@k against ``truth``."""
+    times, rec = [], []
+    for ex, t in zip(examples, truth):
+        t0 = time.process_time()
+        got = db.query(ex, k=k, where=where, exact=exact)
+        times.append(time.process_time() - t0)
+        rec.append(len(t & {r["id"] for r in got}) / len(t))
+    return {"p50": pct(times, 50), "p90": pct(times, 90), "recall": float(np.mean(rec)),
+            "min_recall": float(np.min(rec)), "n": len(times)}
+
+
+def filtered(gen, m, qs, *, k, tmp, before_queries):
+    """Filtered queries (``surfels <= share * m``) at ``m`` models: ``Database.query`` with
+    ``where=`` on the index path beside the exact filtered ranking read by id from SQLite
+    (``exact=True``, the path before the index took filters); recall@10 against the exact
+    top-10 of the passing models; CPU ms per query (the filter's SQL included)."""
+    from surfidx.database import QueryExample
+
+    path = prepared(gen, m, tmp)
+    out = {}
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        stored, present, ids = exact.stored, exact.present, exact.ids
+        surfels = surfel_counts(m)[ids - 1]
+        examples = [QueryExample(id=None, name=f"q{j}", has_color=COLOUR in q, descriptors=q)
+                    for j, q in enumerate(qs)]
+        for share in FILTER_SHARES:
+            limit = int(round(share * m))
+            where = None if share >= 1.0 else f"surfels <= {limit}"
+            mask = surfels <= limit
+            sub = {kd: s[mask] for kd, s in stored.items()}
+            pre = {kd: p[mask] for kd, p in present.items()}
+            pid = ids[mask]
+            truth = [set(pid[list(exact_topk(q, sub, pre, k))].tolist()) for q in qs]
+            db.query(examples[0], k=k, where=where)       # opens the index (kept)
+            after = _timed(db, examples, truth, k=k, where=where, exact=False)
+            step = max(len(qs) // max(before_queries, 1), 1)
+            before = (_timed(db, examples[::step][:before_queries],
+                             truth[::step][:before_queries], k=k, where=where, exact=True)
+                      if before_queries and where else None)
+            out[share] = {"passing": int(mask.sum()), "where": where, "after": after,
+                          "before": before}
+        del exact
+    return out
+
+
 def end_to_end(gen, m, qs, *, k, tmp, factors, probes=(None,)):
     from surfidx.db import ann
 
@@ -581,6 +661,11 @@ def main() -> None:
                     help="Then remove and redescribe this many models of the largest size and "
                          "compare index queries with the exact scan.")
     ap.add_argument("--ef-add", type=int, default=128, help="Build expansion (compare mode).")
+    ap.add_argument("--filtered", action="store_true",
+                    help="Filtered queries instead: Database.query(where=) passing 100/50/5/0.1 "
+                         "%% of the models, the index path beside the exact path read by id.")
+    ap.add_argument("--before-queries", type=int, default=10,
+                    help="Queries timed on the exact filtered path (--filtered; slow at 1M).")
     ap.add_argument("--tmp", default=None,
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
     add_markdown_option(ap, 'query_latency')
@@ -594,6 +679,28 @@ def main() -> None:
           f"classes), {n_col} coloured, kinds {real['dims']}; search kinds {DEFAULT_KINDS}; "
           f"{args.queries} queries (half coloured), k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; "
           f"load {os.getloadavg()[0]:.1f}", flush=True)
+    if args.filtered:
+        REPORT.print("CPU ms per Database.query(k=%d, where='surfels <= N'), the filter's SQL "
+                     "included; recall@%d against the exact top-%d of the passing models; "
+                     "'index' = the approximate path with the filter, 'by id' = the exact "
+                     "ranking of every passing model read from SQLite (exact=True)"
+                     % (args.k, args.k, args.k), flush=True)
+        REPORT.print(f"{'models':>8} {'passing':>8} {'index p50':>9} {'p90':>7} {'recall':>7} "
+                     f"{'min':>5} | {'by id p50':>9} {'p90':>8} {'n':>3}")
+        with (tempfile.TemporaryDirectory() if args.tmp is None
+              else contextlib.nullcontext(args.tmp)) as tmp:
+            for m in args.sizes:
+                gen = Generator(real, m)
+                qs = queries(gen, args.queries)
+                for share, r in filtered(gen, m, qs, k=args.k, tmp=tmp,
+                                         before_queries=args.before_queries).items():
+                    a, b = r["after"], r["before"]
+                    tail = (f"{b['p50']:>9.1f} {b['p90']:>8.1f} {b['n']:>3}" if b else
+                            f"{'(unfiltered)':>22}")
+                    REPORT.print(f"{m:>8} {share:>7.1%} {a['p50']:>9.2f} {a['p90']:>7.2f} "
+                                 f"{a['recall']:>7.3f} {a['min_recall']:>5.1f} | {tail}",
+                                 flush=True)
+        return
     if args.compare:
         make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "faiss-ivf": _FaissIvf,
                 "usearch-f32": lambda: _Usearch("f32"),

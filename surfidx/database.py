@@ -302,8 +302,10 @@ class Database(Catalog):
         where : str, optional
             Only models passing this filter on their stored figures
             (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
-            A filtered query ranks the models that pass by the exact distance (the approximate
-            index is not used), so it finds the true nearest ``k`` among them.
+            Below :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models (or with ``exact``) a filtered
+            query ranks every passing model by the exact distance; from it on, the approximate
+            index skips the others inside it (:meth:`surfidx.db.ann.AnnIndex.query`, all
+            passing models ranked exactly when few pass).
         partial : bool, optional
             Whether the example is a scan of part of an object, compared by
             :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
@@ -341,14 +343,17 @@ class Database(Catalog):
             partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
+        allowed = None
         if tag is not None or where is not None:
-            ids, dist = self._filtered_search(descriptors, self.select_ids(tag=tag, where=where),
+            allowed = self.select_ids(tag=tag, where=where)
+        if allowed is not None and (exact or not self._approximate()):
+            ids, dist = self._filtered_search(descriptors, allowed,
                                               k=k + (drop is not None), shape_weight=w,
                                               distance=partial_l2 if partial else None)
         else:
             ids, dist = self._search_index(SearchIndex, exact=exact).query(
                 descriptors, k=k + (drop is not None), shape_weight=w,
-                distance=partial_l2 if partial else None)
+                distance=partial_l2 if partial else None, allowed=allowed)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
@@ -357,6 +362,15 @@ class Database(Catalog):
                                     (i,)).fetchone()
             rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
         return rows
+
+    def _approximate(self) -> bool:
+        """Whether :meth:`query` searches through the approximate index (the model count is at
+        :data:`surfidx.db.ann.DEFAULT_THRESHOLD` or above), told without loading anything."""
+        from .db.ann import DEFAULT_THRESHOLD
+
+        kept = self.__dict__.get("_kept_search")
+        return (kept is not None and kept.still_approximate()) or \
+            self.count() >= DEFAULT_THRESHOLD
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next

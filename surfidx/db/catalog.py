@@ -1329,7 +1329,29 @@ class Catalog:
         -------
         (n,) int64
         """
-        return np.array([r["id"] for r in self.list_models(tag=tag, where=where)], np.int64)
+        where, args = self._model_conditions(tag=tag, where=where)
+        cur = self.conn.execute(
+            "SELECT m.id FROM models m LEFT JOIN assets a ON a.model_id = m.id"
+            + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY m.id", args)
+        return np.fromiter((r[0] for r in cur), np.int64)
+
+    def _model_conditions(self, *, tag=None, name_like=None, where=None) -> tuple:
+        """SQL conditions on ``models m`` / ``assets a`` and their parameters, of
+        :meth:`list_models`' selection."""
+        filter_text, where, args = where, [], []
+        for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
+            where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
+            args.append(str(t))
+        if name_like is not None:
+            where.append("m.name LIKE ?")
+            args.append(str(name_like))
+        if filter_text is not None:
+            from .filters import where_sql
+
+            sql, more = where_sql(filter_text)
+            where.append(f"({sql})")
+            args += more
+        return where, args
 
     def list_models(self, *, tag=None, name_like: str | None = None,
                     where: str | None = None) -> list:
@@ -1355,19 +1377,7 @@ class Catalog:
         """
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
                 "bits_per_surfel", "bytes", *QUALITY_KEYS)
-        filter_text, where, args = where, [], []
-        for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
-            where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
-            args.append(str(t))
-        if name_like is not None:
-            where.append("m.name LIKE ?")
-            args.append(str(name_like))
-        if filter_text is not None:
-            from .filters import where_sql
-
-            sql, more = where_sql(filter_text)
-            where.append(f"({sql})")
-            args += more
+        where, args = self._model_conditions(tag=tag, name_like=name_like, where=where)
         cur = self.conn.execute(
             "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
             "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y "
