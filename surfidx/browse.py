@@ -140,7 +140,7 @@ def render_cell(row, value, column, table, database, datasette):
         text = markupsafe.escape(value)
         if table == "models":
             return markupsafe.Markup(
-                f'<img src="{png}" height="{THUMBNAIL_HEIGHT // 2}" loading="lazy" alt="" '
+                f'<img src="{png}" height="{THUMBNAIL_HEIGHT}" loading="lazy" alt="" '
                 f'style="vertical-align: middle"> {text} '
                 f'<a href="{glb}" download class="surfidx-glb">GLB</a>')
         return markupsafe.Markup(f'{text} <a href="{glb}" download class="surfidx-glb">GLB</a>')

@@ -82,7 +82,7 @@ DEFAULT_PROBES = 32
 #: every one of them by the exact distance on the row copies instead of asking the index: an
 #: exact result at the cost of an index query or less (``benchmarks/query_latency.py
 #: --filtered`` prints both).
-FILTER_SCAN_LIMIT = 20_000
+FILTER_SCAN_LIMIT = 1_000
 
 #: Manifest format version (an index of another format is rebuilt).
 FORMAT = 3
@@ -434,8 +434,9 @@ class AnnIndex:
         allowed = np.asarray(allowed, np.int64)
         if allowed.size == 0 or allowed[0] < 0:
             return np.zeros(0, np.int64)
-        bits = np.zeros(int(allowed[-1]) // 8 + 1, np.uint8)   # bit i: id i may be returned
-        np.bitwise_or.at(bits, allowed >> 3, (1 << (allowed & 7)).astype(np.uint8))
+        member = np.zeros(int(allowed[-1]) + 1, bool)
+        member[allowed] = True
+        bits = np.packbits(member, bitorder="little")     # bit i: id i may be returned
         selector = faiss.IDSelectorBitmap(int(bits.size), faiss.swig_ptr(bits))
         n = int(min(n, ix.ntotal, allowed.size))
         nprobe = min(nlist, max(nprobe, -(-nprobe * int(ix.ntotal) // int(allowed.size))))
@@ -551,9 +552,10 @@ class AnnIndex:
         excl = np.zeros(0, np.int64) if exclude is None else np.unique(
             as_array(list(exclude), "exclude", dtype=np.int64, shape=(None,)))
         if allowed is not None:
-            allowed = np.unique(as_array(list(allowed) if not isinstance(allowed, np.ndarray)
-                                         else allowed, "allowed", dtype=np.int64,
-                                         shape=(None,)))
+            allowed = as_array(allowed if isinstance(allowed, np.ndarray) else list(allowed),
+                               "allowed", dtype=np.int64, shape=(None,))
+            if allowed.size > 1 and not bool(np.all(allowed[1:] > allowed[:-1])):
+                allowed = np.unique(allowed)            # ascending and unique, as selected
             if excl.size:
                 allowed = allowed[~np.isin(allowed, excl)]
                 excl = np.zeros(0, np.int64)
