@@ -11,7 +11,7 @@ Datasette imports this module, ``import surfidx`` never does. In a surfidx datab
   the name in ``models``), served by the route ``/-/surfidx/DB/ID.png``;
 * offers each model as GLB from its row (a link beside the name in ``models`` and the row page,
   beside the id in ``model_gallery``): ``/-/surfidx/DB/ID.glb[?bits=B][&level=L]`` decodes the
-  stored stream on request through :meth:`surfidx.Database.export` (as ``surfidx get ID -o
+  stored stream on request through :meth:`surfidx.database.Database.export` (as ``surfidx get ID -o
   NAME.glb --bits B --level L`` writes it), answered as ``model/gltf-binary`` with the model's
   name as the file name.
 
@@ -19,7 +19,7 @@ A request for a model that is not stored, in a database that is not a surfidx on
 404; an id that is not an integer, a bad ``bits``/``level`` or a stored row that cannot be
 decoded (damaged) 400, with the reason (never the server's path of the file). The cells are found by column name (``id``,
 ``model_id``, ``name``, ``thumbnail``, ``png``) and the models by id through
-:class:`surfidx.Database`, so the plugin follows the schema as it changes.
+:class:`surfidx.database.Database`, so the plugin follows the schema as it changes.
 """
 
 from __future__ import annotations
@@ -240,7 +240,7 @@ def model_glb(path, model_id: int, *, bits_per_surfel: float | None = None,
 
 
 def model_png(path, model_id: int) -> bytes:
-    """A stored model's thumbnail PNG (:meth:`surfidx.Database.get_thumbnail`).
+    """A stored model's thumbnail PNG (:meth:`surfidx.database.Database.get_thumbnail`).
 
     Raises
     ------
