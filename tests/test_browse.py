@@ -132,8 +132,15 @@ def test_damaged_row_and_foreign_database_are_refused(shapes, plugin, tmp_path):
     with sqlite3.connect(other) as conn:
         conn.execute("CREATE TABLE t (x REAL)")
         conn.execute("INSERT INTO t VALUES (44.22883283735754)")
-    got = fetch([bad, other], ["/-/surfidx/bad/1.glb", "/-/surfidx/bad/2.glb",
-                               "/-/surfidx/other/1.glb", "/other/t"])
+    empty = tmp_path / "empty.db"                       # surfidx's mark, no schema
+    with sqlite3.connect(empty) as conn:
+        conn.execute(f"PRAGMA application_id = {int.from_bytes(b'SFDX', 'big')}")
+        conn.execute("PRAGMA user_version = 3")
+    got = fetch([bad, other, empty], ["/-/surfidx/bad/1.glb", "/-/surfidx/bad/2.glb",
+                                      "/-/surfidx/other/1.glb", "/other/t",
+                                      "/-/surfidx/empty/1.glb"])
+    assert got[4].status_code == 400 and "empty: carries surfidx&#39;s application id but " \
+        "no schema" in got[4].text and "the file is damaged" in got[4].text
     assert got[0].status_code == 400 and "bad: model 1: " in got[0].text
     assert got[1].status_code == 200 and got[1].content[:4] == b"glTF"
     assert got[2].status_code == 404 and "not a surfidx database" in got[2].text

@@ -80,8 +80,8 @@ DEFAULT_PROBES = 32
 
 #: Passing models up to which a filtered query (:meth:`AnnIndex.query` with ``allowed``) ranks
 #: every one of them by the exact distance on the row copies instead of asking the index: an
-#: exact result at the cost of an index query or less (``benchmarks/query_latency.py
-#: --filtered`` prints both).
+#: exact result for about the cost of an index query (the scan's cost grows with the passing
+#: models, the index's does not; ``benchmarks/query_latency.py --filtered`` prints the paths).
 FILTER_SCAN_LIMIT = 1_000
 
 #: Manifest format version (an index of another format is rebuilt).
