@@ -1,10 +1,10 @@
 """The Datasette plugin in a real browser: ingest the bundled example models, serve the database
-with ``datasette``, take a headless Chromium screenshot of a model's page and fetch the GLB link
-that page offers.
+with ``datasette``, take headless Chromium screenshots of a model's page and of the gallery, and fetch the GLB link
+the model's page offers.
 
 Run: ``python examples/datasette_check.py [--db out/browse.db] [--out out/datasette_model.png]``.
 It prints the page's URL, the GLB link, what the link served (status, content type, file name,
-bytes, the mesh's vertices and faces as trimesh reads it) and where the screenshot is; exit 1
+bytes, the mesh's vertices and faces as trimesh reads it) and where the screenshots are (``OUT`` and ``OUT_gallery.png``); exit 1
 when a check fails. The database is made when missing (an ingest of ``examples/models`` at 8
 bits per surfel, a minute or two of CPU). ``datasette`` loads the plugin by its entry point when
 surfidx is installed (``pip install 'surfidx[browse]'``); from a source tree that is not
@@ -134,6 +134,9 @@ def main() -> int:
             print(f"model page {page}: HTTP {status}, GLB links {links}")
             screenshot(page, args.out)
             print(f"screenshot {args.out} ({args.out.stat().st_size:,} bytes)")
+            gallery = args.out.with_name(args.out.stem + "_gallery.png")
+            screenshot(f"{base}/{name}/model_gallery", gallery)
+            print(f"screenshot {gallery} (model_gallery, {gallery.stat().st_size:,} bytes)")
             ok = status == 200 and len(links) == 1
             if links:
                 status, headers, glb = _get(base + html.unescape(links[0]))
