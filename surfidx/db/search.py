@@ -11,6 +11,9 @@ Two paths, one answer:
   texture for a coloured query), ranked by the exact distance below on the index's float32 copies
   of the stored rows, so every distance returned is the exact one.
 
+A filter's passing models (``allowed`` ids) narrow either path: the scan leaves the others out,
+the index skips them inside its lists (:meth:`surfidx.db.ann.AnnIndex.query`).
+
 ``benchmarks/query_latency.py`` prints both paths' latency and the index's recall@10 against the
 scan at 10 000, 100 000 and 1 000 000 models.
 
