@@ -520,8 +520,13 @@ def prepared(gen, m, tmp) -> Path:
     from surfidx.db import ann
 
     path = Path(tmp) / f"filtered{m}.db"
-    if path.exists() and (ann.index_dir(path) / "manifest.json").exists():
+    manifest = ann.index_dir(path) / "manifest.json"
+    busy = Path(f"{path}.building")                 # another run is making it: wait for it
+    while busy.exists() and not manifest.exists():
+        time.sleep(10)
+    if path.exists() and manifest.exists():
         return path
+    busy.touch()
     for old in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
         old.unlink(missing_ok=True)
     kinds, color = gen.rows(m)
@@ -532,6 +537,7 @@ def prepared(gen, m, tmp) -> Path:
     gc.collect()
     with Database(path, readonly=True) as db:
         ann.build(db, kinds=DEFAULT_KINDS)
+    busy.unlink()
     return path
 
 
