@@ -27,6 +27,13 @@ Modes
   candidate factors, and through ``SearchIndex(db)`` as it stands (``search`` column); p50/p99
   CPU time of a top-10 query and recall@10 against the exact scan, for shape-only and coloured
   queries.
+* ``--filtered``: ``Database.query(where="surfels <= N")`` with filters passing 100, 50, 5 and
+  0.1 % of the models (the surfel counts are a fixed permutation of 1..m): the path from the
+  threshold on (the index skipping the models that fail, :meth:`surfidx.db.ann.AnnIndex.query`
+  with ``allowed``) against the exact top-10 of the passing models, and the exact ranking read
+  by id from SQLite (``exact=True``, the path before) on ``--before-queries`` of them; CPU time
+  per query (median, p90) and the filter's SQL alone. The databases are kept in ``--tmp`` and
+  reused. ``--markdown`` writes ``docs/benchmarks/query_latency_filtered.md``.
 * ``--compare``: the same rows in memory, hnswlib, faiss-cpu and usearch HNSW indexes (one
   thread, connectivity 16) and surfidx.db.ann's faiss IVF index of the shape vector, each with the
   exact re-rank of ``factor * k`` candidates.
@@ -57,7 +64,8 @@ import numpy as np
 from surfidx.database import Database
 from surfidx.db.catalog import utc_now
 from surfidx.db.search import SearchIndex  # noqa: E402
-from surfidx.describe.distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, weighted_l2
+from surfidx.describe.distance import (DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT,
+                                       combine_distances, weighted_l2)
 
 from _markdown import Report, add_markdown_option
 
@@ -219,18 +227,26 @@ class Generator:
         return out, rng.random(n) < color_fraction
 
 
+def surfel_counts(m: int) -> np.ndarray:
+    """The stored surfel count of models 1..m: a fixed permutation of 1..m, unrelated to the
+    descriptors, so that the filter ``surfels <= p * m`` passes exactly that share."""
+    return np.random.default_rng(11).permutation(m) + 1
+
+
 def fill(db: Database, kinds: dict, color) -> None:
-    """Bulk-insert rows (every kind of ``kinds``; texture where coloured) as models 1..m."""
+    """Bulk-insert rows (every kind of ``kinds``; texture where coloured) as models 1..m, with
+    the surfel counts of :func:`surfel_counts`."""
     m = len(color)
     now = utc_now()
     conv = "{}"
+    surfels = surfel_counts(m).tolist()
     with db.transaction():
         db.conn.executemany(
             "INSERT INTO models (id, name, source, content_hash, n_surfels, has_color, bbox_min_x,"
             " bbox_min_y, bbox_min_z, bbox_max_x, bbox_max_y, bbox_max_z, ingested_at, params)"
-            " VALUES (?, ?, ?, ?, 1000, ?, 0, 0, 0, 1, 1, 1, ?, '{}')",
-            ((i + 1, f"m{i}", f"/synthetic/m{i}.ply", f"{i:064x}", int(color[i]), now)
-             for i in range(m)))
+            " VALUES (?, ?, ?, ?, ?, ?, 0, 0, 0, 1, 1, 1, ?, '{}')",
+            ((i + 1, f"m{i}", f"/synthetic/m{i}.ply", f"{i:064x}", surfels[i], int(color[i]),
+              now) for i in range(m)))
         db.conn.executemany("INSERT INTO thumbnails (model_id, png) VALUES (?, ?)",
                             ((i + 1, b"") for i in range(m)))
         ins = ("INSERT INTO descriptors (model_id, kind, dimension, vector, convention) "
@@ -498,6 +514,124 @@ def changes(gen, path, *, k, n_changed, n_queries):
     return out
 
 
+def prepared(gen, m, tmp) -> Path:
+    """``tmp/filtered{m}.db`` with ``m`` generated rows and its index, made when missing (or
+    left by an unfinished run: no index manifest); kept for the next run."""
+    from surfidx.db import ann
+
+    path = Path(tmp) / f"filtered{m}.db"
+    manifest = ann.index_dir(path) / "manifest.json"
+    busy = Path(f"{path}.building")                 # another run is making it: wait for it
+    while busy.exists() and not manifest.exists():
+        time.sleep(10)
+    if path.exists() and manifest.exists():
+        return path
+    busy.touch()
+    for old in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
+        old.unlink(missing_ok=True)
+    kinds, color = gen.rows(m)
+    with Database(path) as db:
+        fill(db, kinds, color)
+        db._index_dirty = False                     # built below, in its own process step
+    del kinds, color
+    gc.collect()
+    with Database(path, readonly=True) as db:
+        ann.build(db, kinds=DEFAULT_KINDS)
+    busy.unlink()
+    return path
+
+
+#: Shares of the models a filter passes in the ``--filtered`` run (1.0: no filter).
+FILTER_SHARES = (1.0, 0.5, 0.05, 0.001)
+
+
+def _timed(db, examples, truth, *, k, where, exact):
+    """CPU ms per ``Database.query`` (median, p90) and recall@k against ``truth``."""
+    times, rec = [], []
+    for ex, t in zip(examples, truth):
+        t0 = time.process_time()
+        got = db.query(ex, k=k, where=where, exact=exact)
+        times.append(time.process_time() - t0)
+        rec.append(len(t & {r["id"] for r in got}) / len(t))
+    return {"p50": pct(times, 50), "p90": pct(times, 90), "recall": float(np.mean(rec)),
+            "min_recall": float(np.min(rec)), "n": len(times)}
+
+
+class _Truth:
+    """The exact filtered top-k on the index's row copies (the rows as stored): the distance
+    screened for every model by the expansion of the square, then the exact
+    :func:`weighted_l2` on the ``max(4k, k + 64)`` best passing models (as the exact scan of
+    :class:`SearchIndex` ranks), without reading the database's blobs again."""
+
+    def __init__(self, index, m):
+        self.ids, self.stored, self.present = index.rows(np.arange(1, m + 1, dtype=np.int64))
+        self.norms = {kd: np.einsum("ij,ij->i", s, s, dtype=np.float64)
+                      for kd, s in self.stored.items()}
+
+    def screen(self, q):
+        def sq(kd):
+            v = np.asarray(q[kd], np.float32)
+            return self.norms[kd] - 2.0 * (self.stored[kd] @ v) + float(v @ v)
+
+        s = sq("shape")
+        if "spectrum" in q:
+            s = s + np.where(self.present["spectrum"], sq("spectrum"), 0.0)
+        dt = np.sqrt(np.maximum(sq(COLOUR), 0.0)) if COLOUR in q else None
+        return combine_distances(np.sqrt(np.maximum(s, 0.0)), dt, self.present.get(COLOUR),
+                                 DEFAULT_SHAPE_WEIGHT)
+
+    def top(self, q, d, mask, k):
+        d = d if mask is None else np.where(mask, d, np.inf)
+        nc = min(d.size, max(4 * k, k + 64))
+        cand = np.argpartition(d, nc - 1)[:nc]
+        cand = cand[np.isfinite(d[cand])]
+        qq = {kd: np.asarray(v, np.float32) for kd, v in q.items()}
+        ex = weighted_l2(qq, {kd: s[cand] for kd, s in self.stored.items()},
+                         {kd: p[cand] for kd, p in self.present.items()},
+                         shape_weight=DEFAULT_SHAPE_WEIGHT)
+        return set(self.ids[cand[np.lexsort((self.ids[cand], ex))[:k]]].tolist())
+
+
+def filtered(gen, m, qs, *, k, tmp, before_queries):
+    """Filtered queries (``surfels <= share * m``) at ``m`` models: ``Database.query`` with
+    ``where=`` on the index path beside the exact filtered ranking read by id from SQLite
+    (``exact=True``, the path before the index took filters); recall@10 against the exact
+    top-10 of the passing models (:class:`_Truth`); CPU ms per query (the filter's SQL
+    included) and of the filter's SQL alone."""
+    from surfidx.database import QueryExample
+    from surfidx.db import ann
+
+    path = prepared(gen, m, tmp)
+    out = {}
+    with Database(path, readonly=True) as db:
+        truth_of = _Truth(ann.open_index(db, kinds=DEFAULT_KINDS), m)
+        surfels = surfel_counts(m)[truth_of.ids - 1]
+        screened = [truth_of.screen(q) for q in qs]
+        examples = [QueryExample(id=None, name=f"q{j}", has_color=COLOUR in q, descriptors=q)
+                    for j, q in enumerate(qs)]
+        for share in FILTER_SHARES:
+            limit = int(round(share * m))
+            where = None if share >= 1.0 else f"surfels <= {limit}"
+            mask = None if where is None else surfels <= limit
+            truth = [truth_of.top(q, d, mask, k) for q, d in zip(qs, screened)]
+            db.query(examples[0], k=k, where=where)       # opens the index (kept)
+            after = _timed(db, examples, truth, k=k, where=where, exact=False)
+            step = max(len(qs) // max(before_queries, 1), 1)
+            before = (_timed(db, examples[::step][:before_queries],
+                             truth[::step][:before_queries], k=k, where=where, exact=True)
+                      if before_queries and where else None)
+            sql = []
+            for _ in range(5 if where else 0):
+                t0 = time.process_time()
+                db.select_ids(where=where)
+                sql.append(time.process_time() - t0)
+            out[share] = {"passing": m if mask is None else int(mask.sum()), "where": where,
+                          "after": after, "before": before,
+                          "sql": pct(sql, 50) if sql else float("nan")}
+        del truth_of, screened
+    return out
+
+
 def end_to_end(gen, m, qs, *, k, tmp, factors, probes=(None,)):
     from surfidx.db import ann
 
@@ -581,6 +715,11 @@ def main() -> None:
                     help="Then remove and redescribe this many models of the largest size and "
                          "compare index queries with the exact scan.")
     ap.add_argument("--ef-add", type=int, default=128, help="Build expansion (compare mode).")
+    ap.add_argument("--filtered", action="store_true",
+                    help="Filtered queries instead: Database.query(where=) passing 100/50/5/0.1 "
+                         "%% of the models, the index path beside the exact path read by id.")
+    ap.add_argument("--before-queries", type=int, default=10,
+                    help="Queries timed on the exact filtered path (--filtered; slow at 1M).")
     ap.add_argument("--tmp", default=None,
                     help="Folder for the databases, kept afterwards (default: a temp, removed).")
     add_markdown_option(ap, 'query_latency')
@@ -594,6 +733,42 @@ def main() -> None:
           f"classes), {n_col} coloured, kinds {real['dims']}; search kinds {DEFAULT_KINDS}; "
           f"{args.queries} queries (half coloured), k = {args.k}, w = {DEFAULT_SHAPE_WEIGHT}; "
           f"load {os.getloadavg()[0]:.1f}", flush=True)
+    if args.filtered:
+        from surfidx.db import ann
+
+        REPORT.name, REPORT.title = "query_latency_filtered", "Filtered query latency and recall"
+        REPORT.note = ("Database.query with a filter (--where) at 100,000 and 1,000,000 "
+                       "models, rows built from real descriptors and perturbed as on the "
+                       "query latency page: the path through the index beside the exact "
+                       "ranking of the passing models read by id.")
+        if args.markdown is not None and args.markdown.name == "query_latency.md":
+            REPORT.output = args.markdown.with_name("query_latency_filtered.md")
+
+        REPORT.print("CPU ms per Database.query(k=%d, where='surfels <= N'), the filter's SQL "
+                     "included; recall@%d against the exact top-%d of the passing models "
+                     "(mean, and the worst query); 'index' = the path from the threshold on "
+                     "(the index skipping the other models, or all passing ranked exactly up "
+                     "to %d), 'SQL' = the filter's share (Catalog.select_ids, p50), 'by id' = "
+                     "the exact ranking of every passing model read from SQLite (exact=True, "
+                     "the path before)" % (args.k, args.k, args.k, ann.FILTER_SCAN_LIMIT),
+                     flush=True)
+        REPORT.print(f"{'models':>8} {'passing':>8} {'index p50':>9} {'p90':>7} {'recall':>7} "
+                     f"{'min':>5} {'SQL':>6} | {'by id p50':>9} {'p90':>8} {'n':>3}")
+        with (tempfile.TemporaryDirectory() if args.tmp is None
+              else contextlib.nullcontext(args.tmp)) as tmp:
+            for m in args.sizes:
+                gen = Generator(real, m)
+                qs = queries(gen, args.queries)
+                for share, r in filtered(gen, m, qs, k=args.k, tmp=tmp,
+                                         before_queries=args.before_queries).items():
+                    a, b = r["after"], r["before"]
+                    tail = (f"{b['p50']:>9.1f} {b['p90']:>8.1f} {b['n']:>3}" if b else
+                            f"{'(unfiltered)':>22}")
+                    REPORT.print(f"{m:>8} {share:>7.1%} {a['p50']:>9.2f} {a['p90']:>7.2f} "
+                                 f"{a['recall']:>7.3f} {a['min_recall']:>5.1f} "
+                                 f"{r['sql']:>6.1f} | {tail}",
+                                 flush=True)
+        return
     if args.compare:
         make = {"hnswlib": _Hnswlib, "faiss": _Faiss, "faiss-ivf": _FaissIvf,
                 "usearch-f32": lambda: _Usearch("f32"),

@@ -325,8 +325,10 @@ class Database(Catalog):
         where : str, optional
             Only models passing this filter on their stored figures
             (:func:`surfidx.db.filters.where_sql`, e.g. ``"surfels > 10000 and colour = true"``).
-            A filtered query ranks the models that pass by the exact distance (the approximate
-            index is not used), so it finds the true nearest ``k`` among them.
+            Below :data:`surfidx.db.ann.DEFAULT_THRESHOLD` models (or with ``exact``) a filtered
+            query ranks every passing model by the exact distance; from it on, the approximate
+            index skips the others inside it (:meth:`surfidx.db.ann.AnnIndex.query`, all
+            passing models ranked exactly when few pass).
         partial : bool, optional
             Whether the example is a scan of part of an object, compared by
             :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
@@ -370,17 +372,19 @@ class Database(Catalog):
         # rows past version 1: at least every superseded one, counted on a partial index
         older = 0 if all_versions else int(self.conn.execute(
             "SELECT count(*) FROM models WHERE version > 1").fetchone()[0])
+        allowed = None
         if tag is not None or where is not None or older > _WIDEN_MAX:
-            ids, dist = self._filtered_search(
-                descriptors, self.select_ids(tag=tag, where=where, all_versions=all_versions),
-                k=k + (drop is not None), shape_weight=w,
-                distance=partial_l2 if partial else None)
+            allowed = self.select_ids(tag=tag, where=where, all_versions=all_versions)
             older = 0
+        if allowed is not None and (exact or not self._approximate()):
+            ids, dist = self._filtered_search(descriptors, allowed,
+                                              k=k + (drop is not None), shape_weight=w,
+                                              distance=partial_l2 if partial else None)
         else:
             # every version is indexed: k + (older versions) nearest hold the k nearest latest
             ids, dist = self._search_index(SearchIndex, exact=exact).query(
                 descriptors, k=k + (drop is not None) + older, shape_weight=w,
-                distance=partial_l2 if partial else None)
+                distance=partial_l2 if partial else None, allowed=allowed)
         rows = []
         for i, d in zip(ids.tolist(), dist.tolist()):
             if i == drop or len(rows) == k:
@@ -392,6 +396,15 @@ class Database(Catalog):
             rows.append({"id": int(i), "name": rec[0], "version": int(rec[1]), "source": rec[2],
                          "distance": float(d)})
         return rows
+
+    def _approximate(self) -> bool:
+        """Whether :meth:`query` searches through the approximate index (the model count is at
+        :data:`surfidx.db.ann.DEFAULT_THRESHOLD` or above), told without loading anything."""
+        from .db.ann import DEFAULT_THRESHOLD
+
+        kept = self.__dict__.get("_kept_search")
+        return (kept is not None and kept.still_approximate()) or \
+            self.count() >= DEFAULT_THRESHOLD
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next

@@ -516,6 +516,47 @@ def test_ann_query_and_kinds_errors(big):
         ann.row_digest(np.zeros((2, 1100), np.float32))
 
 
+@pytest.mark.parametrize("scan_limit", [0, 10**9])
+def test_filtered_ann_query_is_the_exact_top_k_of_the_allowed(big, scan_limit):
+    """Inside the index (the others skipped while it scans, scan_limit 0) or all allowed
+    ranked exactly: the exact scan's top k among the allowed models, whatever their share."""
+    path, shape, tex, _ = big
+    qs, qt = noisy(shape, tex, seed=5, n=12)
+    rng = np.random.default_rng(9)
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        index = ann.open_index(db, kinds=DEFAULT_KINDS)
+        for share in (0.5, 0.05, 0.004):
+            allowed = np.flatnonzero(rng.random(1500) < share) + 1
+            for i in range(len(qs)):
+                for colour in (False, True):
+                    q = query_of(qs, qt, i, colour=colour)
+                    ei, ed = exact.query(q, k=10, allowed=allowed)
+                    ai, ad = ann_query(index, q, k=10, allowed=allowed, scan_limit=scan_limit)
+                    assert set(ai.tolist()) <= set(allowed.tolist())
+                    assert ai.size == min(10, allowed.size)
+                    assert ai.tolist() == ei.tolist()
+                    np.testing.assert_allclose(ad, ed, rtol=1e-9)
+        q = query_of(shape, tex, 7, colour=True)
+        ai, _ = ann_query(index, q, k=5, allowed=[8, 9, 1400], exclude=[8], scan_limit=0)
+        assert sorted(ai.tolist()) == [9, 1400]
+        assert ann_query(index, q, k=5, allowed=[], scan_limit=0)[0].size == 0
+        assert ann_query(index, q, k=5, allowed=[99999], scan_limit=0)[0].size == 0
+
+
+def test_exact_scan_takes_allowed_ids_as_a_filter(big):
+    path, shape, tex, _ = big
+    with Database(path, readonly=True) as db:
+        exact = SearchIndex(db, exact=True)
+        q = query_of(shape, tex, 3, colour=True)
+        ids, d = exact.query(q, k=1500)
+        allowed = np.arange(2, 1501, 7)
+        keep = np.isin(ids, allowed)
+        fi, fd = exact.query(q, k=30, allowed=allowed, exclude=[9])
+        assert fi.tolist() == [i for i in ids[keep].tolist() if i != 9][:30]
+        np.testing.assert_allclose(fd, d[keep][ids[keep] != 9][:30], rtol=1e-9)
+
+
 # ---------------------------------------------------------------------- at the threshold
 @pytest.fixture(scope="module")
 def at_threshold(tmp_path_factory):
@@ -585,6 +626,22 @@ def test_cli_queries_stay_exact_while_models_are_removed_and_redescribed(at_thre
     with Database(path, readonly=True) as db:
         assert json.loads((ann.index_dir(path) / "manifest.json").read_text())["state"] \
             == db.index_state()
+
+
+def test_filtered_query_on_the_index_path_equals_the_exact_one(at_threshold):
+    """At the threshold ``Database.query(where=)`` goes through the index (the passing models
+    asked of it, or all ranked exactly when few pass) and gives ``exact=True``'s answer."""
+    path, shape, tex, _ = at_threshold
+    with Database(path, readonly=True) as db:
+        assert db._approximate()
+        for where in ("id > 3000", "id <= 400 and colour = true", "id = 77"):
+            for ref in (12, 40, 5000):
+                got = db.query(ref, k=10, where=where)
+                want = db.query(ref, k=10, where=where, exact=True)
+                assert [r["id"] for r in got] == [r["id"] for r in want]
+                np.testing.assert_allclose([r["distance"] for r in got],
+                                           [r["distance"] for r in want], rtol=1e-9)
+        assert [r["id"] for r in db.query(12, k=3, where="id = 77")] == [77]
 
 
 def test_cli_query_defaults_come_from_the_library():

@@ -65,7 +65,7 @@ from ..validate import as_array, check_positive_int
 
 __all__ = ["AnnIndex", "open_index", "build", "update", "index_dir", "index_size",
            "list_count", "DEFAULT_THRESHOLD", "DEFAULT_FACTOR", "DEFAULT_PROBES", "BUILD_KINDS",
-           "FORMAT"]
+           "FILTER_SCAN_LIMIT", "FORMAT"]
 
 #: Model count from which :class:`surfidx.db.search.SearchIndex` uses the index (the exact scan
 #: below it): below it a scan is fast and exact by construction, and no writer pays for an
@@ -77,6 +77,18 @@ DEFAULT_FACTOR = 4
 
 #: Lists a query scans in each index (``nprobe``; all of them when an index has fewer).
 DEFAULT_PROBES = 32
+
+#: Passing models up to which a filtered query (:meth:`AnnIndex.query` with ``allowed``) ranks
+#: every one of them by the exact distance on the row copies instead of asking the index: an
+#: exact result for about the cost of an index query (the scan's cost grows with the passing
+#: models, the index's does not; ``benchmarks/query_latency.py --filtered`` prints the paths).
+FILTER_SCAN_LIMIT = 1_000
+
+#: Candidates of a filtered query asked of the index, as a multiple of the unfiltered ones: the
+#: passing models near a query lie further out than the nearest of all, where the 8-bit codes
+#: order them less surely; twice the candidates bring a filtered query's recall to the
+#: unfiltered one's at about the same cost (``benchmarks/query_latency.py --filtered``).
+_FILTER_WIDEN = 2
 
 #: Manifest format version (an index of another format is rebuilt).
 FORMAT = 3
@@ -383,10 +395,26 @@ class AnnIndex:
         return True
 
     # ---------------------------------------------------------------- queries
-    def candidates(self, graph: str, vector, n: int, *, probes: int = DEFAULT_PROBES):
+    def candidates(self, graph: str, vector, n: int, *, probes: int = DEFAULT_PROBES,
+                   allowed=None):
         """Ids of the ``n`` models nearest to ``vector`` in one index (``"shape"``: the kinds
         of :attr:`kinds` but texture side by side; ``"texture"``), by the 8-bit codes of the
         ``probes`` nearest lists.
+
+        With ``allowed``, only those models are candidates: the index skips the others while it
+        scans its lists (a faiss ``IDSelectorBitmap``), and it scans ``probes`` lists scaled by
+        the index's models over the allowed ones (so that about as many allowed models are
+        compared as an unfiltered query compares), doubled until ``n`` are found or every list
+        is scanned.
+
+        Parameters
+        ----------
+        graph : str
+        vector : (d,) array_like
+        n : int
+        probes : int
+        allowed : (a,) int64, optional
+            Ascending model ids.
 
         Returns
         -------
@@ -400,11 +428,33 @@ class AnnIndex:
         if v.size != ix.d:
             raise InputError(f"query vector of {graph!r} has {v.size} values but the index "
                              f"holds {ix.d}")
-        ix.nprobe = max(1, min(int(probes), int(ix.nlist)))
-        with _one_thread():
-            _, found = ix.search(v, int(min(n, ix.ntotal)))
-        found = np.asarray(found[0], np.int64)
-        return found[found >= 0]
+        nlist = int(ix.nlist)
+        nprobe = max(1, min(int(probes), nlist))
+        if allowed is None:
+            ix.nprobe = nprobe
+            with _one_thread():
+                _, found = ix.search(v, int(min(n, ix.ntotal)))
+            found = np.asarray(found[0], np.int64)
+            return found[found >= 0]
+        faiss = _faiss()
+        allowed = np.asarray(allowed, np.int64)
+        if allowed.size == 0 or allowed[0] < 0:
+            return np.zeros(0, np.int64)
+        member = np.zeros(int(allowed[-1]) + 1, bool)
+        member[allowed] = True
+        bits = np.packbits(member, bitorder="little")     # bit i: id i may be returned
+        selector = faiss.IDSelectorBitmap(int(bits.size), faiss.swig_ptr(bits))
+        n = int(min(n, ix.ntotal, allowed.size))
+        nprobe = min(nlist, max(nprobe, -(-nprobe * int(ix.ntotal) // int(allowed.size))))
+        while True:
+            params = faiss.SearchParametersIVF(sel=selector, nprobe=nprobe)
+            with _one_thread():
+                _, found = ix.search(v, n, params=params)
+            found = np.asarray(found[0], np.int64)
+            found = found[found >= 0]
+            if found.size >= n or nprobe >= nlist:
+                return found
+            nprobe = min(nlist, 2 * nprobe)
 
     def rows(self, ids) -> tuple:
         """The stored descriptors of some models from the row copies (as
@@ -445,7 +495,8 @@ class AnnIndex:
 
     def query(self, descriptors, *, distance, k: int = 10, shape_weight: float,
               exclude=None, factor: int = DEFAULT_FACTOR,
-              probes: int = DEFAULT_PROBES) -> tuple:
+              probes: int = DEFAULT_PROBES, allowed=None,
+              scan_limit: int = FILTER_SCAN_LIMIT) -> tuple:
         """The ``k`` models nearest to a query by ``distance``, among the candidates of the
         graphs, with the database as stored now (:meth:`refresh` first).
 
@@ -466,6 +517,13 @@ class AnnIndex:
             Candidates per result and graph.
         probes : int
             Lists scanned per index (at least 1).
+        allowed : sequence of int, optional
+            Only these model ids may be returned (a filter's passing models). Up to
+            ``scan_limit`` of them are all ranked by the exact distance (the exact answer);
+            more are asked of the index with the others skipped inside it
+            (:meth:`candidates`), twice as many candidates as without a filter.
+        scan_limit : int
+            See ``allowed``.
 
         Returns
         -------
@@ -499,15 +557,27 @@ class AnnIndex:
             raise InputError(f"the query has no {first!r} descriptor")
         excl = np.zeros(0, np.int64) if exclude is None else np.unique(
             as_array(list(exclude), "exclude", dtype=np.int64, shape=(None,)))
-        n = factor * (k + excl.size)
-        cand = []
-        for graph, members in _groups(self.kinds).items():
-            if graph == _COLOUR_KIND and (_COLOUR_KIND not in q or float(shape_weight) >= 1.0):
-                continue
-            vec = np.concatenate([q.get(kd, np.zeros(self.dims[kd], np.float32))
-                                  for kd in members])
-            cand.append(self.candidates(graph, vec, n, probes=probes))
-        cand = np.unique(np.concatenate(cand))
+        if allowed is not None:
+            allowed = as_array(allowed if isinstance(allowed, np.ndarray) else list(allowed),
+                               "allowed", dtype=np.int64, shape=(None,))
+            if allowed.size > 1 and not bool(np.all(allowed[1:] > allowed[:-1])):
+                allowed = np.unique(allowed)            # ascending and unique, as selected
+            if excl.size:
+                allowed = allowed[~np.isin(allowed, excl)]
+                excl = np.zeros(0, np.int64)
+        n = factor * (k + excl.size) * (1 if allowed is None else _FILTER_WIDEN)
+        if allowed is not None and allowed.size <= int(scan_limit):
+            cand = allowed                                  # all of them, exactly
+        else:
+            cand = []
+            for graph, members in _groups(self.kinds).items():
+                if graph == _COLOUR_KIND and (_COLOUR_KIND not in q
+                                              or float(shape_weight) >= 1.0):
+                    continue
+                vec = np.concatenate([q.get(kd, np.zeros(self.dims[kd], np.float32))
+                                      for kd in members])
+                cand.append(self.candidates(graph, vec, n, probes=probes, allowed=allowed))
+            cand = np.unique(np.concatenate(cand))
         if excl.size:
             cand = cand[~np.isin(cand, excl)]
         ids, stored, present = self._take(cand)

@@ -1747,14 +1747,35 @@ class Catalog:
         -------
         (n,) int64
         """
-        return np.array([r["id"] for r in self.list_models(tag=tag, where=where,
-                                                            all_versions=all_versions)],
-                        np.int64)
+        where, args = self._model_conditions(tag=tag, where=where, all_versions=all_versions)
+        cur = self.conn.execute(
+            "SELECT m.id FROM models m LEFT JOIN assets a ON a.model_id = m.id"
+            + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY m.id", args)
+        return np.fromiter((r[0] for r in cur), np.int64)
 
     def superseded(self) -> int:
         """Number of stored versions that are not their model's latest."""
         return int(self.conn.execute(f"SELECT count(*) FROM models m WHERE NOT ({LATEST_SQL})")
                    .fetchone()[0])
+
+    def _model_conditions(self, *, tag=None, name_like=None, where=None,
+                          all_versions: bool = False) -> tuple:
+        """SQL conditions on ``models m`` / ``assets a`` and their parameters, of
+        :meth:`list_models`' selection (latest versions unless ``all_versions``)."""
+        filter_text, where, args = where, [] if all_versions else [LATEST_SQL], []
+        for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
+            where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
+            args.append(str(t))
+        if name_like is not None:
+            where.append("m.name LIKE ?")
+            args.append(str(name_like))
+        if filter_text is not None:
+            from .filters import where_sql
+
+            sql, more = where_sql(filter_text)
+            where.append(f"({sql})")
+            args += more
+        return where, args
 
     def list_models(self, *, tag=None, name_like: str | None = None,
                     where: str | None = None, all_versions: bool = False) -> list:
@@ -1785,19 +1806,8 @@ class Catalog:
         keys = ("id", "name", "source", "content_hash", "n_surfels", "has_color", "ingested_at",
                 "bits_per_surfel", "bytes", *QUALITY_KEYS, "version", "versions", "source_abs",
                 "has_original")
-        filter_text, where, args = where, [] if all_versions else [LATEST_SQL], []
-        for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
-            where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
-            args.append(str(t))
-        if name_like is not None:
-            where.append("m.name LIKE ?")
-            args.append(str(name_like))
-        if filter_text is not None:
-            from .filters import where_sql
-
-            sql, more = where_sql(filter_text)
-            where.append(f"({sql})")
-            args += more
+        where, args = self._model_conditions(tag=tag, name_like=name_like, where=where,
+                                             all_versions=all_versions)
         cur = self.conn.execute(
             "SELECT m.id, m.name, m.source, m.content_hash, m.n_surfels, m.has_color, "
             "m.ingested_at, a.bits_per_surfel, a.bytes, a.psnr_d1, a.psnr_d2, a.psnr_y, "

@@ -11,6 +11,9 @@ Two paths, one answer:
   texture for a coloured query), ranked by the exact distance below on the index's float32 copies
   of the stored rows, so every distance returned is the exact one.
 
+A filter's passing models (``allowed`` ids) narrow either path: the scan leaves the others out,
+the index skips them inside its lists (:meth:`surfidx.db.ann.AnnIndex.query`).
+
 ``benchmarks/query_latency.py`` prints both paths' latency and the index's recall@10 against the
 scan at 10 000, 100 000 and 1 000 000 models.
 
@@ -143,7 +146,7 @@ class SearchIndex:
         return int(self.ids.size)
 
     def query(self, descriptors, *, k: int = 10, shape_weight: float = DEFAULT_SHAPE_WEIGHT,
-              distance=None, exclude=None) -> tuple:
+              distance=None, exclude=None, allowed=None) -> tuple:
         """The ``k`` stored models nearest to a query.
 
         Parameters
@@ -160,6 +163,9 @@ class SearchIndex:
             :func:`weighted_l2`.
         exclude : sequence of int, optional
             Model ids to leave out (e.g. the query's own id).
+        allowed : sequence of int, optional
+            Only these model ids may be returned (a filter's passing models; on the
+            approximate path see :meth:`surfidx.db.ann.AnnIndex.query`).
 
         Returns
         -------
@@ -177,7 +183,8 @@ class SearchIndex:
         w = check_shape_weight(shape_weight)
         if self.approximate:
             return self._ann.query(descriptors, distance=distance or weighted_l2, k=k,
-                                   shape_weight=w, exclude=exclude, factor=self.factor)
+                                   shape_weight=w, exclude=exclude, factor=self.factor,
+                                   allowed=allowed)
         q = {}
         for kind, vec in descriptors.items():
             if kind not in self.stored:
@@ -211,9 +218,15 @@ class SearchIndex:
             if d.shape != (m,):
                 raise InputError(f"the distance function returned shape {d.shape}, "
                                  f"expected ({m},)")
+        drop = None
         if exclude is not None:
+            drop = np.isin(self.ids, np.asarray(list(exclude), np.int64))
+        if allowed is not None:
+            out = ~np.isin(self.ids, np.asarray(allowed, np.int64).ravel())
+            drop = out if drop is None else drop | out
+        if drop is not None:
             d = d.copy()
-            d[np.isin(self.ids, np.asarray(list(exclude), np.int64))] = np.inf
+            d[drop] = np.inf
         kk = min(k, m)
         if distance is None:
             nc = min(m, max(4 * kk, kk + 64))
@@ -221,8 +234,8 @@ class SearchIndex:
             exact = weighted_l2(q, {kd: s[cand] for kd, s in self.stored.items()},
                                 {kd: p[cand] for kd, p in self.present.items()}, shape_weight=w)
             d = np.full(m, np.inf)
-            if exclude is not None:
-                keep = ~np.isin(self.ids[cand], np.asarray(list(exclude), np.int64))
+            if drop is not None:
+                keep = ~drop[cand]
                 cand, exact = cand[keep], exact[keep]
             d[cand] = exact
         else:
