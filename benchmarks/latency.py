@@ -26,13 +26,16 @@ Commands
   process per model (per-model CPU, and their mean).
 
 Run ``python benchmarks/latency.py [--tree /work/main] [--repeat 3] [--skip ingest view]
-[--markdown]``; two runs with different ``--tree`` give the before/after table.
+[--json out.json] [--markdown]``; two runs with different ``--tree`` and ``--json`` give the
+before/after table: ``python benchmarks/latency.py --compare before.json after.json
+[--markdown]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import os
 import resource
 import shutil
@@ -114,6 +117,32 @@ def write_view(model: str, path: Path) -> int:
     return len(v)
 
 
+def compare(before: Path, after: Path, markdown=None) -> int:
+    """Print (and with ``markdown`` write) the table of two ``--json`` files: per command the
+    median CPU seconds before and after, and their ratio; the ingests' mean at the end."""
+    old, new = (json.loads(Path(p).read_text()) for p in (before, after))
+    report = Report("latency", "CPU per command, process start included", markdown,
+                    note=("Each command in its own process (`python -m surfidx ...`), CPU = user "
+                          "+ system time of the process tree, after one unmeasured run (numba's "
+                          "cache filled, bytecode compiled); median of the measured runs (one "
+                          "run for the single view and each ingest), before and after."))
+    report.text(f"before: {old['tree']}; after: {new['tree']}")
+    rows, ingest = [], {"before": [], "after": []}
+    for label in [k for k in old["runs"] if k in new["runs"]]:
+        a, b = statistics.median(old["runs"][label]), statistics.median(new["runs"][label])
+        rows.append([label, f"{a:.2f}", f"{b:.2f}", f"{b / a:.2f}" if a > 0 else "-"])
+        if label.startswith("ingest -j 1 "):
+            ingest["before"].append(a)
+            ingest["after"].append(b)
+    if ingest["before"]:
+        a, b = statistics.mean(ingest["before"]), statistics.mean(ingest["after"])
+        rows.append([f"ingest -j 1, mean of {len(ingest['before'])}", f"{a:.2f}", f"{b:.2f}",
+                     f"{b / a:.2f}"])
+    report.table(["command", "CPU s before", "CPU s after", "after/before"], rows)
+    report.finish()
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tree", type=Path, default=ROOT,
@@ -126,8 +155,14 @@ def main(argv=None) -> int:
                     help="leave these commands out")
     ap.add_argument("--work", type=Path, default=None,
                     help="folder for the databases and generated files (default a temporary one)")
+    ap.add_argument("--json", type=Path, default=None,
+                    help="also write the measured CPU seconds per command to this file")
+    ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
+                    help="print the before/after table of two --json files (nothing is run)")
     add_markdown_option(ap, "latency")
     args = ap.parse_args(argv)
+    if args.compare:
+        return compare(*args.compare, args.markdown)
 
     tree = args.tree.resolve()
     work = Path(args.work or tempfile.mkdtemp(prefix="surfidx-latency-"))
@@ -147,7 +182,7 @@ def main(argv=None) -> int:
                     note=("Each command in its own process (`python -m surfidx ...`), CPU = user + "
                           "system time of the process tree, after one unmeasured run (numba's "
                           "cache filled); median and minimum of the measured runs."))
-    rows = []
+    rows, measured = [], {}
 
     def measure(label, cmd, *, repeat=args.repeat, prepare=None, warm=True):
         if warm:
@@ -161,6 +196,7 @@ def main(argv=None) -> int:
             t, code = cpu_run(cmd, env=env, cwd=work)
             times.append(t if code == 0 else float("nan"))
         rows.append([label, f"{statistics.median(times):.2f}", f"{min(times):.2f}"])
+        measured[label] = times
         print(f"  {label}: {' '.join(f'{t:.2f}' for t in times)}", file=sys.stderr, flush=True)
         return times
 
@@ -198,6 +234,8 @@ def main(argv=None) -> int:
     report.text(f"tree {tree}, {args.repeat} runs per command (1 for the view and each ingest)")
     report.table(["command", "CPU s (median)", "CPU s (min)"], rows)
     report.finish()
+    if args.json:
+        args.json.write_text(json.dumps({"tree": str(tree), "runs": measured}, indent=1))
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)
     return 0

@@ -29,7 +29,10 @@ def _load_extension():
     import importlib.machinery
     import importlib.util
     import os
+    import sys
 
+    if "pyshtools._SHTOOLS" in sys.modules:            # pyshtools (or this) loaded it already
+        return sys.modules["pyshtools._SHTOOLS"]
     spec = importlib.util.find_spec("pyshtools")   # finds the package, does not import it
     if spec is None or not spec.submodule_search_locations:
         return None
