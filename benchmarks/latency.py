@@ -17,7 +17,7 @@ Commands
 * ``import surfidx`` and ``surfidx --help``: the fixed cost of any command;
 * ``surfidx info FILE`` of the median-size retrieval model;
 * ``surfidx query FILE`` of a 642-vertex icosphere (small) and of the median-size retrieval model
-  (by vertex count in ``meta.csv``), against a database of a few retrieval models built once per
+  (by vertex count in ``meta.csv``; ``--query-models`` names others), against a database of a few retrieval models built once per
   tree (``ingest -j 1``);
 * ``surfidx query FILE`` of a simulated single view (``--view MODEL``, default d071, a view of
   about 10k vertices; ``benchmarks/_shape_baselines.simulate_view`` with the seed
@@ -117,7 +117,7 @@ def write_view(model: str, path: Path) -> int:
     return len(v)
 
 
-def compare(before: Path, after: Path, markdown=None) -> int:
+def compare(before: Path, after: Path, markdown=None, note: str = "") -> int:
     """Print (and with ``markdown`` write) the table of two ``--json`` files: per command the
     median CPU seconds before and after, and their ratio; the ingests' mean at the end."""
     old, new = (json.loads(Path(p).read_text()) for p in (before, after))
@@ -126,7 +126,7 @@ def compare(before: Path, after: Path, markdown=None) -> int:
                           "+ system time of the process tree, after one unmeasured run (numba's "
                           "cache filled, bytecode compiled); median of the measured runs (one "
                           "run for the single view and each ingest), before and after."))
-    report.text(f"before: {old['tree']}; after: {new['tree']}")
+    report.text(f"before: {old['tree']}; after: {new['tree']}" + (f". {note}" if note else ""))
     rows, ingest = [], {"before": [], "after": []}
     for label in [k for k in old["runs"] if k in new["runs"]]:
         a, b = statistics.median(old["runs"][label]), statistics.median(new["runs"][label])
@@ -150,6 +150,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="measured runs per command")
     ap.add_argument("--ingest", nargs="*", default=list(INGEST_MODELS),
                     help="retrieval models ingested one per process")
+    ap.add_argument("--query-models", nargs="*", default=None,
+                    help="retrieval models queried by file (default the median-size one)")
     ap.add_argument("--view", default="d071", help="retrieval model whose single view is queried")
     ap.add_argument("--skip", nargs="*", default=[], choices=["query", "info", "ingest", "view"],
                     help="leave these commands out")
@@ -159,10 +161,12 @@ def main(argv=None) -> int:
                     help="also write the measured CPU seconds per command to this file")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
                     help="print the before/after table of two --json files (nothing is run)")
+    ap.add_argument("--note", default="",
+                    help="with --compare: a sentence on the circumstances, printed under the table")
     add_markdown_option(ap, "latency")
     args = ap.parse_args(argv)
     if args.compare:
-        return compare(*args.compare, args.markdown)
+        return compare(*args.compare, args.markdown, note=args.note)
 
     tree = args.tree.resolve()
     work = Path(args.work or tempfile.mkdtemp(prefix="surfidx-latency-"))
@@ -211,8 +215,10 @@ def main(argv=None) -> int:
     if "query" not in args.skip:
         measure("query FILE (642-vertex sphere)", cli + ["query", "-q", "--db", str(db),
                                                         str(sphere)])
-        measure(f"query FILE ({median}, median)", cli + ["query", "-q", "--db", str(db),
-                                                         str(median_file)])
+        for m in args.query_models or [median]:
+            label = f"{m}, median" if m == median else m
+            measure(f"query FILE ({label})", cli + ["query", "-q", "--db", str(db),
+                                                    str(DATA / "meshes" / f"{m}.off")])
     if "view" not in args.skip:
         view, opened = work / f"{args.view}-view.off", work / "open642.off"
         n = write_view(args.view, view)
