@@ -55,7 +55,27 @@ def is_x86_64() -> bool:
 
 
 def _numpy_names_levels() -> bool:
-    """Whether the installed numpy names its targets by level (numpy 2.4 and later)."""
+    """Whether the installed numpy names its targets by level (numpy 2.4 and later).
+
+    The version is read without importing numpy (this runs before numpy loads) and without
+    ``importlib.metadata`` (whose imports cost more than the rest of a command's start-up):
+    from ``numpy/version.py`` beside numpy's ``__init__``, else from the package metadata.
+    """
+    import importlib.util
+    import re
+
+    text = None
+    try:
+        spec = importlib.util.find_spec("numpy")
+        if spec is not None and spec.origin:
+            with open(os.path.join(os.path.dirname(spec.origin), "version.py"),
+                      encoding="utf-8") as f:
+                text = f.read()
+    except (OSError, ImportError, ValueError):
+        text = None
+    found = re.search(r'^version\s*=\s*["\'](\d+)\.(\d+)', text or "", re.MULTILINE)
+    if found:
+        return (int(found.group(1)), int(found.group(2))) >= (2, 4)
     from importlib.metadata import PackageNotFoundError, version
 
     try:

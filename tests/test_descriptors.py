@@ -248,3 +248,59 @@ def test_d2_draws_and_distances_are_numpys():
     y = rng.normal(size=(500, 3)) * rng.random((500, 1)) * 1e3
     i, j = rng.integers(0, 500, 20_000), rng.integers(0, 500, 20_000)
     assert np.array_equal(pair_distances(y, i, j), np.linalg.norm(y[i] - y[j], axis=1))
+
+
+def test_sh_expansion_is_pyshtools_fortran_bit_for_bit():
+    """expand_dh and degree_spectrum give what pyshtools' Fortran SHExpandDH and its
+    ``spectrum`` give, to the bit, on grids of the sizes the descriptors use and others."""
+    from pyshtools.backends import shtools
+    from pyshtools.spectralanalysis import spectrum
+
+    from surfidx.describe.harmonics import degree_spectrum, expand_dh
+
+    rng = np.random.default_rng(4)
+    for lmax_grid, lmax in ((24, 24), (24, 12), (32, 32), (7, 3)):
+        n = 2 * (lmax_grid + 1)
+        grid = rng.standard_normal((n, 2 * n))
+        want = shtools.SHExpandDH(grid, norm=1, sampling=2, csphase=1, lmax_calc=lmax)
+        got = expand_dh(grid, lmax)
+        assert got.shape == (2, lmax + 1, lmax + 1)
+        assert np.array_equal(got, want)
+        assert np.array_equal(degree_spectrum(got),
+                              spectrum(want, normalization="4pi", unit="per_l"))
+
+
+def test_sh_expansion_rejects_bad_grids():
+    from surfidx.describe.harmonics import expand_dh
+
+    with pytest.raises(InputError, match=r"is \(n, 2n\) with n even, got shape \(51, 102\)"):
+        expand_dh(np.zeros((51, 102)), 12)
+    with pytest.raises(InputError, match=r"is \(n, 2n\) with n even, got shape \(50, 50\)"):
+        expand_dh(np.zeros((50, 50)), 12)
+    with pytest.raises(InputError, match=r"lmax must be in 0\.\.24 for a grid of 50 latitudes, "
+                                         r"got 25"):
+        expand_dh(np.zeros((50, 100)), 25)
+
+
+def test_describing_loads_no_plotting_or_table_library():
+    """Describing a grid imports SHTOOLS' compiled transform only (``pyshtools._SHTOOLS``), not
+    pyshtools' package (whose classes load matplotlib, xarray, astropy and pandas); importing
+    the package later in the same process still works."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import sys, json\n"
+            "from surfidx.describe.descriptors import describe_grid\n"
+            "from surfidx.geometry.icosphere import icosphere\n"
+            "v = icosphere(3).vertices\n"
+            "describe_grid(v * [1.0, 1.5, 2.0], 3)\n"
+            "heavy = {'pyshtools', 'matplotlib', 'xarray', 'astropy', 'pandas'}\n"
+            "loaded = {m for m in sys.modules if m != 'pyshtools._SHTOOLS'}\n"
+            "print(json.dumps(sorted({m.split('.')[0] for m in loaded} & heavy)))\n"
+            "import pyshtools\n"                   # the package still imports afterwards
+            "print(pyshtools.expand.SHExpandDH is not None)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, check=True).stdout.strip().splitlines()
+    assert json.loads(out[-2]) == []
+    assert out[-1] == "True"

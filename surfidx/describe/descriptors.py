@@ -87,6 +87,7 @@ from ..validate import as_array
 from ..geometry.icosphere import icosphere, vertex_count
 from ..geometry.mesh import cotangent_laplacian, vertex_area_shares
 from ..codec.klt import KLT
+from .harmonics import degree_spectrum, expand_dh
 from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
@@ -178,16 +179,12 @@ def degree_energies(layers: np.ndarray, level: int, lmax: int, *,
     The layers are interpolated onto the Driscoll–Healy grid of degree ``grid_lmax`` (default
     ``lmax``; a larger grid samples the layers more densely) and expanded up to degree ``lmax``.
     """
-    import pyshtools as pysh
-
     grid_lmax = lmax if grid_lmax is None else max(int(grid_lmax), lmax)
     n = 2 * (grid_lmax + 1)
     dh = (_ico_to_dh(level, grid_lmax) @ layers).reshape(n, 2 * n, -1)
     out = np.empty((layers.shape[1], lmax + 1))
     for j in range(layers.shape[1]):
-        cilm = pysh.expand.SHExpandDH(np.ascontiguousarray(dh[:, :, j]), norm=1, sampling=2,
-                                      csphase=1, lmax_calc=lmax)
-        out[j] = pysh.spectralanalysis.spectrum(cilm, normalization="4pi", unit="per_l")
+        out[j] = degree_spectrum(expand_dh(dh[:, :, j], lmax))
     return out
 
 
