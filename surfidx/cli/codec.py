@@ -77,7 +77,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
         dropped = model.parts_dropped
         pe = PartsEncoder(parts, options=opts.codec, map_options=opts.map,
                           density_weighting=density_weighting, progress=progress,
-                          face_patches=fps)
+                          face_patches=fps, texture=model.texture)
         data = pe.encode(bits, progress=progress)
         report(progress, "write", 0, 1)
         write_atomic(output, lambda tmp: tmp.write_bytes(data))
