@@ -739,12 +739,12 @@ class Encoder:
 def encode(surfels: SurfelSet, *, bits_per_surfel: float | None = None,
            level: int | None = None, color: bool | None = None, method: str | None = None,
            tangent_weight=_UNSET, density_weighting: bool | None = None, face_patch=None,
-           options=None, map_options=None) -> bytes:
+           options=None, map_options=None, texture=None) -> bytes:
     """One-call encoding (see :class:`Encoder`); ``bits_per_surfel`` defaults to
     ``options.bits_per_surfel``."""
     e = Encoder(surfels, options=options, map_options=map_options, level=level, color=color,
                 method=method, tangent_weight=tangent_weight,
-                density_weighting=density_weighting, face_patch=face_patch)
+                density_weighting=density_weighting, face_patch=face_patch, texture=texture)
     return e.encode(e.options.bits_per_surfel if bits_per_surfel is None else bits_per_surfel)
 
 
