@@ -32,19 +32,21 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..geometry.icosphere import MAX_LEVEL, vertex_count
+from ..geometry.icosphere import vertex_count
 from ..jit import njit
 
 __all__ = ["TextureSource", "texels", "color_level", "sample_colors", "rd_schedule",
-           "fixed_schedule", "pass_distortions", "MAX_COLOR_LEVEL", "MAX_COLOR_LEVELS_ABOVE",
-           "YUV_WEIGHTS", "ALLOCATIONS"]
+           "fixed_schedule", "pass_distortions", "luma_chroma_weights", "MAX_COLOR_LEVEL",
+           "MAX_COLOR_LEVELS_ABOVE", "YUV_WEIGHTS", "ALLOCATIONS"]
 
 MAX_COLOR_LEVEL = 8
 """Finest colour grid the encoder picks (655,362 vertices)."""
 
-MAX_COLOR_LEVELS_ABOVE = 2
-"""Most levels the colour grid lies above the geometry's (16 colour samples per geometry
-vertex): the decoder's work stays in proportion to the geometry."""
+MAX_COLOR_LEVELS_ABOVE = 1
+"""Most levels the colour grid lies above the geometry's (4 colour samples per geometry
+vertex): the decoder's work stays in proportion to the geometry. A second level reads little
+more luma at the rates the codec serves (``benchmarks/allocation.py``) and costs four times the
+decoding."""
 
 YUV_WEIGHTS = (6.0, 1.0, 1.0)
 """Weights of the Y, U and V (BT.601) squared errors in the colour distortion of the schedule
@@ -366,15 +368,3 @@ def luma_chroma_weights(basis_color) -> np.ndarray:
     return proj @ np.asarray(YUV_WEIGHTS) / sum(YUV_WEIGHTS)
 
 
-def check_allocation(allocation) -> str:
-    """``allocation`` if it is one of :data:`ALLOCATIONS`."""
-    if allocation not in ALLOCATIONS:
-        raise InputError(f"allocation must be one of {', '.join(ALLOCATIONS)}, got "
-                         f"{allocation!r}")
-    return allocation
-
-
-def max_level_check(level):
-    if not 0 <= level <= MAX_LEVEL:
-        raise InputError(f"colour level must be 0..{MAX_LEVEL}, got {level}")
-    return level
