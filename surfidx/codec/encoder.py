@@ -7,10 +7,11 @@ served at a lower rate by truncation (:func:`decode` with ``bits_per_surfel``). 
 ``ceil(B · n / 8)`` bytes.
 
 Units. Before the KLT, geometry is divided by the input's bounding-box diagonal (the PSNR peak) and
-colour by 255 and multiplied by :data:`COLOR_WEIGHT`; the zerotree coder spends bits where the
-(normalised) wavelet coefficients are largest, so this weight sets the split of bits between
-geometry and texture; ``benchmarks/color_weight.py`` measures the split at several weights and
-rates.
+colour by 255 and multiplied by :data:`COLOR_WEIGHT`. Colour has its own, finer grid, sampled
+from the texture when the model has one, and geometry and colour are two groups of the zerotree
+coder whose bit-plane passes the header orders (:mod:`surfidx.codec.colorgrid`): by gain of
+``PSNR_D2 + color_importance · PSNR_YUV`` per bit, or, with ``allocation="fixed"``, plane by
+plane as the colour weight scales them.
 
 Two weightings fit the coder's uniform thresholds to point-to-plane distortion over the input:
 

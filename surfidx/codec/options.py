@@ -15,12 +15,14 @@ DEFAULT_BITS_PER_SURFEL = 8.0
 """Full rate of a stored stream, bits per input surfel (lower rates are served by truncation)."""
 
 COLOR_WEIGHT = 0.02
-"""Weight of colour (in units of 255) against geometry (in units of the bounding-box diagonal).
+"""Unit weight of colour (in units of 255) against geometry (in units of the bounding-box
+diagonal).
 
-It sets how the coder splits its bits between geometry and texture. A larger weight spends more on
-colour at low rates, where geometry errors also mis-pair the colours the luma metric compares, so
-both figures drop; this value gives the best sum of PSNR_D2 and luma PSNR on the textured models
-of ``benchmarks/color_weight.py``, which prints the figures (re-run it when the map changes).
+With ``allocation="fixed"`` it splits the bits between geometry and texture (both groups'
+planes in one order): this value gave the best sum of PSNR_D2 and luma PSNR on the textured
+models of ``benchmarks/color_weight.py``. With ``allocation="rd"`` (the default) the order of
+the planes is chosen by :data:`COLOR_IMPORTANCE` and this weight only sets the colour layers'
+quantisation units.
 """
 
 COLOR_IMPORTANCE = 1.0
