@@ -21,7 +21,7 @@ default λ. ``geo-only D2`` is a colourless stream given exactly the geometry pa
 the ``rd`` stream at that rate.
 
     python benchmarks/allocation.py [--models spot ycb_banana] [--rates 1 2 3.56 8 16]
-                                    [--importance 0.5 1 2] [--markdown]
+                                    [--importance 0.5 1 2] [--jobs 2] [--markdown]
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ MODELS = {"spot": "spot/spot_triangulated.obj",
           "ycb_banana": "ycb_banana/textured_simple_reoriented.obj",
           "ycb_scissors": "ycb_scissors/textured_simple_reoriented.obj"}
 RATES = (1.0, 2.0, 3.56, 8.0, 16.0)
-SAMPLES = 200_000
+SAMPLES = 50_000
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -77,19 +77,12 @@ def surface_luma(reference, test, samples=SAMPLES) -> float:
 
 def _geometry_bits(enc, max_bytes):
     """Bits of the geometry passes in the first ``max_bytes`` bytes of ``enc``'s stream."""
-    from surfidx.codec import zerotree
-    from surfidx.codec.encoder import _layout
+    from surfidx.codec.encoder import pass_bits
 
-    p = enc.prepared
-    q = p.quantised
-    sched = zerotree.group_schedule(p.schedule, (q.header["top_plane"], p.color_top), 0)
-    groups, limits = _layout(p.level, p.color_level)
-    _, _, bits = zerotree.encode_prepared(q, schedule=sched, groups=groups,
-                                          depth_limits=limits, marks=True)
+    groups, cost = pass_bits(enc.prepared)
     budget = 8.0 * (max_bytes - enc.header_bytes())
-    cost = np.diff(np.r_[0.0, bits])
     geo, used = 0.0, 0.0
-    for g, c in zip(p.schedule, cost):
+    for g, c in zip(groups, cost):
         take = min(c, max(budget - used, 0.0))
         used += take
         if g == 0:
@@ -103,7 +96,6 @@ def measure(name, path, rates, importances):
         model = read_model(path)
     surfels = model.surfels
     reference = model.texture
-    from surfidx.geometry.mesh import MAX_EDGE_RATIO  # noqa: F401
 
     base = Encoder(model.parts[0], options=CodecOptions(color=False))
     smap = base.sphere_map
@@ -153,6 +145,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rates", nargs="+", type=float, default=list(RATES))
     ap.add_argument("--importance", nargs="+", type=float, default=[0.5, 1.0, 2.0])
     ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--jobs", type=int, default=2, help="models measured at once")
     add_markdown_option(ap, "allocation")
     args = ap.parse_args(argv)
     if not args.data.is_dir():
@@ -163,8 +156,14 @@ def main(argv=None) -> int:
                          f"against the original texture ({SAMPLES:,} samples each way); "
                          f"J = PSNR_D2 + {COLOR_IMPORTANCE:g} · luma; decode = CPU seconds of "
                          "a textured mesh decode; levels = geometry/colour grid levels.")
-    for name in args.models:
-        rows = measure(name, args.data / MODELS[name], args.rates, args.importance)
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        results = list(pool.map(measure, args.models,
+                                [args.data / MODELS[n] for n in args.models],
+                                [args.rates] * len(args.models),
+                                [args.importance] * len(args.models)))
+    for name, rows in zip(args.models, results):
         table = []
         for r in rows:
             table.append([r["variant"], r["levels"], f"{r['rate']:g}", f"{r['d2']:.2f}",

@@ -70,6 +70,18 @@ def test_colourless_streams_keep_their_format(checker):
     assert container.unpack(plain)[0].version == 3
 
 
+def test_pass_bits_add_up_to_the_stream(checker):
+    from surfidx.codec.encoder import pass_bits
+
+    _, surfels, enc = checker
+    groups, bits = pass_bits(enc.prepared)
+    assert tuple(groups) == enc.prepared.schedule and np.all(bits >= 0)
+    full = enc.encode(1000.0)
+    assert abs(bits.sum() / 8 - (len(full) - enc.header_bytes())) < 8
+    with pytest.raises(InputError, match="needs a stream with colour"):
+        pass_bits(Encoder(surfels, color=False, sphere_map=enc.sphere_map).prepared)
+
+
 def test_rd_schedule_orders_by_gain_per_bit():
     order = rd_schedule([6, 6, 6], [1, 2, 4], [6, 6, 6], [1, 2, 4], 1.0)
     assert sorted(order) == [0, 0, 0, 1, 1, 1]

@@ -63,7 +63,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
-           "READ_LEVEL_MIN"]
+           "READ_LEVEL_MIN", "pass_bits"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 """Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
@@ -502,6 +502,37 @@ def _schedule(options, quantised, coeffs, step, color_top, level, clevel, color_
 
 
 _FLOOR = 1e-12   # relative distortion floor of the schedule's gains (keeps the logs finite)
+
+
+def pass_bits(prepared: Prepared):
+    """The bit-plane passes of a colour-grid stream and what each costs.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        With colour.
+
+    Returns
+    -------
+    groups : (s,) int64
+        The group of each pass in stream order (0 geometry, 1 colour).
+    bits : (s,) float64
+        Bits each pass takes in the stream (the last pass's include the coder's flush).
+
+    Raises
+    ------
+    InputError
+        A model coded without colour.
+    """
+    p = prepared
+    if p.color_level is None:
+        raise InputError("pass_bits needs a stream with colour (geometry alone is one group)")
+    q = p.quantised
+    groups, limits = _layout(p.level, p.color_level)
+    sched = zerotree.group_schedule(p.schedule, (q.header["top_plane"], p.color_top), 0)
+    _, _, bits = zerotree.encode_prepared(q, schedule=sched, groups=groups,
+                                          depth_limits=limits, marks=True)
+    return np.asarray(p.schedule, np.int64), np.diff(np.r_[0.0, bits])
 
 
 def _code_mask(surfels, sphere_points, location, face_patch, level):
