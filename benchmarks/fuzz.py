@@ -182,7 +182,7 @@ def stream_seeds() -> list[bytes]:
         full = Encoder(s, level=4, density_weighting=True, sphere_map=sphere_map)
         plain = Encoder(s, level=3, color=False, tangent_weight=None, density_weighting=False,
                         sphere_map=sphere_map)
-        return [full.encode(2.0), full.encode(6.0), plain.encode(3.0), plain.encode(12.0)]
+        return [full.encode(2.5), full.encode(6.0), plain.encode(3.0), plain.encode(12.0)]
 
 
 # ---------------------------------------------------------------------- mutations
@@ -248,8 +248,9 @@ def _mutate_text(data: bytes, rng) -> bytes:
     return "\n".join(lines).encode("latin-1")
 
 
-def _tail_offset(data: bytes):
-    """Where the container's tail (stream length, CRCs) starts, or None if unparsable."""
+def _tail_offset(data: bytes, grid: bool = True):
+    """Where the container's tail (stream length, CRCs) starts, or None if unparsable
+    (``grid=False``: where its colour-grid section would start)."""
     if len(data) < 16:
         return None
     flags, k, clen = data[5], data[7], struct.unpack_from("<H", data, 14)[0]
@@ -264,7 +265,25 @@ def _tail_offset(data: bytes):
         if len(data) < off + 2:
             return None
         off += 2 + struct.unpack_from("<H", data, off)[0]
+    if flags & 16:
+        if len(data) < off + 4:
+            return None
+        off += 4 + struct.unpack_from("<I", data, off)[0]
+        if len(data) < off + 2:
+            return None
+        off += 2 + 2 * struct.unpack_from("<H", data, off)[0]
+    if flags & 32 and grid:
+        if len(data) < off + 3:
+            return None
+        off += 3 + (data[off + 2] + 7) // 8
     return off if len(data) >= off + 12 else None
+
+
+def _colour_grid_offset(data: bytes):
+    """Where a version-5 container's colour-grid section starts, or None."""
+    if len(data) < 16 or not data[5] & 32:
+        return None
+    return _tail_offset(data, grid=False)
 
 
 def _reseal(data: bytes) -> bytes:
@@ -285,7 +304,7 @@ def _mutate_header(data: bytes, rng) -> bytes:
     d = bytearray(data)
     k = d[7] if len(d) > 7 and d[7] in (3, 6) else 6
     coder = 16 + 4 * k + 2 * k * k + 4 * (1 if k <= 3 else 2)
-    field = int(rng.integers(0, 10))
+    field = int(rng.integers(0, 11))
     try:
         if field == 0:
             d[6] = int(rng.choice([0, 1, 5, 6, 7, 8, 9, 10, 12, 13, 255]))  # level
@@ -315,8 +334,12 @@ def _mutate_header(data: bytes, rng) -> bytes:
                 struct.pack_into("<f", d, off, float(rng.choice(_INTERESTING_F32)))
             else:
                 d[off + 4 + int(rng.integers(0, 6))] = int(rng.choice(_INTERESTING_BYTES))
-        else:                                                                # coder length
+        elif field == 9:                                                     # coder length
             struct.pack_into("<H", d, 14, int(rng.choice([0, 1, 7, 9, 255, 65535])))
+        else:                                         # colour grid: level, top, passes, order
+            off = _colour_grid_offset(bytes(d))
+            if off is not None:
+                d[off + int(rng.integers(0, 4))] = int(rng.choice(_INTERESTING_BYTES))
     except (IndexError, struct.error):
         pass
     return bytes(d)

@@ -323,7 +323,8 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
     # one part: exactly Encoder's stream (PartsEncoder of one part is that part's Encoder)
     pe = PartsEncoder(list(model.parts), options=opts.codec, map_options=opts.map,
                       progress=progress,
-                      face_patches=[model.face_patch(i) for i in range(len(model.parts))])
+                      face_patches=[model.face_patch(i) for i in range(len(model.parts))],
+                      texture=model.texture)
     encoders = list(pe.encoders)
     for e in encoders:
         for k, v in e.setup_seconds.items():

@@ -319,3 +319,37 @@ def fake_decode(stream: bytes, *, bits_per_surfel=None, **level) -> SurfelSet:
 
 
 OBJ = {"processor": fake_processor, "decoder": fake_decode}
+
+
+def checker_sphere(level: int = 3, size: int = 256, checks: int = 8):
+    """A unit sphere mesh textured with a black-and-white checkerboard of ``checks`` × ``checks``
+    squares on longitude/latitude texture coordinates (split at the date line)."""
+    from surfidx import TriangleMesh
+    from surfidx.geometry.icosphere import icosphere
+
+    ico = icosphere(level)
+    v = np.asarray(ico.vertices, np.float64)
+    f = np.asarray(ico.faces, np.int64)
+    u = (np.arctan2(v[:, 1], v[:, 0]) / (2 * np.pi)) % 1.0
+    t = np.arccos(np.clip(v[:, 2], -1, 1)) / np.pi
+    cu = u[f]
+    wrap = (cu.max(axis=1) - cu.min(axis=1)) > 0.5
+    cu[wrap] = np.where(cu[wrap] < 0.5, cu[wrap] + 1.0, cu[wrap])
+    uv = np.column_stack([cu.ravel(), 1.0 - t[f].ravel()])
+    ij = np.indices((size, size))
+    board = ((ij[0] * checks // size + ij[1] * checks // size) % 2 * 255).astype(np.uint8)
+    image = np.repeat(board[:, :, None], 3, axis=2)
+    return TriangleMesh(v, f, uv=uv, uv_faces=np.arange(3 * len(f)).reshape(-1, 3),
+                        texture=image, name="checker")
+
+
+def surface_luma(reference, test, samples: int = 20000) -> float:
+    """Luma PSNR of ``test`` (a decoded textured mesh) against ``reference`` (a textured mesh):
+    ``reference`` sampled uniformly, each sample against ``test``'s texture at the closest
+    point of its surface."""
+    from surfidx.codec.colorgrid import TextureSource
+
+    s = reference.to_surfels(samples=samples, seed=0)
+    y = np.array([0.2126, 0.7152, 0.0722])
+    err = (np.asarray(s.colors, np.float64) - TextureSource(test)(s.positions)) @ y
+    return float(10 * np.log10(255.0 ** 2 / max(float(np.mean(err ** 2)), 1e-12)))

@@ -41,13 +41,14 @@ def invoke(args, obj=OBJ):
 @pytest.fixture(scope="module")
 def real(tmp_path_factory):
     """A database holding one model processed by the real pipeline (a level-2 icosphere with
-    colours, 162 surfels), stored as 'ball', and its folder."""
+    colours, 162 surfels, at 10 bits/surfel: its colour-grid header leaves 8 too little
+    stream), stored as 'ball', and its folder."""
     root = tmp_path_factory.mktemp("real")
     v, f = icosphere_mesh(2)
     col = np.clip((v + 1) * 127.5, 0, 255).astype(np.uint8)
     trimesh.Trimesh(v, f, vertex_colors=col, process=False).export(root / "ball.glb")
     with surfidx.Database.open(root / "r.db") as db:
-        summary = db.ingest(root / "ball.glb", tags=["demo"], workers=1)
+        summary = db.ingest(root / "ball.glb", tags=["demo"], workers=1, bits_per_surfel=10.0)
         assert (summary.stored, summary.failed) == (1, 0), summary.errors
     return root, root / "r.db"
 
@@ -80,8 +81,8 @@ def test_get_and_export(real, tmp_path):
         assert np.array_equal(tm.vertices, mesh.vertices) and tm.metadata["name"] == "ball"
         assert np.array_equal(tm.visual.vertex_colors[:, :3], mesh.vertex_colors)
         full = db.get_sfz("ball")
-        cut = db.get_sfz("ball", bits_per_surfel=7.5)      # the header takes 149 bytes
-        assert len(cut) <= -(-7.5 * 162 // 8) < len(full)         # ceil(B·n/8) bytes
+        cut = db.get_sfz("ball", bits_per_surfel=8.5)      # the header takes 159 bytes
+        assert len(cut) <= -(-8.5 * 162 // 8) < len(full)         # ceil(B·n/8) bytes
         for fmt in ("ply", "obj", "glb"):
             out = db.export("ball", tmp_path / f"b.{fmt}", level=2)
             assert out["format"] == fmt and out["surfels"] == 162 and out["level"] == 2
@@ -95,7 +96,7 @@ def test_get_and_export(real, tmp_path):
             loaded = trimesh.load(tmp_path / f"v.{fmt}", force="mesh", process=False)
             assert len(loaded.vertices) == 162
             assert len(loaded.faces) == 320
-        out = db.export("ball", tmp_path / "b.sfz", bits_per_surfel=7.5)
+        out = db.export("ball", tmp_path / "b.sfz", bits_per_surfel=8.5)
         assert out["bytes"] == len(cut) == (tmp_path / "b.sfz").stat().st_size
         assert db.list_models(tag="demo")[0]["tags"] == ["demo"]
         with pytest.raises(InputError, match="cannot tell the output format"):
@@ -107,8 +108,8 @@ def test_get_and_export(real, tmp_path):
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["faces"] == 5120
     r = invoke(["decode", tmp_path / "b.sfz", "-o", tmp_path / "c.sfz",
-                "--bits-per-surfel", 7.4], obj=None)
-    assert r.exit_code == 0 and "bytes of stream at 7.4 bits/surfel" in r.stdout, r.output
+                "--bits-per-surfel", 8.5], obj=None)
+    assert r.exit_code == 0 and "bytes of stream at 8.5 bits/surfel" in r.stdout, r.output
     r = invoke(["get", "ball", "--db", path, "-o", tmp_path / "g.obj"], obj=None)
     assert r.exit_code == 0 and ("mesh of 2,562 vertices and 5,120 faces (OBJ, grid level 4, "
                                  "256² texture)") in r.stdout

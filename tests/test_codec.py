@@ -52,18 +52,20 @@ def test_prefix_decoding_equals_direct_encoding(enc):
         np.testing.assert_array_equal(a, b)
 
 
-def test_closed_genus_0_streams_are_unchanged_by_version_4(enc):
-    """Format version 4 (virtual-region masks, parts) writes closed genus-0 single-part models
-    as version 3, byte for byte. The hashes were those of version 3's streams, re-measured when
-    a change of the map (the nested-dissection factorisation of :mod:`surfidx.geometry.sparse`, Newton
-    steps of the centring) changed every map; the version byte still says 3."""
+def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
+    """Format versions 4 (virtual-region masks, parts) and 5 (colour grids) write colourless
+    closed genus-0 single-part models as version 3, byte for byte (these are the hashes of the
+    version-4 codec's colourless streams of this model); a coloured stream has its colour grid
+    and is version 5."""
     import hashlib
 
-    want = {2.0: "e80e1ad5606a758de0c214940a1f42092fbc42fe2c61edadfef22cf883710beb",
-            4.0: "e32e3c7185c9ffc475599fbd6be109a0234f06a7d39ee039e4112145f2ce1d7f"}
+    want = {2.0: "c215294f70ba8a2b04c9fac0f4f05e62fbde2629620d089c2bf6d300042ab91c",
+            4.0: "4260d1f588abddce0c6294fe0ef4ec7ed834af0b8dd144636a8ea42bbcd67598"}
+    plain = Encoder(blob, level=5, color=False)
     for rate, digest in want.items():
-        data = enc.encode(rate)
+        data = plain.encode(rate)
         assert data[4] == 3 and hashlib.sha256(data).hexdigest() == digest
+        assert enc.encode(rate)[4] == 5
 
 
 def test_high_rate_reproduces_the_grid(blob):
@@ -268,7 +270,8 @@ def test_cli_info_of_a_stream(tmp_path, blob):
     assert r.exit_code == 0, r.output
     info = json.loads(r.output)
     assert info["bytes"] == len(data) and info["input_surfels"] == len(blob)
-    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 3
+    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 5
+    assert info["color_level"] >= 4
     assert info["local_frames"] and info["tangent_weight"] == 0.5
     assert len(info["frame_anchors"]) == 4 and info["density_weighted"]
     assert info["weight_field_level"] is not None and abs(info["bits_per_surfel"] - 3.0) < 0.01

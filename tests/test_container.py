@@ -28,7 +28,7 @@ def test_round_trip(color):
     # no virtual-region mask: written as version 3, byte for byte as before version 4
     assert (h2.n_surfels, h2.level, h2.color, h2.lifted, h2.coder, h2.map_method, h2.version) == (
         1234, 5, color, True, b"\x07\x01abc", 2, 3)
-    assert FORMAT_VERSION == 4
+    assert FORMAT_VERSION == 5
     np.testing.assert_array_equal(h2.basis, np.float16(h.basis))
     np.testing.assert_array_equal(h2.mean, np.float32(h.mean))
     np.testing.assert_array_equal(h2.weights, np.float32(h.weights))

@@ -92,7 +92,7 @@ def test_closed_model_has_no_mask_and_writes_version_3(ball):
     assert ball.mask == b"" and ball.regions == ()
     data = ball.encode(4.0)
     assert data[4] == 3 and container.unpack(data)[0].version == 3
-    assert container.FORMAT_VERSION == 4
+    assert container.FORMAT_VERSION == 5
 
 
 def test_mask_regions_anchor_and_join_patches():

@@ -32,11 +32,18 @@ __all__ = ["encode", "decode", "output_summary"]
 @click.option("--density-weighting/--no-density-weighting", default=None,
               help="Weight coefficients by the input's surfel density on the sphere (default: "
                    "when the estimated gain is at least 1 dB).")
+@click.option("--color-importance", type=float, default=None,
+              help="Weight of colour in the measure the coder maximises, PSNR_D2 + w * "
+                   "PSNR_YUV (default 1).")
+@click.option("--allocation", type=click.Choice(["rd", "fixed"]), default=None,
+              help="Order of geometry and colour bit planes: by gain of that measure per bit "
+                   "(rd, default) or plane by plane (fixed).")
 @input_options
 @options_file_option
 @common_options
 def encode(input, output, bits, no_color, level, method, tangent_weight, no_frames,
-           density_weighting, texture, samples, options, *, console):
+           density_weighting, color_importance, allocation, texture, samples, options, *,
+           console):
     """Encode a model into an embedded .sfz bitstream.
 
     A mesh that is not one closed genus-0 piece is repaired first (surfidx.topology.read_model, that is
@@ -66,6 +73,10 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
         opts = replace(opts, codec=codec_options(opts.codec, tangent_weight=tangent_weight))
     if no_color:
         opts = opts.updated(**{"codec.color": False})
+    if color_importance is not None:
+        opts = opts.updated(**{"codec.color_importance": color_importance})
+    if allocation is not None:
+        opts = opts.updated(**{"codec.allocation": allocation})
     bits = opts.codec.bits_per_surfel
     with console.progress() as progress:
         report(progress, "read", 0, 1)
@@ -77,7 +88,7 @@ def encode(input, output, bits, no_color, level, method, tangent_weight, no_fram
         dropped = model.parts_dropped
         pe = PartsEncoder(parts, options=opts.codec, map_options=opts.map,
                           density_weighting=density_weighting, progress=progress,
-                          face_patches=fps)
+                          face_patches=fps, texture=model.texture)
         data = pe.encode(bits, progress=progress)
         report(progress, "write", 0, 1)
         write_atomic(output, lambda tmp: tmp.write_bytes(data))

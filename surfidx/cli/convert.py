@@ -127,6 +127,9 @@ def _stream_info(path) -> dict:
            "bits_per_surfel": 8.0 * len(data) / n if n else None,
            "grid_level": header.level,
            "grid_vertices": vertex_count(header.level), "color": header.color,
+           "color_level": header.color_level if header.color_level is not None
+           else (header.level if header.color else None),
+           "color_passes": sum(header.schedule) if header.schedule else None,
            "layers": header.layers, "stream_bytes": len(stream),
            "map_method": MAP_METHODS[header.map_method]
            if header.map_method < len(MAP_METHODS) else header.map_method,

@@ -11,4 +11,6 @@ from .encoder import (Encoder as Encoder, encode as encode, decode as decode,
                       decode_parts as decode_parts, stream_summary as stream_summary,
                       read_level as read_level)
 from .options import CodecOptions as CodecOptions
+from .options import COLOR_IMPORTANCE as COLOR_IMPORTANCE
+from .colorgrid import TextureSource as TextureSource
 from .encoder import Prepared as Prepared, prepare as prepare, code as code

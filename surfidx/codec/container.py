@@ -23,21 +23,25 @@ __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "h
            "part_surfels"]
 
 MAGIC = b"\x89SFZ"
-FORMAT_VERSION = 4
-"""Version 4 (this one): version 3 plus an optional virtual-region mask and region table after
+FORMAT_VERSION = 5
+"""Version 5 (this one): version 4 plus an optional colour-grid section after the mask (flag
+bit 5): the colour layers on their own finer grid and the schedule of geometry and colour bit
+planes in the stream. A file without it is written as version 4 or 3, byte for byte as before.
+Version 4: version 3 plus an optional virtual-region mask and region table after
 the density-weight field (flag bit 4), and multi-part files (several part containers in one,
 flag bit 7 of a short outer header). A file without either is written as version 3, byte for
 byte (closed genus-0 single-part models keep their streams). Version 3: optional local-frame
 tangent weight and density-weight field after the coder header (flag bits 2 and 3). Version 2
 (still read): the same without them. Version 1 stored the basis and one weight per layer as
 float32 (132 bytes more with colour)."""
-READ_VERSIONS = (2, 3, 4)
+READ_VERSIONS = (2, 3, 4, 5)
 
 FLAG_COLOR = 1
 FLAG_LIFTED = 2
 FLAG_FRAMES = 4
 FLAG_WEIGHTED = 8
 FLAG_MASK = 16
+FLAG_COLOR_GRID = 32
 FLAG_PARTS = 128
 
 MAX_PARTS = 4096
@@ -129,6 +133,14 @@ class Header:
     regions : tuple of int
         With a mask: the code of each connected virtual region of the grid mask, regions in the
         order of their smallest grid vertex (:func:`region_code`: a hole, or a side of a cut).
+    color_level : int or None
+        With colour: the grid level of the colour layers when they have their own grid (format
+        version 5, flag bit 5), at least ``level``; None: colour on the geometry's grid.
+    color_top : int
+        With ``color_level``: the colour layers' top bit plane (-1: all zero).
+    schedule : tuple of int
+        With ``color_level``: the group of each bit-plane pass in stream order (0 geometry,
+        1 colour; :func:`surfidx.codec.zerotree.group_schedule`).
     """
 
     n_surfels: int
@@ -146,6 +158,9 @@ class Header:
     anchors: tuple = ()
     mask: bytes = b""
     regions: tuple = ()
+    color_level: int | None = None
+    color_top: int = -1
+    schedule: tuple = ()
     extra: dict = field(default_factory=dict)
 
     @property
@@ -159,7 +174,7 @@ def _n_weights(k: int) -> int:
 
 def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors: int = 0,
                 field_bytes: int | None = None, mask_bytes: int | None = None,
-                regions: int = 0) -> int:
+                regions: int = 0, passes: int | None = None) -> int:
     """Bytes of a container's header.
 
     Parameters
@@ -180,11 +195,19 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors:
         and 2 bytes per region); None: no mask.
     regions : int
         Entries of the region table.
+    passes : int, optional
+        With a colour grid: the schedule's passes (3 bytes plus one bit per pass); None: no
+        colour grid.
     """
     k = layers
     extra = (5 + anchors if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
     extra += 0 if mask_bytes is None else 6 + mask_bytes + 2 * regions
+    extra += 0 if passes is None else _grid_section_size(passes)
     return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
+
+
+def _grid_section_size(passes: int) -> int:
+    return 3 + (int(passes) + 7) // 8
 
 
 def storable(mean, basis, weights):
@@ -280,13 +303,30 @@ def pack(header: Header, stream: bytes) -> bytes:
         version = 4
         extra += (struct.pack("<I", len(header.mask)) + bytes(header.mask)
                   + struct.pack(f"<H{len(regions)}H", len(regions), *regions))
+    smallest = min_file_bytes(header.level)
+    if header.color_level is not None:
+        order = [int(g) for g in header.schedule]
+        if not (header.color and header.level <= header.color_level <= MAX_LEVEL):
+            raise InputError(f"a colour grid needs colour and a level in {header.level}.."
+                             f"{MAX_LEVEL}, got {header.color_level!r}")
+        if len(order) > 255 or any(g not in (0, 1) for g in order) or not (
+                -1 <= header.color_top <= MAX_PLANE):
+            raise InputError(f"a colour grid's schedule is at most 255 passes of group 0 or 1 "
+                             f"and its top plane in -1..{MAX_PLANE}, got {len(order)} passes, "
+                             f"top {header.color_top}")
+        flags |= FLAG_COLOR_GRID
+        version = 5
+        bits = np.packbits(np.asarray(order, np.uint8), bitorder="little").tobytes() \
+            if order else b""
+        extra += struct.pack("<BbB", header.color_level, header.color_top, len(order)) + bits
+        smallest = min_file_bytes(header.color_level)
     body = _FIXED.pack(MAGIC, version, flags, header.level, k, header.n_surfels,
                        header.map_method, 0, len(header.coder))
     body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder) + extra
     body += struct.pack("<I", len(stream))
-    if len(body) + 8 + len(stream) < min_file_bytes(header.level):
+    if len(body) + 8 + len(stream) < smallest:
         raise InputError(f"a level-{header.level} container needs at least "
-                         f"{min_file_bytes(header.level)} bytes, this one would have "
+                         f"{smallest} bytes, this one would have "
                          f"{len(body) + 8 + len(stream)}; give the stream more bytes")
     return body + struct.pack("<II", zlib.crc32(body), zlib.crc32(stream)) + bytes(stream)
 
@@ -341,9 +381,11 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         raise BitstreamError(f"corrupt header (grid level {level}; format version {version} "
                              f"allows 0 … {MAX_LEVEL})", path=path)
     known = {2: FLAG_COLOR | FLAG_LIFTED, 3: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES
-             | FLAG_WEIGHTED}.get(version, FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
-                                  | FLAG_MASK)
-    if version < 4 and flags & (FLAG_FRAMES | FLAG_WEIGHTED | FLAG_MASK) & ~known:
+             | FLAG_WEIGHTED, 4: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
+             | FLAG_MASK}.get(version, FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
+                              | FLAG_MASK | FLAG_COLOR_GRID)
+    if version < 5 and flags & (FLAG_FRAMES | FLAG_WEIGHTED | FLAG_MASK | FLAG_COLOR_GRID) \
+            & ~known:
         raise BitstreamError(f"corrupt header (flags {flags:#04x} unknown to version {version})",
                              path=path)
     nw = _n_weights(k)
@@ -368,6 +410,12 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         if len(data) >= mask_off + mask_len + 2:
             n_regions = struct.unpack_from("<H", data, mask_off + mask_len)[0]
         tail_off = mask_off + mask_len + 2 + 2 * n_regions
+    grid_off = tail_off
+    color_level, color_top, n_passes = None, -1, 0
+    if flags & FLAG_COLOR_GRID:
+        if len(data) >= grid_off + 3:
+            color_level, color_top, n_passes = struct.unpack_from("<BbB", data, grid_off)
+        tail_off = grid_off + _grid_section_size(n_passes)
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
@@ -375,6 +423,10 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         raise BitstreamError(f"corrupt header (grid level {level} in a file of {len(data)} "
                              f"bytes; that grid needs at least {min_file_bytes(level)})",
                              path=path)
+    if color_level is not None and not (level <= color_level <= MAX_LEVEL
+                                        and len(data) >= min_file_bytes(color_level)):
+        raise BitstreamError(f"corrupt header (colour grid level {color_level} for grid level "
+                             f"{level} in a file of {len(data)} bytes)", path=path)
     s_len, hcrc, scrc = _TAIL.unpack_from(data, tail_off)
     if zlib.crc32(data[:tail_off + 4]) != hcrc:
         raise BitstreamError("header checksum mismatch: the file is damaged", path=path)
@@ -385,6 +437,9 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if flags & FLAG_MASK and (mask_len == 0 or n_regions == 0):
         raise BitstreamError(f"corrupt header (virtual-region mask of {mask_len} bytes with "
                              f"{n_regions} regions; both must be > 0)", path=path)
+    if flags & FLAG_COLOR_GRID and not (flags & FLAG_COLOR and -1 <= color_top <= MAX_PLANE):
+        raise BitstreamError(f"corrupt header (colour grid without colour, or colour top plane "
+                             f"{color_top})", path=path)
     if (k == 6) != bool(flags & FLAG_COLOR):
         raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
                              path=path)
@@ -423,7 +478,12 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     if flags & FLAG_MASK:
         mask = bytes(data[mask_off:mask_off + mask_len])
         regions = struct.unpack_from(f"<{n_regions}H", data, mask_off + mask_len + 2)
+    schedule = ()
+    if flags & FLAG_COLOR_GRID:
+        raw = np.frombuffer(data, np.uint8, (n_passes + 7) // 8, grid_off + 3)
+        schedule = tuple(int(b) for b in np.unpackbits(raw, bitorder="little")[:n_passes])
     header = Header(
+        color_level=color_level, color_top=color_top, schedule=schedule,
         mask=mask, regions=tuple(int(r) for r in regions),
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
         mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
@@ -470,9 +530,10 @@ def truncate(data: bytes, max_bytes: int, *, path=None) -> bytes:
         return pack_parts(cut)
     header, stream = unpack(data, path=path)
     hsize = len(data) - len(stream)
-    if max_bytes < max(hsize, min_file_bytes(header.level)):
+    finest = header.level if header.color_level is None else header.color_level
+    if max_bytes < max(hsize, min_file_bytes(finest)):
         raise InputError(f"a budget of {max_bytes} bytes does not hold the {hsize}-byte header "
-                         f"(or the {min_file_bytes(header.level)} bytes a level-{header.level} "
+                         f"(or the {min_file_bytes(finest)} bytes a level-{finest} "
                          "container needs); ask for a higher rate")
     if max_bytes >= len(data):
         return bytes(data)

@@ -7,10 +7,11 @@ served at a lower rate by truncation (:func:`decode` with ``bits_per_surfel``). 
 ``ceil(B · n / 8)`` bytes.
 
 Units. Before the KLT, geometry is divided by the input's bounding-box diagonal (the PSNR peak) and
-colour by 255 and multiplied by :data:`COLOR_WEIGHT`; the zerotree coder spends bits where the
-(normalised) wavelet coefficients are largest, so this weight sets the split of bits between
-geometry and texture; ``benchmarks/color_weight.py`` measures the split at several weights and
-rates.
+colour by 255 and multiplied by :data:`COLOR_WEIGHT`. Colour has its own, finer grid, sampled
+from the texture when the model has one, and geometry and colour are two groups of the zerotree
+coder whose bit-plane passes the header orders (:mod:`surfidx.codec.colorgrid`): by gain of
+``PSNR_D2 + color_importance · PSNR_YUV`` per bit, or, with ``allocation="fixed"``, plane by
+plane as the colour weight scales them.
 
 Two weightings fit the coder's uniform thresholds to point-to-plane distortion over the input:
 
@@ -52,6 +53,7 @@ from ..errors import BitstreamError, InputError
 from ..validate import check_positive_int
 from ..geometry.icosphere import MAX_LEVEL, icosphere, vertex_count
 from .klt import KLT
+from .colorgrid import sample_colors
 from .resample import grid_patches, locate_surfels, resample
 from ..sphere.options import METHODS as MAP_METHODS
 from ..geometry.surfels import SurfelSet
@@ -61,7 +63,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
-           "READ_LEVEL_MIN"]
+           "READ_LEVEL_MIN", "pass_bits"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 """Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
@@ -218,6 +220,18 @@ class Prepared:
         Index of the map's method in :data:`MAP_METHODS` (the header's code).
     seconds : dict of str -> float
         Wall seconds of ``map``, ``resample`` and ``transform`` (figures only).
+    color_level : int or None
+        With colour: the colour grid's level (at least ``level``).
+    color_grid : (10·4^color_level + 2, 3) float64 or None
+        The colour layers on it (r, g, b, 0..255); ``grid``'s colour is its prefix.
+    color_top : int
+        The colour layers' top bit plane.
+    schedule : tuple of int
+        The group (0 geometry, 1 colour) of each bit-plane pass in stream order.
+    quantised : surfidx.codec.zerotree.Prepared or None
+        With colour: the coefficients quantised on the colour grid's forest.
+    allocation : str
+    color_importance : float
     """
 
     n_surfels: int
@@ -238,6 +252,13 @@ class Prepared:
     virtual_share: float
     map_method: int
     seconds: dict
+    color_level: int | None = None
+    color_grid: np.ndarray | None = None
+    color_top: int = -1
+    schedule: tuple = ()
+    quantised: object = None
+    allocation: str = "rd"
+    color_importance: float = 1.0
 
     def report(self) -> dict:
         """What the codec says about itself for a model's stored params: its version, grid
@@ -247,6 +268,9 @@ class Prepared:
         return {"codec_version": CODEC_VERSION, "grid_level": int(self.level),
                 "map_method": self.sphere_map.method, "folded": int(self.sphere_map.folded),
                 "color_weight": float(self.color_weight), "tangent_weight": self.tangent_weight,
+                "color_level": self.color_level, "allocation": self.allocation if self.color
+                else None, "color_importance": float(self.color_importance) if self.color
+                else None,
                 "density_weighted": bool(self.weight_field),
                 "lift": {"phong": PHONG_ALPHA, "sharpness": PHONG_SHARPNESS}}
 
@@ -256,15 +280,17 @@ class Prepared:
             self.coeffs.shape[1], zerotree.HEADER_SIZE, frames=self.tangent_weight is not None,
             anchors=len(self.anchors),
             field_bytes=len(self.weight_field) if self.weight_field else None,
-            mask_bytes=len(self.mask) if self.mask else None, regions=len(self.regions))
+            mask_bytes=len(self.mask) if self.mask else None, regions=len(self.regions),
+            passes=len(self.schedule) if self.color_level is not None else None)
 
     def lowest_bytes(self) -> int:
         """The smallest file this model's container can be."""
-        return max(self.header_bytes() + 4, container.min_file_bytes(self.level))
+        finest = self.level if self.color_level is None else self.color_level
+        return max(self.header_bytes() + 4, container.min_file_bytes(finest))
 
 
 def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=None,
-            progress=None, face_patch=None) -> Prepared:
+            progress=None, face_patch=None, texture=None) -> Prepared:
     """The rate-independent steps of the encoder: map, resample, mask, KLT, wavelets, density
     weights, frame anchors.
 
@@ -282,6 +308,9 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
         ``progress(stage, done, total)``: the map's stages, ``"resample"``, ``"transform"``.
     face_patch : (m,) int, optional
         Patch of each of ``surfels.faces`` (see :class:`Encoder`).
+    texture : TextureSource or TriangleMesh, optional
+        The textured mesh the surfels come from: colour is sampled from its texture on the
+        colour grid (:mod:`surfidx.codec.colorgrid`); default the surfels' colours.
 
     Returns
     -------
@@ -309,6 +338,12 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
     tangent_weight = options.tangent_weight
     if tangent_weight is not None:
         tangent_weight = float(np.float32(tangent_weight))  # the value the container stores
+    if texture is not None and color:
+        from .colorgrid import TextureSource
+
+        texture = texture if isinstance(texture, TextureSource) else TextureSource(texture)
+    else:
+        texture = None
     n_surfels = len(surfels)
     t = {}
     t0 = time.perf_counter()
@@ -321,7 +356,15 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
     location = sphere_map.location(level)
     if location is None:
         location = locate_surfels(surfels, sphere_map.points, level)
-    grid = resample(surfels, sphere_map.points, level, color=bool(color), location=location)
+    grid = resample(surfels, sphere_map.points, level, color=False, location=location)
+    clevel, cgrid = None, None
+    if color:
+        clevel = _color_level(options, level, texture)
+        cloc = location if clevel == level else locate_surfels(surfels, sphere_map.points,
+                                                               clevel)
+        cgrid = sample_colors(surfels, sphere_map.points, clevel, texture=texture,
+                              location=cloc)
+        grid = np.hstack([grid, cgrid[:len(grid)]])
     mask, regions, virtual_share = b"", (), 0.0
     if surfels.patch is not None:
         mask, regions, virtual_share = _code_mask(surfels, sphere_map.points, location,
@@ -341,16 +384,24 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
                          "rescale the model")
     area = icosphere(level).vertex_areas()
     frames = tangent_weight is not None
-    # local frames need the geometry layers to be a rotation of x, y, z alone
-    fit = KLT.fit(grid, weights=weights, sample_weights=area,
-                  groups=(3, k - 3) if frames and k > 3 else None)
+    if color:
+        # geometry and colour have their own grids: a block-diagonal KLT, each on its grid
+        fg = KLT.fit(grid[:, :3], weights=weights[:3], sample_weights=area)
+        fc = KLT.fit(cgrid, weights=weights[3:], sample_weights=icosphere(clevel).vertex_areas())
+        basis = np.zeros((6, 6))
+        basis[:3, :3], basis[3:, 3:] = fg.basis, fc.basis
+        fit = KLT(np.r_[fg.mean, fc.mean], basis, weights,
+                  eigenvalues=np.r_[fg.eigenvalues, fc.eigenvalues])
+    else:
+        fit = KLT.fit(grid, weights=weights, sample_weights=area)
     if not np.all(np.abs(fit.mean) <= container.MAX_MEAN):
         raise InputError(f"the model's centre lies more than {container.MAX_MEAN:g} "
                          "bounding-box diagonals from the origin; move it closer")
     # the values the container stores (float16 basis): encoder and decoder use the same
     klt = KLT(*container.storable(fit.mean, fit.basis, fit.weights),
               eigenvalues=fit.eigenvalues)
-    raw = wavelets.forward(klt.forward(grid), level, lifted=True)
+    kg = KLT(klt.mean[:3], klt.basis[:3, :3], klt.weights[:3]) if color else klt
+    raw = wavelets.forward(kg.forward(grid[:, :3]), level, lifted=True)
     scales = wavelets.level_norms(level)[icosphere(level).level_of]
     plain = raw * scales[:, None]   # forward(..., normalized=True)
     flevel = density.field_level(n_surfels, level)
@@ -364,9 +415,16 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
         dscale = density.vertex_scales(field, flevel, level)
         plain *= dscale[:, None]
         scales = scales * dscale
+    cplain = None
+    if color:
+        kc = KLT(klt.mean[3:], klt.basis[3:, 3:], klt.weights[3:])
+        cscales = wavelets.level_norms(clevel)[icosphere(clevel).level_of]
+        if density_weighting:
+            cscales = cscales * density.vertex_scales(field, flevel, clevel)
+        cplain = wavelets.forward(kc.forward(cgrid), clevel, lifted=True) * cscales[:, None]
     # local frames never lengthen a geometry detail vector: bound the top by the lengths
     top = max(float(np.sqrt(np.einsum("ij,ij->i", plain[:, :3], plain[:, :3])).max()),
-              float(np.abs(plain[:, 3:]).max()) if k > 3 else 0.0)
+              float(np.abs(cplain).max()) if color else 0.0)
     if not top > 0:
         raise InputError("the resampled model is constant; nothing to code")
     step = float(np.float32(top * 2.0 ** -_PLANES))
@@ -376,6 +434,17 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
         anchors = tuple(int(a) for a in wavelets.choose_anchors(plain, level, step))
         coeffs = wavelets.forward_anchored(raw, level, tangent_weight=tangent_weight,
                                            scales=scales, step=step, anchors=anchors)
+    schedule, color_top, quantised = (), -1, None
+    if color:
+        full = np.zeros((len(cplain), 6))
+        full[:len(coeffs), :3] = coeffs
+        full[:, 3:] = cplain
+        coeffs = full
+        quantised = zerotree.prepare(coeffs, _grid_forest(clevel), None, None, step=step,
+                                     final_plane=0)
+        color_top = int(np.max(quantised.magnitudes[3:])).bit_length() - 1
+        schedule = _schedule(options, quantised, coeffs, step, color_top, level, clevel,
+                             klt.basis[3:, 3:])
     map_method = MAP_METHODS.index(sphere_map.method) if sphere_map.method in MAP_METHODS else 0
     t["transform"] = time.perf_counter() - t0
     report(progress, "transform", 1, 1)
@@ -384,7 +453,86 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
                     tangent_weight=tangent_weight,
                     weight_field=weight_field, density_gain=density_gain, anchors=anchors,
                     mask=mask, regions=regions, virtual_share=virtual_share,
-                    map_method=map_method, seconds=t)
+                    map_method=map_method, seconds=t, color_level=clevel, color_grid=cgrid,
+                    color_top=color_top, schedule=schedule, quantised=quantised,
+                    allocation=options.allocation,
+                    color_importance=options.color_importance)
+
+
+def _color_level(options, level: int, texture) -> int:
+    """The colour grid's level: the option's, else from the texture's texels
+    (:func:`surfidx.codec.colorgrid.color_level`)."""
+    from .colorgrid import color_level
+
+    if options.color_level is not None:
+        if options.color_level < level:
+            raise InputError(f"color_level {options.color_level} is below the geometry's grid "
+                             f"level {level}; use at least {level} (or None: chosen from the "
+                             "texture)")
+        return int(options.color_level)
+    return color_level(level, None if texture is None else texture.texels)
+
+
+def _layout(level: int, color_level: int):
+    """Groups and depth limits of the six layers of a colour-grid stream."""
+    return (0, 0, 0, 1, 1, 1), (level,) * 3 + (color_level,) * 3
+
+
+def _schedule(options, quantised, coeffs, step, color_top, level, clevel, color_basis):
+    """The order of geometry and colour passes (:mod:`surfidx.codec.colorgrid`)."""
+    from .colorgrid import fixed_schedule, luma_chroma_weights, pass_distortions, rd_schedule
+
+    top = quantised.header["top_plane"]
+    fixed = fixed_schedule(top, color_top, 0)
+    if options.allocation == "fixed":
+        return fixed
+    groups, limits = _layout(level, clevel)
+    sched = zerotree.group_schedule(fixed, (top, color_top), 0)
+    _, _, bits = zerotree.encode_prepared(quantised, schedule=sched, groups=groups,
+                                          depth_limits=limits, marks=True)
+    cost = np.diff(np.r_[0.0, bits])
+    cg, cc = cost[np.asarray(fixed) == 0], cost[np.asarray(fixed) == 1]
+    n_geo = vertex_count(level)
+    dg = pass_distortions(coeffs[:n_geo, :3], step, top, 0, np.ones(3))
+    dc = pass_distortions(coeffs[:, 3:], step, color_top, 0, luma_chroma_weights(color_basis))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gg = 10 * np.log10((dg[:-1] + _FLOOR * dg[0]) / (dg[1:] + _FLOOR * dg[0]))
+        gc = 10 * np.log10((dc[:-1] + _FLOOR * dc[0]) / (dc[1:] + _FLOOR * dc[0]))
+    return rd_schedule(np.nan_to_num(gg), cg, np.nan_to_num(gc), cc, options.color_importance)
+
+
+_FLOOR = 1e-12   # relative distortion floor of the schedule's gains (keeps the logs finite)
+
+
+def pass_bits(prepared: Prepared):
+    """The bit-plane passes of a colour-grid stream and what each costs.
+
+    Parameters
+    ----------
+    prepared : Prepared
+        With colour.
+
+    Returns
+    -------
+    groups : (s,) int64
+        The group of each pass in stream order (0 geometry, 1 colour).
+    bits : (s,) float64
+        Bits each pass takes in the stream (the last pass's include the coder's flush).
+
+    Raises
+    ------
+    InputError
+        A model coded without colour.
+    """
+    p = prepared
+    if p.color_level is None:
+        raise InputError("pass_bits needs a stream with colour (geometry alone is one group)")
+    q = p.quantised
+    groups, limits = _layout(p.level, p.color_level)
+    sched = zerotree.group_schedule(p.schedule, (q.header["top_plane"], p.color_top), 0)
+    _, _, bits = zerotree.encode_prepared(q, schedule=sched, groups=groups,
+                                          depth_limits=limits, marks=True)
+    return np.asarray(p.schedule, np.int64), np.diff(np.r_[0.0, bits])
 
 
 def _code_mask(surfels, sphere_points, location, face_patch, level):
@@ -422,6 +570,8 @@ def _code_mask(surfels, sphere_points, location, face_patch, level):
 def quantise(prepared: Prepared):
     """The coefficients quantised on the grid's forest (:func:`surfidx.codec.zerotree.prepare`):
     the part of coding shared by every rate."""
+    if prepared.quantised is not None:
+        return prepared.quantised
     return zerotree.prepare(prepared.coeffs, _grid_forest(prepared.level), None, None,
                             step=prepared.step, final_plane=0)
 
@@ -467,16 +617,25 @@ def code_bytes(prepared: Prepared, max_bytes: int, *, quantised=None, progress=N
         progress("code", 0, 1)
     if quantised is None:
         quantised = quantise(p)
-    stream, zh = zerotree.encode_prepared(quantised, max_bytes=budget)
+    if p.color_level is None:
+        stream, zh = zerotree.encode_prepared(quantised, max_bytes=budget)
+    else:
+        groups, limits = _layout(p.level, p.color_level)
+        stream, zh = zerotree.encode_prepared(
+            quantised, max_bytes=budget, groups=groups, depth_limits=limits,
+            schedule=zerotree.group_schedule(p.schedule, (quantised.header["top_plane"],
+                                                          p.color_top), 0))
     # a stream that finished every plane early may be shorter than the grid's smallest
     # container: pad it with zero bytes, which the decoder reads past the end anyway
-    stream += bytes(max(0, container.min_file_bytes(p.level) - p.header_bytes() - len(stream)))
+    finest = p.level if p.color_level is None else p.color_level
+    stream += bytes(max(0, container.min_file_bytes(finest) - p.header_bytes() - len(stream)))
     header = container.Header(
         n_surfels=p.n_surfels, level=p.level, color=p.color, lifted=True,
         mean=p.klt.mean, basis=p.klt.basis, weights=p.klt.weights,
         coder=zerotree.pack_header(zh), map_method=p.map_method,
         tangent_weight=p.tangent_weight, weight_field=p.weight_field,
-        anchors=p.anchors, mask=p.mask, regions=p.regions)
+        anchors=p.anchors, mask=p.mask, regions=p.regions, color_level=p.color_level,
+        color_top=p.color_top, schedule=p.schedule)
     out = container.pack(header, stream)
     if progress is not None:
         progress("code", 1, 1)
@@ -515,6 +674,9 @@ class Encoder:
     face_patch : (m,) int, optional
         Patch of each of ``surfels.faces`` (-1: the scan's), for virtual faces whose corners are
         all scan vertices (:func:`surfidx.codec.resample.grid_patches`).
+    texture : TriangleMesh or surfidx.codec.colorgrid.TextureSource, optional
+        The textured mesh the surfels come from: the colour grid samples its texture
+        (:mod:`surfidx.codec.colorgrid`) instead of the surfels' colours.
 
     Attributes
     ----------
@@ -531,7 +693,8 @@ class Encoder:
     def __init__(self, surfels: SurfelSet, *, options=None, map_options=None,
                  level: int | None = None, color: bool | None = None, method: str | None = None,
                  color_weight: float | None = None, sphere_map=None, tangent_weight=_UNSET,
-                 density_weighting: bool | None = None, progress=None, face_patch=None):
+                 density_weighting: bool | None = None, progress=None, face_patch=None,
+                 texture=None):
         from dataclasses import replace
 
         from ..sphere.options import MapOptions
@@ -550,7 +713,8 @@ class Encoder:
                                      density_weighting=density_weighting)
         self.map_options = map_options
         self.prepared = prepare(surfels, self.options, map_options=map_options,
-                                sphere_map=sphere_map, progress=progress, face_patch=face_patch)
+                                sphere_map=sphere_map, progress=progress, face_patch=face_patch,
+                                texture=texture)
         for f in dataclass_fields(Prepared):
             if f.name != "seconds":
                 setattr(self, f.name, getattr(self.prepared, f.name))
@@ -607,12 +771,12 @@ class Encoder:
 def encode(surfels: SurfelSet, *, bits_per_surfel: float | None = None,
            level: int | None = None, color: bool | None = None, method: str | None = None,
            tangent_weight=_UNSET, density_weighting: bool | None = None, face_patch=None,
-           options=None, map_options=None) -> bytes:
+           options=None, map_options=None, texture=None) -> bytes:
     """One-call encoding (see :class:`Encoder`); ``bits_per_surfel`` defaults to
     ``options.bits_per_surfel``."""
     e = Encoder(surfels, options=options, map_options=map_options, level=level, color=color,
                 method=method, tangent_weight=tangent_weight,
-                density_weighting=density_weighting, face_patch=face_patch)
+                density_weighting=density_weighting, face_patch=face_patch, texture=texture)
     return e.encode(e.options.bits_per_surfel if bits_per_surfel is None else bits_per_surfel)
 
 
@@ -636,7 +800,7 @@ class PartsEncoder:
         Each part's ``face_patch`` (:class:`Encoder`), or None.
     **encoder_options
         Further :class:`Encoder` keywords (``options``, ``map_options``, ``tangent_weight``,
-        ``density_weighting``, ``color_weight``).
+        ``density_weighting``, ``color_weight``, ``texture``: one textured mesh for all parts).
 
     Attributes
     ----------
@@ -667,6 +831,12 @@ class PartsEncoder:
             co = encoder_options.get("options")
             color = co.color if co is not None and co.color is not None else \
                 all(p.has_color for p in parts)
+        tex = encoder_options.get("texture")
+        if tex is not None and color:
+            from .colorgrid import TextureSource
+
+            encoder_options["texture"] = tex if isinstance(tex, TextureSource) else \
+                TextureSource(tex)
         fps = [None] * len(parts) if face_patches is None else list(face_patches)
         if len(fps) != len(parts):
             raise InputError(f"face_patches has {len(fps)} entries for {len(parts)} parts")
@@ -814,6 +984,12 @@ def check_header(header, *, path=None):
                    or any(b > a for a, b in zip(header.anchors, header.anchors[1:]))):
         raise BitstreamError(f"corrupt header (frame anchors {list(header.anchors)} for grid "
                              f"level {header.level})", path=path)
+    if header.color_level is not None:
+        _stream_schedule(header, zh, path)
+        b = np.asarray(header.basis)
+        if np.any(b[:3, 3:] != 0) or np.any(b[3:, :3] != 0):
+            raise BitstreamError("corrupt header (a colour grid with a KLT basis that mixes "
+                                 "geometry and colour)", path=path)
     try:
         klt = KLT.from_arrays(header.mean, header.basis, header.weights)
     except InputError as exc:
@@ -822,10 +998,11 @@ def check_header(header, *, path=None):
 
 
 def _decode_values(data, header, stream, bits_per_surfel, path, checked,
-                   level: int | None = None) -> np.ndarray:
+                   level: int | None = None, fine: list | None = None) -> np.ndarray:
     """The grid values of an unpacked container whose header ``check_header`` passed (see
     :func:`decode_grid`), on the grid of ``level`` (default the stream's; a coarser one reads
-    the coefficients down to that level only, see :func:`read_level`)."""
+    the coefficients down to that level only, see :func:`read_level`). A stream with a colour
+    grid appends its decoded colour grid to ``fine`` (when given)."""
     level = header.level if level is None else level
     if bits_per_surfel is not None:
         keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
@@ -834,6 +1011,11 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
                              "file (header plus 4 bytes)")
         stream = stream[:keep]
     zh, klt, field = checked
+    if header.color_level is not None:
+        values, colors = _decode_color_grid(header, stream, path, checked, level)
+        if fine is not None:
+            fine.append(colors)
+        return values
     frames = header.tangent_weight is not None
     k = header.layers
     ico = icosphere(level)
@@ -863,6 +1045,65 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
                              f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
                              path=path)
     return values
+
+
+def _decode_color_grid(header, stream, path, checked, level: int):
+    """:func:`_decode_values` of a stream with a colour grid: the geometry on the grid of
+    ``level``, colour on the colour grid (or, at a coarser ``level``, on its grid), and the
+    colour grid's values."""
+    zh, klt, field = checked
+    full = level >= header.level
+    rl = header.color_level if full else level
+    ico = icosphere(rl)
+    cut = (ico.level_of == rl) if rl < header.color_level else None
+    groups, limits = _layout(header.level, header.color_level)
+    sched = _stream_schedule(header, zh, path)
+    w, planes = zerotree.decode(stream, ico.n_vertices, 6, _grid_forest(rl), None, None,
+                                header=zh, planes=True, cut=cut, schedule=sched, groups=groups,
+                                depth_limits=limits)
+    gl = min(level, header.level)
+    ng = vertex_count(gl)
+    gscales = wavelets.level_norms(header.level, lifted=header.lifted)[icosphere(gl).level_of]
+    cscales = wavelets.level_norms(header.color_level, lifted=header.lifted)[ico.level_of]
+    if field is not None:
+        gscales = gscales * density.vertex_scales(*field, gl)
+        cscales = cscales * density.vertex_scales(*field, rl)
+    mean = np.asarray(klt.mean, np.float64)
+    basis = np.asarray(klt.basis, np.float64)
+    unit = np.asarray(klt.weights, np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if header.tangent_weight is not None:
+            cg = wavelets.inverse_anchored(
+                np.ascontiguousarray(w[:ng, :3]), gl, tangent_weight=header.tangent_weight,
+                scales=gscales, anchors=header.anchors[:gl],
+                anchor_values=lambda a, rows: zerotree.anchor_values(planes, a, rows=rows,
+                                                                     layers=3))
+        else:
+            cg = wavelets.inverse(w[:ng, :3] / gscales[:, None], gl, lifted=header.lifted)
+        cc = wavelets.inverse(w[:, 3:] / cscales[:, None], rl, lifted=header.lifted)
+        geo = (cg @ basis[:3, :3] + mean[:3]) / unit[:3]
+        col = (cc @ basis[3:, 3:] + mean[3:]) / unit[3:]
+        spread = max(float(np.abs(geo * unit[:3] - mean[:3]).max()),
+                     float(np.abs(col * unit[3:] - mean[3:]).max()))
+    if not (np.all(np.isfinite(geo)) and np.all(np.isfinite(col))):
+        raise BitstreamError("decoding produced non-finite values: the file is damaged",
+                             path=path)
+    if not spread <= MAX_EXTENT:
+        raise BitstreamError(f"decoding produced values {spread:.3g} weighted units "
+                             f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
+                             path=path)
+    return np.hstack([geo, col[:ng]]), col
+
+
+def _stream_schedule(header, zh, path):
+    """The passes ``(group, plane)`` a colour-grid header's schedule stands for."""
+    try:
+        return zerotree.group_schedule(header.schedule, (zh["top_plane"], header.color_top),
+                                       zh["final_plane"])
+    except InputError:
+        raise BitstreamError(f"corrupt header (a schedule of {len(header.schedule)} passes "
+                             f"for top planes {zh['top_plane']} and {header.color_top})",
+                             path=path) from None
 
 
 def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = False,
@@ -1070,16 +1311,20 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
     if bake is not None:
         from ..geometry.atlas import MIN_TEXTURE_SIZE, default_texture_size
 
-        size = bake["size"] or default_texture_size(max(levels))
+        finest = max(lv if h.color_level is None or lv < h.level else max(lv, h.color_level - 1)
+                     for lv, (h, _) in zip(levels, unpacked))
+        size = bake["size"] or default_texture_size(finest)
         k = int(np.ceil(np.sqrt(len(blobs))))
         tile = {"size": max(MIN_TEXTURE_SIZE, size // k), "k": k}
     out = []
     for i, (blob, (header, stream), chk, lv) in enumerate(zip(blobs, unpacked, checked, levels)):
         read = read_level(lv, header.level)
-        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk, read)
+        fine = []
+        values = _decode_values(blob, header, stream, bits_per_surfel, path, chk, read, fine)
         out.append(_model(values, header, lv, read, mesh=mesh, keep_virtual=keep_virtual,
                           name=name, path=path,
-                          tile=None if tile is None else {**tile, "part": i}))
+                          tile=None if tile is None else {**tile, "part": i,
+                                                          "colors": fine[0] if fine else None}))
     return out
 
 
@@ -1090,7 +1335,9 @@ def _textured(mesh, grid_vertex, values, level, tile):
     from ..geometry.mesh import TriangleMesh
 
     atlas = grid_atlas(level, size=tile["size"])
-    image = bake_texture(atlas, GridColor(values[:vertex_count(level), 3:6]))
+    fine = tile.get("colors")
+    image = bake_texture(atlas, GridColor(values[:vertex_count(level), 3:6] if fine is None
+                                          else fine))
     uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces])
     k = tile["k"]
     col, row = tile["part"] % k, tile["part"] // k

@@ -63,7 +63,8 @@ from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, 
 
 __all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "Forest", "forest",
            "pack_header", "unpack_header", "HEADER_SIZE", "VERSION", "check_forest",
-           "DecodedPlanes", "quantize_to_plane", "anchor_values"]
+           "DecodedPlanes", "quantize_to_plane", "anchor_values", "plane_schedule",
+           "group_schedule"]
 
 VERSION = 1
 """Version of the zerotree stream format (the first header byte)."""
@@ -266,7 +267,7 @@ def _code(mode, est, dst, buf, models, ctx, bit, budget):
 
 
 @njit(cache=True)
-def _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, src):
+def _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, src, group):
     k = sigp.shape[0]
     lc = l if l < _NL - 1 else _NL - 1
     d = depth[i]
@@ -287,7 +288,7 @@ def _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, src):
             sib = 2
     oth = 0
     for m in range(k):
-        if m != l and sigp[m, i] >= 0:
+        if m != l and sigp[m, i] >= 0 and group[m] == group[l]:
             oth += 1
     if oth > 2:
         oth = 2
@@ -325,13 +326,19 @@ def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth, pare
 
 @njit(cache=True)
 def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, indices, depth,
-         tb, dtop, ltop, mag, sgn, cut):
+         tb, dtop, ltop, mag, sgn, cut, group, dmax, sched, marks):
     """The SPIHT passes; returns (complete, sigp, neg, known, lo, done): ``done`` is the lowest
     plane whose sorting and refinement passes all finished (``top + 1`` if none did).
 
     ``cut[v]`` marks a node whose children the encoder's forest has and this one lacks (a forest
     cut at a depth); the passes end, as at the end of the stream, where the stream first codes
-    a coefficient below one of them."""
+    a coefficient below one of them.
+
+    Layer ``l`` belongs to group ``group[l]`` and lives on the forest cut below depth
+    ``dmax[l]``. ``sched`` lists the passes in stream order: row ``(g, p)`` codes the sorting
+    and refinement passes of plane ``p`` of group ``g``'s layers; ``marks[s]`` receives the
+    coder's ``(shifts, range)`` after row ``s`` (encoder) or stays untouched. ``done`` is the
+    lowest plane group 0 finished."""
     sigp = np.full((k, n), -1, dtype=np.int8)
     neg = np.zeros((k, n), dtype=np.uint8)
     known = np.zeros((k, n), dtype=np.int64)
@@ -351,7 +358,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
             if parent[i] < 0:
                 lip[l, lip_len[l]] = i
                 lip_len[l] += 1
-                if indptr[i + 1] > indptr[i] or cut[i]:
+                if (indptr[i + 1] > indptr[i] or cut[i]) and depth[i] < dmax[l]:
                     lis[l, lis_len[l]] = 2 * i
                     lis_len[l] += 1
     has_gc = np.zeros(n, dtype=np.uint8)
@@ -361,12 +368,19 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
             if indptr[c + 1] > indptr[c] or cut[c]:
                 has_gc[i] = 1
                 break
+    gdone = top + 1
 
-    for p in range(top, final - 1, -1):
+    for s in range(sched.shape[0]):
+        g = sched[s, 0]
+        p = sched[s, 1]
+        if g == 0:
+            gdone = p + 1
         for l in range(k):
             lsp_old[l] = lsp_len[l]
         # ------------------------------------------------ sorting passes
         for l in range(k):
+            if group[l] != g:
+                continue
             lc = l if l < _NL - 1 else _NL - 1
             # LIP
             w = 0
@@ -376,14 +390,14 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 b = 0
                 if mode == 0:
                     b = 1 if tb[l, i] >= p else 0
-                ctx = _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, 0)
+                ctx = _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, 0, group)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo, p + 1
+                    return False, sigp, neg, known, lo, gdone
                 if b == 1:
                     if not _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth,
                                               parent, sigp, neg, known, lo, lsp, lsp_len, sgn):
-                        return False, sigp, neg, known, lo, p + 1
+                        return False, sigp, neg, known, lo, gdone
                 else:
                     lip[l, w] = i
                     w += 1
@@ -403,7 +417,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 if (e & 1) == 0:
                     # type A: D(v)
                     for m in range(k):
-                        if m != l and dsig[m, v] != 0:
+                        if m != l and dsig[m, v] != 0 and group[m] == group[l]:
                             oth += 1
                     if oth > 2:
                         oth = 2
@@ -414,38 +428,38 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if dtop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo, p + 1
+                        return False, sigp, neg, known, lo, gdone
                     if b == 0:
                         lis[l, w] = e
                         w += 1
                         continue
                     if cut[v]:
-                        return False, sigp, neg, known, lo, p + 1
+                        return False, sigp, neg, known, lo, gdone
                     dsig[l, v] = 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
                         b = 0
                         if mode == 0:
                             b = 1 if tb[l, c] >= p else 0
-                        ctx = _sig_ctx(l, c, p, depth, parent, indptr, indices, sigp, 1)
+                        ctx = _sig_ctx(l, c, p, depth, parent, indptr, indices, sigp, 1, group)
                         b = _code(mode, est, dst, buf, models, ctx, b, budget)
                         if b < 0:
-                            return False, sigp, neg, known, lo, p + 1
+                            return False, sigp, neg, known, lo, gdone
                         if b == 1:
                             if not _newly_significant(mode, est, dst, buf, models, budget, l, c, p,
                                                       depth, parent, sigp, neg, known, lo, lsp,
                                                       lsp_len, sgn):
-                                return False, sigp, neg, known, lo, p + 1
+                                return False, sigp, neg, known, lo, gdone
                         else:
                             lip[l, lip_len[l]] = c
                             lip_len[l] += 1
-                    if has_gc[v]:
+                    if has_gc[v] and depth[v] + 1 < dmax[l]:
                         lis[l, end] = e | 1
                         end += 1
                 else:
                     # type B: L(v)
                     for m in range(k):
-                        if m != l and lsig[m, v] != 0:
+                        if m != l and lsig[m, v] != 0 and group[m] == group[l]:
                             oth += 1
                     if oth > 2:
                         oth = 2
@@ -461,7 +475,7 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if ltop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo, p + 1
+                        return False, sigp, neg, known, lo, gdone
                     if b == 0:
                         lis[l, w] = e
                         w += 1
@@ -469,12 +483,14 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                     lsig[l, v] = 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
-                        if indptr[c + 1] > indptr[c] or cut[c]:
+                        if (indptr[c + 1] > indptr[c] or cut[c]) and depth[c] < dmax[l]:
                             lis[l, end] = 2 * c
                             end += 1
             lis_len[l] = w
         # ------------------------------------------------ refinement passes
         for l in range(k):
+            if group[l] != g:
+                continue
             lc = l if l < _NL - 1 else _NL - 1
             for r in range(lsp_old[l]):
                 i = lsp[l, r]
@@ -490,10 +506,15 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                     b = np.int64((mag[l, i] >> p) & 1)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo, p + 1
+                    return False, sigp, neg, known, lo, gdone
                 known[l, i] |= np.int64(b) << p
                 lo[l, i] = p
-    return True, sigp, neg, known, lo, final
+        if g == 0:
+            gdone = p
+        if mode == 0:
+            marks[s, 0] = est[5]
+            marks[s, 1] = est[1]
+    return True, sigp, neg, known, lo, gdone
 
 
 def _dequantize(q, lo, negative, step):
@@ -787,7 +808,69 @@ def prepare(coeffs, parent, children_indptr, children_indices, *, step: float = 
                     magnitudes=mag, negative=sgn, tops=_set_tops(mag, order, indptr, indices))
 
 
-def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
+def plane_schedule(top: int, final: int) -> np.ndarray:
+    """The schedule of a one-group stream: plane ``top`` down to ``final``, all layers in each.
+
+    Returns
+    -------
+    (top - final + 1, 2) int64
+        Rows ``(0, p)``.
+    """
+    planes = np.arange(int(top), int(final) - 1, -1, dtype=np.int64)
+    return np.ascontiguousarray(np.column_stack([np.zeros_like(planes), planes]))
+
+
+def group_schedule(order, tops, final: int) -> np.ndarray:
+    """The passes of a schedule of groups: each group's planes from its own top down to
+    ``final``, in the order ``order`` names the groups.
+
+    Parameters
+    ----------
+    order : sequence of int
+        The group of each pass in stream order; group ``g`` appears ``tops[g] - final + 1``
+        times.
+    tops : sequence of int
+        Top plane of each group.
+    final : int
+
+    Returns
+    -------
+    (len(order), 2) int64
+        Rows ``(group, plane)``.
+
+    Raises
+    ------
+    InputError
+        When a group's passes do not add up to its planes.
+    """
+    order = np.asarray(order, np.int64).ravel()
+    nxt = [int(t) for t in tops]
+    out = np.empty((len(order), 2), np.int64)
+    for s, g in enumerate(order):
+        if not 0 <= g < len(nxt) or nxt[g] < final:
+            raise InputError(f"schedule names group {int(g)} beyond its planes "
+                             f"(tops {list(tops)}, final plane {final})")
+        out[s] = g, nxt[g]
+        nxt[g] -= 1
+    if any(t != final - 1 for t in nxt):
+        raise InputError(f"schedule leaves planes of some group uncoded (tops {list(tops)}, "
+                         f"final plane {final})")
+    return out
+
+
+def _layout(k: int, groups, depth_limits):
+    """Group and depth limit of each layer (defaults: one group, the whole forest)."""
+    g = np.zeros(k, np.int64) if groups is None else np.asarray(groups, np.int64).ravel()
+    d = np.full(k, np.iinfo(np.int64).max, np.int64) if depth_limits is None else \
+        np.asarray(depth_limits, np.int64).ravel()
+    if g.shape != (k,) or d.shape != (k,) or g.min() < 0 or d.min() < 0:
+        raise InputError(f"groups and depth_limits need one non-negative entry per layer "
+                         f"({k}), got {g.tolist()} and {d.tolist()}")
+    return np.ascontiguousarray(g), np.ascontiguousarray(d)
+
+
+def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None, schedule=None,
+                    groups=None, depth_limits=None, marks: bool = False):
     """:func:`encode` of prepared coefficients (:func:`prepare`): the same stream and header.
 
     Parameters
@@ -795,11 +878,24 @@ def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
     prepared : Prepared
     max_bytes : int, optional
         As for :func:`encode`.
+    schedule : (s, 2) int64, optional
+        Passes ``(group, plane)`` in stream order (:func:`group_schedule`); default
+        :func:`plane_schedule` of the header's planes (one group).
+    groups : (k,) int, optional
+        Group of each layer (default all 0). Layers see only their own group's significance
+        in their contexts, so each group codes as it would alone.
+    depth_limits : (k,) int, optional
+        Deepest forest depth of each layer (default: all); coefficients below it must be 0
+        and are never coded.
+    marks : bool
+        Also return the coder's position after each pass: ``(s,)`` float64 bits.
 
     Returns
     -------
     stream : bytes
     header : dict
+    bits : (s,) float64
+        Only with ``marks``: bits used after each pass (NaN after the budget ran out).
 
     Raises
     ------
@@ -812,6 +908,10 @@ def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
     top = prepared.header["top_plane"]
     final_plane = prepared.header["final_plane"]
     tb, dtop, ltop = prepared.tops
+    group, dmax = _layout(k, groups, depth_limits)
+    sched = plane_schedule(top, final_plane) if schedule is None else \
+        np.ascontiguousarray(np.asarray(schedule, np.int64).reshape(-1, 2))
+    mk = np.full((len(sched), 2), -1, np.int64)
     limit = np.iinfo(np.int64).max if max_bytes is None else int(max_bytes)
     planes = max(top - int(final_plane) + 1, 0)
     cap = min(limit, n * k * (planes + 3) // 6 + 1024) + 16
@@ -823,16 +923,25 @@ def encode_prepared(prepared: Prepared, *, max_bytes: int | None = None):
         complete = _run(0, buf, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
                         int(final_plane), prepared.parent, prepared.indptr, prepared.indices,
                         prepared.depth, tb, dtop, ltop, prepared.magnitudes,
-                        prepared.negative, np.zeros(n, dtype=np.uint8))[0]
+                        prepared.negative, np.zeros(n, dtype=np.uint8), group, dmax, sched,
+                        mk)[0]
         if complete or budget >= limit:
             break
         cap = 4 * cap
+        mk[:] = -1
     size = enc_flush(est, buf)
-    return bytes(buf[:min(size, budget)]), dict(prepared.header)
+    out = bytes(buf[:min(size, budget)]), dict(prepared.header)
+    if not marks:
+        return out
+    with np.errstate(divide="ignore"):
+        bits = np.where(mk[:, 0] >= 0, 8.0 * mk[:, 0] + 32.0 - np.log2(
+            np.maximum(mk[:, 1], 1).astype(np.float64)), np.nan)
+    return out + (bits,)
 
 
 def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *, header,
-           max_bytes: int | None = None, planes: bool = False, cut=None):
+           max_bytes: int | None = None, planes: bool = False, cut=None, schedule=None,
+           groups=None, depth_limits=None):
     """Decode a stream of :func:`encode`, or any prefix of it.
 
     Parameters
@@ -858,6 +967,8 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
         the stream, at the first decision about a coefficient below them, so memory and time
         follow the ``n`` nodes kept, not the encoder's forest; the coefficients are those of
         the prefix of the stream read so far.
+    schedule, groups, depth_limits : optional
+        As given to :func:`encode_prepared`.
 
     Returns
     -------
@@ -901,11 +1012,15 @@ def decode(stream, n: int, k: int, parent, children_indptr, children_indices, *,
     else:
         cut = as_array(np.asarray(cut, bool).astype(np.uint8), "cut", dtype=np.uint8, shape=(n,))
     est = new_encoder()
+    group, dmax = _layout(k, groups, depth_limits)
+    sched = plane_schedule(top, final) if schedule is None else \
+        np.ascontiguousarray(np.asarray(schedule, np.int64).reshape(-1, 2))
     z8 = np.zeros((k, 1), dtype=np.int8)
     _, _, neg, known, lo, done = _run(1, data, budget, est, dst, new_models(N_CONTEXTS), k, n, top,
                                       final, parent, indptr, indices, depth, z8, z8, z8,
                                       np.zeros((k, 1), dtype=np.int64),
-                                      np.zeros((k, 1), dtype=np.uint8), cut)
+                                      np.zeros((k, 1), dtype=np.uint8), cut, group, dmax,
+                                      sched, np.zeros((1, 2), np.int64))
     values = _reconstruct(neg, known, lo, step)
     if not planes:
         return values

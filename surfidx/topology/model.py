@@ -57,6 +57,9 @@ class Model:
         Per part, the virtual patch of each of its surfels' faces (-1 real; the codec's
         ``face_patch``, which tells a patch face whose three corners are scan vertices from the
         scan's own); None for a part with nothing virtual.
+    texture : TriangleMesh or None
+        The mesh as read when it has texture coordinates and a texture: the codec samples
+        its colour grid from it (:mod:`surfidx.codec.colorgrid`).
     """
 
     parts: tuple
@@ -68,6 +71,7 @@ class Model:
     areas: tuple = ()
     name: str | None = None
     face_patches: tuple = ()
+    texture: object = None
 
     def face_patch(self, i: int):
         """Part ``i``'s face labels (:attr:`face_patches`), None when it has none."""
@@ -267,6 +271,8 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
     if not len(mesh.faces):
         raise InputError("the mesh has no faces; read it as a point cloud instead")
     topo = analyse(mesh.vertices, mesh.faces, options=options)
+    textured = mesh if (mesh.texture is not None and mesh.uv is not None
+                        and mesh.uv_faces is not None) else None
 
     def convert(m):
         with warnings.catch_warnings():
@@ -277,7 +283,7 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
     if topo.is_sphere:
         s, _ = convert(mesh)
         return Model(parts=(s,), reports=(None,), topology=topo, kind="mesh",
-                     areas=(float(mesh.face_areas().sum()),), name=name)
+                     areas=(float(mesh.face_areas().sum()),), name=name, texture=textured)
     colors = mesh._vertex_colors()
     pieces = split_parts(mesh.vertices, mesh.faces, options=options)
     parts, reports, areas, fps = [], [], [], []
@@ -297,7 +303,7 @@ def _mesh_model(mesh: TriangleMesh, samples, seed, max_edge_ratio, options, name
         areas.append(float(cm.face_areas().sum()))
     return Model(parts=tuple(parts), reports=tuple(reports), topology=topo, kind="mesh",
                  parts_dropped=pieces.dropped, dropped_vertices=pieces.dropped_vertices,
-                 areas=tuple(areas), name=name, face_patches=tuple(fps))
+                 areas=tuple(areas), name=name, face_patches=tuple(fps), texture=textured)
 
 
 def read_model(path, *, texture=None, samples: int | None = None, seed: int = 0,
