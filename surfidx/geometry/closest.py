@@ -20,12 +20,46 @@ __all__ = ["closest_points", "closest_on_triangle", "project_to_candidates"]
 
 
 @njit(cache=True)
+def _closest_on_segment(p, a, b):  # pragma: no cover - compiled
+    """Parameter t in [0, 1] of the point of segment ab closest to p, and its squared
+    distance (t = 0 where a and b coincide)."""
+    ex, ey, ez = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    den = ex * ex + ey * ey + ez * ez
+    t = 0.0
+    if den > 0.0:
+        t = ((p[0] - a[0]) * ex + (p[1] - a[1]) * ey + (p[2] - a[2]) * ez) / den
+        t = min(max(t, 0.0), 1.0)
+    dx, dy, dz = a[0] + t * ex - p[0], a[1] + t * ey - p[1], a[2] + t * ez - p[2]
+    return t, dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True)
+def _closest_on_edges(p, a, b, c):  # pragma: no cover - compiled
+    """Barycentric coordinates of the point of a flat (zero-area) triangle abc closest to p:
+    the best of its three edges."""
+    t1, e1 = _closest_on_segment(p, a, b)
+    t2, e2 = _closest_on_segment(p, a, c)
+    t3, e3 = _closest_on_segment(p, b, c)
+    if e1 <= e2 and e1 <= e3:
+        return 1.0 - t1, t1, 0.0
+    if e2 <= e3:
+        return 1.0 - t2, 0.0, t2
+    return 0.0, 1.0 - t3, t3
+
+
+@njit(cache=True)
 def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     """Barycentric coordinates (u, v, w) of the point of triangle abc closest to p (Ericson,
-    Real-Time Collision Detection, 5.1.5)."""
+    Real-Time Collision Detection, 5.1.5). A flat triangle (coincident or collinear corners, as
+    a coarsely quantised mesh has) is searched along its three edges instead."""
     abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
+    ab2 = abx * abx + aby * aby + abz * abz
+    ac2 = acx * acx + acy * acy + acz * acz
+    if nx * nx + ny * ny + nz * nz <= 1e-20 * ab2 * ac2:
+        return _closest_on_edges(p, a, b, c)
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
     if d1 <= 0.0 and d2 <= 0.0:
@@ -37,7 +71,8 @@ def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
         return 0.0, 1.0, 0.0
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        t = d1 / (d1 - d3)
+        den = d1 - d3   # >= 0; zero only where a and b coincide
+        t = d1 / den if den > 0.0 else 0.0
         return 1.0 - t, t, 0.0
     cpx, cpy, cpz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
     d5 = abx * cpx + aby * cpy + abz * cpz
@@ -46,11 +81,13 @@ def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
         return 0.0, 0.0, 1.0
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        t = d2 / (d2 - d6)
+        den = d2 - d6   # >= 0; zero only where a and c coincide
+        t = d2 / den if den > 0.0 else 0.0
         return 1.0 - t, 0.0, t
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        den = (d4 - d3) + (d5 - d6)   # >= 0; zero only where b and c coincide
+        t = (d4 - d3) / den if den > 0.0 else 0.0
         return 0.0, 1.0 - t, t
     den = va + vb + vc
     if den <= 0.0:  # degenerate triangle: fall back to the nearest corner
