@@ -25,14 +25,15 @@ Measures, the same functions for every coder (``surfidx.geometry.metrics``):
 
 Pairing at a total budget of ``rate * surfels / 8`` bytes, per image format, two ways:
 
-* **shape matched**: the cheapest Draco setting whose D2 is at least surfidx's at that rate,
-  then the image (size, quality) with the best luma that fits the remaining bytes; "-" when
-  none fits. The baseline buys no colour with shape.
+* **shape matched**: for each UV precision the cheapest Draco setting whose D2 is at least
+  surfidx's at that rate, with the image (size, quality) that fits the remaining bytes, the
+  pair with the best luma; "-" when none fits. The baseline buys no colour with shape.
 * **best colour**: the (Draco setting, image) pair with the best luma within the budget,
   whatever its geometry (its D2 beside it).
 
-Images are ranked by the luma they give on the original geometry; the chosen pair is then
-measured as decoded (quantised positions and UVs with the decoded image).
+Pairs are ranked by the luma expected from the two errors added (the image's on the original
+geometry, the Draco setting's quantised positions and UVs with the original texture); the
+chosen pair is then measured as decoded (quantised positions and UVs with the decoded image).
 
     python benchmarks/texture.py [--models spot ycb_banana] [--rates 1 2 3.56 8 16] [--markdown]
 
@@ -131,7 +132,8 @@ def _dracopy():
 
 
 def run_draco(model: Model) -> list[dict]:
-    """Every Draco setting: bytes, D2 and the decoded mesh (UVs, no image yet)."""
+    """Every Draco setting: bytes, D2, the luma its quantised positions and UVs leave with the
+    original texture, and the decoded mesh (UVs, no image yet)."""
     DracoPy = _dracopy()
     tm = model.mesh.to_trimesh()   # split at the UV seams: per-vertex texture coordinates
     verts = np.asarray(tm.vertices, np.float32)
@@ -149,7 +151,8 @@ def run_draco(model: Model) -> list[dict]:
             mesh = TriangleMesh(np.asarray(d.points, np.float64).reshape(-1, 3), f, uv=dec_uv,
                                 uv_faces=f, texture=model.mesh.texture)
             rows.append({"setting": f"q{q}/uv{tq}", "bytes": len(data),
-                         "rate": model.rate(len(data)), "d2": model.psnr_d2(mesh), "mesh": mesh})
+                         "rate": model.rate(len(data)), "d2": model.psnr_d2(mesh),
+                         "y": model.psnr_y(mesh), "mesh": mesh})
     return rows
 
 
@@ -185,19 +188,32 @@ def pair(model: Model, draco: list[dict], images: list[dict], fmt: str, budget: 
     """The Draco setting and image of ``fmt`` within ``budget`` bytes (see the module
     docstring): shape matched when ``d2_floor`` is given, else the best colour."""
     imgs = [i for i in images if i["format"] == fmt]
-    if d2_floor is not None:
-        ok = sorted((g for g in draco if g["d2"] >= d2_floor), key=lambda g: g["bytes"])
-        choices = [(ok[0], i) for i in imgs if ok and ok[0]["bytes"] + i["bytes"] <= budget]
-    else:
-        choices = [(g, i) for g in draco for i in imgs if g["bytes"] + i["bytes"] <= budget]
+    geometry = draco
+    if d2_floor is not None:   # per UV precision, the cheapest positions as good as surfidx's
+        geometry = []
+        for uv_bits in {g["setting"].split("/")[1] for g in draco}:
+            ok = [g for g in draco if g["setting"].endswith("/" + uv_bits)
+                  and g["d2"] >= d2_floor]
+            if ok:
+                geometry.append(min(ok, key=lambda g: g["bytes"]))
+    choices = [(g, i) for g in geometry for i in imgs if g["bytes"] + i["bytes"] <= budget]
     if not choices:
         return None
-    g, i = max(choices, key=lambda c: (c[1]["y"], c[0]["d2"], -c[0]["bytes"] - c[1]["bytes"]))
+    g, i = max(choices, key=lambda c: (_joint_y(c[0]["y"], c[1]["y"]), c[0]["d2"],
+                                       -c[0]["bytes"] - c[1]["bytes"]))
     m = g["mesh"]
     joint = TriangleMesh(m.vertices, m.faces, uv=m.uv, uv_faces=m.uv_faces, texture=i["image"])
     nbytes = g["bytes"] + i["bytes"]
     return {"setting": f"{g['setting']} + {i['size']}² q{i['quality']}", "bytes": nbytes,
             "rate": model.rate(nbytes), "y": model.psnr_y(joint), "d2": g["d2"]}
+
+
+def _joint_y(y_geometry: float, y_image: float) -> float:
+    """Luma PSNR expected of a Draco setting with an image: their errors' MSEs added (the UV
+    and position quantisation's, measured with the original texture, and the image's, measured
+    on the original geometry)."""
+    mse = 10.0 ** (-y_geometry / 10.0) + 10.0 ** (-y_image / 10.0)
+    return -10.0 * np.log10(mse)
 
 
 # ---------------------------------------------------------------------- output
@@ -251,9 +267,10 @@ def main(argv=None) -> int:
                 head += [f"{fmt} {label} b/s", "Y", "D2", "setting"]
         report.table(head, rows, title=f"{name}: {model.n:,} surfels, texture "
                                        f"{tex.shape[1]}×{tex.shape[0]}")
-        report.table(["Draco setting", "bytes", "b/s", "D2"],
-                     [[g["setting"], f"{g['bytes']:,}", f"{g['rate']:.2f}", f"{g['d2']:.2f}"]
-                      for g in draco], title=f"{name}: Draco mesh with UVs alone")
+        report.table(["Draco setting", "bytes", "b/s", "D2", "Y with the original texture"],
+                     [[g["setting"], f"{g['bytes']:,}", f"{g['rate']:.2f}", f"{g['d2']:.2f}",
+                       f"{g['y']:.2f}"] for g in draco],
+                     title=f"{name}: Draco mesh with UVs alone")
         report.table(["image", "size", "quality", "bytes", "b/s", "Y on original geometry"],
                      [[i["format"], f"{i['size']}", f"{i['quality']}", f"{i['bytes']:,}",
                        f"{model.rate(i['bytes']):.2f}", f"{i['y']:.2f}"] for i in images],
