@@ -1,4 +1,5 @@
-"""Rate-distortion of surfidx's spherical-wavelet codec against Google Draco's point-cloud coder.
+"""Rate-distortion of surfidx's spherical-wavelet codec against Google Draco's point-cloud coder
+and, when a ``tmc3`` binary is found, MPEG G-PCC.
 
 For every closed genus-0 model of ``../shared/data/models`` (geometry only, and with colour where
 the model has it), surfidx's codec is set up once per model (``surfidx.codec.Encoder``: spherical
@@ -15,7 +16,15 @@ when colour is on). Both decoded sets are measured against the input surfels wit
 * **enc s / dec s**: ``Encoder.encode(rate)`` (setup excluded) and ``decode`` for surfidx;
   ``DracoPy.encode`` / ``DracoPy.decode`` for Draco.
 
-Draco stores no normals: its decoded points get the normal of their nearest input surfel (the
+When ``tmc3`` (MPEG's G-PCC reference software, TMC13) is found (``--tmc3``, else
+``../shared/tools/tmc13/tmc3``, else on PATH), G-PCC codes the same points too: octree at depths
+6..14 and trisoup at node sizes 2..4 around the input's spacing, the RGB attribute by RAHT at a
+qp paired with the depth in colour runs; whole bitstream counted (see ``benchmarks/_gpcc.py``).
+Without the binary the G-PCC rows are skipped with a note. The summary gives, per run and rate up
+to 4 bits/surfel, surfidx's PSNR_D2 against G-PCC's best (octree or trisoup) at the same rate
+(INFO: the issue sets no margin).
+
+Draco (and G-PCC) store no normals: its decoded points get the normal of their nearest input surfel (the
 metrics' D2 uses the normals of the set searched, here needed in the test-to-reference direction)
 and radii from their spacing; see ``benchmarks/_draco.py``. This favours Draco.
 
@@ -63,10 +72,12 @@ from surfidx.numerics import use_portable_profile  # noqa: E402
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np
 
+from surfidx.errors import InputError
 from surfidx.io import read_surfels
 from surfidx.geometry.metrics import evaluate
 
 from _draco import DEFAULT_BITS, DEFAULT_LEVEL, draco_point
+from _gpcc import find_tmc3, gpcc_point, gpcc_settings
 
 from _markdown import Report, add_markdown_option
 
@@ -170,6 +181,34 @@ def run_draco(surfels, color: bool, bits_list, level: int) -> list[dict]:
     return rows
 
 
+def run_gpcc(surfels, color: bool, tmc3) -> list[dict]:
+    """Every G-PCC setting (octree and trisoup); a setting tmc3 fails on is reported and
+    skipped."""
+    n = len(surfels)
+    rows = []
+    for mode, depth, node in gpcc_settings(surfels):
+        setting = f"oct {depth}" if mode == "octree" else f"tri {depth}/{node}"
+        try:
+            nbytes, decoded, t_enc, t_dec = gpcc_point(tmc3, surfels, mode=mode, depth=depth,
+                                                       node=node, color=color)
+        except RuntimeError as exc:
+            REPORT.print(f"   gpcc {setting} skipped: {exc}")
+            continue
+        rows.append({"coder": "gpcc", "setting": setting, "mode": mode, "depth": depth,
+                     "node": node, "bytes": nbytes, "rate": nbytes * 8 / n, "enc_s": t_enc,
+                     "dec_s": t_dec, **measure(surfels, decoded)})
+    return rows
+
+
+def pareto(rows: list[dict]) -> list[dict]:
+    """The rows no other row beats at a lower or equal rate (PSNR_D2), by rate."""
+    out = []
+    for r in sorted(rows, key=lambda r: (r["rate"], -r["psnr_d2"])):
+        if not out or r["psnr_d2"] > out[-1]["psnr_d2"]:
+            out.append(r)
+    return out
+
+
 _WARMED = False
 
 
@@ -190,9 +229,14 @@ def run_surfidx(surfels, rates, level, method) -> dict:
         codec.decode(enc.encode(min(rates)))
         _WARMED = True
     rows, streams = [], {}
+    skipped = []
     for rate in sorted(set(rates) | {TOP_RATE}):
         t0 = time.perf_counter()
-        data = enc.encode(rate)
+        try:
+            data = enc.encode(rate)
+        except InputError as exc:   # a rate below what the header needs: say so, go on
+            skipped.append(f"{rate:g} b/s skipped: {exc}")
+            continue
         t_enc = time.perf_counter() - t0
         streams[rate] = data
         if rate not in rates:
@@ -205,7 +249,7 @@ def run_surfidx(surfels, rates, level, method) -> dict:
                      "dec_s": t_dec, **measure(surfels, decoded)})
     prefix = []
     direct = {r["target_rate"]: r for r in rows}
-    for rate in sorted(r for r in rates if r < TOP_RATE):
+    for rate in sorted(r for r in rates if r < TOP_RATE and r in direct):
         t0 = time.perf_counter()
         decoded = codec.decode(streams[TOP_RATE], bits_per_surfel=rate)
         t_dec = time.perf_counter() - t0
@@ -214,7 +258,7 @@ def run_surfidx(surfels, rates, level, method) -> dict:
                        "direct_psnr_d2": direct[rate]["psnr_d2"],
                        "direct_psnr_y": direct[rate]["psnr_y"]})
     return {"setup_s": setup, "after_map_s": _encode_after_map(enc), "rows": rows,
-            "prefix": prefix}
+            "prefix": prefix, "skipped": skipped}
 
 
 # ---------------------------------------------------------------------- printing
@@ -229,6 +273,8 @@ def print_run(run: dict) -> None:
     REPORT.print(title + " ==")
     if run.get("surfidx_error"):
         REPORT.print(f"   surfidx FAILED: {run['surfidx_error']}")
+    for note in run.get("surfidx_skipped", []):
+        REPORT.print(f"   surfidx {note}")
     REPORT.print(HEADER)
     for r in run["rows"]:
         REPORT.print(f"{r['coder']:<8} {r['setting']:<9} {r['rate']:>11.3f} {fmt(r['psnr_d1'])} "
@@ -299,6 +345,25 @@ def check_targets(runs: list[dict], coders) -> list[dict]:
                     f"({gap:+.2f} dB)")
         if run.get("surfidx_error"):
             add(f"{run['model']} {run['variant']}: surfidx codec", "FAIL", run["surfidx_error"])
+
+    # 2b. against G-PCC, best of octree and trisoup (no margin set: INFO)
+    for run in runs:
+        gpcc = pareto([r for r in run["rows"] if r["coder"] == "gpcc"
+                       and math.isfinite(r["psnr_d2"])])
+        if not has_surfidx or not gpcc:
+            continue
+        for r in run["rows"]:
+            if r["coder"] != "surfidx" or r["target_rate"] > MARGIN_MAX_RATE:
+                continue
+            name = (f"{run['model']} {run['variant']} at {r['target_rate']:g} b/s: "
+                    f"surfidx vs G-PCC (best of octree and trisoup)")
+            ref, where = interp_log_rate(gpcc, r["rate"])
+            if where != "in":
+                add(name, "INFO", f"surfidx {r['psnr_d2']:.2f} dB at {r['rate']:.3f} b/s, "
+                    f"{where} G-PCC's range ({gpcc[0]['rate']:.3f}..{gpcc[-1]['rate']:.3f} b/s)")
+            else:
+                add(name, "INFO", f"surfidx {r['psnr_d2']:.2f} dB vs G-PCC {ref:.2f} dB at "
+                    f"{r['rate']:.3f} b/s ({r['psnr_d2'] - ref:+.2f} dB)")
 
     # 3. colour quality at 3.56
     color_runs = [r for r in runs if r["variant"] == "colour"]
@@ -375,12 +440,14 @@ def plot(runs: list[dict], out: Path) -> None:
     rows = math.ceil(len(models) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), squeeze=False)
     style = {("surfidx", "geometry"): ("C0", "-", "o"), ("draco", "geometry"): ("C1", "-", "s"),
-             ("surfidx", "colour"): ("C0", "--", "^"), ("draco", "colour"): ("C1", "--", "v")}
+             ("surfidx", "colour"): ("C0", "--", "^"), ("draco", "colour"): ("C1", "--", "v"),
+             ("gpcc", "geometry"): ("C2", "-", "D"), ("gpcc", "colour"): ("C2", "--", "d")}
     for ax, model in zip(axes.ravel(), models):
         for run in (r for r in runs if r["model"] == model):
-            for coder in ("surfidx", "draco"):
-                pts = sorted((r["rate"], r["psnr_d2"]) for r in run["rows"]
-                             if r["coder"] == coder and math.isfinite(r["psnr_d2"]))
+            for coder in ("surfidx", "draco", "gpcc"):
+                rows = [r for r in run["rows"]
+                        if r["coder"] == coder and math.isfinite(r["psnr_d2"])]
+                pts = [(r["rate"], r["psnr_d2"]) for r in pareto(rows)]
                 if not pts:
                     continue
                 c, ls, mk = style[(coder, run["variant"])]
@@ -425,8 +492,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true",
                     help=f"{' + '.join(QUICK_MODELS)} at rates {QUICK_RATES}, textured models "
                          f"sampled at {QUICK_SAMPLES} unless --samples is given")
-    ap.add_argument("--coders", nargs="+", choices=("surfidx", "draco"),
-                    default=["surfidx", "draco"])
+    ap.add_argument("--coders", nargs="+", choices=("surfidx", "draco", "gpcc"),
+                    default=["surfidx", "draco", "gpcc"],
+                    help="gpcc runs only when a tmc3 binary is found (see --tmc3)")
+    ap.add_argument("--tmc3", type=Path, default=None,
+                    help="MPEG G-PCC's tmc3 binary (default: ../shared/tools/tmc13/tmc3, "
+                         "else tmc3 on PATH)")
     ap.add_argument("--variants", nargs="+", choices=("geometry", "colour"),
                     default=["geometry", "colour"],
                     help="geometry only, and with colour (coloured models only)")
@@ -445,10 +516,10 @@ def main(argv=None) -> int:
     add_markdown_option(ap, "rate_distortion")
     args = ap.parse_args(argv)
     global REPORT
-    REPORT = Report("rate_distortion", "Rate-distortion against Draco", args.markdown,
+    REPORT = Report("rate_distortion", "Rate-distortion against Draco and G-PCC", args.markdown,
                     note="surfidx's codec set up once per model and encoded at each rate, beside "
                          "Google Draco's point-cloud coder (the `bench` extra) at quantisation "
-                         "6..14: rate in bits per input surfel (whole file), PSNR_D1, PSNR_D2 "
+                         "6..14 and MPEG G-PCC (tmc3, octree and trisoup) when found: rate in bits per input surfel (whole file), PSNR_D1, PSNR_D2 "
                          "(peak: the bounding-box diagonal), PSNR_Y (colour runs), encode and "
                          "decode seconds.")
 
@@ -469,6 +540,14 @@ def main(argv=None) -> int:
             coders.remove("surfidx")
     if not args.data.is_dir():
         ap.error(f"models folder {args.data} not found; pass --data")
+    tmc3 = None
+    if "gpcc" in coders:
+        tmc3 = find_tmc3(args.tmc3)
+        if tmc3 is None:
+            where = args.tmc3 or "the shared tools or PATH"
+            REPORT.print(f"G-PCC skipped: no tmc3 binary found ({where}); pass --tmc3 PATH "
+                         "to run it\n")
+            coders.remove("gpcc")
 
     REPORT.print(f"rates {', '.join(f'{r:g}' for r in rates)} bits/surfel; Draco q={args.draco_bits} "
           f"level {args.draco_level}; textured models: "
@@ -492,11 +571,14 @@ def main(argv=None) -> int:
                     run["prefix"] = res["prefix"]
                     run["surfidx_setup_s"] = res["setup_s"]
                     run["surfidx_after_map_s"] = res["after_map_s"]
+                    run["surfidx_skipped"] = res["skipped"]
                 except Exception as exc:  # report and go on with the other models
                     traceback.print_exc()
                     run["surfidx_error"] = f"{type(exc).__name__}: {exc}"
             if "draco" in coders:
                 run["rows"] += run_draco(s, color, args.draco_bits, args.draco_level)
+            if "gpcc" in coders:
+                run["rows"] += run_gpcc(s, color, tmc3)
             runs.append(run)
             print_run(run)
     targets = check_targets(runs, coders)
@@ -506,6 +588,7 @@ def main(argv=None) -> int:
     REPORT.finish()
     if args.json:
         meta = {"rates": rates, "draco_bits": args.draco_bits, "draco_level": args.draco_level,
+                "tmc3": str(tmc3) if tmc3 else None,
                 "samples": samples, "coders": coders, "models": models, "seconds": elapsed}
         args.json.write_text(json.dumps(_jsonable({"meta": meta, "runs": runs,
                                                    "targets": targets}), indent=1))

@@ -4,10 +4,9 @@ against a dense sampling of the original texture, and the bytes of each file.
 For each textured model of the shared data the stream is coded once at the largest rate and the
 others are its prefixes. At each rate the decoded grid mesh is written as GLB twice: with
 vertex colours (``--vertex-colors``) and with its colour as a texture (PNG, and WebP at quality
-90). Each written GLB is read back with trimesh and sampled uniformly over its surface
-(``SAMPLES`` points, colours interpolated between vertices or read bilinearly from the
-texture); luma PSNR (BT.709) is measured against the original mesh sampled the same way from
-its own texture. Colour on the grid is limited by the grid level: the texture can only carry
+90). Each written GLB is read back with trimesh; luma PSNR (BT.709) against the original mesh and its
+own texture is :func:`surfidx.geometry.metrics.psnr_luma_surface` (``SAMPLES`` points on each
+surface, each compared with the other surface's colour at its closest point). Colour on the grid is limited by the grid level: the texture can only carry
 the detail the colour layers hold.
 
     python benchmarks/texture_export.py [--models spot ycb_banana] [--rates 2 4 8] [--markdown]
@@ -27,9 +26,9 @@ use_portable_profile()
 
 import numpy as np  # noqa: E402
 
-from surfidx import SurfelSet, TriangleMesh  # noqa: E402
+from surfidx import TriangleMesh  # noqa: E402
 from surfidx.codec import decode, encode  # noqa: E402
-from surfidx.geometry.metrics import psnr_luma  # noqa: E402
+from surfidx.geometry.metrics import psnr_luma_surface  # noqa: E402
 from surfidx.io import read_mesh, read_surfels, write_model  # noqa: E402
 
 from _markdown import Report, add_markdown_option  # noqa: E402
@@ -42,8 +41,8 @@ RATES = (2.0, 4.0, 8.0)
 SAMPLES = 200_000
 
 
-def _sampled(path: Path) -> SurfelSet:
-    """A written GLB read back through trimesh and sampled uniformly with its colours."""
+def _read_back(path: Path) -> TriangleMesh:
+    """A written GLB read back through trimesh, with its vertex colours or texture."""
     import trimesh
 
     tm = trimesh.load(path, force="mesh", process=False)
@@ -54,7 +53,7 @@ def _sampled(path: Path) -> SurfelSet:
     else:
         mesh = TriangleMesh(tm.vertices, tm.faces,
                             vertex_colors=np.asarray(vis.vertex_colors)[:, :3])
-    return mesh.to_surfels(samples=SAMPLES)
+    return mesh
 
 
 def measure(name: str, data: Path, rates):
@@ -62,7 +61,7 @@ def measure(name: str, data: Path, rates):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         surfels = read_surfels(path)
-        reference = read_mesh(path).to_surfels(samples=SAMPLES)
+        reference = read_mesh(path)
     stream = encode(surfels, bits_per_surfel=max(rates))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -76,7 +75,8 @@ def measure(name: str, data: Path, rates):
                 m = decode(stream, bits_per_surfel=rate, mesh=True, **opts)
                 out = Path(tmp) / f"{name}_{rate:g}_{len(row)}.glb"
                 write_model(m, out, image_format=fmt)
-                row[label] = (psnr_luma(reference, _sampled(out)), out.stat().st_size)
+                row[label] = (psnr_luma_surface(reference, _read_back(out), samples=SAMPLES),
+                              out.stat().st_size)
                 if m.texture is not None:
                     row["size"] = m.texture.shape[0]
             rows.append(row)
@@ -96,8 +96,9 @@ def main(argv=None) -> int:
         print(f"no shared data at {args.data}", file=sys.stderr)
         return 1
     report = Report("texture_export", "Colour out: vertex colours or a texture", args.markdown,
-                    note=f"Luma PSNR (dB) of each GLB against the original texture, both sampled "
-                         f"at {SAMPLES:,} points; bytes of the GLB.")
+                    note=f"Luma PSNR (dB) of each GLB against the original texture "
+                         f"(psnr_luma_surface, {SAMPLES:,} points on each surface); bytes of "
+                         f"the GLB.")
     rows = []
     for name in args.models:
         rows += measure(name, args.data, sorted(args.rates))

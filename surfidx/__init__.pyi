@@ -15,7 +15,8 @@ from .geometry.geodesics import (GeodesicSolver as GeodesicSolver, GeodesicPath 
                                  geodesic_path as geodesic_path,
                                  farthest_point_landmarks as farthest_point_landmarks)
 from .geometry.metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_d2,
-                               psnr_luma as psnr_luma, hausdorff as hausdorff)
+                               psnr_luma as psnr_luma, psnr_luma_surface as psnr_luma_surface,
+                               hausdorff as hausdorff)
 from .io import (read_surfels as read_surfels, read_mesh as read_mesh,
                  write_ply as write_ply, write_model as write_model, as_surfels as as_surfels)
 from .topology import (RepairOptions as RepairOptions, Model as Model, join_surfels as join_surfels,

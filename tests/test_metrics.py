@@ -303,3 +303,68 @@ def test_degenerate_reference_needs_a_peak(sphere_surfels):
         psnr_d1(sphere_surfels, sphere_surfels, peak=-1.0)
     with pytest.raises(InputError, match="peak contains 1 NaN"):
         hausdorff(sphere_surfels, sphere_surfels, peak=float("nan"))
+
+
+# ---------------------------------------------------------------------- luma on the surface
+def checker_sphere(offset=0, squares=8, size=64):
+    """A unit icosphere textured with a sharp checkerboard (lumas 30 and 220, plus ``offset``)
+    through a planar projection."""
+    from conftest import icosphere_mesh
+    from surfidx import TriangleMesh
+
+    v, f = icosphere_mesh(3)
+    yy, xx = np.mgrid[:size, :size] * squares // size
+    grey = np.where((xx + yy) % 2 == 0, 30, 220) + offset
+    texture = np.repeat(grey[:, :, None], 3, axis=2).astype(np.uint8)
+    uv = 0.5 * (v[:, :2] + 1.0)
+    return TriangleMesh(v, f, uv=uv, uv_faces=f, texture=texture)
+
+
+def test_surface_luma_has_no_sampling_floor_where_nearest_neighbours_have_one():
+    from surfidx.geometry.metrics import psnr_luma_surface
+
+    m = checker_sphere()
+    # two samplings of one sharp-edged texture: nearest neighbours straddle the edges
+    floor = psnr_luma(m.to_surfels(samples=20_000, seed=0), m.to_surfels(samples=20_000, seed=5))
+    assert floor < 35.0
+    assert psnr_luma_surface(m, m, samples=20_000) > 100.0
+    assert psnr_luma_surface(m, m, samples=20_000, seed=7) > 100.0
+
+
+def test_surface_luma_of_a_constant_shift_is_analytic():
+    from surfidx.geometry.metrics import psnr_luma_surface
+
+    got = psnr_luma_surface(checker_sphere(), checker_sphere(offset=10), samples=5_000)
+    assert got == pytest.approx(20 * math.log10(255 / 10), abs=1e-6)
+
+
+def test_surface_luma_compares_vertex_colours_with_a_texture():
+    from surfidx import TriangleMesh
+    from surfidx.geometry.metrics import psnr_luma_surface
+
+    m = checker_sphere(squares=1)   # one square: luma 30 everywhere
+    flat = TriangleMesh(m.vertices, m.faces, vertex_colors=np.full((len(m.vertices), 3), 55))
+    assert psnr_luma_surface(m, flat, samples=5_000) == pytest.approx(
+        20 * math.log10(255 / 25), abs=1e-6)
+    assert psnr_luma_surface(flat, m, samples=5_000) == pytest.approx(
+        20 * math.log10(255 / 25), abs=1e-6)
+
+
+def test_surface_luma_checks_its_meshes():
+    from surfidx import TriangleMesh
+    from surfidx.geometry.metrics import psnr_luma_surface
+
+    m = checker_sphere()
+    bare = TriangleMesh(m.vertices, m.faces)
+    with pytest.raises(InputError, match="must be a TriangleMesh"):
+        psnr_luma_surface(m.to_surfels(samples=100), m)
+    with pytest.raises(InputError, match="the test mesh has no colour"):
+        psnr_luma_surface(m, bare)
+    with pytest.raises(InputError, match="the reference mesh has no surface"):
+        psnr_luma_surface(TriangleMesh(m.vertices, m.faces[:0]), m)
+    with pytest.raises(InputError, match="samples must be at least 1"):
+        psnr_luma_surface(m, m, samples=0)
+    with pytest.raises(InputError, match=r"face indices must lie in 0\.\.1279"):
+        m.colors_at([1280], [[1.0, 0.0, 0.0]])
+    with pytest.raises(InputError, match="the mesh has no colour"):
+        bare.colors_at([0], [[1.0, 0.0, 0.0]])

@@ -7,6 +7,7 @@
 - :mod:`.unitsphere`, :mod:`.icosphere` — geometry on the unit sphere and the icosahedral grid;
 - :mod:`.sparse` — the sparse symmetric positive-definite solver the map and descriptors use;
 - :mod:`.metrics` — distortion as the field measures it (PSNR D1, D2, luma);
+- :mod:`.closest` — the exact closest point of a mesh to many points;
 - :mod:`.simplify` — a vertex budget met by quadric-error simplification;
 - :mod:`.axes` — a model's up axis, as its file format keeps it.
 - :mod:`.atlas` — a texture atlas of the icosahedral grid and colour baked into it.

@@ -15,7 +15,8 @@ from .geodesics import (GeodesicSolver as GeodesicSolver, GeodesicPath as Geodes
 from .icosphere import (Icosphere as Icosphere, choose_level as choose_level,
                         vertex_count as vertex_count)
 from .metrics import (evaluate as evaluate, psnr_d1 as psnr_d1, psnr_d2 as psnr_d2,
-                      psnr_luma as psnr_luma, hausdorff as hausdorff, Reference as Reference)
+                      psnr_luma as psnr_luma, psnr_luma_surface as psnr_luma_surface,
+                      hausdorff as hausdorff, Reference as Reference)
 from .atlas import (GridAtlas as GridAtlas, grid_atlas as grid_atlas,
                     grid_face_index as grid_face_index, locate_on_grid as locate_on_grid,
                     GridColor as GridColor, bake_texture as bake_texture,

@@ -622,6 +622,45 @@ class TriangleMesh:
             out[~pos] = out[pos].min() if pos.any() else 1.0
         return out
 
+    def colors_at(self, face, bary) -> np.ndarray:
+        """The mesh's colour at points given on its faces, unrounded.
+
+        Vertex colours are interpolated barycentrically; a texture is read bilinearly at the
+        interpolated texture coordinates (vertex colours win when the mesh has both, as in
+        :meth:`to_surfels`).
+
+        Parameters
+        ----------
+        face : (n,) int64
+            The face holding each point.
+        bary : (n, 3) float64
+            Its barycentric coordinates in that face.
+
+        Returns
+        -------
+        (n, 3) float64
+            RGB in 0..255.
+
+        Raises
+        ------
+        InputError
+            When the mesh has no colour (neither vertex colours nor a texture with coordinates),
+            or a face index is out of range.
+        """
+        face = as_array(face, "face", dtype=np.int64, shape=(None,))
+        bary = as_array(bary, "bary", shape=(len(face), 3))
+        if len(face) and (face.min() < 0 or face.max() >= len(self.faces)):
+            raise InputError(f"face indices must lie in 0..{len(self.faces) - 1}, got "
+                             f"{int(face.min())}..{int(face.max())}")
+        if self.vertex_colors is not None:
+            corners = self.vertex_colors[self.faces[face]].astype(np.float64)
+            return np.einsum("nc,ncd->nd", bary, corners)
+        if self.texture is None or self.uv is None or self.uv_faces is None:
+            raise InputError("the mesh has no colour (no vertex colours, and no texture with "
+                             "texture coordinates); read it with its texture")
+        uv = np.einsum("nc,ncd->nd", bary, self.uv[self.uv_faces[face]])
+        return sample_texture(self.texture, uv)
+
     def _vertex_colors(self) -> np.ndarray | None:
         if self.vertex_colors is not None:
             return self.vertex_colors
