@@ -105,77 +105,6 @@ def color_level(level: int, texel_count: float | None) -> int:
     return lc
 
 
-@njit(cache=True)
-def _closest_on_triangle(p, a, b, c):
-    """Barycentric coordinates of the point of triangle ``a, b, c`` nearest ``p`` (Ericson,
-    *Real-Time Collision Detection*, 5.1.5) and its squared distance."""
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = ab @ ap
-    d2 = ac @ ap
-    if d1 <= 0.0 and d2 <= 0.0:
-        u, v, w = 1.0, 0.0, 0.0
-    else:
-        bp = p - b
-        d3 = ab @ bp
-        d4 = ac @ bp
-        vc = d1 * d4 - d3 * d2
-        if d3 >= 0.0 and d4 <= d3:
-            u, v, w = 0.0, 1.0, 0.0
-        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-            t = d1 / (d1 - d3)
-            u, v, w = 1.0 - t, t, 0.0
-        else:
-            cp = p - c
-            d5 = ab @ cp
-            d6 = ac @ cp
-            vb = d5 * d2 - d1 * d6
-            if d6 >= 0.0 and d5 <= d6:
-                u, v, w = 0.0, 0.0, 1.0
-            elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-                t = d2 / (d2 - d6)
-                u, v, w = 1.0 - t, 0.0, t
-            else:
-                va = d3 * d6 - d5 * d4
-                if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-                    t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-                    u, v, w = 0.0, 1.0 - t, t
-                else:
-                    den = 1.0 / (va + vb + vc)
-                    v = vb * den
-                    w = vc * den
-                    u = 1.0 - v - w
-    q = u * a + v * b + w * c
-    d = p - q
-    return u, v, w, d @ d
-
-
-@njit(cache=True)
-def _nearest_faces(points, near, verts, faces, ptr, idx):
-    """For each point, the face among those around its nearest vertices (``near``) holding the
-    nearest surface point, and that point's barycentric coordinates."""
-    n = points.shape[0]
-    face = np.full(n, -1, np.int64)
-    bary = np.zeros((n, 3))
-    for i in range(n):
-        best = np.inf
-        p = points[i]
-        for j in range(near.shape[1]):
-            v = near[i, j]
-            for t in range(ptr[v], ptr[v + 1]):
-                f = idx[t]
-                u, vv, w, d = _closest_on_triangle(p, verts[faces[f, 0]], verts[faces[f, 1]],
-                                                   verts[faces[f, 2]])
-                if d < best:
-                    best = d
-                    face[i] = f
-                    bary[i, 0] = u
-                    bary[i, 1] = vv
-                    bary[i, 2] = w
-    return face, bary
-
-
 class TextureSource:
     """A textured mesh as a colour function of points on (or near) its surface: the texture at
     the nearest surface point (module notes).
@@ -183,9 +112,8 @@ class TextureSource:
     Parameters
     ----------
     mesh : TriangleMesh
-        With ``uv``, ``uv_faces`` and ``texture``.
-    neighbours : int
-        Nearest vertices whose faces are searched for the nearest point.
+        With ``uv``, ``uv_faces`` and ``texture``; the nearest surface point is exact
+        (:func:`surfidx.geometry.closest.closest_points`).
 
     Raises
     ------
@@ -193,32 +121,23 @@ class TextureSource:
         A mesh without a texture.
     """
 
-    def __init__(self, mesh, *, neighbours: int = 8):
-        from scipy.spatial import cKDTree
-
+    def __init__(self, mesh):
         if getattr(mesh, "texture", None) is None or mesh.uv is None or mesh.uv_faces is None:
             raise InputError("a TextureSource needs a mesh with texture coordinates and a "
                              "texture image")
         self.mesh = mesh
         self.vertices = np.ascontiguousarray(mesh.vertices, np.float64)
         self.faces = np.ascontiguousarray(mesh.faces, np.int64)
-        n = len(self.vertices)
-        order = np.argsort(self.faces.ravel(), kind="stable")
-        self._ptr = np.zeros(n + 1, np.int64)
-        np.cumsum(np.bincount(self.faces.ravel(), minlength=n), out=self._ptr[1:])
-        self._idx = np.ascontiguousarray(order // 3, np.int64)
-        self._tree = cKDTree(self.vertices)
-        self._k = int(min(neighbours, n))
         self.texels = texels(mesh)
 
     def __call__(self, points) -> np.ndarray:
         """(n, 3) float64 colours (0..255) at points (n, 3) float64."""
         from ..geometry.mesh import sample_texture
 
-        pts = np.ascontiguousarray(points, np.float64)
-        _, near = self._tree.query(pts, k=self._k)
-        near = np.ascontiguousarray(np.asarray(near, np.int64).reshape(len(pts), -1))
-        face, bary = _nearest_faces(pts, near, self.vertices, self.faces, self._ptr, self._idx)
+        from ..geometry.closest import closest_points
+
+        face, bary, _ = closest_points(np.ascontiguousarray(points, np.float64), self.vertices,
+                                       self.faces)
         uv = np.einsum("ij,ijk->ik", bary, np.asarray(self.mesh.uv, np.float64)[
             np.asarray(self.mesh.uv_faces)[face]])
         return sample_texture(np.asarray(self.mesh.texture), uv)
