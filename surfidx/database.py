@@ -188,7 +188,7 @@ class Database(Catalog):
 
     def example(self, model, *, processor=None, describer=None, texture=None,
                 allow_outside_textures: bool = False, thumbnail: bool = True,
-                progress=None, options=None) -> QueryExample:
+                progress=None, options=None, partial: bool | None = None) -> QueryExample:
         """Describe a query's example once, for :meth:`query` (and a contact sheet's thumbnail).
 
         ``model`` is what :meth:`query` takes: a stored model's id or name, a model file, or a
@@ -199,7 +199,10 @@ class Database(Catalog):
         ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
         describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
         ``progress`` goes to the describer (:mod:`surfidx.progress`), ``options`` (a
-        :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it."""
+        :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it.
+        ``partial=True`` describes a file or model in memory as a single-view scan, by
+        :func:`surfidx.pipeline.describe_scan` (its views only, no spherical map), unless a
+        processor or describer is given."""
         ref = model
         if isinstance(model, str):
             text = model.strip()
@@ -233,6 +236,12 @@ class Database(Catalog):
             extra["options"] = options
         if processor is not None:
             proc = functools.partial(processor, bits_per_surfel=DEFAULT_BITS_PER_SURFEL)
+        elif partial and describer is None:
+            from .pipeline import describe_scan
+
+            extra.pop("options", None)
+            proc = functools.partial(describe_scan, options=options,
+                                     **({"progress": progress} if progress is not None else {}))
         else:
             proc = functools.partial(unit_of_work(describer, "describe_model"),
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
@@ -305,9 +314,12 @@ class Database(Catalog):
             A filtered query ranks the models that pass by the exact distance (the approximate
             index is not used), so it finds the true nearest ``k`` among them.
         partial : bool, optional
-            Whether the example is a scan of part of an object, compared by
-            :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
-            from the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
+            Whether the example is a single-view scan of part of an object: its views (a file
+            is then described by :func:`surfidx.pipeline.describe_scan`, without the spherical
+            map) are compared with the stored models' by
+            :func:`surfidx.describe.views.partial_view_l2`; an example without views (stored
+            by an older surfidx) by :func:`surfidx.describe.partial_l2`. Default: detected from
+            the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
             :attr:`QueryExample.virtual_share`).
 
         Returns
@@ -328,7 +340,7 @@ class Database(Catalog):
         ex = model if isinstance(model, QueryExample) else self.example(
             model, processor=processor, describer=describer, texture=texture,
             allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress,
-            options=options)
+            options=options, partial=partial)
         descriptors = dict(ex.descriptors)
         if not ex.has_color:
             descriptors.pop("texture", None)
@@ -341,7 +353,12 @@ class Database(Catalog):
             partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
-        if tag is not None or where is not None:
+        if partial and "views" in descriptors:
+            allowed = (None if tag is None and where is None
+                       else self.select_ids(tag=tag, where=where))
+            ids, dist = self._view_search(descriptors["views"], allowed,
+                                          k=k + (drop is not None))
+        elif tag is not None or where is not None:
             ids, dist = self._filtered_search(descriptors, self.select_ids(tag=tag, where=where),
                                               k=k + (drop is not None), shape_weight=w,
                                               distance=partial_l2 if partial else None)
@@ -357,6 +374,23 @@ class Database(Catalog):
                                     (i,)).fetchone()
             rows.append({"id": int(i), "name": rec[0], "source": rec[1], "distance": float(d)})
         return rows
+
+    def _view_search(self, views, allowed, *, k):
+        """The ``k`` nearest stored models (of the ids ``allowed``; None: all) to a partial
+        query's views by :func:`surfidx.describe.views.partial_view_l2`, ties by id."""
+        from .describe.views import partial_view_l2
+
+        if allowed is None:
+            allowed = np.asarray([r[0] for r in self.conn.execute(
+                "SELECT DISTINCT model_id FROM descriptors WHERE kind = 'views'")], np.int64)
+        if allowed.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        ids, stored, present = self.descriptor_rows(allowed, ("views",))
+        if ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        dist = partial_view_l2({"views": views}, stored, present)
+        order = np.lexsort((ids, dist))[:k]
+        return ids[order], dist[order]
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next

@@ -395,7 +395,9 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     stress figure, the grid at the encoder's level: ``level``, else the map's ``grid_level``;
     colour when the surfels have it; each part on its own, combined by
     :func:`combine_descriptors`), so with the same arguments its descriptors are bit-equal to
-    ``process_model(...).descriptors``.
+    ``process_model(...).descriptors`` — but for a partial scan
+    (:func:`surfidx.describe.is_partial`), whose ``views`` are those of its real surface from
+    its camera (:func:`surfidx.describe.views.scan_views`), what a partial query compares.
 
     Parameters
     ----------
@@ -426,6 +428,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     import time
 
     from .describe.descriptors import describe_grid
+    from .describe.partial import is_partial
     from .io import up_axis
     from .options import ProcessOptions
     from .render import THUMBNAIL, render
@@ -452,6 +455,11 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         sets.append(d)
         levels.append(int(grid_level))
     desc = combine_descriptors(sets, [len(p) for p in model.parts])
+    if model.repaired and is_partial(model.summary()["virtual_area_share"]):
+        from .describe.views import scan_views
+
+        v, f = scan_surface(model)      # a single view: its own views, not the capped model's
+        desc.vectors["views"] = scan_views(v, f).ravel()
     grid_level = levels[0]
     thumb = None
     if thumbnail_size is not None:

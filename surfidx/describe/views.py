@@ -141,9 +141,7 @@ def view_vector(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     mx, my = cx.mean(), cy.mean()
     dx, dy = cx - mx, cy - my
     r2 = dx * dx + dy * dy
-    rms = np.sqrt(r2.mean())
-    if not rms > 0:
-        raise InputError("the silhouette is a single pixel; it has no view to describe")
+    rms = np.sqrt(r2.mean())        # > 0: the extreme samples fall in opposite pixel columns
     rho = np.sqrt(r2) / rms
     theta = np.arctan2(dy, dx)
     height = (depth - depth.mean()) / (rms / scale)
