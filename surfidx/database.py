@@ -353,7 +353,13 @@ class Database(Catalog):
             partial = is_partial(ex.virtual_share)
         drop = None if include_self else ex.id
         w = DEFAULT_SHAPE_WEIGHT if shape_weight is None else shape_weight
-        if partial and "views" in descriptors:
+        by_views = partial and "views" in descriptors and self.conn.execute(
+            "SELECT 1 FROM descriptors WHERE kind = 'views' LIMIT 1").fetchone() is not None
+        if partial and "shape" not in descriptors and not by_views:
+            raise InputError("no stored model has views (descriptors made before version 8), "
+                             "and a scan described by its views alone has nothing else to "
+                             "compare; run `surfidx redescribe`, or query with --complete")
+        if by_views:
             allowed = (None if tag is None and where is None
                        else self.select_ids(tag=tag, where=where))
             ids, dist = self._view_search(descriptors["views"], allowed,

@@ -177,3 +177,23 @@ def test_a_partial_query_compares_views_without_mapping_the_scan(shapes_db, monk
     assert [(r["name"], r["distance"]) for r in auto] == \
         [(r["name"], r["distance"]) for r in forced]
     assert set(ex.descriptors) == {"views"} and ex.virtual_share > 0.2
+
+
+def test_a_database_without_views_falls_back_or_says_to_redescribe(shapes_db, tmp_path):
+    import shutil
+    import sqlite3
+
+    from surfidx.database import Database
+
+    db_path, view = shapes_db
+    old = tmp_path / "old.db"
+    shutil.copy(db_path, old)
+    with sqlite3.connect(old) as conn:
+        conn.execute("DELETE FROM descriptors WHERE kind = 'views'")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Database(old) as db:
+            rows = db.query(str(view), k=3)         # detected: the default descriptors
+            assert len(rows) == 3
+            with pytest.raises(InputError, match="no stored model has views"):
+                db.query(str(view), k=3, partial=True)
