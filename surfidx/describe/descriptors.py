@@ -62,7 +62,9 @@ Descriptor vectors (float32), by kind:
 ``views`` (k·d,) — the model's surface seen from the ``k`` directions of
            :func:`surfidx.describe.views.view_directions`, ``d`` values per view
            (:func:`surfidx.describe.views.model_views`): what a query by a single-view scan is
-           compared with (:func:`surfidx.describe.views.partial_view_l2`).
+           compared with (:func:`surfidx.describe.views.partial_view_l2`). Not rotation
+           invariant as a vector (the directions are fixed in space); a query's view is matched
+           to the nearest of them.
 
 Invariance of ``shape``: rotation and reflection by per-degree energies of a point measure (exact,
 computed with complex spherical harmonics at the points), by distances, by the intrinsic

@@ -17,6 +17,10 @@ silhouette's pixel count are taken, and their moduli kept (a turn shifts the pha
 reflection conjugates). Per view: ``2·VIEW_RINGS·VIEW_HARMONICS`` values (silhouette block, then
 depth block times :data:`VIEW_DEPTH_WEIGHT`).
 
+The views are not invariant as a set: the directions are fixed in space, so a turned model is
+seen from other directions. A query's view is compared with every stored view and the nearest
+counts, which tolerates any turn up to the spacing of the directions.
+
 A partial scan is seen from where the camera stood: the direction from which the least of it is
 back-facing (:func:`scan_direction`). Both signs of it are kept, as
 the winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
