@@ -804,6 +804,200 @@ def run_scan_jobs(jobs, workers):
     return out
 
 
+def view_scan_version() -> str:
+    """Hash of what makes a view scan's light record (:func:`compute_view_scan`): the
+    simulation (:func:`partial_version`) and the sources of the view descriptors."""
+    import inspect
+
+    from surfidx.describe import views
+
+    h = hashlib.sha256(partial_version().encode())
+    h.update(inspect.getsource(views).encode())
+    h.update(inspect.getsource(compute_view_scan).encode())
+    return h.hexdigest()[:12]
+
+
+def compute_view_scan(job: dict) -> dict:
+    """Worker: the single-view scans of one model (every seed of ``job["seeds"]``, clean and,
+    with ``job["noise"]``, jittered: the jitter draws follow the view's from the same generator,
+    as :func:`make_scan` draws them), described without the spherical map: their views
+    (:func:`surfidx.describe.views.scan_views`), the angle between the estimated and the true
+    camera direction, SH and D2. Cached per model in ``job["cache_file"]``."""
+    cache_file = Path(job["cache_file"])
+    if cache_file.exists():
+        with np.load(cache_file, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    import surfidx
+    from surfidx.describe.views import scan_direction, scan_views
+
+    mesh = surfidx.read_mesh(job["path"])
+    v0, f0 = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    out = {k: [] for k in ("views", "angle", "sh", "d2", "noisy", "seed", "cpu")}
+    for seed in job["seeds"]:
+        t0 = time.process_time()
+        rng = np.random.default_rng(seed)
+        true = np.random.default_rng(seed).normal(size=3)    # simulate_view's first draw
+        true /= np.linalg.norm(true)
+        v, f = sb.simulate_view(v0, f0, rng)
+        variants = [(False, v)] + ([(True, sb.jitter(v, rng))] if job["noise"] else [])
+        for noisy, vv in variants:
+            t1 = time.process_time()
+            out["views"].append(scan_views(vv, f))
+            d = scan_direction(vv, f)
+            out["angle"].append(float(np.degrees(np.arccos(np.clip(d @ true, -1.0, 1.0)))))
+            out["sh"].append(sb.sh_descriptor(vv, f))
+            out["d2"].append(sb.d2_histogram(vv, f))
+            out["noisy"].append(noisy)
+            out["seed"].append(seed)
+            out["cpu"].append(time.process_time() - t1)
+    out = {k: np.asarray(v) for k, v in out.items()}
+    cache_file.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(cache_file) + f".{os.getpid()}.tmp.npz")
+    np.savez(tmp, **out)
+    os.replace(tmp, cache_file)
+    return out
+
+
+def stored_views(grid, level, cache_dir):
+    """(k, d) views of a stored model (:func:`surfidx.describe.views.model_views` of its
+    grid), cached on disk."""
+    from surfidx.describe.views import model_views
+    from surfidx.geometry.icosphere import icosphere
+
+    h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
+    h.update(f"{level}-{view_scan_version()}".encode())
+    f = cache_dir / f"stored-{h.hexdigest()[:24]}.npy"
+    if f.exists():
+        return np.load(f)
+    vv = model_views(grid[:, :3], icosphere(level).faces)
+    f.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(f) + f".{os.getpid()}.tmp.npy")
+    np.save(tmp, vv)
+    os.replace(tmp, f)
+    return vv
+
+
+def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
+    """``--partial view --view-descriptors``: every model seen by ``--views`` cameras (and
+    jittered, ``--noise``), queried by its views against the stored models' views
+    (:func:`surfidx.describe.views.partial_view_l2`, no spherical map of the scan), beside SH
+    and D2 of the same scans and the default distance on the scans whose maps are cached
+    (the ``--partial view`` run's)."""
+    from surfidx.describe.views import partial_view_l2, view_dim
+
+    vdir = cache_dir / f"views-{view_scan_version()}"
+    pver = partial_version()
+    jobs = []
+    for i, p in enumerate(paths):
+        seeds = [int(args.seed * 100_000 + i * 100 + k) for k in range(args.views)]
+        jobs.append({"path": str(args.data / p), "seeds": seeds, "noise": bool(args.noise),
+                     "cache_file": str(vdir / f"{file_hash(args.data / p)}-"
+                                       f"{'-'.join(map(str, seeds))}"
+                                       f"{'-noisy' if args.noise else ''}.npz")})
+    todo = [j for j in jobs if not Path(j["cache_file"]).exists()]
+    print(f"view scans: {len(todo)} of {len(jobs)} models to compute", file=sys.stderr,
+          flush=True)
+    t0 = time.perf_counter()
+    if args.workers > 1 and len(todo) > 1:
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(args.workers, mp_context=mp.get_context("spawn")) as ex:
+            futs = {ex.submit(compute_view_scan, j): j for j in todo}
+            for n, fut in enumerate(as_completed(futs)):
+                fut.result()
+                print(f"  [{n + 1}/{len(todo)}] {Path(futs[fut]['path']).name} "
+                      f"({time.perf_counter() - t0:.0f}s)", file=sys.stderr, flush=True)
+    recs = [compute_view_scan(j) for j in jobs]     # cached now (or computed here)
+    base = run_jobs(base_jobs, args.workers)
+    sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir)
+          for r in base]
+    k_views = max(len(v) for v in sv if v is not None)
+    stored = {"views": np.stack([np.zeros(k_views * view_dim(), np.float32) if v is None
+                                 else v.ravel() for v in sv])}
+    present = {"views": np.array([v is not None for v in sv])}
+    sh_recs = run_scan_jobs([{"path": str(args.data / p), "kind": "sh", "cache_file": str(
+        cache_dir / f"partial-{pver}" / f"{file_hash(args.data / p)}-sh.npz")} for p in paths],
+        args.workers)
+    sh_base = np.stack([r["arrays"]["sh"] for r in sh_recs])
+    d2_base = np.stack([r["d2"] for r in base])
+    mapped = {}
+    if args.with_default:
+        from surfidx.describe.distance import weighted_l2
+
+        descs = [None if r["grid"] is None else describe_cached(r["grid"], r["level"], lmax)
+                 for r in base]
+        dstored, dpresent = stack_descriptors(descs)
+        for i, p in enumerate(paths):
+            for k in range(args.views):
+                seed = int(args.seed * 100_000 + i * 100 + k)
+                f = cache_dir / f"partial-{pver}" / f"{file_hash(args.data / p)}-view{seed}.npz"
+                if f.exists():
+                    rec = compute_scan({"cache_file": str(f)})
+                    q = scan_descriptors(rec, lmax)
+                    mapped[(i, seed)] = (np.full(len(paths), np.inf) if q is None else
+                                         np.where(dpresent["shape"],
+                                                  weighted_l2(q, dstored, dpresent), np.inf))
+    rows, results = [], {}
+    for noisy in ([False, True] if args.noise else [False]):
+        sel = [(i, k) for i, r in enumerate(recs) for k in range(len(r["seed"]))
+               if bool(r["noisy"][k]) == noisy]
+        own = np.array([i for i, _ in sel])
+        qcls = classes[own]
+        label = f"view{' + jitter' if noisy else ''}"
+        variants = {
+            "surfidx views": np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
+                                                       stored, present) for i, k in sel]),
+            "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
+                                            sh_base),
+            "D2": np.abs(np.stack([recs[i]["d2"][k] for i, k in sel])[:, None, :]
+                         - d2_base[None, :, :]).sum(-1)}
+        for name, dist in variants.items():
+            results[(label, name)] = sb.query_statistics(dist, qcls, classes, own)
+        if not noisy and mapped:
+            keep = [n for n, (i, k) in enumerate(sel) if (i, int(recs[i]["seed"][k])) in mapped]
+            dist = np.stack([mapped[(sel[n][0], int(recs[sel[n][0]]["seed"][sel[n][1]]))]
+                             for n in keep])
+            results[(label, "surfidx default (mapped scans)")] = sb.query_statistics(
+                dist, qcls[keep], classes, own[keep])
+            results[(label, "surfidx views, same scans")] = sb.query_statistics(
+                variants["surfidx views"][keep], qcls[keep], classes, own[keep])
+        ang = np.array([recs[i]["angle"][k] for i, k in sel])
+        cpu = np.array([recs[i]["cpu"][k] for i, k in sel])
+        REPORT.print(f"{label}: camera direction error median {np.median(ang):.1f}°, q3 "
+                     f"{np.percentile(ang, 75):.1f}°, max {ang.max():.1f}°; scan description "
+                     f"(views, SH, D2) CPU s median {np.median(cpu):.2f}, max {cpu.max():.2f}")
+    for (label, name), st in results.items():
+        pq = st["per_query"]["map"]
+        rows.append([label, name, st["n"], f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
+                     f"{100 * st['ft']:.1f}", f"{100 * st['map']:.1f}", f"{st['own_rank']:.0f}",
+                     f"{100 * np.percentile(pq, 25):.0f}/{100 * np.median(pq):.0f}/"
+                     f"{100 * np.percentile(pq, 75):.0f}"])
+    REPORT.print(f"\nSingle views ({args.views} cameras per model{', also jittered by ' + str(100 * sb.JITTER) + ' % of the diagonal' if args.noise else ''}; {len(paths)} models) "
+                 "queried by their views against the complete collection (target: NN >= 80 %, "
+                 "mAP >= 65, own first >= 60 %)\n")
+    print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
+                 "own rank (median)", "AP q1/med/q3"], rows)
+    if args.confusion:
+        st = results[("view", "surfidx views")]
+        sel_own = np.array([i for i, r in enumerate(recs) for k in range(len(r["seed"]))
+                            if not r["noisy"][k]])
+        crow = []
+        for c in dict.fromkeys(classes):
+            m = classes[sel_own] == c
+            crow.append([c, int(m.sum()), f"{st['per_query']['own'][m].mean():.2f}",
+                         f"{st['per_query']['nn'][m].mean():.2f}",
+                         f"{st['per_query']['map'][m].mean():.2f}"])
+        REPORT.print("\nPer class (views, clean scans)\n")
+        print_table(["class", "queries", "own first", "NN", "mAP"], crow)
+    if args.json is not None:
+        out = {f"{a}/{b}": {k: v[k] for k in ("own", "nn", "ft", "map", "own_rank", "n")}
+               for (a, b), v in results.items()}
+        out["per_query"] = {f"{a}/{b}": {k: v["per_query"][k].tolist() for k in
+                                         ("own", "nn", "map")} for (a, b), v in results.items()}
+        args.json.write_text(json.dumps(out, indent=1))
+    return results
+
+
 DESC_CACHE = Path("/tmp/partial-cache/descriptors")
 """Cached descriptor vectors of grids, keyed by the grid's bytes and the descriptor sources."""
 
@@ -1182,12 +1376,21 @@ def main(argv=None) -> int:
     ap.add_argument("--partial-study", action="store_true",
                     help="with --partial: each shape part alone and the part weights chosen "
                          "on the partial queries")
+    ap.add_argument("--view-descriptors", action="store_true",
+                    help="with --partial view: query the scans by their views (no spherical "
+                         "map of the scans) against the stored models' views")
+    ap.add_argument("--with-default", action="store_true",
+                    help="with --view-descriptors: also the default distance on the scans "
+                         "whose maps are cached")
     ap.add_argument("--noise", action="store_true",
                     help="with --partial: also the scans jittered by "
                          f"{100 * sb.JITTER:g} %% of the diagonal")
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
     REPORT.output = args.markdown
+    global DESC_CACHE
+    if args.cache != CACHE:
+        DESC_CACHE = args.cache / "descriptors"     # beside the maps
     warnings.simplefilter("ignore")
 
     from surfidx.describe.descriptors import DEFAULT_LMAX
@@ -1267,6 +1470,10 @@ def main(argv=None) -> int:
         classes, genus, g0 = classes[keep], genus[keep], g0[keep]
         inv_models = [i for i, _ in copies_kept]
         print(f"cached only: {len(paths)} models, {len(inv_models)} copies", file=sys.stderr)
+    if args.partial == "view" and args.view_descriptors:
+        views_table(args, paths, classes, jobs[:len(paths)], lmax,
+                    args.cache if cache_dir is None else cache_dir)
+        return 0
     if args.partial is not None:
         partial_table(args, paths, classes, jobs[:len(paths)], lmax,
                       args.cache if cache_dir is None else cache_dir)

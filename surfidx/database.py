@@ -211,7 +211,7 @@ class Database(Catalog):
 
     def example(self, model, *, processor=None, describer=None, texture=None,
                 allow_outside_textures: bool = False, thumbnail: bool = True,
-                progress=None, options=None) -> QueryExample:
+                progress=None, options=None, partial: bool | None = None) -> QueryExample:
         """Describe a query's example once, for :meth:`query` (and a contact sheet's thumbnail).
 
         ``model`` is what :meth:`query` takes: a stored model's id or name, a model file, or a
@@ -222,7 +222,10 @@ class Database(Catalog):
         ``describer`` (default :func:`surfidx.pipeline.describe_model`: map, resample and
         describe only; its ``thumbnail`` is of the input, drawn only when ``thumbnail``).
         ``progress`` goes to the describer (:mod:`surfidx.progress`), ``options`` (a
-        :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it."""
+        :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it.
+        ``partial=True`` describes a file or model in memory as a single-view scan, by
+        :func:`surfidx.pipeline.describe_scan` (its views only, no spherical map), unless a
+        processor or describer is given."""
         ref = model
         if isinstance(model, str):
             text = model.strip()
@@ -256,6 +259,12 @@ class Database(Catalog):
             extra["options"] = options
         if processor is not None:
             proc = functools.partial(processor, bits_per_surfel=DEFAULT_BITS_PER_SURFEL)
+        elif partial and describer is None:
+            from .pipeline import describe_scan
+
+            extra.pop("options", None)
+            proc = functools.partial(describe_scan, options=options,
+                                     **({"progress": progress} if progress is not None else {}))
         else:
             proc = functools.partial(unit_of_work(describer, "describe_model"),
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
@@ -330,9 +339,12 @@ class Database(Catalog):
             index skips the others inside it (:meth:`surfidx.db.ann.AnnIndex.query`, all
             passing models ranked exactly when few pass).
         partial : bool, optional
-            Whether the example is a scan of part of an object, compared by
-            :func:`surfidx.describe.partial_l2` instead of the default distance. Default: detected
-            from the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
+            Whether the example is a single-view scan of part of an object: its views (a file
+            is then described by :func:`surfidx.pipeline.describe_scan`, without the spherical
+            map) are compared with the stored models' by
+            :func:`surfidx.describe.views.partial_view_l2`; an example without views (stored
+            by an older surfidx) by :func:`surfidx.describe.partial_l2`. Default: detected from
+            the share of its surface the repair added (:func:`surfidx.describe.is_partial`,
             :attr:`QueryExample.virtual_share`).
 
         all_versions : bool
@@ -356,7 +368,7 @@ class Database(Catalog):
         ex = model if isinstance(model, QueryExample) else self.example(
             model, processor=processor, describer=describer, texture=texture,
             allow_outside_textures=allow_outside_textures, thumbnail=False, progress=progress,
-            options=options)
+            options=options, partial=partial)
         descriptors = dict(ex.descriptors)
         if not ex.has_color:
             descriptors.pop("texture", None)
@@ -376,7 +388,16 @@ class Database(Catalog):
         if tag is not None or where is not None or older > _WIDEN_MAX:
             allowed = self.select_ids(tag=tag, where=where, all_versions=all_versions)
             older = 0
-        if allowed is not None and (exact or not self._approximate()):
+        by_views = partial and "views" in descriptors and self.conn.execute(
+            "SELECT 1 FROM descriptors WHERE kind = 'views' LIMIT 1").fetchone() is not None
+        if partial and "shape" not in descriptors and not by_views:
+            raise InputError("no stored model has views (descriptors made before version 8), "
+                             "and a scan described by its views alone has nothing else to "
+                             "compare; run `surfidx redescribe`, or query with --complete")
+        if by_views:
+            ids, dist = self._view_search(descriptors["views"], allowed,
+                                          k=k + (drop is not None) + older)
+        elif allowed is not None and (exact or not self._approximate()):
             ids, dist = self._filtered_search(descriptors, allowed,
                                               k=k + (drop is not None), shape_weight=w,
                                               distance=partial_l2 if partial else None)
@@ -405,6 +426,23 @@ class Database(Catalog):
         kept = self.__dict__.get("_kept_search")
         return (kept is not None and kept.still_approximate()) or \
             self.count() >= DEFAULT_THRESHOLD
+
+    def _view_search(self, views, allowed, *, k):
+        """The ``k`` nearest stored models (of the ids ``allowed``; None: all) to a partial
+        query's views by :func:`surfidx.describe.views.partial_view_l2`, ties by id."""
+        from .describe.views import partial_view_l2
+
+        if allowed is None:
+            allowed = np.asarray([r[0] for r in self.conn.execute(
+                "SELECT DISTINCT model_id FROM descriptors WHERE kind = 'views'")], np.int64)
+        if allowed.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        ids, stored, present = self.descriptor_rows(allowed, ("views",))
+        if ids.size == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        dist = partial_view_l2({"views": views}, stored, present)
+        order = np.lexsort((ids, dist))[:k]
+        return ids[order], dist[order]
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next

@@ -15,7 +15,7 @@ import numpy as np
 from .errors import SurfidxError
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
-           "export_texture", "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
+           "describe_scan", "scan_surface", "export_texture", "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
 
 
 @dataclass
@@ -406,7 +406,9 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     stress figure, the grid at the encoder's level: ``level``, else the map's ``grid_level``;
     colour when the surfels have it; each part on its own, combined by
     :func:`combine_descriptors`), so with the same arguments its descriptors are bit-equal to
-    ``process_model(...).descriptors``.
+    ``process_model(...).descriptors`` — but for a partial scan
+    (:func:`surfidx.describe.is_partial`), whose ``views`` are those of its real surface from
+    its camera (:func:`surfidx.describe.views.scan_views`), what a partial query compares.
 
     Parameters
     ----------
@@ -437,6 +439,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     import time
 
     from .describe.descriptors import describe_grid
+    from .describe.partial import is_partial
     from .io import up_axis
     from .options import ProcessOptions
     from .render import THUMBNAIL, render
@@ -463,6 +466,11 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         sets.append(d)
         levels.append(int(grid_level))
     desc = combine_descriptors(sets, [len(p) for p in model.parts])
+    if model.repaired and is_partial(model.summary()["virtual_area_share"]):
+        from .describe.views import scan_views
+
+        v, f = scan_surface(model)      # a single view: its own views, not the capped model's
+        desc.vectors["views"] = scan_views(v, f).ravel()
     grid_level = levels[0]
     thumb = None
     if thumbnail_size is not None:
@@ -475,6 +483,78 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
                           n_surfels=len(surfels), has_color=surfels.has_color,
                           descriptors=desc, grid_level=int(grid_level), thumbnail=thumb,
                           timings=timings, topology=model.summary() if model.repaired else None)
+
+
+def scan_surface(model):
+    """(vertices, faces) of what a read model really holds: every part's real faces (the
+    repair's virtual patches left out), stacked.
+
+    Raises
+    ------
+    InputError
+        A part without faces (points or surfels): a view needs a surface.
+    """
+    from .errors import InputError
+
+    verts, faces, offset = [], [], 0
+    for k, part in enumerate(model.parts):
+        if part.faces is None:
+            raise InputError("a query by a single view needs a surface with faces (a mesh or "
+                             "meshed surfels); this one has points only: query it as a "
+                             "complete model (query --complete)")
+        fp = model.face_patch(k)
+        f = part.faces if fp is None else part.faces[np.asarray(fp) < 0]
+        verts.append(np.asarray(part.positions, np.float64))
+        faces.append(f + offset)
+        offset += len(part)
+    return np.vstack(verts), np.vstack(faces)
+
+
+def describe_scan(path, *, options=None, texture=None, samples: int | None = None,
+                  allow_outside_textures: bool = False, name: str | None = None,
+                  progress=None) -> DescribedModel:
+    """Read a single-view scan and describe what it holds as views: what a partial query
+    compares with the stored models' ``views`` (:func:`surfidx.describe.views.partial_view_l2`).
+
+    The scan is read and repaired as :func:`describe_model` reads it (so its virtual share is
+    known), but not mapped: its real faces (:func:`scan_surface`) are seen from the camera
+    direction (:func:`surfidx.describe.views.scan_direction`) and from the opposite one, and
+    described as a stored model's views are (:func:`surfidx.describe.views.scan_views`).
+
+    Parameters
+    ----------
+    path, options, texture, samples, allow_outside_textures, name, progress
+        As for :func:`describe_model` (only the read and repair settings of ``options``
+        count).
+
+    Returns
+    -------
+    DescribedModel
+        ``descriptors`` holds one kind, ``views`` (2·:func:`surfidx.describe.views.view_dim`
+        values); ``grid_level`` is 0 (nothing is resampled).
+
+    Raises
+    ------
+    SurfidxError
+        Unreadable file, a scan without faces or of zero area.
+    """
+    from .describe.descriptors import DescriptorSet, descriptor_params
+    from .describe.views import scan_views
+    from .options import ProcessOptions
+
+    opts = ProcessOptions.resolve(options, samples=samples)
+    timings = {}
+    model = _read(timings, progress, path, texture, opts.samples, allow_outside_textures,
+                  opts.repair)
+    v, f = scan_surface(model)
+    views = _timed(timings, "describe", progress, scan_views, v, f)
+    desc = DescriptorSet({"views": views.ravel()}, descriptor_params(lmax=opts.describe.lmax))
+    surfels = model.surfels
+    label, source, digest = _identity(path, surfels, texture, name)
+    return DescribedModel(name=label, source=source, content_hash=digest,
+                          n_surfels=len(surfels), has_color=surfels.has_color,
+                          descriptors=desc, grid_level=0, timings=timings,
+                          topology=model.summary() if model.repaired else None)
 
 
 def output_level(stream: bytes, *, path=None) -> int | None:

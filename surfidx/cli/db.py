@@ -230,8 +230,8 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, all
     (1-w)*|texture difference| when both have colour, else the shape difference alone (shape:
     the shape descriptor with the KLT spectrum appended). A partial scan (one view, a scan
     with holes: a large share of its closed surface added by the repair, or --partial) is
-    compared by the partial distance, which weighs the descriptor parts the added surface
-    changes least. A model file's stages are shown on stderr when it is a terminal (--quiet:
+    compared by its views: what it holds seen from its camera, against each stored model's
+    views (--partial describes a file by its views alone, without the spherical map). A model file's stages are shown on stderr when it is a terminal (--quiet:
     never; --verbose: their times).
     """
     with _open(db_path, console) as db, console.progress() as progress:
@@ -240,7 +240,7 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, all
         ex = db.example(example, processor=_injected("processor"),
                         describer=_injected("describer"), thumbnail=bool(sheet),
                         progress=progress, allow_outside_textures=allow_outside_textures(),
-                        options=options)
+                        options=options, partial=partial)
         label, qthumb = ex.name, ex.thumbnail
         report(progress, "search", 0, 1)
         rows = db.query(ex, k=k, shape_weight=shape_weight, include_self=include_self,

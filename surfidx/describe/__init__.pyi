@@ -11,3 +11,5 @@ from .distance import (weighted_l2 as weighted_l2, DEFAULT_SHAPE_WEIGHT as DEFAU
 from .partial import (partial_l2 as partial_l2, is_partial as is_partial,
                       PARTIAL_SHARE as PARTIAL_SHARE,
                       PARTIAL_PART_WEIGHTS as PARTIAL_PART_WEIGHTS, part_slices as part_slices)
+from .views import (partial_view_l2 as partial_view_l2, model_views as model_views,
+                    scan_views as scan_views, scan_direction as scan_direction)

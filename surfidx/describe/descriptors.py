@@ -59,6 +59,12 @@ Descriptor vectors (float32), by kind:
            about the grey axis) leaves the colour layers' energies unchanged: such a recolouring
            is seen through the mean colour;
 ``spectrum`` (3,) — the normalised geometric KLT eigenvalues (sum 1).
+``views`` (k·d,) — the model's surface seen from the ``k`` directions of
+           :func:`surfidx.describe.views.view_directions`, ``d`` values per view
+           (:func:`surfidx.describe.views.model_views`): what a query by a single-view scan is
+           compared with (:func:`surfidx.describe.views.partial_view_l2`). Not rotation
+           invariant as a vector (the directions are fixed in space); a query's view is matched
+           to the nearest of them.
 
 Invariance of ``shape``: rotation and reflection by per-degree energies of a point measure (exact,
 computed with complex spherical harmonics at the points), by distances, by the intrinsic
@@ -89,6 +95,7 @@ from ..geometry.mesh import cotangent_laplacian, vertex_area_shares
 from ..codec.klt import KLT
 from .harmonics import degree_spectrum, expand_dh
 from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
+from .views import model_views, view_params
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
            "DEFAULT_LMAX",
@@ -97,7 +104,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 from .options import DEFAULT_LMAX  # noqa: E402  (defined with DescribeOptions)
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
 """Normalisation of the spherical harmonics the descriptors use (stored with them)."""
-DESCRIPTOR_VERSION = 7
+DESCRIPTOR_VERSION = 8
 """Version of the descriptor vectors; queries refuse to compare vectors of different versions."""
 
 SHELLS = 8
@@ -139,7 +146,7 @@ class DescriptorSet:
     Attributes
     ----------
     vectors : dict of str -> (d,) float32
-        By kind: ``shape``, ``layers``, ``spectrum`` and, with colour, ``texture``.
+        By kind: ``shape``, ``layers``, ``spectrum``, ``views`` and, with colour, ``texture``.
     params : dict
         The conventions that make two descriptors comparable: ``lmax``, ``normalization``,
         ``version`` (the grid level is not one: energies at a degree do not depend on it).
@@ -434,6 +441,7 @@ def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX,
         "shape": _shape_vector(shape_parts(values[:, :3], level, g, virtual=virtual)),
         "layers": np.sqrt(np.maximum(degree_energies(g, level, lmax), 0)).ravel(),
         "spectrum": np.asarray(geo.eigenvalues) / total,
+        "views": model_views(values[:, :3], ico.faces).ravel(),
     }
     if values.shape[1] == 6:
         vectors["texture"] = texture_vector(values[:, 3:], level, lmax)
@@ -469,7 +477,8 @@ def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
                       "shape_level": SHAPE_LEVEL, "layers_lmax": LAYERS_LMAX,
                       "layers_grid_lmax": LAYERS_GRID_LMAX,
                       "seed": SEED,
-                      "part_scales": [float(v) for v in SHAPE_PART_SCALES]}}
+                      "part_scales": [float(v) for v in SHAPE_PART_SCALES]},
+            "views": view_params()}
 
 
 def descriptor_distance(a: dict, b: dict, *, shape_weight: float = DEFAULT_SHAPE_WEIGHT) -> float:

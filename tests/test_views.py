@@ -1,0 +1,199 @@
+"""View-based descriptors: a model's views, a scan's camera direction and views, the partial
+view distance, and queries by a single view from Python."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from surfidx import InputError
+from surfidx.describe import views as V
+
+
+def capsule(length=2.0, radius=0.6, n=32, rings=12):
+    """(vertices, faces) of a closed capsule along z."""
+    import trimesh
+
+    m = trimesh.creation.capsule(height=length, radius=radius, count=[n, rings])
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def box(extents=(2.0, 1.0, 0.5)):
+    import trimesh
+
+    m = trimesh.creation.box(extents=extents).subdivide().subdivide()
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def one_view(v, f, direction):
+    """The faces of a closed convex mesh that face a camera far along ``direction``."""
+    d = np.asarray(direction, float)
+    t = v[f]
+    keep = f[np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]) @ d > 0]
+    used, inv = np.unique(keep, return_inverse=True)
+    return v[used], inv.reshape(-1, 3)
+
+
+def angle(a, b):
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a)
+                                              / np.linalg.norm(b), -1, 1))))
+
+
+def test_model_views_are_one_vector_per_direction_and_the_same_every_time():
+    v, f = capsule()
+    a = V.model_views(v, f)
+    assert a.shape == (len(V.view_directions()), V.view_dim()) and a.dtype == np.float32
+    assert np.all(np.isfinite(a))
+    assert a.tobytes() == V.model_views(v, f).tobytes()
+
+
+@pytest.mark.parametrize("direction", [(1.0, 0.3, 0.2), (-0.2, 0.1, -1.0), (0.5, -0.8, 0.4)])
+def test_the_camera_direction_of_a_view_is_found(direction):
+    v, f = box()                # three faces: seen alike from the whole octant
+    sv, sf = one_view(v, f, direction)
+    t = sv[sf]
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    assert np.all(n @ V.scan_direction(sv, sf) > 0)
+    v, f = capsule()
+    sv, sf = one_view(v, f, direction)
+    assert angle(V.scan_direction(sv, sf), direction) < 8.0
+
+
+def test_a_view_is_invariant_to_a_similarity_of_the_model():
+    rng = np.random.default_rng(5)
+    v, f = capsule(length=3.0)
+    p = V.surface_samples(v, f)
+    d = np.array([0.3, 0.9, 0.2])
+    d /= np.linalg.norm(d)
+    a = V.view_vector(p, d)
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.random(random_state=rng).as_matrix()
+    b = V.view_vector(3.7 * p @ rot.T + [1.0, -2.0, 5.0], rot @ d)
+    other = V.view_vector(V.surface_samples(*box()), d)
+    assert np.linalg.norm(a - b) < 0.2 * np.linalg.norm(a - other)   # pixels differ
+
+
+def test_a_scan_finds_its_model_among_other_shapes():
+    shapes = {"capsule": capsule(), "ball": capsule(length=0.2), "long": capsule(length=5.0),
+              "box": box()}
+    stored = {"views": np.stack([V.model_views(*m).ravel() for m in shapes.values()])}
+    present = {"views": np.ones(len(shapes), bool)}
+    names = list(shapes)
+    for name, (v, f) in shapes.items():
+        sv, sf = one_view(v, f, (1.0, 0.3, 0.2))
+        d = V.partial_view_l2({"views": V.scan_views(sv, sf).ravel()}, stored, present)
+        assert names[int(np.argmin(d))] == name
+    present["views"][0] = False
+    sv, sf = one_view(*shapes["capsule"], (1.0, 0.3, 0.2))
+    assert np.isinf(V.partial_view_l2({"views": V.scan_views(sv, sf).ravel()}, stored,
+                                      present)[0])
+
+
+def test_view_set_distance_is_zero_for_the_same_model_and_symmetric():
+    a, b = V.model_views(*capsule()), V.model_views(*box())
+    s = np.stack([a, b])
+    assert V.view_set_distance(a, s)[0] == pytest.approx(0.0, abs=1e-6)
+    assert V.view_set_distance(a, s)[1] == pytest.approx(V.view_set_distance(b, s)[0])
+
+
+def test_views_refuse_degenerate_input():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    f = np.array([[0, 1, 2]])
+    with pytest.raises(InputError, match="zero area; it has no views"):
+        V.surface_samples(v, f)
+    with pytest.raises(InputError, match="zero area; its camera direction is unknown"):
+        V.scan_direction(v, f)
+    with pytest.raises(InputError, match="projects to a single point"):
+        V.view_vector(np.zeros((5, 3)), [0.0, 0.0, 1.0])
+    with pytest.raises(InputError, match="whole views of"):
+        V.partial_view_l2({"views": np.zeros(7)}, {"views": np.zeros((2, V.view_dim()))},
+                          {"views": np.ones(2, bool)})
+
+
+def test_describe_grid_stores_views_with_their_conventions():
+    from surfidx.describe import DESCRIPTOR_VERSION, describe_grid
+    from surfidx.geometry.icosphere import icosphere
+
+    x = np.asarray(icosphere(3).vertices) * [1.0, 0.6, 0.4]
+    d = describe_grid(x, 3)
+    assert d.vectors["views"].shape == (len(V.view_directions()) * V.view_dim(),)
+    assert d.params["views"] == V.view_params() and d.params["version"] == DESCRIPTOR_VERSION
+
+
+def test_scan_surface_refuses_points_without_faces():
+    from types import SimpleNamespace
+
+    from surfidx.pipeline import scan_surface
+
+    part = SimpleNamespace(faces=None)
+    model = SimpleNamespace(parts=(part,), face_patch=lambda k: None)
+    with pytest.raises(InputError, match="needs a surface with faces"):
+        scan_surface(model)
+
+
+@pytest.fixture(scope="module")
+def shapes_db(tmp_path_factory):
+    from surfidx.database import Database
+
+    root = tmp_path_factory.mktemp("views")
+    models = root / "models"
+    models.mkdir()
+    for name, m in (("capsule", capsule()), ("ball", capsule(length=0.2)),
+                    ("long", capsule(length=5.0))):
+        _write_off(models / f"{name}.off", *m)
+    db_path = root / "v.db"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Database(db_path) as db:
+            db.ingest([models], workers=1)
+    view = _write_off(root / "view.off", *one_view(*capsule(), (1.0, 0.3, 0.2)))
+    return db_path, view
+
+
+def _write_off(path, v, f):
+    with open(path, "w") as fh:
+        fh.write(f"OFF\n{len(v)} {len(f)} 0\n")
+        np.savetxt(fh, v, fmt="%.9g")
+        np.savetxt(fh, np.c_[np.full(len(f), 3), f], fmt="%d")
+    return path
+
+
+def test_a_partial_query_compares_views_without_mapping_the_scan(shapes_db, monkeypatch):
+    from surfidx import pipeline
+    from surfidx.database import Database
+
+    db_path, view = shapes_db
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Database(db_path) as db:
+            auto = db.query(str(view), k=3)                   # detected: mapped, then views
+            monkeypatch.setattr(pipeline, "describe_model", None)   # --partial never maps
+            forced = db.query(str(view), k=3, partial=True)
+            ex = db.example(str(view), partial=True)
+    assert auto[0]["name"] == "capsule"
+    assert [(r["name"], r["distance"]) for r in auto] == \
+        [(r["name"], r["distance"]) for r in forced]
+    assert set(ex.descriptors) == {"views"} and ex.virtual_share > 0.2
+
+
+def test_a_database_without_views_falls_back_or_says_to_redescribe(shapes_db, tmp_path):
+    import shutil
+    import sqlite3
+
+    from surfidx.database import Database
+
+    db_path, view = shapes_db
+    old = tmp_path / "old.db"
+    shutil.copy(db_path, old)
+    with sqlite3.connect(old) as conn:
+        conn.execute("DELETE FROM descriptors WHERE kind = 'views'")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Database(old) as db:
+            rows = db.query(str(view), k=3)         # detected: the default descriptors
+            assert len(rows) == 3
+            with pytest.raises(InputError, match="no stored model has views"):
+                db.query(str(view), k=3, partial=True)
