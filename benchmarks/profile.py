@@ -5,12 +5,12 @@ per file: read, map, resample, transform, code, decode for the quality figures, 
 thumbnail; only the database write is left out) in a worker process. The stage functions are
 wrapped, in the worker only, by a timer that charges each call's CPU time
 (``time.process_time``: this process, not the machine's load) to its stage, less the time of
-the listed stages nested in it (self time: the fold repair's own resampling is charged to
-``resample``, not to ``map.repair``). What no stage claims is ``other``.
+the listed stages nested in it (self time: the balancing of a level prolonged round by round is charged to
+``map.balance``, not to ``map.prolong``). What no stage claims is ``other``.
 
 Stages (module attribute -> stage name) are listed in :data:`STAGES`; ``map.*`` stages are the
-spherical map's steps (coarse-to-fine levels, decimation, Tutte maps, balancing, untangling,
-point-cloud proxy, fold repair, realised flips, quality figures).
+spherical map's steps (coarse-to-fine levels, decimation, prolongation, Tutte maps,
+balancing, point-cloud proxy, quality figures).
 
 The table gives, per stage, the median, 90th percentile and maximum CPU seconds over the
 models, the same per 10k surfels, and the exponent ``b`` of a least-squares fit
@@ -72,14 +72,11 @@ STAGES = (
     ("surfidx.geometry.geodesics", "GeodesicSolver.__init__", "geodesics"),
     ("surfidx.sphere.multilevel", "mesh_map", "map.multilevel"),
     ("surfidx.sphere.decimate", "decimate", "map.decimate"),
+    ("surfidx.sphere.decimate", "Hierarchy.undo", "map.prolong"),
     ("surfidx.sphere.tutte", "tutte_map", "map.tutte"),
     ("surfidx.sphere.balance", "balance", "map.balance"),
-    ("surfidx.sphere.balance", "untangle", "map.untangle"),
     ("surfidx.sphere.cloud", "cloud_map", "map.proxy"),
     ("surfidx.sphere.proxy", "proxy_mesh", "map.proxy"),
-    ("surfidx.sphere.repair", "repair", "map.repair"),
-    ("surfidx.sphere.foldrepair", "repair_folds", "map.repair"),
-    ("surfidx.sphere.circlepattern", "lower_folds", "map.realise"),
     ("surfidx.sphere.quality", "_count_folds", "map.quality"),
     ("surfidx.sphere.quality", "_area_distortion", "map.quality"),
     ("surfidx.sphere.quality", "_sparse_sampling", "map.quality"),
@@ -178,7 +175,8 @@ def fold_counts(maps) -> dict:
         f = s.faces
         if f is not None and len(f):
             f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
-            inv += int(np.count_nonzero(orientation(m.points, f) <= 0))
+            k = int(np.count_nonzero(orientation(m.points, f) <= 0))
+            inv += min(k, len(f) - k)       # a global mirror is not a fold
         dfold += count_folds(s, m.points, triangles=hull_triangles(m.points))[0]
         ad += len(s) * m.area_distortion
         wsum += len(s)

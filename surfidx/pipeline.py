@@ -446,8 +446,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,
-                      grid_level, color=part.has_color,
-                      location=sphere_map.location(grid_level))
+                      grid_level, color=part.has_color)
         d = _timed(timings, "describe", progress, describe_grid, grid, grid_level, lmax=lm)
         sets.append(d)
         levels.append(int(grid_level))
