@@ -55,11 +55,15 @@ class Hierarchy:
         the vertex ``kept[i]`` it was merged into, and the neighbours of ``removed[i]`` at its
         removal in ``ring[ring_ptr[i]:ring_ptr[i+1]]`` (counter-clockwise, ``kept[i]`` among
         them).
+    kernel_insertions : int
+        Removed vertices that :meth:`undo` put into their ring's kernel (the mean would have
+        turned a triangle of their star over), counted over its calls.
     """
 
     faces: np.ndarray
     vertices: np.ndarray
     rounds: list
+    kernel_insertions: int = 0
 
     def prolong(self, values, positions, *, unit: bool = False, embed: bool = False,
                 settle=None):
@@ -123,7 +127,9 @@ class Hierarchy:
         else:
             acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
         if embed:
-            acc = _into_kernels(acc, out, kept, ptr, ring, owner, nxt, positions, removed)
+            acc, moved = _into_kernels(acc, out, kept, ptr, ring, owner, nxt, positions,
+                                       removed)
+            self.kernel_insertions += moved
         out[removed] = acc
         if settle is not None:
             out = settle(out, r)
@@ -161,6 +167,7 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
     unit inner normals, ``k × next`` and ``prev × k``, points into that wedge, whether the ring's
     angle at ``k`` is convex or reflex."""
     bad = np.flatnonzero(_star_folds(x, out, ring, owner, nxt))
+    moved = len(bad)
     x = x.copy()
     at = np.flatnonzero(ring == kept[owner])[bad]      # the kept vertex is once in each ring
     prv = np.empty_like(nxt)
@@ -178,7 +185,7 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
             break
         bad, k, d = bad[still], k[still], 0.5 * d[still]
     _place(x, np.arange(len(x)), out, ptr, ring, positions, removed, _PLACE_STEPS)
-    return x
+    return x, moved
 
 
 @numba.njit(cache=True)

@@ -41,8 +41,9 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
     is done, coarsest first (``_depth`` counts the finer levels above this one).
 
     Returns the map ``(n, 3)`` and its figures: ``levels``, ``base_vertices``,
-    ``balance_steps``, ``balance_energy`` and ``mesh_folds``, the mesh triangles the map leaves
-    clockwise (0: every level is an embedding).
+    ``balance_steps``, ``balance_energy`` (of the finest level), ``kernel_insertions`` and
+    ``settled_levels`` (levels prolonged round by round) over all levels, and ``mesh_folds``,
+    the mesh triangles the map leaves clockwise (0: every level is an embedding).
     """
     n = len(surfels)
     f = oriented_faces(surfels) if faces is None else faces   # decimation keeps the topology
@@ -70,10 +71,12 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
     x = np.zeros((n, 3))
     x[kept] = xc
     start = h.prolong(x, p, unit=True, embed=True)
+    settled = 0
     if balance and not _balanced_start(start, p, f, options):
         # the kernels of many rounds nested in thin wedges: balance after every round
         start = h.prolong(x, p, unit=True, embed=True,
                           settle=_settle(h.round_faces(f), p, options))
+        settled = 1
     x = start
     large = n > options.large_level
     steps = single_level_steps(n, options) if _depth else (
@@ -87,7 +90,9 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
         progress("map", info["levels"] + 1, info["levels"] + 1 + _depth)
     return x, {"mesh_folds": inverted(x, f), "levels": info["levels"] + 1,
                "base_vertices": info["base_vertices"], "balance_steps": binfo["steps"],
-               "balance_energy": float(binfo["energy"])}
+               "balance_energy": float(binfo["energy"]),
+               "kernel_insertions": h.kernel_insertions + info.get("kernel_insertions", 0),
+               "settled_levels": settled + info.get("settled_levels", 0)}
 
 
 def _balanced_start(x, p, f, options: MapOptions) -> bool:
