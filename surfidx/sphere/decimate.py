@@ -165,10 +165,14 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
     Near the kept vertex ``k`` the kernel is the wedge left of both ring edges at ``k`` (the
     other edges see ``k`` on their inner side, its fan being embedded); the sum of the two edges'
     unit inner normals, ``k × next`` and ``prev × k``, points into that wedge, whether the ring's
-    angle at ``k`` is convex or reflex."""
+    angle at ``k`` is convex or reflex. Each is then placed by :func:`_place`. Returns the
+    positions and how many were moved."""
     bad = np.flatnonzero(_star_folds(x, out, ring, owner, nxt))
     moved = len(bad)
+    if not moved:
+        return x, 0
     x = x.copy()
+    first = bad.copy()
     at = np.flatnonzero(ring == kept[owner])[bad]      # the kept vertex is once in each ring
     prv = np.empty_like(nxt)
     prv[nxt] = np.arange(len(nxt))
@@ -184,7 +188,7 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
         if not still.any():
             break
         bad, k, d = bad[still], k[still], 0.5 * d[still]
-    _place(x, np.arange(len(x)), out, ptr, ring, positions, removed, _PLACE_STEPS)
+    _place(x, first, out, ptr, ring, positions, removed, _PLACE_STEPS)
     return x, moved
 
 

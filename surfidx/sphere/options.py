@@ -51,6 +51,8 @@ class MapOptions:
         single-level route.
     level_ratio : int
         Each level has this many times the vertices of the next coarser one (≥ 2).
+    level_steps : int
+        Most balancing steps at each level but the finest.
     settle_energy : float
         A level whose prolonged start has a balancing energy per unit area above this (4 for
         an isometry; kernel insertions nested in thin wedges give 1e10 and more, which the
@@ -58,8 +60,8 @@ class MapOptions:
     round_steps : int
         Most balancing steps after each round of such a level.
     final_steps : int
-        Most balancing steps at the finest level (the coarser ones take the single-level
-        count, :func:`surfidx.sphere.tutte.single_level_steps`): long limbs keep gaining area.
+        Most balancing steps at the finest level: long limbs keep gaining area after
+        ``level_steps``.
     final_steps_large : int
         ... at a finest level above ``large_level`` vertices, where a step costs far more.
     large_level : int
@@ -99,6 +101,7 @@ class MapOptions:
     balance: bool = True
     coarse_vertices: int = option(4, min=4)
     level_ratio: int = 4
+    level_steps: int = 300
     settle_energy: float = 1e4
     round_steps: int = 30
     final_steps: int = 1500
