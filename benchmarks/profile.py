@@ -279,7 +279,10 @@ def main(argv=None) -> int:
                     help="worker processes (1: each model has the machine to itself)")
     ap.add_argument("--limit", type=int, default=None, help="first N models of each set")
     ap.add_argument("--per-model", action="store_true", help="print a line per model")
-    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None,
+                    help="write every model's figures here (rewritten after each model)")
+    ap.add_argument("--files", nargs="+", default=None,
+                    help="these model files instead of --set (the set name is 'files')")
     ap.add_argument("--mode", choices=["ingest", "query"], default="ingest",
                     help="time process_model (ingest) or describe_model (query FILE)")
     add_markdown_option(ap, "profile")
@@ -290,7 +293,10 @@ def main(argv=None) -> int:
     import surfidx
 
     jobs = []
-    for s in args.set:
+    if args.files:
+        args.set = ["files"]
+        jobs = [("files", f) for f in args.files]
+    for s in ([] if args.files else args.set):
         files = model_set(s)[: args.limit]
         jobs += [(s, f) for f in files]
     warm = min(model_set("examples"), key=os.path.getsize)
@@ -311,6 +317,8 @@ def main(argv=None) -> int:
             r = fut.result()
             r["set"] = s
             results.append(r)
+            if args.json:
+                args.json.write_text(json.dumps(results, indent=1))
             if args.per_model:
                 msg = r.get("error") or (f"n={r['n']:7d} total {r['total']:6.2f} s  " + (
                     f"folds {r['delaunay_folds']}/{r['mesh_inverted']} ad "
