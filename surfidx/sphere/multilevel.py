@@ -22,7 +22,7 @@ from .balance import Energy, balance as balance_map, inverted
 from .decimate import decimate
 from .options import MapOptions
 from .surface import areas3, oriented_faces, vertex_areas
-from .tutte import centre, tutte_map
+from .tutte import centre, single_level_steps, tutte_map
 
 __all__ = ["mesh_map"]
 
@@ -33,7 +33,8 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
     ``options.coarse_vertices`` vertices, which :func:`surfidx.sphere.tutte.tutte_map` maps),
     carry the map to every vertex keeping it embedded and balance it for at most
     ``options.final_steps`` steps at the finest level (``final_steps_large`` above
-    ``large_level`` vertices; ``level_steps`` on the coarser levels).
+    ``large_level`` vertices; ``level_steps`` on the coarser levels, the single-level count
+    :func:`surfidx.sphere.tutte.single_level_steps` on those prolonged round by round).
 
     ``iterations``, ``gamma`` and ``balance`` are :func:`surfidx.sphere.parameterize`'s;
     ``progress`` (a callback, :mod:`surfidx.progress`) gets ``("map", k, levels)`` as each level
@@ -78,7 +79,8 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
         settled = 1
     x = start
     large = n > options.large_level
-    steps = options.level_steps if _depth else (
+    # a settled level's start was squeezed: it takes the single-level map's step count
+    steps = (single_level_steps(n, options) if settled else options.level_steps) if _depth else (
         options.final_steps_large if large else options.final_steps)
     x, binfo = balance_map(x, p, f, iterations=steps if balance else 0,
                            lam=options.energy_lambda, max_cot=np.inf,
