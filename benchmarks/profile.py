@@ -5,12 +5,12 @@ per file: read, map, resample, transform, code, decode for the quality figures, 
 thumbnail; only the database write is left out) in a worker process. The stage functions are
 wrapped, in the worker only, by a timer that charges each call's CPU time
 (``time.process_time``: this process, not the machine's load) to its stage, less the time of
-the listed stages nested in it (self time: the fold repair's own resampling is charged to
-``resample``, not to ``map.repair``). What no stage claims is ``other``.
+the listed stages nested in it (self time: the balancing of a level prolonged round by round is charged to
+``map.balance``, not to ``map.prolong``). What no stage claims is ``other``.
 
 Stages (module attribute -> stage name) are listed in :data:`STAGES`; ``map.*`` stages are the
-spherical map's steps (coarse-to-fine levels, decimation, Tutte maps, balancing, untangling,
-point-cloud proxy, fold repair, realised flips, quality figures).
+spherical map's steps (coarse-to-fine levels, decimation, prolongation, Tutte maps,
+balancing, point-cloud proxy, quality figures).
 
 The table gives, per stage, the median, 90th percentile and maximum CPU seconds over the
 models, the same per 10k surfels, and the exponent ``b`` of a least-squares fit
@@ -72,14 +72,11 @@ STAGES = (
     ("surfidx.geometry.geodesics", "GeodesicSolver.__init__", "geodesics"),
     ("surfidx.sphere.multilevel", "mesh_map", "map.multilevel"),
     ("surfidx.sphere.decimate", "decimate", "map.decimate"),
+    ("surfidx.sphere.decimate", "Hierarchy.undo", "map.prolong"),
     ("surfidx.sphere.tutte", "tutte_map", "map.tutte"),
     ("surfidx.sphere.balance", "balance", "map.balance"),
-    ("surfidx.sphere.balance", "untangle", "map.untangle"),
     ("surfidx.sphere.cloud", "cloud_map", "map.proxy"),
     ("surfidx.sphere.proxy", "proxy_mesh", "map.proxy"),
-    ("surfidx.sphere.repair", "repair", "map.repair"),
-    ("surfidx.sphere.foldrepair", "repair_folds", "map.repair"),
-    ("surfidx.sphere.circlepattern", "lower_folds", "map.realise"),
     ("surfidx.sphere.quality", "_count_folds", "map.quality"),
     ("surfidx.sphere.quality", "_area_distortion", "map.quality"),
     ("surfidx.sphere.quality", "_sparse_sampling", "map.quality"),
@@ -101,6 +98,7 @@ STAGES = (
 
 _self: dict = {}
 _stack: list = []
+_maps: list = []     # (surfels, SphericalMap) of each part mapped in the current model
 
 
 def _wrap(fn, stage):
@@ -147,7 +145,43 @@ def _instrument():
             for key, val in list(vars(m).items()):
                 if val is orig:
                     setattr(m, key, timed)
+    import surfidx.sphere
+    import surfidx.sphere.mapping as mapping
+    orig = mapping.parameterize
+
+    def recorded(surfels, **kwargs):
+        m = orig(surfels, **kwargs)
+        _maps.append((surfels, m))
+        return m
+    for m in modules + [surfidx.sphere]:
+        for key, val in list(vars(m).items()):
+            if val is orig:
+                setattr(m, key, recorded)
+    surfidx.sphere.parameterize = recorded
     _ = surfidx
+
+
+def fold_counts(maps) -> dict:
+    """Folds counted independently of the map's bookkeeping, summed over the parts: input
+    triangles turned clockwise on the sphere (``mesh_inverted``; a point cloud's surfels have
+    none), folded triangles of the spherical Delaunay triangulation (``delaunay_folds``), and
+    the area-weighted area distortion over the parts."""
+    from surfidx.geometry.unitsphere import hull_triangles, orientation
+    from surfidx.sphere import count_folds
+
+    inv = dfold = 0
+    ad = wsum = 0.0
+    for s, m in maps:
+        f = s.faces
+        if f is not None and len(f):
+            f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+            k = int(np.count_nonzero(orientation(m.points, f) <= 0))
+            inv += min(k, len(f) - k)       # a global mirror is not a fold
+        dfold += count_folds(s, m.points, triangles=hull_triangles(m.points))[0]
+        ad += len(s) * m.area_distortion
+        wsum += len(s)
+    return {"mesh_inverted": inv, "delaunay_folds": dfold,
+            "area_distortion": ad / max(wsum, 1)}
 
 
 def _warm(path: str, mode: str):
@@ -159,6 +193,7 @@ def _run(path: str, mode: str = "ingest") -> dict:
     from surfidx.pipeline import describe_model, process_model
 
     _self.clear()
+    _maps.clear()
     t0 = time.process_time()
     try:
         with warnings.catch_warnings():
@@ -170,10 +205,14 @@ def _run(path: str, mode: str = "ingest") -> dict:
     total = time.process_time() - t0
     stages = dict(_self)
     stages["other"] = max(0.0, total - sum(stages.values()))
+    folds = fold_counts(_maps)
+    _maps.clear()
+    map_cpu = sum(v for k, v in stages.items() if k.startswith("map."))
     if mode != "ingest":
         return {"path": path, "n": rec.n_surfels, "total": total, "stages": stages}
     return {"path": path, "n": rec.n_surfels, "total": total, "stages": stages,
-            "psnr_d2": rec.quality.get("psnr_d2"), "folded": rec.params.get("folded")}
+            "psnr_d2": rec.quality.get("psnr_d2"), "folded": rec.params.get("folded"),
+            "map_cpu": map_cpu, **folds}
 
 
 _MODEL_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -193,12 +232,13 @@ def model_set(name: str) -> list[str]:
         base = ROOT / "examples" / "models" if name == "examples" else SHARED / "models"
         return sorted(_model_file(p) for p in base.iterdir()
                       if p.is_dir() or p.suffix.lower() in _MODEL_SUFFIXES)
-    if name == "retrieval":
+    if name in ("retrieval", "retrieval-all"):
         base = SHARED / "retrieval"
         with open(base / "meta.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
-        return [str(base / r["path"]) for r in rows if int(r["genus"]) == 0]
-    raise SystemExit(f"unknown set {name!r}: examples, shared or retrieval")
+        return [str(base / r["path"]) for r in rows
+                if name == "retrieval-all" or int(r["genus"]) == 0]
+    raise SystemExit(f"unknown set {name!r}: examples, shared, retrieval or retrieval-all")
 
 
 def _fit_exponent(n, t) -> float:
@@ -234,12 +274,15 @@ def table(results: list[dict]) -> list[list[str]]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--set", nargs="+", default=["examples", "shared", "retrieval"],
-                    choices=["examples", "shared", "retrieval"])
+                    choices=["examples", "shared", "retrieval", "retrieval-all"])
     ap.add_argument("--workers", type=int, default=1,
                     help="worker processes (1: each model has the machine to itself)")
     ap.add_argument("--limit", type=int, default=None, help="first N models of each set")
     ap.add_argument("--per-model", action="store_true", help="print a line per model")
-    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None,
+                    help="write every model's figures here (rewritten after each model)")
+    ap.add_argument("--files", nargs="+", default=None,
+                    help="these model files instead of --set (the set name is 'files')")
     ap.add_argument("--mode", choices=["ingest", "query"], default="ingest",
                     help="time process_model (ingest) or describe_model (query FILE)")
     add_markdown_option(ap, "profile")
@@ -250,7 +293,10 @@ def main(argv=None) -> int:
     import surfidx
 
     jobs = []
-    for s in args.set:
+    if args.files:
+        args.set = ["files"]
+        jobs = [("files", f) for f in args.files]
+    for s in ([] if args.files else args.set):
         files = model_set(s)[: args.limit]
         jobs += [(s, f) for f in files]
     warm = min(model_set("examples"), key=os.path.getsize)
@@ -271,8 +317,13 @@ def main(argv=None) -> int:
             r = fut.result()
             r["set"] = s
             results.append(r)
+            if args.json:
+                args.json.write_text(json.dumps(results, indent=1))
             if args.per_model:
-                msg = r.get("error") or (f"n={r['n']:7d} total {r['total']:6.2f} s  " + "  ".join(
+                msg = r.get("error") or (f"n={r['n']:7d} total {r['total']:6.2f} s  " + (
+                    f"folds {r['delaunay_folds']}/{r['mesh_inverted']} ad "
+                    f"{r['area_distortion']:.3f} d2 {r['psnr_d2']:.1f}  "
+                    if args.mode == "ingest" else "") + "  ".join(
                     f"{k} {v:.2f}" for k, v in sorted(r["stages"].items(), key=lambda kv: -kv[1])[:5]))
                 print(f"  [{i}/{len(jobs)}] {s:9s} {Path(r['path']).name:22s} {msg}", flush=True)
     for s in args.set + ["all"]:
@@ -284,6 +335,13 @@ def main(argv=None) -> int:
         report.heading(f"{s}: {len(ok)} models ({min(n):,}-{max(n):,} surfels, median "
                        f"{int(statistics.median(n)):,})")
         report.table(TABLE_HEADERS, table(ok))
+        t = [r["total"] for r in ok]
+        line = (f"whole {args.mode} CPU s: median {_pct(t, 50):.2f}, p90 {_pct(t, 90):.2f}, "
+                f"max {max(t):.2f}, mean {statistics.mean(t):.2f}")
+        if args.mode == "ingest":
+            line += (f"; models with Delaunay folds {sum(r['delaunay_folds'] > 0 for r in ok)}, "
+                     f"with inverted input triangles {sum(r['mesh_inverted'] > 0 for r in ok)}")
+        report.text(line)
     failed = [r for r in results if "error" in r]
     if failed:
         report.heading(f"failed ({len(failed)})")

@@ -724,7 +724,7 @@ def compute_scan(job: dict) -> dict:
         rec["cached"] = True
         return rec
     import surfidx
-    from surfidx.codec.resample import grid_patches, resample
+    from surfidx.codec.resample import grid_patches, locate_surfels, resample
     from surfidx.sphere import parameterize
     from surfidx.topology import read_model
 
@@ -754,7 +754,7 @@ def compute_scan(job: dict) -> dict:
             for k, part in enumerate(model.parts):
                 m = parameterize(part, stress=False)
                 level = m.grid_level
-                loc = m.location(level)
+                loc = locate_surfels(part, m.points, level)
                 arrays[f"grid{k}"] = resample(part, m.points, level, location=loc)
                 arrays[f"mask{k}"] = grid_patches(part, m.points, level,
                                                   face_patch=model.face_patch(k),

@@ -185,9 +185,9 @@ def combine_descriptors(sets, weights):
 
 def _read(timings, progress, path, texture, samples, allow_outside_textures, repair):
     """The model read (:func:`surfidx.io.read_geometry`) and repaired to closed genus-0 parts
-    (:func:`surfidx.topology.repair_model`), together timed as the ``read`` stage (``repair`` is
-    the map's fold repair); when anything was repaired, the CPU seconds of the reading and the
-    repair together in ``timings["read_cpu"]``."""
+    (:func:`surfidx.topology.repair_model`), together timed as the ``read`` stage; when
+    anything was repaired, the CPU seconds of the reading and the repair together in
+    ``timings["read_cpu"]``."""
     import time
 
     from .io import read_geometry
@@ -276,7 +276,7 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
         ``"model"``).
     progress : callable, optional
         ``progress(stage, done, total)`` at each stage boundary (:mod:`surfidx.progress`):
-        ``read``, the map's (``map`` per level, ``repair``, ``figures``), ``resample``,
+        ``read``, the map's (``map`` per level, ``figures``), ``resample``,
         ``transform``, ``code``, ``decode``, ``evaluate``, ``describe``, ``thumbnail``, in this
         order. It changes nothing in the result.
 
@@ -424,7 +424,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         of a stored model's (upright, ``options.up`` or the format's up axis up).
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
-        (``map`` per level, ``repair``, ``figures``), ``resample``, ``describe`` and, with a
+        (``map`` per level, ``figures``), ``resample``, ``describe`` and, with a
         thumbnail, ``thumbnail``.
 
     Returns
@@ -460,8 +460,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,
-                      grid_level, color=part.has_color,
-                      location=sphere_map.location(grid_level))
+                      grid_level, color=part.has_color)
         d = _timed(timings, "describe", progress, describe_grid, grid, grid_level, lmax=lm)
         sets.append(d)
         levels.append(int(grid_level))

@@ -19,13 +19,12 @@ import time
 
 __all__ = ["STAGES", "LABELS", "report", "StageLog", "stage_fraction"]
 
-STAGES = ("read", "map", "repair", "figures", "resample", "transform", "code", "decode",
+STAGES = ("read", "map", "figures", "resample", "transform", "code", "decode",
           "evaluate", "describe", "thumbnail", "write", "search", "render", "path")
 """The stage names a progress callback receives, in the order the pipeline runs them (the last
 two are the ``render`` and ``geodesic`` commands' own)."""
 
-LABELS = {"read": "reading", "map": "mapping", "repair": "repairing folds",
-          "figures": "map figures", "resample": "resampling", "transform": "transforming",
+LABELS = {"read": "reading", "map": "mapping", "figures": "map figures", "resample": "resampling", "transform": "transforming",
           "code": "coding", "decode": "decoding", "evaluate": "evaluating",
           "describe": "describing", "thumbnail": "drawing the thumbnail", "write": "writing",
           "search": "searching", "render": "rendering", "path": "finding the path"}
@@ -33,7 +32,7 @@ LABELS = {"read": "reading", "map": "mapping", "repair": "repairing folds",
 
 #: Share of a whole ingest of one model each stage takes (rough CPU shares on the retrieval
 #: models), for a progress bar that moves within a model (:func:`stage_fraction`).
-_WEIGHTS = {"read": 0.04, "map": 0.45, "repair": 0.08, "figures": 0.04, "resample": 0.06,
+_WEIGHTS = {"read": 0.04, "map": 0.53, "figures": 0.04, "resample": 0.06,
             "transform": 0.08, "code": 0.06, "decode": 0.04, "evaluate": 0.05,
             "describe": 0.06, "thumbnail": 0.04, "write": 0.0, "search": 0.0, "render": 0.0,
             "path": 0.0}

@@ -44,12 +44,7 @@ class Tolerances:
     inverted_area : float
         Largest share of the sphere that the faces a map turns over may cover for resampling to
         interpolate in the mesh's faces rather than in the Delaunay triangles of the mapped
-        surfels: the fold realisation of :mod:`surfidx.sphere.circlepattern` turns over small
-        faces only, a map with swapped vertices turns over more.
-    realise_loss : float
-        dB of infinite-rate PSNR_D2 (resampled at the grid level of the map before) that a fold
-        realisation of :mod:`surfidx.sphere.circlepattern` may cost and be kept: it moves the points,
-        and where it turns mesh faces over, the grid samples the surfels there less well.
+        surfels (a map given to the codec from elsewhere; the default map turns none over).
     """
 
     unit_normal: float = 1e-3
@@ -63,7 +58,6 @@ class Tolerances:
     degenerate_angle: float = 1e-4
     sphere_cover: float = 1e-6
     inverted_area: float = 0.01
-    realise_loss: float = 1.0
 
 
 TOL = Tolerances()

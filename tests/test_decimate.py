@@ -100,21 +100,30 @@ def test_embedded_prolongation_never_folds(seed):
     np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-12)
 
 
-@pytest.mark.slow
-def test_squeezed_fallback_gives_way_to_the_embedded_hierarchy(shared_data):
-    """d043, a genus-1 chair of the retrieval set: no hierarchy of the ladder untangles and the
-    single-level map squeezes it (area distortion above the refusal limit); the embedded
-    hierarchy maps it without a folded mesh triangle, within the limit."""
-    from surfidx.topology import read_model
-    from surfidx.sphere.multilevel import mesh_map
-    from surfidx.sphere.options import DEFAULT_OPTIONS
-    from surfidx.sphere.quality import area_distortion
+def test_round_by_round_prolongation_matches_prolong():
+    """:meth:`Hierarchy.undo` round by round is :meth:`Hierarchy.prolong`; ``settle`` is called
+    once per round, finest last, with the faces of that round's mesh
+    (:meth:`Hierarchy.round_faces`), whose vertices are exactly those set so far."""
+    from surfidx.geometry.unitsphere import orientation
 
-    surfels = read_model(shared_data / "retrieval/meshes/d043.off").parts[0]
-    x, info, fallback = mesh_map(surfels, options=DEFAULT_OPTIONS, iterations=40, gamma=0.15,
-                                 balance=True)
-    assert not fallback and info["embedded"] == 1 and info["mesh_folds"] == 0
-    assert area_distortion(surfels, x) < DEFAULT_OPTIONS.max_area_distortion
+    v, f = icosphere_mesh(4)
+    h = decimate(v, f, 150)
+    x = np.zeros((len(v), 3))
+    x[h.vertices] = v[h.vertices]
+    faces = h.round_faces(f)
+    assert len(faces) == len(h.rounds) and np.array_equal(faces[0], f)
+    seen = []
+
+    def settle(out, r):
+        present = np.flatnonzero(np.linalg.norm(out, axis=1) > 0)
+        assert np.array_equal(np.unique(faces[r]), present)
+        assert orientation(out, faces[r]).min() > 0
+        seen.append(r)
+        return out
+
+    out = h.prolong(x, v, unit=True, embed=True, settle=settle)
+    assert seen == list(reversed(range(len(h.rounds))))
+    np.testing.assert_array_equal(out, h.prolong(x, v, unit=True, embed=True))
 
 
 @pytest.mark.parametrize("far", [1.0, 1e6])

@@ -67,15 +67,16 @@ def _same(a, b):
 
 
 def test_the_map_runs_its_stages(inputs):
-    """The inputs exercise the stages that stopped on the clock before: untangling and balancing
-    on several levels, a proxy mesh and the fold repair."""
+    """The inputs exercise the stages that stop on counts: kernel insertions and balancing on
+    several levels, and a proxy mesh."""
     from surfidx.sphere import parameterize
 
     _, (limbs, cloud) = inputs
     m = parameterize(surfidx.read_surfels(limbs), stress=False)
-    assert m.info["levels"] >= 3 and m.info["untangle_rounds"] > 0 and m.info["balance_steps"] > 0
+    assert m.info["levels"] >= 3 and m.info["kernel_insertions"] > 0
+    assert m.info["balance_steps"] > 0 and m.folded == 0
     c = parameterize(surfidx.read_surfels(cloud), stress=False)
-    assert c.info["proxy_vertices"] > 0 and c.info["folds_repaired"] > 0
+    assert c.info["proxy_vertices"] > 0 and c.info["mesh_folds"] == 0
 
 
 def test_same_bytes_with_the_cpu_busy(inputs, reference):

@@ -22,7 +22,7 @@ def test_defaults_round_trip_through_json():
 
 
 def test_changed_tree_round_trips():
-    o = ProcessOptions(map=MapOptions(iterations=7, flip_ladder=((True, 0.5),)),
+    o = ProcessOptions(map=MapOptions(iterations=7, settle_energy=2e5),
                        codec=CodecOptions(bits_per_surfel=3.0, tangent_weight=None),
                        describe=DescribeOptions(lmax=12), samples=500, up="+z")
     assert ProcessOptions.from_dict(json.loads(json.dumps(o.to_dict()))) == o
@@ -38,11 +38,11 @@ def test_load_json_and_toml(tmp_path):
     j.write_text(json.dumps({"codec": {"bits_per_surfel": 4.0}, "map": {"iterations": 9}}))
     t = tmp_path / "o.toml"
     t.write_text("samples = 800\n[codec]\nbits_per_surfel = 4.0\n[map]\niterations = 9\n"
-                 "flip_ladder = [[false, inf], [true, 0.3]]\n")
+                 "settle_energy = 2e5\n")
     a, b = ProcessOptions.load(j), ProcessOptions.load(t)
     assert a.codec.bits_per_surfel == b.codec.bits_per_surfel == 4.0
     assert a.map.iterations == b.map.iterations == 9 and b.samples == 800
-    assert b.map.flip_ladder == ((False, np.inf), (True, 0.3))
+    assert b.map.settle_energy == 2e5
 
 
 @pytest.mark.parametrize("text, match", [

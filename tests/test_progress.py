@@ -60,7 +60,7 @@ def processed(ball):
 
 def test_process_model_reports_stages_in_order_and_changes_nothing(processed):
     with_cb, without, rec = processed
-    assert rec.stages() == ["read", "map", "repair", "figures", "resample", "transform", "code",
+    assert rec.stages() == ["read", "map", "figures", "resample", "transform", "code",
                             "decode", "evaluate", "describe", "thumbnail"]
     assert [STAGES.index(s) for s in rec.stages()] == sorted(STAGES.index(s)
                                                              for s in rec.stages())
@@ -77,7 +77,7 @@ def test_describe_model_equals_ingest_descriptors(ball, processed):
     _, ref, _ = processed
     rec = Recorder()
     d = describe_model(ball, progress=rec)
-    assert rec.stages() == ["read", "map", "repair", "figures", "resample", "describe"]
+    assert rec.stages() == ["read", "map", "figures", "resample", "describe"]
     assert set(d.descriptors.vectors) == set(ref.descriptors)
     for kind, vec in ref.descriptors.items():
         assert d.descriptors.vectors[kind].dtype == vec.dtype

@@ -55,7 +55,7 @@ from ..geometry.icosphere import MAX_LEVEL, icosphere, vertex_count
 from .klt import KLT
 from .colorgrid import sample_colors
 from .resample import grid_patches, locate_surfels, resample
-from ..sphere.options import METHODS as MAP_METHODS
+from ..sphere.options import MAP_VERSION, METHODS as MAP_METHODS
 from ..geometry.surfels import SurfelSet
 
 __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "codec_options",
@@ -265,7 +265,8 @@ class Prepared:
         level, map method, folded triangles, the weights it used."""
         from .resample import PHONG_ALPHA, PHONG_SHARPNESS
 
-        return {"codec_version": CODEC_VERSION, "grid_level": int(self.level),
+        return {"codec_version": CODEC_VERSION, "map_version": MAP_VERSION,
+                "grid_level": int(self.level),
                 "map_method": self.sphere_map.method, "folded": int(self.sphere_map.folded),
                 "color_weight": float(self.color_weight), "tangent_weight": self.tangent_weight,
                 "color_level": self.color_level, "allocation": self.allocation if self.color
@@ -353,9 +354,7 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
     level = sphere_map.grid_level if options.level is None else options.level
     t0 = time.perf_counter()
     report(progress, "resample", 0, 1)
-    location = sphere_map.location(level)
-    if location is None:
-        location = locate_surfels(surfels, sphere_map.points, level)
+    location = locate_surfels(surfels, sphere_map.points, level)
     grid = resample(surfels, sphere_map.points, level, color=False, location=location)
     clevel, cgrid = None, None
     if color:

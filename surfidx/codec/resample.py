@@ -3,10 +3,9 @@
 The layers (x, y, z and, with colour, r, g, b) are interpolated at the grid vertices with
 barycentric coordinates in a spherical triangulation of the mapped surfels
 (:func:`map_triangles`): a mesh's own faces when the map embeds them (every face
-counter-clockwise, covering the sphere once, but for a few that the fold realisation turned
-over), so grid points land on the input's triangles;
-otherwise (a point cloud, or a map that inverts a face) the spherical Delaunay triangulation of the
-mapped surfels (their convex hull). Point location is exact: every query walks from the triangle of
+counter-clockwise, covering the sphere once: the default map of :mod:`surfidx.sphere` always
+does), so grid points land on the input's triangles; otherwise (a point cloud, or a map that
+inverts a face) the spherical Delaunay triangulation of the mapped surfels (their convex hull). Point location is exact: every query walks from the triangle of
 its nearest site across the edge it lies beyond (a numba kernel over all queries), so every grid
 vertex finds its triangle. Only where the triangulation is no proper one of the sphere (the hull of
 a folded map that leaves part of the sphere empty) can a walk fail; such a query takes the best of
@@ -421,18 +420,19 @@ def map_triangles(surfels: SurfelSet, sphere_points) -> np.ndarray:
     -------
     (m, 3) int64
         Counter-clockwise triangles seen from outside: the surfels' faces (without those that
-        repeat a corner) when their signed spherical areas sum to 4π and the clockwise ones cover
-        at most the share ``TOL.inverted_area`` of the sphere (the map embeds the mesh but for the
-        small faces that the fold realisation of :mod:`surfidx.sphere.circlepattern` turned
-        over, where point location falls back to nearby triangles); otherwise the convex hull of
-        ``sphere_points`` (:func:`surfidx.geometry.unitsphere.hull_triangles`). The own faces resample
-        better: grid points land on the input's triangles.
+        repeat a corner; wound the other way round when the map mirrors them) when their signed
+        spherical areas sum to 4π and the clockwise ones cover at most the share
+        ``TOL.inverted_area`` of the sphere (the map embeds the mesh); otherwise the convex hull
+        of ``sphere_points`` (:func:`surfidx.geometry.unitsphere.hull_triangles`). The own faces
+        resample better: grid points land on the input's triangles.
     """
     pts = map_points(surfels, sphere_points)
     f = surfels.faces
     if f is not None and len(f):
         f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
         area = triangle_areas(pts, f)
+        if area.sum() < 0:      # faces wound against the normals the map followed
+            f, area = f[:, [0, 2, 1]], -area
         if len(f) and -area[area < 0].sum() <= TOL.inverted_area * 4 * np.pi and abs(
                 area.sum() / (4 * np.pi) - 1.0) <= TOL.sphere_cover:
             return np.ascontiguousarray(f, dtype=np.int64)
@@ -468,7 +468,8 @@ def locate_surfels(surfels: SurfelSet, sphere_points, level: int):
 def _own_faces(faces, tri) -> bool:
     f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2])
               & (faces[:, 0] != faces[:, 2])]
-    return f.shape == tri.shape and bool(np.array_equal(f, tri))
+    return f.shape == tri.shape and bool(np.array_equal(f, tri)
+                                         or np.array_equal(f[:, [0, 2, 1]], tri))
 
 
 def grid_patches(surfels: SurfelSet, sphere_points, level: int, *, face_patch=None,

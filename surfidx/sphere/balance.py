@@ -1,4 +1,4 @@
-"""Fold-free distortion balancing and untangling of a spherical mesh embedding.
+"""Distortion balancing of a spherical embedding of a mesh that keeps it an embedding.
 
 Two energies of the piecewise-linear map from the 3D triangles to the chord triangles of the sphere
 (scaled to the surface's area), with ``J`` a triangle's Jacobian, ``det = a_t / A_t`` the ratio of
@@ -10,11 +10,14 @@ of its 3D angles):
 * conformal-plus-area ``Σ A (‖J‖² / det + λ (det + 1 / det))`` (Garanzha et al. 2021): smallest
   for a similarity of unit area ratio; λ weighs area against angle preservation.
 
-Both grow without bound as an image triangle degenerates, so a line search that rejects inverted
-triangles keeps every iterate fold-free. L-BFGS over the unnormalised positions ``y`` with
-``x = y / |y|``. :func:`untangle` replaces ``det`` in the second energy by
-``chi(det, eps) = (det + sqrt(eps² + det²)) / 2``, finite for inverted triangles, and shrinks
-``eps`` as the energy falls: a folded map becomes fold-free.
+Both grow without bound as an image triangle degenerates. L-BFGS over the unnormalised positions
+``y`` (``x = y / |y|``) with a backtracking line search that takes a step only when every
+triangle stays counter-clockwise along the whole segment (:func:`segment_embedded`: a
+triangle's orientation ``det[y_a, y_b, y_c]`` is a cubic in the step, positive on an interval
+exactly when it is at the interval's ends and at the cubic's critical points inside it; the
+exact form of Smith & Schaefer's step bound). A map that starts embedded therefore stays
+embedded at every iterate: its triangles never pass through a degenerate position, so the map
+keeps covering the sphere once.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from __future__ import annotations
 from ..jit import numba
 import numpy as np
 
-__all__ = ["balance", "untangle"]
+__all__ = ["balance", "segment_embedded", "inverted"]
 
 
 def _cotangents(p, f, *, max_cot: float = 4.0):
@@ -62,10 +65,10 @@ def _cotangents(p, f, *, max_cot: float = 4.0):
 
 @numba.njit(cache=True)
 def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cover - compiled
-    """Energy and gradient. ``eps < 0``: the symmetric Dirichlet energy (infinite when a triangle
-    inverts). ``eps >= 0``: ``(D + lam A (det² + 1)) / chi(det, eps)`` (Garanzha et al. 2021),
-    ``A (‖J‖² / det + lam (det + 1 / det))`` at ``eps = 0``, finite for inverted triangles
-    when ``eps > 0``. ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge lengths / 2).
+    """Energy and gradient, infinite when a triangle is not counter-clockwise. ``eps < 0``: the
+    symmetric Dirichlet energy; ``eps >= 0``: ``A (‖J‖² / det + lam (det + 1 / det))``
+    (Garanzha et al. 2021). ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge
+    lengths / 2).
     Corners ``a, b, c`` of a triangle; its edge vectors ``w = c - b``, ``x = a - c``,
     ``z = b - a`` lie opposite corners 0, 1, 2."""
     n = y.shape[0]
@@ -90,7 +93,7 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
         sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
         n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
         ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
-        if ar <= 0.0 and eps <= 0.0:
+        if ar <= 0.0:
             return np.inf, g
         w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
         x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
@@ -106,15 +109,10 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
             k2 = -2.0 * d * r2 / ar
         else:
             det = ar / area3[t]
-            root = np.sqrt(eps * eps + det * det)
-            # (det + root) / 2 without cancellation where det < 0
-            chi = 0.5 * (det + root) if det >= 0.0 else 0.5 * eps * eps / (root - det)
-            if chi <= 0.0:
-                return np.inf, g
-            et = (d + lam * area3[t] * (det * det + 1.0)) / chi
+            et = (d + lam * area3[t] * (det * det + 1.0)) / det
             e += et
-            k1 = 1.0 / chi
-            k2 = 2.0 * lam * det / chi - et / chi * 0.5 * (1.0 + det / root) / area3[t]
+            k1 = 1.0 / det
+            k2 = 2.0 * lam - et / det / area3[t]
         if grad:
             # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|, (q_l - q_j) the
             # edge opposite corner k; dD / d q_k: its two edges, weighted by the far cotangents
@@ -151,7 +149,7 @@ def _dot(a, b):
 
 class Energy:
     """The energy of a spherical map of triangles ``f`` of the surface ``p`` and its gradient:
-    the symmetric Dirichlet energy, or the untangling energy once :attr:`eps` is set.
+    the symmetric Dirichlet energy, or the conformal-plus-area energy once :attr:`eps` is 0.
 
     Parameters
     ----------
@@ -168,7 +166,7 @@ class Energy:
         self.cot, self.area3 = _cotangents(p, f, max_cot=max_cot)
         self.radius = float(np.sqrt(self.area3.sum() / (4 * np.pi)))
         self.n = len(p)
-        self.eps = -1.0     # < 0: symmetric Dirichlet; >= 0: the untangling energy
+        self.eps = -1.0     # < 0: symmetric Dirichlet; 0: conformal-plus-area (weight lam)
         self.lam = 0.5
 
     def dets(self, y):
@@ -183,20 +181,7 @@ class Energy:
         """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
         return float(self.dets(y).min())
 
-    def restrict(self, faces):
-        """The same energy over the triangles selected by the mask ``faces`` (their 3D shapes,
-        radius and settings kept), on their vertices renumbered; returns it and those vertices
-        ``(k,)`` in the original numbering."""
-        verts = np.unique(self.f[faces])
-        local = np.full(self.n, -1, dtype=np.int64)
-        local[verts] = np.arange(len(verts))
-        sub = Energy.__new__(Energy)
-        sub.f = np.ascontiguousarray(local[self.f[faces]])
-        sub.cot, sub.area3 = self.cot[faces], self.area3[faces]
-        sub.radius, sub.n, sub.eps, sub.lam = self.radius, len(verts), self.eps, self.lam
-        return sub, verts
-
-    def preconditioner(self, *, shift: float, keep=None):
+    def preconditioner(self, *, shift: float):
         """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
         mesh (the Hessian of the energy's Dirichlet part at an isometry: the accelerated
         quadratic proxy of Kovalsky et al. 2016). Updates spread over whole limbs instead of
@@ -210,8 +195,6 @@ class Energy:
 
         lap = cotangent_laplacian(self.f, self.cot, self.n)
         lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
-        if keep is not None:        # the rows and columns of the free vertices only
-            lap = lap.tocsr()[keep][:, keep]
         lap = lap.tocsr()
         lu = spd_factor(lap)
 
@@ -289,165 +272,6 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
 
 
-def untangle(x, p, f, *, rounds: int = 60, inner: int = 30,
-             lam: float = 0.5, memory: int = 8, precondition: bool = True, shift: float = 1e-3,
-             eps_max: float = 0.1, lift: bool = False, patch_rings: tuple = None):
-    """Remove inverted triangles from a spherical map of a mesh (Garanzha et al. 2021).
-
-    Minimises ``Σ A (‖J‖² + lam (det² + 1)) / chi(det, eps)``, ``chi(d, eps) = (d + sqrt(eps² +
-    d²)) / 2``, a regularisation of a shape-and-area energy that stays finite on inverted
-    triangles, by rounds of preconditioned L-BFGS while ``eps`` shrinks with the energy's progress
-    (the paper's schedule). Inverted triangles have a large energy, so each round pushes them
-    toward a positive area; it stops once every triangle's area ratio exceeds ``_DET_GOAL``.
-    The vertices within ``patch_rings[0]`` edges of an inverted triangle are untangled first,
-    the others held (when they are fewer than half); where that patch stays tangled (a triangle
-    still inverted after :data:`PATCH_PATIENCE` rounds), the wider patches of ``patch_rings``
-    in turn; the whole map only if they all fail.
-
-    Parameters
-    ----------
-    x : (n, 3) float64
-        Unit vectors, a map of the mesh that may fold (globally oriented like the faces).
-    p : (n, 3) float64
-    f : (m, 3) int64
-    rounds, inner : int
-        Most ``eps`` rounds, L-BFGS steps in each.
-    precondition : bool
-        As in :func:`balance` (without it, a large prolonged map untangles several times
-        slower).
-    lift : bool
-        Also work on a fold-free map whose smallest area ratio is below ``_DET_GOAL`` (an
-        embedding squeezed that far pins :func:`balance`'s line search at its barrier).
-    patch_rings : tuple of int, optional
-        The widths (rings of vertices around the inverted triangles) of the patches tried in
-        turn; default :data:`_PATCH_RINGS`.
-
-    Returns
-    -------
-    x : (n, 3) float64
-    info : dict
-        ``min_det`` (positive: fold-free), ``inverted`` (triangles left inverted), ``rounds``,
-        and ``patch`` (the width in rings) when a patch did it.
-    """
-    energy = Energy(p, f)
-    energy.lam = float(lam)
-    y = np.array(x, dtype=np.float64)
-    dets = energy.dets(y)
-    mindet = float(dets.min())
-    if mindet > (_DET_GOAL if lift else 0.0):
-        return x, {"min_det": mindet, "inverted": 0, "rounds": 0}
-    options = dict(rounds=rounds, inner=inner, memory=memory,
-                   precondition=precondition, shift=shift, eps_max=eps_max)
-    # first only the vertices near the inverted triangles (a prolongation folds a few percent of
-    # them): a patch of a few rings untangles at a fraction of the cost; else the whole map
-    for rings in _PATCH_RINGS if patch_rings is None else patch_rings:
-        free = near_inverted(energy, y, rings=rings, below=_DET_GOAL if lift else 0.0)
-        if free.mean() >= 0.5:
-            break
-        patch = Patch(energy, y, free)
-        z, done = untangle_rounds(patch, y[free], patience=PATCH_PATIENCE, **options)
-        if done > 0:
-            y[free] = z
-            return _untangled(energy, y, rounds=done, patch=rings)
-    z, done = untangle_rounds(energy, y, **options)
-    out = _untangled(energy, z, rounds=abs(done))
-    if out[1]["inverted"] > np.count_nonzero(dets <= 0):
-        # the map shrank toward a point (nothing on the sphere holds its scale): the map as
-        # given, with its few inverted triangles, is the better one
-        return _untangled(energy, y, rounds=abs(done))
-    return out
-
-
-def _untangled(energy, y, **info):
-    """:func:`untangle`'s result: unit vectors, and ``min_det`` and the count of ``inverted``
-    triangles beside ``info``."""
-    dets = energy.dets(y)
-    return y / np.linalg.norm(y, axis=1)[:, None], {
-        "min_det": float(dets.min()), "inverted": int(np.count_nonzero(dets <= 0)), **info}
-
-
-_PATCH_RINGS = (4, 8)  # rings of vertices around the inverted triangles that the patches free,
-# in turn: a patch's held border can pin a fold that one twice as wide lets go, at a fraction
-# of the whole map's cost
-PATCH_PATIENCE = 30   # rounds after which a patch with a triangle still inverted gives way to
-# the next: a patch that untangles has done so well within this many rounds, while one pinned
-# by its held border keeps its folds however long it runs (chosen on the shared and retrieval
-# models)
-_DET_GOAL = 1e-3   # untangling goes on until no triangle's area ratio is below this (a nearly
-                   # degenerate triangle pins the balancing's line search at its barrier)
-
-
-def near_inverted(energy, y, *, rings: int, below: float = 0.0):
-    """Vertices within ``rings`` edges of a triangle whose area ratio is at most ``below``
-    (0: an inverted one)."""
-    import scipy.sparse as sp
-
-    f, n = energy.f, energy.n
-    mark = np.zeros(n)
-    mark[f[energy.dets(y) <= below].ravel()] = 1.0
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    adj = adj + adj.T
-    for _ in range(rings):
-        mark = mark + adj @ mark
-    return mark > 0
-
-
-class Patch:
-    """The energy of the triangles around the ``free`` vertices as a function of those vertices
-    alone, the others held where they are (same interface as :class:`Energy`)."""
-
-    def __init__(self, energy, y, free):
-        self.base, verts = energy.restrict(free[energy.f].any(axis=1))
-        self.free = free[verts]
-        self.y = np.array(y[verts])
-
-    eps = property(lambda self: self.base.eps, lambda self, v: setattr(self.base, "eps", v))
-
-    def _full(self, z):
-        self.y[self.free] = z
-        return self.y
-
-    def __call__(self, z, *, grad: bool = True):
-        e, g = self.base(self._full(z), grad=grad)
-        return e, (g[self.free] if g is not None else None)
-
-    def min_det(self, z):
-        return self.base.min_det(self._full(z))
-
-    def preconditioner(self, *, shift: float):
-        return self.base.preconditioner(shift=shift, keep=np.flatnonzero(self.free))
-
-
-def untangle_rounds(energy, y, *, rounds, inner, memory, precondition, shift,
-                     eps_max, patience=None):
-    """The eps rounds of :func:`untangle` on ``energy``; returns the positions and the rounds
-    taken (negative when it stopped with triangles still inverted). With ``patience``, it
-    stops after that many rounds while a triangle is still inverted."""
-    y = np.array(y, dtype=np.float64)
-    mindet = energy.min_det(y)
-    solve, apply = energy.preconditioner(shift=shift) if precondition else (_identity, _identity)
-    # on the sphere no fixed boundary stops a collapse: eps stays small against the typical
-    # area ratio (1), so the barrier of the triangles that are not inverted keeps working
-    eps = min(float(np.sqrt(1e-12 + 0.04 * min(mindet, 0.0) ** 2)), eps_max)
-    k = 0
-    for k in range(1, rounds + 1):
-        if mindet > _DET_GOAL:
-            break
-        energy.eps = eps
-        e_prev, _ = energy(y, grad=False)
-        y, e, _ = _lbfgs(energy, y, solve, apply, inner, memory, 0.0,
-                         stop=lambda z: energy.min_det(z) > _DET_GOAL)
-        mindet = energy.min_det(y)
-        if patience is not None and k >= patience and mindet <= 0:
-            break
-        sigma = max(1.0 - e / e_prev, 0.1)
-        mu = (1.0 - sigma) * 0.5 * (mindet + np.sqrt(eps * eps + mindet * mindet))
-        eps = min(max(2.0 * np.sqrt(mu * (mu - mindet)), 1e-10), eps_max) if mindet < mu else 1e-10
-    energy.eps = -1.0
-    return y, (k if mindet > 0 else -k)
-
-
 def _identity(r):
     return r
 
@@ -523,10 +347,11 @@ class History:
         return d
 
 
-def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=None):
+def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
     """L-BFGS on the sphere, initial inverse Hessian ``γ P⁻¹`` (``solve`` applies ``P⁻¹``,
-    ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a fold-rejecting
-    backtracking line search."""
+    ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a backtracking
+    line search that takes only steps along which no triangle degenerates
+    (:func:`segment_embedded`)."""
     e, g = energy(y)
     hist = History(memory, g.size)
     steps = 0
@@ -540,10 +365,11 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=N
             d = hist.direction(g.ravel(), solve, apply)
             slope = _dot(g.ravel(), d)
         step = min(1.0, 4.0 * last)
+        dd = d.reshape(-1, 3)
         while step > 1e-12:         # the gradient only where a point is accepted
-            y2 = y + step * d.reshape(-1, 3)
+            y2 = y + step * dd
             e2, _ = energy(y2, grad=False)
-            if e2 <= e + 1e-4 * step * slope:
+            if e2 <= e + 1e-4 * step * slope and segment_embedded(y, dd, energy.f, step):
                 e2, g2 = energy(y2)
                 break
             step *= 0.5
@@ -563,6 +389,77 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20, stop=N
         if _dot(s, yk) > 1e-12 * _dot(s, s):
             hist.push(s, yk)
         stalls = stalls + 1 if rel < tol else 0
-        if stalls >= patience or (stop is not None and stop(y)):
+        if stalls >= patience:
             break
     return y, e, steps
+
+
+def inverted(x, f) -> int:
+    """How many triangles ``f`` of the spherical map ``x`` are not counter-clockwise."""
+    return int(np.count_nonzero(_orientations(np.ascontiguousarray(x, dtype=np.float64),
+                                              np.ascontiguousarray(f, dtype=np.int64)) <= 0))
+
+
+@numba.njit(cache=True)
+def _orientations(x, f):  # pragma: no cover - compiled
+    out = np.empty(f.shape[0])
+    for t in range(f.shape[0]):
+        out[t] = _det(x[f[t, 0]], x[f[t, 1]], x[f[t, 2]])
+    return out
+
+
+@numba.njit(cache=True)
+def _det(a, b, c):  # pragma: no cover - compiled
+    return (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+            + a[2] * (b[0] * c[1] - b[1] * c[0]))
+
+
+@numba.njit(cache=True)
+def _segment_embedded(y, d, f, step):  # pragma: no cover - compiled
+    for t in range(f.shape[0]):
+        a, b, c = y[f[t, 0]], y[f[t, 1]], y[f[t, 2]]
+        da, db, dc = d[f[t, 0]], d[f[t, 1]], d[f[t, 2]]
+        # det[a + s da, b + s db, c + s dc] = c0 + c1 s + c2 s² + c3 s³ (multilinear)
+        c0 = _det(a, b, c)
+        c1 = _det(da, b, c) + _det(a, db, c) + _det(a, b, dc)
+        c2 = _det(a, db, dc) + _det(da, b, dc) + _det(da, db, c)
+        c3 = _det(da, db, dc)
+        if c0 <= 0.0 or c0 + step * (c1 + step * (c2 + step * c3)) <= 0.0:
+            return False
+        # the critical points inside (0, step): roots of c1 + 2 c2 s + 3 c3 s²
+        qa, qb, qc = 3.0 * c3, 2.0 * c2, c1
+        if qa == 0.0:
+            roots = (-qc / qb if qb != 0.0 else -1.0, -1.0)
+        else:
+            disc = qb * qb - 4.0 * qa * qc
+            if disc < 0.0:
+                continue
+            r = np.sqrt(disc)
+            roots = ((-qb - r) / (2.0 * qa), (-qb + r) / (2.0 * qa))
+        for s in roots:
+            if 0.0 < s < step and c0 + s * (c1 + s * (c2 + s * c3)) <= 0.0:
+                return False
+    return True
+
+
+def segment_embedded(y, d, f, step: float) -> bool:
+    """Whether every triangle ``f`` stays counter-clockwise (``det[y_a, y_b, y_c] > 0``) at
+    every point ``y + s d``, ``0 <= s <= step``, of the segment.
+
+    Parameters
+    ----------
+    y : (n, 3) float64
+        Points (not necessarily unit: a triangle's orientation on the sphere is that of its
+        three vectors).
+    d : (n, 3) float64
+        The step's direction.
+    f : (m, 3) int64
+    step : float
+
+    Returns
+    -------
+    bool
+    """
+    return bool(_segment_embedded(np.ascontiguousarray(y, dtype=np.float64),
+                                  np.ascontiguousarray(d, dtype=np.float64),
+                                  np.ascontiguousarray(f, dtype=np.int64), float(step)))

@@ -37,6 +37,7 @@ _SLIVER = 0.05       # and leaves no triangle with area below this fraction of i
 _MAX_SCAN = 64       # vertices of higher degree (rare fan centres) are left alone
 _KERNEL_HALVINGS = 60  # a point of a ring's kernel closer than 2^-60 to the kept vertex is below
                        # the floating-point resolution of the sphere's points
+_PLACE_STEPS = 100     # pattern-search steps placing an inserted vertex in its ring's kernel
 
 
 @dataclass
@@ -54,13 +55,18 @@ class Hierarchy:
         the vertex ``kept[i]`` it was merged into, and the neighbours of ``removed[i]`` at its
         removal in ``ring[ring_ptr[i]:ring_ptr[i+1]]`` (counter-clockwise, ``kept[i]`` among
         them).
+    kernel_insertions : int
+        Removed vertices that :meth:`undo` put into their ring's kernel (the mean would have
+        turned a triangle of their star over), counted over its calls.
     """
 
     faces: np.ndarray
     vertices: np.ndarray
     rounds: list
+    kernel_insertions: int = 0
 
-    def prolong(self, values, positions, *, unit: bool = False, embed: bool = False):
+    def prolong(self, values, positions, *, unit: bool = False, embed: bool = False,
+                settle=None):
         """Carry per-vertex values from the coarse mesh back to every vertex.
 
         Rounds are undone coarsest first; each removed vertex takes the mean of its ring's values
@@ -84,33 +90,64 @@ class Hierarchy:
             Renormalise each new value to unit length (points on the sphere).
         embed : bool
             Keep an embedded spherical map embedded (needs ``unit`` and ``d == 3``).
+        settle : callable, optional
+            ``settle(values, r)`` after round ``r`` is undone (:meth:`undo`), returning the
+            values to go on from.
 
         Returns
         -------
         (n, d) float64
         """
         out = np.array(values, dtype=np.float64)
-        for removed, kept, ptr, ring in reversed(self.rounds):
-            counts = np.diff(ptr)
-            owner = np.repeat(np.arange(len(removed)), counts)
-            nxt = np.arange(len(ring)) + 1
-            nxt[ptr[1:] - 1] = ptr[:-1]                  # the ring is cyclic
-            e = positions[ring] - positions[removed][owner]
-            length = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
-            cos = np.einsum("ij,ij->i", e, e[nxt]) / (length * length[nxt])
-            half = np.tan(0.5 * np.arccos(np.clip(cos, -1.0, 1.0)))   # angle at the vertex
-            prv = np.empty_like(nxt)
-            prv[nxt] = np.arange(len(ring))
-            w = np.maximum((half + half[prv]) / length, 1e-300)
-            acc = np.zeros((len(removed), out.shape[1]))
-            np.add.at(acc, owner, w[:, None] * out[ring])
-            if unit:
-                acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
-            else:
-                acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
-            if embed:
-                acc = _into_kernels(acc, out, kept, ptr, ring, owner, nxt)
-            out[removed] = acc
+        for r in reversed(range(len(self.rounds))):
+            out = self.undo(r, out, positions, unit=unit, embed=embed, settle=settle)
+        return out
+
+    def undo(self, r, out, positions, *, unit: bool = False, embed: bool = False,
+             settle=None):
+        """:meth:`prolong` of round ``r`` alone: the values ``out`` ``(n, d)`` (every vertex
+        of the coarser rounds set) with that round's removed vertices set, in place; with
+        ``settle``, ``settle(out, r)`` is called after it (and its result kept)."""
+        removed, kept, ptr, ring = self.rounds[r]
+        counts = np.diff(ptr)
+        owner = np.repeat(np.arange(len(removed)), counts)
+        nxt = np.arange(len(ring)) + 1
+        nxt[ptr[1:] - 1] = ptr[:-1]                  # the ring is cyclic
+        e = positions[ring] - positions[removed][owner]
+        length = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+        cos = np.einsum("ij,ij->i", e, e[nxt]) / (length * length[nxt])
+        half = np.tan(0.5 * np.arccos(np.clip(cos, -1.0, 1.0)))   # angle at the vertex
+        prv = np.empty_like(nxt)
+        prv[nxt] = np.arange(len(ring))
+        w = np.maximum((half + half[prv]) / length, 1e-300)
+        acc = np.zeros((len(removed), out.shape[1]))
+        np.add.at(acc, owner, w[:, None] * out[ring])
+        if unit:
+            acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
+        else:
+            acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
+        if embed:
+            acc, moved = _into_kernels(acc, out, kept, ptr, ring, owner, nxt, positions,
+                                       removed)
+            self.kernel_insertions += moved
+        out[removed] = acc
+        if settle is not None:
+            out = settle(out, r)
+        return out
+
+    def round_faces(self, faces) -> list:
+        """The mesh after each round is undone: entry ``r`` holds the faces ``(m_r, 3)`` of
+        the mesh whose vertices are those of rounds ``r`` and coarser (``faces`` the input's:
+        entry 0)."""
+        out = [np.ascontiguousarray(faces, dtype=np.int64)]
+        remap = np.arange(int(faces.max()) + 1)
+        for removed, kept, _, _ in self.rounds[:-1]:
+            f = out[-1]
+            remap[:] = np.arange(len(remap))
+            remap[removed] = kept
+            f = remap[f]
+            out.append(np.ascontiguousarray(
+                f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]))
         return out
 
 
@@ -120,7 +157,7 @@ def _star_folds(x, out, ring, owner, nxt):
     return np.bincount(owner, o <= 0, minlength=len(x)) > 0
 
 
-def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
+def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
     """Move each removed vertex whose star folds to the vertex it was merged into, plus a step
     into the ring's kernel there (halved until the star is embedded, at most
     ``_KERNEL_HALVINGS`` times).
@@ -128,11 +165,14 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
     Near the kept vertex ``k`` the kernel is the wedge left of both ring edges at ``k`` (the
     other edges see ``k`` on their inner side, its fan being embedded); the sum of the two edges'
     unit inner normals, ``k × next`` and ``prev × k``, points into that wedge, whether the ring's
-    angle at ``k`` is convex or reflex."""
+    angle at ``k`` is convex or reflex. Each is then placed by :func:`_place`. Returns the
+    positions and how many were moved."""
     bad = np.flatnonzero(_star_folds(x, out, ring, owner, nxt))
-    if not len(bad):
-        return x
+    moved = len(bad)
+    if not moved:
+        return x, 0
     x = x.copy()
+    first = bad.copy()
     at = np.flatnonzero(ring == kept[owner])[bad]      # the kept vertex is once in each ring
     prv = np.empty_like(nxt)
     prv[nxt] = np.arange(len(nxt))
@@ -148,7 +188,96 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt):
         if not still.any():
             break
         bad, k, d = bad[still], k[still], 0.5 * d[still]
-    return x
+    _place(x, first, out, ptr, ring, positions, removed, _PLACE_STEPS)
+    return x, moved
+
+
+@numba.njit(cache=True)
+def _star_energy(q, out, ring, lo, hi, cot):  # pragma: no cover - compiled
+    """``Σ D / a`` over the star of a vertex at ``q`` (unit) with the ring ``ring[lo:hi]``:
+    ``D`` the cotangent-weighted squared edge lengths (3D cotangents ``cot``), ``a`` the
+    chord triangle's area towards the sphere; infinite when a triangle is not
+    counter-clockwise. Scale-invariant, smallest for stars similar to the 3D one."""
+    e = 0.0
+    m = hi - lo
+    for j in range(m):
+        a = out[ring[lo + j]]
+        b = out[ring[lo + (j + 1) % m]]
+        det = (q[0] * (a[1] * b[2] - a[2] * b[1]) - q[1] * (a[0] * b[2] - a[2] * b[0])
+               + q[2] * (a[0] * b[1] - a[1] * b[0]))
+        if det <= 0.0:
+            return np.inf
+        d = 0.0
+        for c in range(3):
+            d += (cot[lo + j, 0] * (a[c] - b[c]) ** 2 + cot[lo + j, 1] * (b[c] - q[c]) ** 2
+                  + cot[lo + j, 2] * (q[c] - a[c]) ** 2)
+        e += d / det
+    return e
+
+
+@numba.njit(cache=True)
+def _place_kernel(x, which, out, ptr, ring, cot, steps):  # pragma: no cover - compiled
+    """Pattern search of each vertex ``which`` (at ``x``) over the sphere for the smallest
+    :func:`_star_energy`, its ring held: a move is taken only when it lowers the energy, so the
+    star stays embedded (its orientations are linear in the vertex, positive at both ends of
+    a move and so along it). Steps start at half the distance to the nearest ring vertex, double after a
+    move (up to half the mean distance to the ring) and halve after a miss."""
+    for w in which:
+        lo, hi = ptr[w], ptr[w + 1]
+        q = x[w].copy()
+        e = _star_energy(q, out, ring, lo, hi, cot)
+        if not np.isfinite(e):
+            continue
+        top = 0.0
+        step = np.inf
+        for j in range(lo, hi):
+            dist = np.sqrt(((out[ring[j]] - q) ** 2).sum())
+            top += dist
+            step = min(step, 0.5 * dist)
+        top *= 0.5 / (hi - lo)          # half the mean distance to the ring
+        for _ in range(steps):
+            # a tangent basis at q
+            t1 = np.empty(3)
+            if abs(q[0]) < 0.9:
+                t1[0], t1[1], t1[2] = 0.0, -q[2], q[1]
+            else:
+                t1[0], t1[1], t1[2] = -q[2], 0.0, q[0]
+            t1 /= np.sqrt((t1 ** 2).sum())
+            t2 = np.array([q[1] * t1[2] - q[2] * t1[1], q[2] * t1[0] - q[0] * t1[2],
+                           q[0] * t1[1] - q[1] * t1[0]])
+            moved = False
+            for k in range(8):
+                ang = k * np.pi / 4.0
+                y = q + step * (np.cos(ang) * t1 + np.sin(ang) * t2)
+                y /= np.sqrt((y ** 2).sum())
+                e2 = _star_energy(y, out, ring, lo, hi, cot)
+                if e2 < e:
+                    q, e, moved = y, e2, True
+                    break
+            step = min(2.0 * step, top) if moved else 0.5 * step
+        x[w] = q
+
+
+def _place(x, which, out, ptr, ring, positions, removed, steps):
+    """Move the vertices ``which`` (rows of ``x``, the removed vertices of a round) to the
+    lowest :func:`_star_energy` their kernels offer (:func:`_place_kernel`), in place."""
+    counts = np.diff(ptr)
+    owner = np.repeat(np.arange(len(removed)), counts)
+    nxt = np.arange(len(ring)) + 1
+    nxt[ptr[1:] - 1] = ptr[:-1]
+    a = positions[removed][owner]            # the star's 3D triangles (centre, ring j, j + 1)
+    b, c = positions[ring], positions[ring[nxt]]
+    cot = np.column_stack([_cot(b, c, a), _cot(c, a, b), _cot(a, b, c)])
+    # cot[:, 0] weighs the edge (b, c) opposite the centre, [:, 1] (c, a), [:, 2] (a, b)
+    _place_kernel(x, np.ascontiguousarray(which, dtype=np.int64), out, ptr, ring,
+                  np.ascontiguousarray(cot), int(steps))
+
+
+def _cot(u, v, w):
+    """Cotangent of the angle at ``w`` of the triangles ``(u, v, w)``, clipped to ±1e3."""
+    e1, e2 = u - w, v - w
+    cross = np.linalg.norm(np.cross(e1, e2), axis=1)
+    return np.clip(np.einsum("ij,ij->i", e1, e2) / np.maximum(cross, 1e-300), -1e3, 1e3)
 
 
 @numba.njit(cache=True)

@@ -5,13 +5,13 @@ records of the stages that ran."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 from typing import Mapping
 
 import numpy as np
 
-from ..errors import InputError, TopologyError
+from ..errors import InputError
 from ..validate import check_positive_int
 from ..geometry.icosphere import choose_level
 from ..progress import report
@@ -19,8 +19,8 @@ from ..geometry.unitsphere import hull_triangles, map_points
 from ..geometry.surfels import SurfelSet
 from .cloud import cloud_map
 from .mds import geodesics, mds_map
+from .balance import inverted
 from .multilevel import mesh_map
-from .repair import repair
 from .surface import check_surfels, has_faces, oriented_faces
 from .options import DEFAULT_OPTIONS, METHODS, MapOptions
 from .quality import _area_distortion, _count_folds, _sparse_sampling, landmark_stress
@@ -35,13 +35,11 @@ class Stage:
     Attributes
     ----------
     name : str
-        One of :data:`STAGES`: ``"multilevel"`` (the coarse-to-fine map), ``"single_level"``
-        (the single-level map, a fallback for a mesh), ``"proxy"`` (a point cloud's proxy
-        mesh), ``"repair"`` (fold repair and second pass), ``"realise"`` (realised flips),
-        ``"mds"``.
+        One of :data:`STAGES`: ``"multilevel"`` (the coarse-to-fine map), ``"proxy"`` (a point
+        cloud's proxy mesh), ``"mds"``.
     figures : mapping of str to int, float or str
         Its counts and figures (read-only), e.g. ``levels``, ``balance_steps``,
-        ``folds_repaired``.
+        ``mesh_folds``.
     """
 
     name: str
@@ -64,7 +62,11 @@ class SphericalMap:
     method : str
         ``"tutte"`` or ``"mds"``.
     folded : int
-        Folded triangles of the spherical Delaunay triangulation (convex hull) of ``points``.
+        Folded triangles of the triangulation the codec interpolates in
+        (:func:`surfidx.codec.resample.map_triangles`): for surfels with faces, the faces that
+        are not counter-clockwise on the sphere (0 for method ``"tutte"``: it embeds the
+        mesh); for a point cloud, the triangles of the spherical Delaunay triangulation
+        (convex hull) of ``points`` whose 3D normal points against their surfels' normals.
     triangles : int
         Triangles of that triangulation.
     landmark_stress : float
@@ -80,11 +82,6 @@ class SphericalMap:
         :func:`surfidx.sphere.sparse_sampling` of the map: how densely an even grid on the sphere samples the
         sparsest-mapped surfels, relative to their count (1 for an even map); it sets the grid
         level with the surfel count (:func:`surfidx.geometry.icosphere.choose_level`).
-    located : tuple or None
-        ``(level, location)``: where the vertices of the level-``level`` grid lie in the map
-        (:func:`surfidx.codec.resample.locate_surfels` of these points), when the fold realisation's
-        check found that already; :meth:`location` hands it on, so the codec does not locate
-        the grid twice.
 
     Notes
     -----
@@ -102,14 +99,6 @@ class SphericalMap:
     seconds: float
     stages: tuple = ()
     sparse_sampling: float = 1.0
-    located: tuple | None = field(default=None, repr=False, compare=False)
-
-    def location(self, level: int):
-        """:func:`surfidx.codec.resample.locate_surfels` of this map at grid level ``level`` when it is
-        known already (:attr:`located`), else None."""
-        if self.located is not None and self.located[0] == level:
-            return self.located[1]
-        return None
 
     @property
     def grid_level(self) -> int:
@@ -120,14 +109,8 @@ class SphericalMap:
 
     @property
     def fold_fraction(self) -> float:
-        """Share of folded hull triangles."""
+        """Share of folded triangles (of :attr:`triangles`)."""
         return self.folded / max(self.triangles, 1)
-
-    @property
-    def fallback(self) -> bool:
-        """Whether a mesh (or a point cloud's proxy) got the single-level map because no
-        hierarchy could be untangled."""
-        return self.stage("single_level") is not None
 
     def stage(self, name: str):
         """The :class:`Stage` record called ``name``, or None when that stage did not run."""
@@ -147,12 +130,8 @@ class SphericalMap:
                 "triangles": self.triangles, "fold_fraction": self.fold_fraction,
                 "landmark_stress": self.landmark_stress,
                 "area_distortion": self.area_distortion, "seconds": self.seconds,
-                "sparse_sampling": self.sparse_sampling, "fallback": self.fallback,
+                "sparse_sampling": self.sparse_sampling,
                 "stages": [s.name for s in self.stages], **self.info}
-
-
-def _route_stage(figures: dict, fallback: bool) -> Stage:
-    return Stage.of("single_level" if fallback else "multilevel", figures)
 
 
 def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | None = None,
@@ -177,7 +156,7 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`) at the stage boundaries:
         ``"map"`` (for a mesh, once per level of the multilevel map as it is done, coarsest
-        first), ``"repair"``, ``"figures"``. It changes nothing in the map.
+        first), ``"figures"``. It changes nothing in the map.
 
     Returns
     -------
@@ -189,9 +168,7 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
         Unknown method, bad options, too few surfels.
     TopologyError
         Several pieces, holes, pinched vertices, genus > 0, inconsistent winding (for a point
-        cloud: a proxy surface that is not one closed genus-0 piece); a fallback map that
-        squeezes parts of the surface to nothing (area distortion above
-        ``options.max_area_distortion``).
+        cloud: a proxy surface that is not one closed genus-0 piece).
     """
     surfels = check_surfels(surfels)
     if method is not None and method not in METHODS:
@@ -217,43 +194,32 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
     t0 = time.perf_counter()
     report(progress, "map", 0, 1)
     lm = dist = None
-    fallback = False
     route = dict(iterations=iterations, gamma=float(options.gamma),
                  balance=bool(options.balance))
+    faces = None
     if method == "tutte" and has_faces(surfels):
-        f = oriented_faces(surfels)
-        pts, figures, fallback = mesh_map(surfels, faces=f, options=options, progress=progress,
-                                          **route)
-        stages = [_route_stage(figures, fallback)]
-        report(progress, "repair", 0, 1)
-        pts, repaired, located = repair(pts, surfels, options=options, mesh=f)
+        faces = oriented_faces(surfels)
+        pts, figures = mesh_map(surfels, faces=faces, options=options, progress=progress,
+                                **route)
+        stages = [Stage.of("multilevel", figures)]
     elif method == "tutte":
-        pts, figures, fallback, proxy = cloud_map(surfels, options=options, **route)
-        stages = [Stage.of("proxy", proxy), _route_stage(figures, fallback)]
-        report(progress, "repair", 0, 1)
-        pts, repaired, located = repair(pts, surfels, options=options)
+        pts, figures, proxy = cloud_map(surfels, options=options, **route)
+        stages = [Stage.of("proxy", proxy), Stage.of("multilevel", figures)]
     else:
         if has_faces(surfels):
             oriented_faces(surfels)  # topology check before mapping
         pts, figures, lm, dist = mds_map(surfels, options=options, landmarks=landmarks,
                                          seed=seed, maxiter=max(10 * iterations, 10))
-        stages, repaired, located = [Stage.of("mds", figures)], [], None
-    stages += [Stage.of(name, figs) for name, figs in repaired]
+        stages = [Stage.of("mds", figures)]
     seconds = time.perf_counter() - t0
     report(progress, "figures", 0, 1)
     tri = hull_triangles(pts)
-    on_sphere = map_points(surfels, pts)      # checked once for the three figures
-    folded, total = _count_folds(surfels, tri)
+    on_sphere = map_points(surfels, pts)      # checked once for the figures
+    if faces is not None:
+        folded, total = inverted(on_sphere, faces), len(faces)
+    else:
+        folded, total = _count_folds(surfels, tri)
     ad = _area_distortion(surfels.positions, on_sphere, tri)
-    if fallback and ad > options.max_area_distortion:
-        cloud = not has_faces(surfels)
-        what = "its proxy surface" if cloud else "the mesh"
-        raise TopologyError(
-            f"the spherical map squeezes parts of the surface to nothing (area distortion "
-            f"{ad:.1f}; maps that resample well stay below {options.max_area_distortion:g}): no "
-            f"level of {what} could be untangled, so the grid would miss those parts; thin or "
-            "touching parts are the usual cause" + (": mesh the scan, or sample it more densely"
-                                                    if cloud else ""))
     sparse = _sparse_sampling(on_sphere, tri)
     st = float("nan")
     if stress:
@@ -261,5 +227,4 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
             lm, dist = geodesics(surfels, min(landmarks, len(surfels)), seed)
         st = landmark_stress(pts, lm, dist)
     report(progress, "figures", 1, 1)
-    return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse,
-                        located)
+    return SphericalMap(pts, method, folded, total, st, ad, seconds, tuple(stages), sparse)

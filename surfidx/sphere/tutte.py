@@ -4,16 +4,17 @@ a. One vertex is punctured (the one of largest area share, or one far from it wh
    is as clean, :func:`punctures`) and the rest is mapped into the plane by a Tutte embedding
    with positive mean-value weights (Floater 2003), its 1-ring fixed on the unit circle (spaced
    by edge length). Tutte's theorem (Floater's extension to any positive weights) makes the
-   planar map an embedding; the inverse stereographic projection (the punctured vertex at the
-   north pole) keeps it one on the sphere.
+   planar map an embedding. It is lifted to the sphere by the inverse stereographic projection
+   (the punctured vertex at the north pole) of the plane scaled by ``2^-k``, the smallest ``k``
+   at which every chord triangle is counter-clockwise: a triangle whose circumcircle holds the
+   origin's antipode in the plane would turn over, and as the scale shrinks the lift tends to
+   an affine map near the south pole, under which none does.
 b. Area reweighting (after Yoshizawa, Belyaev & Seidel 2004): the weights toward each vertex are
    multiplied by ``exp(-gamma * s)``, ``s`` the graph-smoothed log ratio of 3D to spherical area
    share around it, and the system is solved again. Every iterate is again a positive-weight
-   Tutte embedding; a step is kept only when it lowers the area distortion, inverts no mesh
-   triangle and adds no folded triangle to the Delaunay triangulation of the mapped surfels
-   (beyond ``MapOptions.reweight_fold_share``); otherwise ``gamma`` is halved.
-c. Untangling where the start left inverted triangles (a limb squeezed below the floating-point
-   floor), then balancing (:mod:`surfidx.sphere.balance`).
+   Tutte embedding; a step is kept only when it lowers the area distortion and inverts no mesh
+   triangle; otherwise ``gamma`` is halved.
+c. Balancing (:mod:`surfidx.sphere.balance`), which keeps the embedding.
 
 The Möbius normalisation (:func:`centre`) ends this map and every level of the multilevel one:
 the automorphism of the sphere moving the area-weighted centre of mass of the vertices to the
@@ -31,10 +32,9 @@ from scipy.sparse.csgraph import dijkstra
 from ..errors import InputError
 from ..geometry.unitsphere import mobius, orientation, triangle_areas
 from ..geometry.surfels import SurfelSet
-from .balance import balance as balance_map, untangle
+from .balance import balance as balance_map
 from .options import MapOptions
 from .surface import areas3, oriented_faces, vertex_areas
-from .quality import count_folds
 
 __all__ = ["tutte_map", "single_level_steps", "centre"]
 
@@ -47,6 +47,7 @@ _STEP_CLIP = 10.0        # the log area ratio of a reweighting step is clipped t
 _CENTRE_TOL = 1e-10      # the normalisation stops once the centre of mass is this near the origin
 _CENTRE_MIN_STEP = 1e-3  # ... or once its halved step is this short
 _CENTRE_MAX_STEP = 0.5   # the longest Möbius step (|a|; the ball's radius is 1)
+_LIFT_HALVINGS = 60      # the plane is scaled by 2^-k, k < this, before the lift to the sphere
 
 
 def _mean_value_weights(p, f):
@@ -126,14 +127,19 @@ class _TutteSystem:
         return u
 
     def sphere(self, u, f):
-        """Inverse stereographic projection, oriented so that the mesh keeps its orientation."""
-        r2 = (u ** 2).sum(axis=1)
-        x = np.column_stack([2 * u[:, 0], 2 * u[:, 1], r2 - 1.0]) / (1.0 + r2)[:, None]
-        x[self.vertex] = [0.0, 0.0, 1.0]
-        if self.mirror is None:
-            self.mirror = bool(np.sum(orientation(x, f)) < 0)
-        if self.mirror:
-            x[:, 0] *= -1.0
+        """Inverse stereographic projection of ``u`` scaled by the largest ``2^-k`` at which no
+        chord triangle turns over, oriented so that the mesh keeps its orientation."""
+        for k in range(_LIFT_HALVINGS):
+            v = u * 0.5 ** k
+            r2 = (v ** 2).sum(axis=1)
+            x = np.column_stack([2 * v[:, 0], 2 * v[:, 1], r2 - 1.0]) / (1.0 + r2)[:, None]
+            x[self.vertex] = [0.0, 0.0, 1.0]
+            if self.mirror is None:
+                self.mirror = bool(np.sum(orientation(x, f)) < 0)
+            if self.mirror:
+                x[:, 0] *= -1.0
+            if not np.any(orientation(x, f) <= 0):
+                break
         return x
 
 
@@ -176,7 +182,7 @@ def single_level_steps(n: int, options: MapOptions) -> int:
 def tutte_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma: float,
               balance: bool = True, faces=None):
     """Single-level map: Tutte embedding, at most ``iterations`` reweighting steps, then (with
-    ``balance``) untangling and distortion balancing for :func:`single_level_steps` steps;
+    ``balance``) distortion balancing for :func:`single_level_steps` steps;
     ``faces``: those of :func:`oriented_faces`, when already computed. Returns the map and its
     figures (``mesh_folds``, ``mesh_area_distortion``, ``iterations``, ``punctured_vertex``,
     ``balance_steps`` and, balanced, ``balance_energy``)."""
@@ -209,17 +215,11 @@ def tutte_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma
     # region grows; every iterate is a Tutte embedding
     avg = sp.diags(1.0 / np.asarray(adj.sum(axis=1)).ravel()) @ adj
     lw = np.zeros(n)
-    # two candidate punctures: puncturing at the largest share can let the balancing collapse
-    # the neighbourhood of the fixed 1-ring, so the far one is kept when its start is as clean
-    # (mesh and Delaunay folds)
-    starts = []
-    for cand in punctures(adj, va):
-        system = _TutteSystem(p, f, cand, _ring(f, cand))
-        x, sd, neg = evaluate(lw)
-        starts.append((neg, count_folds(surfels, x), cand, system, x, sd))
-    pick = starts[-1] if starts[-1][:2] <= starts[0][:2] else starts[0]
-    neg, (start_folds, total), vertex, system, x, sd = pick
-    allowed = max(start_folds, int(options.reweight_fold_share * total))
+    # puncturing at the largest share can let the balancing collapse the neighbourhood of the
+    # fixed 1-ring: the far candidate is punctured
+    vertex = punctures(adj, va)[-1]
+    system = _TutteSystem(p, f, vertex, _ring(f, vertex))
+    x, sd, neg = evaluate(lw)
     g = gamma
     accepted = 0
     for _ in range(iterations):
@@ -232,7 +232,7 @@ def tutte_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma
         while g > options.reweight_min_gamma:
             lw2 = lw - g * step
             x2, sd2, neg2 = evaluate(lw2)
-            if neg2 <= neg and sd2 < sd and count_folds(surfels, x2)[0] <= allowed:
+            if neg2 <= neg and sd2 < sd:
                 lw, x, sd, neg = lw2, x2, sd2, neg2
                 improved = True
                 accepted += 1
@@ -246,10 +246,6 @@ def tutte_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma
         neg = int(np.count_nonzero(orientation(x, f) <= 0))
         return x, {"mesh_folds": neg, "mesh_area_distortion": sd, "iterations": accepted,
                    "punctured_vertex": vertex, "balance_steps": 0}
-    if neg:
-        # balancing needs a fold-free start: untangle first, as the multilevel map does
-        x, _ = untangle(x, p, f, rounds=options.untangle_rounds)
-        sd = spread(x)
     x_start, sd_start = x, sd
     x, binfo = balance_map(x, p, f, iterations=single_level_steps(n, options),
                            lam=options.energy_lambda, max_cot=np.inf)
