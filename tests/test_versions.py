@@ -381,7 +381,10 @@ def test_show_and_ls_list_versions(tree):
     assert out["version"] == 2 and [v["version"] for v in out["versions"]] == [1, 2]
     r = invoke(["ls", "--db", db, "--all-versions"])
     assert r.exit_code == 0 and len(r.stdout.splitlines()) == 6
-    assert " 1/2 " in r.stdout and " 2/2 " in r.stdout
+    assert " 1 (2 stored) " in r.stdout and " 2 (2 stored) " in r.stdout
+    invoke(["rm", "m0@1", "--db", db])
+    r = invoke(["ls", "--db", db, "--all-versions"])
+    assert len(r.stdout.splitlines()) == 5 and " 2 (2 stored) " not in r.stdout
 
 
 # ---------------------------------------------------------------------- originals

@@ -421,7 +421,9 @@ def ls(show_errors, tags, name_like, where, all_versions, *, db_path, console):
         return
     for r in rows:
         r["tags_s"] = ",".join(r["tags"]) or None
-        r["version_s"] = f"{r['version']}/{r['versions']}"
+        # the number, and how many versions the name has when more than this one
+        r["version_s"] = (str(r["version"]) if r["versions"] == 1
+                          else f"{r['version']} ({r['versions']} stored)")
     _table(rows, [("id", "id"), ("name", "name"), ("version_s", "version"), ("tags_s", "tags"),
                   ("n_surfels", "surfels"),
                   ("has_color", "colour"), ("bytes", "bytes"), ("bits_per_surfel", "bits/surfel"),
