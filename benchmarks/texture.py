@@ -111,7 +111,9 @@ class Model:
 def run_surfidx(model: Model, rates) -> list[dict]:
     from surfidx.codec import Encoder, decode
 
-    enc = Encoder(model.surfels)
+    # the textured mesh goes in as the colour source (as ingest passes it): colour is sampled
+    # from the texture on its own grid, not from the surfels' vertex colours
+    enc = Encoder(model.surfels, texture=model.mesh)
     rows = []
     for rate in rates:
         data = enc.encode(rate)
