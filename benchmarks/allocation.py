@@ -12,7 +12,8 @@ the lower rates are their prefixes. Variants:
 * ``rd λ`` — the same, passes ordered by gain of ``PSNR_D2 + λ · PSNR_YUV`` per bit
   (``allocation="rd"``, ``color_importance=λ``).
 
-Luma PSNR (BT.709, peak 255) is measured on the surface: each mesh (the original with its
+Luma PSNR (BT.709, peak 255) is measured on the surface
+(:func:`surfidx.geometry.metrics.psnr_luma_surface`): each mesh (the original with its
 texture, the decoded grid mesh with its baked texture) is sampled uniformly at ``SAMPLES``
 points and each sample compared with the other mesh's colour at the closest surface point
 (larger MSE of the two directions), so the measure has no nearest-neighbour sampling floor.
@@ -39,9 +40,8 @@ use_portable_profile()
 import numpy as np  # noqa: E402
 
 from surfidx.codec import Encoder, decode  # noqa: E402
-from surfidx.codec.colorgrid import TextureSource  # noqa: E402
 from surfidx.codec.options import COLOR_IMPORTANCE, CodecOptions  # noqa: E402
-from surfidx.geometry.metrics import evaluate  # noqa: E402
+from surfidx.geometry.metrics import evaluate, psnr_luma_surface  # noqa: E402
 from surfidx.topology import read_model  # noqa: E402
 
 from _markdown import Report, add_markdown_option  # noqa: E402
@@ -52,27 +52,6 @@ MODELS = {"spot": "spot/spot_triangulated.obj",
           "ycb_scissors": "ycb_scissors/textured_simple_reoriented.obj"}
 RATES = (1.0, 2.0, 3.56, 8.0, 16.0)
 SAMPLES = 50_000
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
-def _colour_at(mesh, points):
-    if mesh.texture is not None:
-        return TextureSource(mesh)(points)
-    from scipy.spatial import cKDTree
-
-    _, i = cKDTree(mesh.vertices).query(points)
-    return np.asarray(mesh.vertex_colors, np.float64)[i]
-
-
-def surface_luma(reference, test, samples=SAMPLES) -> float:
-    """Symmetric luma PSNR on the surface (module notes)."""
-    mse = 0.0
-    for a, b, seed in ((reference, test, 0), (test, reference, 1)):
-        s = a.to_surfels(samples=samples, seed=seed)
-        ya = np.asarray(s.colors, np.float64) @ _LUMA
-        yb = _colour_at(b, s.positions) @ _LUMA
-        mse = max(mse, float(np.mean((ya - yb) ** 2)))
-    return 10 * np.log10(255.0 ** 2 / max(mse, 1e-12))
 
 
 def _geometry_bits(enc, max_bytes):
@@ -119,7 +98,7 @@ def measure(name, path, rates, importances):
             dt = time.process_time() - t0
             s = decode(stream, bits_per_surfel=rate)
             d2 = evaluate(surfels, s)["psnr_d2"]
-            luma = surface_luma(reference, m)
+            luma = psnr_luma_surface(reference, m, samples=SAMPLES)
             rows.append({"model": name, "variant": label, "rate": rate, "d2": d2, "luma": luma,
                          "decode": dt, "setup": setup,
                          "levels": f"{encs[label].level}/{encs[label].prepared.color_level}"})

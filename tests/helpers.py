@@ -341,15 +341,3 @@ def checker_sphere(level: int = 3, size: int = 256, checks: int = 8):
     image = np.repeat(board[:, :, None], 3, axis=2)
     return TriangleMesh(v, f, uv=uv, uv_faces=np.arange(3 * len(f)).reshape(-1, 3),
                         texture=image, name="checker")
-
-
-def surface_luma(reference, test, samples: int = 20000) -> float:
-    """Luma PSNR of ``test`` (a decoded textured mesh) against ``reference`` (a textured mesh):
-    ``reference`` sampled uniformly, each sample against ``test``'s texture at the closest
-    point of its surface."""
-    from surfidx.codec.colorgrid import TextureSource
-
-    s = reference.to_surfels(samples=samples, seed=0)
-    y = np.array([0.2126, 0.7152, 0.0722])
-    err = (np.asarray(s.colors, np.float64) - TextureSource(test)(s.positions)) @ y
-    return float(10 * np.log10(255.0 ** 2 / max(float(np.mean(err ** 2)), 1e-12)))
