@@ -38,7 +38,8 @@ DEFAULT_BITS = tuple(range(6, 15))
 DEFAULT_LEVEL = 10
 
 
-def _dracopy():
+def dracopy():
+    """The DracoPy module; without it, exit naming the extra that installs it."""
     try:
         import DracoPy
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -49,7 +50,7 @@ def _dracopy():
 
 def draco_encode(surfels: SurfelSet, *, bits: int, color: bool, level: int = DEFAULT_LEVEL) -> bytes:
     """Draco point-cloud bytes of the surfels' positions (and RGB colours when ``color``)."""
-    DracoPy = _dracopy()
+    DracoPy = dracopy()
     colors = surfels.colors if color else None
     return DracoPy.encode(surfels.positions.astype(np.float32), quantization_bits=int(bits),
                           compression_level=int(level), colors=colors)
@@ -61,7 +62,7 @@ def draco_decode(data: bytes, reference: SurfelSet, *, color: bool) -> SurfelSet
     Normals are those of the nearest reference surfel, radii from the decoded points' spacing (see
     the module docstring); colours are Draco's decoded RGB attribute when ``color``.
     """
-    return to_surfels(_dracopy().decode(data), reference, color=color)
+    return to_surfels(dracopy().decode(data), reference, color=color)
 
 
 def to_surfels(decoded, reference: SurfelSet, *, color: bool) -> SurfelSet:
@@ -82,7 +83,7 @@ def to_surfels(decoded, reference: SurfelSet, *, color: bool) -> SurfelSet:
 def draco_point(surfels: SurfelSet, *, bits: int, color: bool,
                 level: int = DEFAULT_LEVEL) -> tuple[bytes, SurfelSet, float, float]:
     """Encode and decode once: ``(bytes, decoded surfels, encode seconds, decode seconds)``."""
-    DracoPy = _dracopy()
+    DracoPy = dracopy()
     t0 = time.perf_counter()
     data = draco_encode(surfels, bits=bits, color=color, level=level)
     t_enc = time.perf_counter() - t0

@@ -61,6 +61,7 @@ from surfidx.geometry.metrics import Reference, psnr_luma_surface  # noqa: E402
 from surfidx.io import read_mesh, read_surfels  # noqa: E402
 from surfidx.io.texture import encode_image  # noqa: E402
 
+from _draco import dracopy  # noqa: E402
 from _markdown import Report, add_markdown_option  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -125,19 +126,10 @@ def run_surfidx(model: Model, rates) -> list[dict]:
     return rows
 
 
-def _dracopy():
-    try:
-        import DracoPy
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise SystemExit("the Draco baseline needs DracoPy: pip install -e '.[bench]' "
-                         f"(or pip install DracoPy) [{exc}]") from exc
-    return DracoPy
-
-
 def run_draco(model: Model) -> list[dict]:
     """Every Draco setting: bytes, D2, the luma its quantised positions and UVs leave with the
     original texture, and the decoded mesh (UVs, no image yet)."""
-    DracoPy = _dracopy()
+    DracoPy = dracopy()
     tm = model.mesh.to_trimesh()   # split at the UV seams: per-vertex texture coordinates
     verts = np.asarray(tm.vertices, np.float32)
     faces = np.asarray(tm.faces, np.uint32)
