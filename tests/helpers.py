@@ -341,3 +341,69 @@ def checker_sphere(level: int = 3, size: int = 256, checks: int = 8):
     image = np.repeat(board[:, :, None], 3, axis=2)
     return TriangleMesh(v, f, uv=uv, uv_faces=np.arange(3 * len(f)).reshape(-1, 3),
                         texture=image, name="checker")
+
+
+def glb_json(path) -> dict:
+    """The JSON chunk of a GLB file."""
+    import json
+    import struct
+
+    data = Path(path).read_bytes()
+    length = struct.unpack("<I", data[12:16])[0]
+    return json.loads(data[20:20 + length])
+
+
+def coloured_limbs() -> SurfelSet:
+    """:func:`limbs_surfels` (level 3, 1038 surfels) coloured by position."""
+    s = limbs_surfels(3)
+    lo, hi = s.bounds
+    col = np.clip((s.positions - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
+    return SurfelSet(s.positions, s.normals, s.radii, col, faces=s.faces, name="limbs")
+
+
+def capsule(length=2.0, radius=0.6, n=24, rings=10):
+    """(vertices, faces) of a closed capsule along z: two hemispheres joined by a cylinder."""
+    import trimesh
+
+    m = trimesh.creation.capsule(height=length, radius=radius, count=[n, rings])
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def one_view(v, f, direction=(1.0, 0.3, 0.2)):
+    """The faces of a closed convex mesh that face a camera far along ``direction``: what a
+    single view of it scans (a convex shape hides nothing else)."""
+    d = np.asarray(direction, float)
+    t = v[f]
+    keep = f[np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]) @ d > 0]
+    used, inv = np.unique(keep, return_inverse=True)
+    return v[used], inv.reshape(-1, 3)
+
+
+def write_off(path, v, f):
+    """Write vertices and triangles as an OFF file; returns ``path``."""
+    with open(path, "w") as fh:
+        fh.write(f"OFF\n{len(v)} {len(f)} 0\n")
+        np.savetxt(fh, v, fmt="%.9g")
+        np.savetxt(fh, np.c_[np.full(len(f), 3), f], fmt="%d")
+    return path
+
+
+def _shape(kind: str):
+    import trimesh
+
+    return {"ball": lambda: trimesh.creation.icosphere(subdivisions=3),
+            "capsule": lambda: trimesh.creation.capsule(height=1.0, radius=0.4, count=[16, 16]),
+            "box": lambda: trimesh.creation.box(extents=[1, 2, 3]).subdivide().subdivide(),
+            "cylinder": lambda: trimesh.creation.cylinder(radius=0.5, height=2.0,
+                                                          sections=32).subdivide()}[kind]()
+
+
+def shapes_database(path, entries):
+    """A database at ``path`` holding small primitive shapes: ``entries`` are
+    ``(kind, name, tags)`` with kind ``ball``, ``capsule``, ``box`` or ``cylinder``."""
+    from surfidx.database import Database
+
+    with Database.open(path) as db:
+        for kind, name, tags in entries:
+            db.ingest(_shape(kind), name=name, **({"tags": list(tags)} if tags else {}))
+    return path

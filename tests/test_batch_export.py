@@ -11,18 +11,16 @@ from surfidx import InputError
 from surfidx.cli import cli
 from surfidx.database import Database
 
+from helpers import shapes_database
+
 trimesh = pytest.importorskip("trimesh")
 
 
 @pytest.fixture(scope="module")
 def shapes(tmp_path_factory):
-    path = tmp_path_factory.mktemp("batch") / "shapes.db"
-    with Database.open(path) as db:
-        db.ingest(trimesh.creation.icosphere(subdivisions=3), name="ball", tags=["round"])
-        db.ingest(trimesh.creation.capsule(height=1.0, radius=0.4, count=[16, 16]),
-                  name="capsule", tags=["round", "long"])
-        db.ingest(trimesh.creation.box(extents=[1, 2, 3]).subdivide().subdivide(), name="a/b box")
-    return path
+    return shapes_database(tmp_path_factory.mktemp("batch") / "shapes.db", [
+        ("ball", "ball", ["round"]), ("capsule", "capsule", ["round", "long"]),
+        ("box", "a/b box", [])])
 
 
 def run(args):

@@ -15,17 +15,15 @@ import pytest
 from surfidx.database import Database
 
 datasette_app = pytest.importorskip("datasette.app")
+from helpers import shapes_database
+
 trimesh = pytest.importorskip("trimesh")
 
 
 @pytest.fixture(scope="module")
 def shapes(tmp_path_factory):
-    path = tmp_path_factory.mktemp("browse") / "shapes.db"
-    with Database.open(path) as db:
-        db.ingest(trimesh.creation.icosphere(subdivisions=3), name="ball", tags=["round"])
-        db.ingest(trimesh.creation.box(extents=[1, 2, 3]).subdivide().subdivide(),
-                  name="a/b box")
-    return path
+    return shapes_database(tmp_path_factory.mktemp("browse") / "shapes.db", [
+        ("ball", "ball", ["round"]), ("box", "a/b box", [])])
 
 
 @pytest.fixture(scope="module")

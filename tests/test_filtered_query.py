@@ -13,20 +13,16 @@ from surfidx.cli import cli
 from surfidx.database import Database
 from surfidx.db import where_sql
 
+from helpers import shapes_database
+
 trimesh = pytest.importorskip("trimesh")
 
 
 @pytest.fixture(scope="module")
 def shapes(tmp_path_factory):
-    path = tmp_path_factory.mktemp("filtered") / "shapes.db"
-    with Database.open(path) as db:
-        db.ingest(trimesh.creation.icosphere(subdivisions=3), name="ball", tags=["round"])
-        db.ingest(trimesh.creation.capsule(height=1.0, radius=0.4, count=[16, 16]),
-                  name="capsule", tags=["round", "long"])
-        db.ingest(trimesh.creation.box(extents=[1, 2, 3]).subdivide().subdivide(), name="box")
-        db.ingest(trimesh.creation.cylinder(radius=0.5, height=2.0, sections=32).subdivide(),
-                  name="cylinder", tags=["long"])
-    return path
+    return shapes_database(tmp_path_factory.mktemp("filtered") / "shapes.db", [
+        ("ball", "ball", ["round"]), ("capsule", "capsule", ["round", "long"]),
+        ("box", "box", []), ("cylinder", "cylinder", ["long"])])
 
 
 def test_where_sql_binds_values_and_names_columns():

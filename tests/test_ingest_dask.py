@@ -23,7 +23,7 @@ from surfidx import InputError, SurfidxError  # noqa: E402
 from surfidx.database import Database  # noqa: E402
 
 from conftest import EXAMPLES, REPO, icosphere_mesh  # noqa: E402
-from helpers import fake_processor, make_tree  # noqa: E402
+from helpers import fake_processor, make_tree, write_off  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
 
@@ -121,17 +121,10 @@ def _small_models(root: Path) -> Path:
     root.mkdir()
     shutil.copytree(EXAMPLES / "spot", root / "spot")
     v, f = icosphere_mesh(3)
-    _write_off(root / "ellipsoid.off", v * [1.0, 0.7, 0.5], f)
+    write_off(root / "ellipsoid.off", v * [1.0, 0.7, 0.5], f)
     bumpy = v * (1 + 0.15 * np.sin(4 * v[:, :1]) * np.cos(3 * v[:, 1:2]))
-    _write_off(root / "bumpy.off", bumpy, f)
+    write_off(root / "bumpy.off", bumpy, f)
     return root
-
-
-def _write_off(path, v, f):
-    lines = ["OFF", f"{len(v)} {len(f)} 0"]
-    lines += [f"{x:.9g} {y:.9g} {z:.9g}" for x, y, z in v]
-    lines += [f"3 {a} {b} {c}" for a, b, c in f]
-    path.write_text("\n".join(lines) + "\n")
 
 
 # ---------------------------------------------------------------------- tests

@@ -5,13 +5,12 @@ without faces."""
 from __future__ import annotations
 
 import json
-import struct
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from surfidx import InputError, SurfelSet, TriangleMesh, write_model
+from surfidx import InputError, TriangleMesh, write_model
 from surfidx.cli import cli
 from surfidx.codec import decode, encode, max_file_bytes
 from surfidx.codec.container import truncate, unpack
@@ -20,7 +19,7 @@ from surfidx.geometry.icosphere import vertex_count
 from surfidx.geometry.metrics import Reference, evaluate
 from surfidx.pipeline import output_level
 
-from helpers import limbs_surfels
+from helpers import coloured_limbs, glb_json, limbs_surfels
 
 trimesh = pytest.importorskip("trimesh")
 plyfile = pytest.importorskip("plyfile")
@@ -30,20 +29,11 @@ plyfile = pytest.importorskip("plyfile")
 def coded(tmp_path_factory):
     """A sphere with limbs (1038 surfels, colour from position) coded at 8 bits/surfel, its
     stream written to a .sfz file."""
-    s = limbs_surfels(3)
-    lo, hi = s.bounds
-    col = np.clip((s.positions - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
-    s = SurfelSet(s.positions, s.normals, s.radii, col, faces=s.faces, name="limbs")
+    s = coloured_limbs()
     data = encode(s, bits_per_surfel=8.0)
     path = tmp_path_factory.mktemp("out") / "limbs.sfz"
     path.write_bytes(data)
     return s, data, path
-
-
-def _glb_json(path):
-    data = path.read_bytes()
-    length = struct.unpack("<I", data[12:16])[0]
-    return json.loads(data[20:20 + length])
 
 
 # ---------------------------------------------------------------------- default level
@@ -127,7 +117,7 @@ def test_mesh_exports_carry_unit_normals(coded, tmp_path):
     mesh = decode(coded[1], mesh=True, level=3)
     n = len(mesh.vertices)
     write_model(mesh, tmp_path / "m.glb")
-    tree = _glb_json(tmp_path / "m.glb")
+    tree = glb_json(tmp_path / "m.glb")
     attrs = tree["meshes"][0]["primitives"][0]["attributes"]
     assert set(attrs) == {"POSITION", "NORMAL", "COLOR_0"}
     acc = tree["accessors"][attrs["NORMAL"]]

@@ -13,32 +13,7 @@ from surfidx.describe import (PARTIAL_SHARE, describe_grid, is_partial, part_sli
                               weighted_l2)
 from surfidx.geometry.icosphere import icosphere
 
-
-def capsule(n=24, rings=10, length=2.0):
-    """(vertices, faces) of a closed capsule along z: two hemispheres joined by a cylinder."""
-    import trimesh
-
-    m = trimesh.creation.capsule(height=length, radius=0.6, count=[n, rings])
-    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-
-
-def one_view(v, f, direction=(1.0, 0.3, 0.2)):
-    """The faces of a closed convex mesh that face a camera far along ``direction``: what a
-    single view of it scans (a convex shape hides nothing else)."""
-    d = np.asarray(direction, float)
-    t = v[f]
-    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    keep = f[n @ d > 0]
-    used, inv = np.unique(keep, return_inverse=True)
-    return v[used], inv.reshape(-1, 3)
-
-
-def write_off(path, v, f):
-    with open(path, "w") as fh:
-        fh.write(f"OFF\n{len(v)} {len(f)} 0\n")
-        np.savetxt(fh, v, fmt="%.9g")
-        np.savetxt(fh, np.c_[np.full(len(f), 3), f], fmt="%d")
-    return path
+from helpers import capsule, one_view, write_off
 
 
 def test_is_partial_compares_the_virtual_share_with_the_threshold():

@@ -5,20 +5,19 @@ options."""
 from __future__ import annotations
 
 import json
-import struct
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from surfidx import InputError, SurfelSet, write_model
+from surfidx import InputError, write_model
 from surfidx.cli import cli
 from surfidx.codec import decode, encode
 from surfidx.io import read_mesh
 from surfidx.io.texture import check_image_options
 from surfidx.pipeline import export_texture
 
-from helpers import limbs_surfels
+from helpers import coloured_limbs, glb_json
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -26,20 +25,11 @@ trimesh = pytest.importorskip("trimesh")
 @pytest.fixture(scope="module")
 def coded(tmp_path_factory):
     """A sphere with limbs coloured by position, coded at 8 bits/surfel, as a .sfz file."""
-    s = limbs_surfels(3)
-    lo, hi = s.bounds
-    col = np.clip((s.positions - lo) / (hi - lo) * 255, 0, 255).astype(np.uint8)
-    s = SurfelSet(s.positions, s.normals, s.radii, col, faces=s.faces, name="limbs")
+    s = coloured_limbs()
     data = encode(s, bits_per_surfel=8.0)
     path = tmp_path_factory.mktemp("tex") / "limbs.sfz"
     path.write_bytes(data)
     return s, data, path
-
-
-def _glb_json(path):
-    raw = path.read_bytes()
-    n = struct.unpack("<I", raw[12:16])[0]
-    return json.loads(raw[20:20 + n])
 
 
 def test_decode_with_texture_gives_uvs_on_the_atlas_and_an_image(coded):
@@ -64,7 +54,7 @@ def test_glb_carries_texcoords_normals_and_a_base_colour_texture(coded, tmp_path
     m = decode(data, mesh=True, texture=True, texture_size=128)
     out = tmp_path / "m.glb"
     write_model(m, out)
-    doc = _glb_json(out)
+    doc = glb_json(out)
     attrs = doc["meshes"][0]["primitives"][0]["attributes"]
     assert set(attrs) == {"POSITION", "NORMAL", "TEXCOORD_0"}
     assert doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] == {"index": 0}
@@ -82,7 +72,7 @@ def test_glb_lossy_images(coded, tmp_path, fmt, mime):
     m = decode(data, mesh=True, texture=True, texture_size=128)
     out = tmp_path / "m.glb"
     write_model(m, out, image_format=fmt, image_quality=70)
-    doc = _glb_json(out)
+    doc = glb_json(out)
     assert doc["images"][0]["mimeType"] == mime
     if fmt == "webp":
         assert doc["extensionsRequired"] == ["EXT_texture_webp"]
@@ -123,12 +113,12 @@ def test_cli_decode_writes_a_texture_by_default_and_vertex_colours_on_request(co
                                  "--texture-size", "128", "--json"])
     assert r.exit_code == 0, r.output
     assert json.loads(r.output)["texture"] == 128
-    assert "TEXCOORD_0" in _glb_json(tmp_path / "a.glb")["meshes"][0]["primitives"][0][
+    assert "TEXCOORD_0" in glb_json(tmp_path / "a.glb")["meshes"][0]["primitives"][0][
         "attributes"]
     r = CliRunner().invoke(cli, ["decode", str(path), "-o", str(tmp_path / "b.glb"),
                                  "--vertex-colors", "--json"])
     assert r.exit_code == 0, r.output
-    attrs = _glb_json(tmp_path / "b.glb")["meshes"][0]["primitives"][0]["attributes"]
+    attrs = glb_json(tmp_path / "b.glb")["meshes"][0]["primitives"][0]["attributes"]
     assert "COLOR_0" in attrs and "TEXCOORD_0" not in attrs
     r = CliRunner().invoke(cli, ["decode", str(path), "-o", str(tmp_path / "c.obj"),
                                  "--image-format", "jpeg", "--image-quality", "60"])

@@ -3,6 +3,7 @@ view distance, and queries by a single view from Python."""
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -11,13 +12,11 @@ import pytest
 from surfidx import InputError
 from surfidx.describe import views as V
 
+import helpers
+from helpers import one_view, write_off
 
-def capsule(length=2.0, radius=0.6, n=32, rings=12):
-    """(vertices, faces) of a closed capsule along z."""
-    import trimesh
-
-    m = trimesh.creation.capsule(height=length, radius=radius, count=[n, rings])
-    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+#: The capsule these tests see: finer than the helper's default.
+capsule = functools.partial(helpers.capsule, n=32, rings=12)
 
 
 def box(extents=(2.0, 1.0, 0.5)):
@@ -25,15 +24,6 @@ def box(extents=(2.0, 1.0, 0.5)):
 
     m = trimesh.creation.box(extents=extents).subdivide().subdivide()
     return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-
-
-def one_view(v, f, direction):
-    """The faces of a closed convex mesh that face a camera far along ``direction``."""
-    d = np.asarray(direction, float)
-    t = v[f]
-    keep = f[np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]) @ d > 0]
-    used, inv = np.unique(keep, return_inverse=True)
-    return v[used], inv.reshape(-1, 3)
 
 
 def angle(a, b):
@@ -143,22 +133,14 @@ def shapes_db(tmp_path_factory):
     models.mkdir()
     for name, m in (("capsule", capsule()), ("ball", capsule(length=0.2)),
                     ("long", capsule(length=5.0))):
-        _write_off(models / f"{name}.off", *m)
+        write_off(models / f"{name}.off", *m)
     db_path = root / "v.db"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with Database(db_path) as db:
             db.ingest([models], workers=1)
-    view = _write_off(root / "view.off", *one_view(*capsule(), (1.0, 0.3, 0.2)))
+    view = write_off(root / "view.off", *one_view(*capsule(), (1.0, 0.3, 0.2)))
     return db_path, view
-
-
-def _write_off(path, v, f):
-    with open(path, "w") as fh:
-        fh.write(f"OFF\n{len(v)} {len(f)} 0\n")
-        np.savetxt(fh, v, fmt="%.9g")
-        np.savetxt(fh, np.c_[np.full(len(f), 3), f], fmt="%d")
-    return path
 
 
 def test_a_partial_query_compares_views_without_mapping_the_scan(shapes_db, monkeypatch):
