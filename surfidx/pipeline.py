@@ -15,7 +15,8 @@ import numpy as np
 from .errors import SurfidxError
 
 __all__ = ["ProcessedModel", "DescribedModel", "content_hash", "process_model", "describe_model",
-           "describe_scan", "scan_surface", "export_texture", "describe_stream", "redescribe", "output_level", "combine_descriptors", "unit_of_work"]
+           "describe_scan", "scan_surface", "export_texture", "describe_stream", "redescribe",
+           "output_level", "combine_descriptors", "unit_of_work"]
 
 
 @dataclass
