@@ -1761,8 +1761,13 @@ class Catalog:
     def _model_conditions(self, *, tag=None, name_like=None, where=None,
                           all_versions: bool = False) -> tuple:
         """SQL conditions on ``models m`` / ``assets a`` and their parameters, of
-        :meth:`list_models`' selection (latest versions unless ``all_versions``)."""
-        filter_text, where, args = where, [] if all_versions else [LATEST_SQL], []
+        :meth:`list_models`' selection (latest versions unless ``all_versions``). The
+        latest-version condition, a probe per row, is left out while no model has a version
+        past 1 (every row is then its name's latest; told by the partial index on later
+        versions)."""
+        later = not all_versions and self.conn.execute(
+            "SELECT 1 FROM models WHERE version > 1 LIMIT 1").fetchone() is not None
+        filter_text, where, args = where, [LATEST_SQL] if later else [], []
         for t in ([] if tag is None else [tag] if isinstance(tag, str) else list(tag)):
             where.append("m.id IN (SELECT model_id FROM tags WHERE tag = ?)")
             args.append(str(t))
