@@ -22,10 +22,13 @@ Commands
 * ``surfidx query FILE`` of a simulated single view (``--view MODEL``, default d071, a view of
   about 10k vertices; ``benchmarks/_shape_baselines.simulate_view`` with the seed
   ``benchmarks/retrieval.py --partial view`` gives it);
+* ``surfidx query NAME`` and ``surfidx get NAME -o FILE.sfz`` / ``FILE.ply`` of a stored model
+  (d045, in that database): a query by a stored model's descriptors, a copy of its stream and a
+  decode of it;
 * ``surfidx ingest -j 1`` of each of ``--ingest`` retrieval models into a new database, one
   process per model (per-model CPU, and their mean).
 
-Run ``python benchmarks/latency.py [--tree /work/main] [--repeat 3] [--skip ingest view]
+Run ``python benchmarks/latency.py [--tree /work/main] [--repeat 3] [--skip ingest view stored]
 [--json out.json] [--markdown]``; two runs with different ``--tree`` and ``--json`` give the
 before/after table: ``python benchmarks/latency.py --compare before.json after.json
 [--markdown]``.
@@ -51,6 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "retrieval"
 DB_MODELS = ("d073", "d000", "d045", "d019", "d060")
 INGEST_MODELS = ("d073", "d019", "d045", "d087", "d060")
+STORED_MODEL = "d045"  # of DB_MODELS: the stored model that query NAME and get name
 VIEW_SEED = 100_000     # retrieval.py --partial view: seed * 100_000 + model index * 100 + view
 
 
@@ -153,7 +157,8 @@ def main(argv=None) -> int:
     ap.add_argument("--query-models", nargs="*", default=None,
                     help="retrieval models queried by file (default the median-size one)")
     ap.add_argument("--view", default="d071", help="retrieval model whose single view is queried")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["query", "info", "ingest", "view"],
+    ap.add_argument("--skip", nargs="*", default=[],
+                    choices=["query", "info", "ingest", "view", "stored"],
                     help="leave these commands out")
     ap.add_argument("--work", type=Path, default=None,
                     help="folder for the databases and generated files (default a temporary one)")
@@ -209,7 +214,7 @@ def main(argv=None) -> int:
     if "info" not in args.skip:
         measure(f"info FILE ({median})", cli + ["info", str(median_file)])
     db = work / "query.db"
-    if not ({"query", "view"} <= set(args.skip)) and not db.exists():
+    if not ({"query", "view", "stored"} <= set(args.skip)) and not db.exists():
         files = [str(DATA / "meshes" / f"{m}.off") for m in DB_MODELS]
         cpu_run(cli + ["ingest", "-q", "-j", "1", "--db", str(db), *files], env=env, cwd=work)
     if "query" not in args.skip:
@@ -219,6 +224,13 @@ def main(argv=None) -> int:
             label = f"{m}, median" if m == median else m
             measure(f"query FILE ({label})", cli + ["query", "-q", "--db", str(db),
                                                     str(DATA / "meshes" / f"{m}.off")])
+    if "stored" not in args.skip:
+        measure(f"query NAME ({STORED_MODEL})",
+                cli + ["query", "-q", "--db", str(db), STORED_MODEL])
+        for fmt in ("sfz", "ply"):
+            measure(f"get NAME -o {fmt.upper()} ({STORED_MODEL})",
+                    cli + ["get", "-q", "--db", str(db), STORED_MODEL, "-o",
+                           str(work / f"{STORED_MODEL}.{fmt}")])
     if "view" not in args.skip:
         view, opened = work / f"{args.view}-view.off", work / "open642.off"
         n = write_view(args.view, view)

@@ -10,7 +10,9 @@ the listed stages nested in it (self time: the balancing of a level prolonged ro
 
 Stages (module attribute -> stage name) are listed in :data:`STAGES`; ``map.*`` stages are the
 spherical map's steps (coarse-to-fine levels, decimation, prolongation, Tutte maps,
-balancing, point-cloud proxy, quality figures).
+balancing, point-cloud proxy, quality figures), ``describe.*`` the descriptors' costly parts
+(Laplace–Beltrami spectrum, shells' harmonics, Driscoll–Healy expansions, views), ``describe``
+the rest of them.
 
 The table gives, per stage, the median, 90th percentile and maximum CPU seconds over the
 models, the same per 10k surfels, and the exponent ``b`` of a least-squares fit
@@ -93,6 +95,10 @@ STAGES = (
     ("surfidx.geometry.metrics", "Reference.psnr_d2", "evaluate"),
     ("surfidx.geometry.metrics", "Reference.psnr_d2_at_least", "evaluate"),
     ("surfidx.describe.descriptors", "describe_grid", "describe"),
+    ("surfidx.describe.descriptors", "log_spectrum", "describe.spectrum"),
+    ("surfidx.describe.descriptors", "_shell_energies", "describe.shells"),
+    ("surfidx.describe.descriptors", "degree_energies", "describe.harmonics"),
+    ("surfidx.describe.views", "model_views", "describe.views"),
     ("surfidx.render", "render", "thumbnail"),
 )
 

@@ -443,7 +443,6 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     from .describe.partial import is_partial
     from .io import up_axis
     from .options import ProcessOptions
-    from .render import THUMBNAIL, render
     from .codec.resample import resample
     from .sphere import parameterize
 
@@ -474,6 +473,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     grid_level = levels[0]
     thumb = None
     if thumbnail_size is not None:
+        from .render import THUMBNAIL, render
+
         up = opts.up or up_axis(path)
         thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
             render(surfels, width=thumbnail_size, height=thumbnail_size, view=THUMBNAIL,

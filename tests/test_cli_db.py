@@ -117,6 +117,27 @@ def test_get_writes_ply_at_rate(filled, tmp_path):
     assert r.exit_code == 0 and len(read_surfels(out)) == 5 and DECODED[-1] == (64, None, 2)
 
 
+def test_get_of_the_stream_imports_no_codec(filled, tmp_path):
+    """``surfidx get NAME -o FILE.sfz`` copies the stored stream: it loads neither the codec's
+    kernels (numba) nor scipy, and writes the stored bytes."""
+    import subprocess
+    import sys
+
+    _, db = filled
+    out = tmp_path / "m.sfz"
+    code = ("import sys, json\n"
+            "from surfidx.cli import cli\n"
+            f"cli.main(['get', 'm4', '--db', {str(db)!r}, '-o', {str(out)!r}], "
+            "standalone_mode=False)\n"
+            "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & "
+            "{'numba', 'scipy', 'trimesh', 'PIL'})))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert json.loads(res.stdout.splitlines()[-1]) == []
+    with Database(db) as d:
+        assert out.read_bytes() == d.get_sfz(d.resolve("m4"))
+
+
 def test_ls_show_errors(filled):
     root, db = filled
     r = invoke(["ls", "--db", db, "--json"])

@@ -279,3 +279,36 @@ def test_test_files_share_helpers_only_through_conftest_and_helpers():
             found += [f"{path.name}:{node.lineno}: {n}" for n in names
                       if n and n.split(".")[0] in tests]
     assert not found, "test files importing test files:\n" + "\n".join(found)
+
+
+def test_describing_a_mesh_file_loads_only_the_modules_it_uses(tmp_path):
+    """A query by an OFF mesh (:func:`surfidx.pipeline.describe_model`) imports neither the
+    other formats' readers, nor the point-cloud code (normals, proxy surface, scipy.ndimage), nor
+    the MDS map, nor the renderer; ``surfidx info`` of it (closed: no boundary to trace, no
+    handle to cut) neither scipy.spatial nor numba."""
+    import json
+    import subprocess
+    import sys
+
+    from helpers import off_sphere
+
+    path = tmp_path / "ball.off"
+    path.write_text(off_sphere("OFF\n{nv} {nf} 0"))
+    unused = ["surfidx.io.gltf", "surfidx.io.las", "surfidx.io.e57", "surfidx.io.obj",
+              "surfidx.io.pcd", "surfidx.geometry.pointcloud", "surfidx.sphere.cloud",
+              "surfidx.sphere.proxy", "surfidx.sphere.mds", "surfidx.render", "scipy.ndimage"]
+    code = ("import sys, json\n"
+            "from surfidx.pipeline import describe_model\n"
+            f"describe_model({str(path)!r})\n"
+            f"print(json.dumps(sorted(set({unused!r}) & set(sys.modules))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=600, check=True).stdout
+    assert json.loads(out.splitlines()[-1]) == []
+    code = ("import sys, json\n"
+            "from surfidx.cli import cli\n"
+            f"cli.main(['info', {str(path)!r}], standalone_mode=False)\n"
+            f"print(json.dumps(sorted(set({unused + ['scipy.spatial', 'numba']!r}) "
+            "& set(sys.modules))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=600, check=True).stdout
+    assert json.loads(out.splitlines()[-1]) == []

@@ -39,6 +39,55 @@ def test_model_views_are_one_vector_per_direction_and_the_same_every_time():
     assert a.tobytes() == V.model_views(v, f).tobytes()
 
 
+def _sorted_view(p, d):
+    """A view described the plain way: samples sorted per pixel by height (the nearest last),
+    ring shares added one pixel at a time (``np.add.at``): what :func:`V.view_vector` must give."""
+    d = d / np.linalg.norm(d)
+    e1 = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    u, v, z = p @ e1, p @ e2, p @ d
+    n = V.VIEW_PIXELS
+    span = max(u.max() - u.min(), v.max() - v.min())
+    scale = (n - 1e-9) / span
+    px = np.minimum(((u - u.min()) * scale).astype(np.int64), n - 1)
+    py = np.minimum(((v - v.min()) * scale).astype(np.int64), n - 1)
+    cell = py * n + px
+    order = np.lexsort((z, cell))
+    cell, z = cell[order], z[order]
+    last = np.r_[cell[1:] != cell[:-1], True]
+    pix, depth = cell[last], z[last]
+    dx, dy = pix % n + 0.5, pix // n + 0.5
+    dx, dy = dx - dx.mean(), dy - dy.mean()
+    r2 = dx * dx + dy * dy
+    rms = np.sqrt(r2.mean())
+    height = (depth - depth.mean()) / (rms / scale)
+    pos = np.minimum(np.sqrt(r2) / rms / V.VIEW_RMAX * (V.VIEW_RINGS - 1), V.VIEW_RINGS - 1)
+    lo = np.minimum(pos.astype(np.int64), V.VIEW_RINGS - 2)
+    t = pos - lo
+    phase = np.exp(-1j * np.arctan2(dy, dx)[:, None] * np.arange(V.VIEW_HARMONICS)[None, :])
+    out = []
+    for w in (np.ones_like(height), height):
+        acc = np.zeros((V.VIEW_RINGS, V.VIEW_HARMONICS), np.complex128)
+        np.add.at(acc, lo, (1.0 - t)[:, None] * (w[:, None] * phase))
+        np.add.at(acc, lo + 1, t[:, None] * (w[:, None] * phase))
+        out.append(np.abs(acc).ravel() / len(pix))
+    return np.concatenate([out[0], out[1] * V.VIEW_DEPTH_WEIGHT])
+
+
+@pytest.mark.parametrize("rounded", [False, True])
+def test_a_view_is_bit_equal_to_the_sorted_per_pixel_description(rounded):
+    """The nearest sample per pixel and the ring sums, as the stored views were first computed:
+    the same bits, also when samples tie in pixel and height (coordinates rounded)."""
+    rng = np.random.default_rng(3)
+    v, f = capsule()
+    for p in (V.surface_samples(v, f), rng.standard_normal((5000, 3)) * [3.0, 1.0, 0.5]):
+        if rounded:
+            p = np.round(p, 1)
+        for d in V.view_directions()[::5]:
+            assert V.view_vector(p, d).tobytes() == _sorted_view(p, d).tobytes()
+
+
 @pytest.mark.parametrize("direction", [(1.0, 0.3, 0.2), (-0.2, 0.1, -1.0), (0.5, -0.8, 0.4)])
 def test_the_camera_direction_of_a_view_is_found(direction):
     v, f = box()                # three faces: seen alike from the whole octant

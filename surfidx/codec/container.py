@@ -7,6 +7,7 @@ rate by cutting the stream and rewriting its length and checksum.
 
 from __future__ import annotations
 
+import math
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -17,7 +18,7 @@ from ..errors import BitstreamError, InputError
 from ..geometry.icosphere import MAX_LEVEL, vertex_count
 
 __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "header_size",
-           "storable", "min_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE",
+           "storable", "min_file_bytes", "max_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE",
            "pack_parts", "unpack_parts", "is_multipart", "split_budget", "parts_overhead",
            "MAX_PARTS", "MAX_REGIONS", "REGION_HOLE", "region_code", "region_cut",
            "part_surfels"]
@@ -93,6 +94,14 @@ def min_file_bytes(level: int) -> int:
     """Smallest container, in bytes, that may hold a level-``level`` stream (see
     :data:`GRID_PER_BYTE`)."""
     return -(-vertex_count(level) // GRID_PER_BYTE)
+
+
+def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
+    """Largest file size in bytes for a rate: ``ceil(bits_per_surfel · n_surfels / 8)``."""
+    if not (isinstance(bits_per_surfel, (int, float, np.floating)) and bits_per_surfel > 0
+            and math.isfinite(bits_per_surfel)):
+        raise InputError(f"bits_per_surfel must be a positive number, got {bits_per_surfel!r}")
+    return int(math.ceil(float(bits_per_surfel) * n_surfels / 8.0 - 1e-9))
 
 
 @dataclass

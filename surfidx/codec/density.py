@@ -34,7 +34,6 @@ import math
 
 import numpy as np
 from ..jit import njit
-from scipy.spatial import cKDTree
 
 from ..errors import BitstreamError, InputError
 from ..validate import as_array
@@ -88,6 +87,8 @@ def relative_density(sphere_points, level: int) -> np.ndarray:
     (10·4^level + 2,) float64
         Surfels per unit area of each cell over their mean ``n / 4π`` (mean 1 over the sphere).
     """
+    from scipy.spatial import cKDTree      # encoding only: a decode does not load scipy.spatial
+
     u = as_array(sphere_points, "sphere_points", shape=(None, 3), min_len=1)
     ico = icosphere(level)
     _, cell = cKDTree(ico.vertices).query(u)

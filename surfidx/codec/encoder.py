@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from . import container, density, wavelets, zerotree
+from .container import max_file_bytes
 from ..errors import BitstreamError, InputError
 from ..validate import check_positive_int
 from ..geometry.icosphere import MAX_LEVEL, icosphere, vertex_count
@@ -60,7 +61,7 @@ from ..geometry.surfels import SurfelSet
 
 __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "codec_options",
            "encode", "decode", "decode_grid", "read_sfz", "COLOR_WEIGHT",
-           "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "max_file_bytes", "MAX_SURFELS",
+           "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
            "READ_LEVEL_MIN", "pass_bits"]
@@ -124,14 +125,6 @@ def _grid_forest(level: int):
     :func:`surfidx.geometry.icosphere.icosphere` builds the grid once)."""
     ico = icosphere(level)
     return zerotree.forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
-
-
-def max_file_bytes(bits_per_surfel: float, n_surfels: int) -> int:
-    """Largest file size in bytes for a rate: ``ceil(bits_per_surfel · n_surfels / 8)``."""
-    if not (isinstance(bits_per_surfel, (int, float, np.floating)) and bits_per_surfel > 0
-            and math.isfinite(bits_per_surfel)):
-        raise InputError(f"bits_per_surfel must be a positive number, got {bits_per_surfel!r}")
-    return int(math.ceil(float(bits_per_surfel) * n_surfels / 8.0 - 1e-9))
 
 
 _UNSET = object()

@@ -137,10 +137,10 @@ def view_vector(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     px = np.minimum(((u - lo_u) * scale).astype(np.int64), n - 1)
     py = np.minimum(((v - lo_v) * scale).astype(np.int64), n - 1)
     cell = py * n + px
-    order = np.lexsort((z, cell))            # per pixel, the nearest sample last
-    cell, z = cell[order], z[order]
-    last = np.r_[cell[1:] != cell[:-1], True]
-    pix, depth = cell[last], z[last]
+    top = np.full(n * n, -np.inf)            # per pixel, the nearest sample's height
+    np.maximum.at(top, cell, z)
+    pix = np.flatnonzero(np.bincount(cell, minlength=n * n))
+    depth = top[pix]
     cx, cy = pix % n + 0.5, pix // n + 0.5
     mx, my = cx.mean(), cy.mean()
     dx, dy = cx - mx, cy - my
@@ -154,13 +154,18 @@ def view_vector(points: np.ndarray, direction: np.ndarray) -> np.ndarray:
     t = pos - lo
     k = np.arange(VIEW_HARMONICS)
     phase = np.exp(-1j * theta[:, None] * k[None, :])          # (pixels, harmonics)
+    # each pixel's share of its two rings, summed per (ring, degree) in pixel order: the
+    # lower ring's shares, then the upper's
+    cells = (np.concatenate([lo, lo + 1])[:, None] * VIEW_HARMONICS + k).ravel()
+    size = VIEW_RINGS * VIEW_HARMONICS
     out = []
     for w in (np.ones_like(height), height):
-        acc = np.zeros((VIEW_RINGS, VIEW_HARMONICS), np.complex128)
         wp = w[:, None] * phase
-        np.add.at(acc, lo, (1.0 - t)[:, None] * wp)
-        np.add.at(acc, lo + 1, t[:, None] * wp)
-        out.append(np.abs(acc).ravel() / len(pix))
+        share = np.concatenate([(1.0 - t)[:, None] * wp, t[:, None] * wp]).ravel()
+        acc = np.empty(size, np.complex128)
+        acc.real = np.bincount(cells, share.real, size)
+        acc.imag = np.bincount(cells, share.imag, size)
+        out.append(np.abs(acc) / len(pix))
     out[1] = out[1] * VIEW_DEPTH_WEIGHT
     return np.concatenate(out)
 

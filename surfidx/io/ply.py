@@ -12,7 +12,6 @@ import numpy as np
 
 from ..errors import FileFormatError, InputError, SurfidxError
 from ..geometry.mesh import TriangleMesh
-from ..geometry.pointcloud import points_to_surfels
 from ..geometry.surfels import SurfelSet
 from .atomic import write_atomic
 from .limits import check_coordinates
@@ -341,6 +340,8 @@ def points_from_ply_data(points: PlyPoints, path: Path) -> SurfelSet:
     if "radius" in props and normals is not None:
         return SurfelSet(pos, normals, np.asarray(v["radius"], np.float64), colors,
                          faces=points.faces, name=path.stem)
+    from ..geometry.pointcloud import points_to_surfels    # numba, scipy.spatial: clouds only
+
     return points_to_surfels(pos, normals=normals, colors=colors, name=path.stem)
 
 

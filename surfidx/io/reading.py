@@ -16,7 +16,6 @@ import numpy as np
 
 from ..errors import FileFormatError, InputError, SurfidxError
 from ..geometry.mesh import MAX_EDGE_RATIO, TriangleMesh
-from ..geometry.pointcloud import points_to_surfels
 from ..geometry.surfels import SurfelSet
 from ..validate import as_array
 from .files import pair_texture
@@ -101,6 +100,8 @@ def _read_file(path: Path, texture, samples, allow_outside_textures):
     mesh = read_mesh(path, texture=texture, allow_outside_textures=allow_outside_textures,
                      _allow_points=True)
     if isinstance(mesh, Points):
+        from ..geometry.pointcloud import points_to_surfels    # numba, scipy.spatial: clouds only
+
         if samples is not None:
             raise InputError("--samples needs a mesh; this file holds points only")
         return points_to_surfels(mesh.positions, normals=mesh.normals, colors=mesh.colors,
@@ -288,6 +289,8 @@ def as_surfels(model, *, samples: int | None = None, seed: int = 0,
                          "SurfelSet, a TriangleMesh, (vertices, faces[, colours]), an (n, 3) "
                          "point array or a trimesh object")
     if isinstance(mesh, Points):
+        from ..geometry.pointcloud import points_to_surfels
+
         if samples is not None:
             raise InputError("samples needs a mesh; this model holds points only")
         return points_to_surfels(mesh.positions, normals=mesh.normals, colors=mesh.colors,

@@ -4,26 +4,20 @@ table that :func:`~surfidx.io.reading.read_mesh`, :func:`~surfidx.io.reading.rea
 
 Adding a format is a module with a reader (``read(path) -> TriangleMesh | Points | PlyPoints``)
 or a writer (``write(model, path, *, text)``) and a line here; a reader's line also says which
-axis is up in the format's files (:mod:`surfidx.geometry.axes`).
+axis is up in the format's files (:mod:`surfidx.geometry.axes`). The lines name the functions
+(module of this package, function), which are imported when first called: reading an OFF file
+loads neither the glTF, LAS nor E57 code.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from ..geometry.axes import MESH_UP, SCANNER_UP
-from .e57 import read_e57
-from .gltf import read_gltf, write_glb
-from .las import read_las
-from .obj import read_obj, write_obj
-from .off import read_off
-from .pcd import read_pcd
-from .ply import read_ply, write_ply_model
-from .stl import read_stl
-from .xyz import read_xyz
 
 __all__ = ["Reader", "MESH_READERS", "POINT_READERS", "WRITERS", "MESH_SUFFIXES", "POINT_SUFFIXES",
            "SUPPORTED_SUFFIXES", "OUTPUT_FORMATS", "reader", "up_axis"]
@@ -35,9 +29,8 @@ class Reader:
 
     Attributes
     ----------
-    read : callable
-        ``read(path, [texture], [allow_outside])``: a :class:`TriangleMesh`, or points
-        (:class:`~surfidx.io.points.Points`, :class:`~surfidx.io.ply.PlyPoints`).
+    module, function : str
+        The reader, ``function`` of the module ``module`` of this package (:attr:`read`).
     texture : bool
         Whether it takes ``texture`` (an image given for the model's UVs).
     outside : bool
@@ -47,10 +40,17 @@ class Reader:
         formats, +z for the scanners' point clouds.
     """
 
-    read: Callable
+    module: str
+    function: str
     texture: bool = False
     outside: bool = False
     up: str = MESH_UP
+
+    @property
+    def read(self) -> Callable:
+        """``read(path, [texture], [allow_outside])``: a :class:`TriangleMesh`, or points
+        (:class:`~surfidx.io.points.Points`, :class:`~surfidx.io.ply.PlyPoints`)."""
+        return _load(self.module, self.function)
 
     def __call__(self, path, *, texture=None, allow_outside: bool = False):
         kwargs = {}
@@ -61,29 +61,44 @@ class Reader:
         return self.read(path, **kwargs)
 
 
+def _load(module: str, function: str) -> Callable:
+    """The function ``function`` of this package's module ``module`` (imported on first use)."""
+    return getattr(importlib.import_module(f"{__package__}.{module}"), function)
+
+
+class _Writer:
+    """A format's writer ``write(model, path, *, text, ...)``, imported when first called."""
+
+    def __init__(self, module: str, function: str):
+        self.module, self.function = module, function
+
+    def __call__(self, *args, **kwargs):
+        return _load(self.module, self.function)(*args, **kwargs)
+
+
 #: Readers of the mesh formats (PLY may also hold surfels or points), by suffix.
 MESH_READERS = {
-    ".ply": Reader(read_ply),
-    ".obj": Reader(read_obj, texture=True, outside=True),
-    ".off": Reader(read_off),
-    ".stl": Reader(read_stl),
-    ".glb": Reader(read_gltf, outside=True),
-    ".gltf": Reader(read_gltf, outside=True),
+    ".ply": Reader("ply", "read_ply"),
+    ".obj": Reader("obj", "read_obj", texture=True, outside=True),
+    ".off": Reader("off", "read_off"),
+    ".stl": Reader("stl", "read_stl"),
+    ".glb": Reader("gltf", "read_gltf", outside=True),
+    ".gltf": Reader("gltf", "read_gltf", outside=True),
 }
 #: Readers of the point-cloud-only formats, by suffix.
 POINT_READERS = {
-    ".pcd": Reader(read_pcd, up=SCANNER_UP),
-    ".xyz": Reader(read_xyz, up=SCANNER_UP),
-    ".pts": Reader(read_xyz, up=SCANNER_UP),
-    ".las": Reader(read_las, up=SCANNER_UP),
-    ".laz": Reader(read_las, up=SCANNER_UP),
-    ".e57": Reader(read_e57, up=SCANNER_UP),
+    ".pcd": Reader("pcd", "read_pcd", up=SCANNER_UP),
+    ".xyz": Reader("xyz", "read_xyz", up=SCANNER_UP),
+    ".pts": Reader("xyz", "read_xyz", up=SCANNER_UP),
+    ".las": Reader("las", "read_las", up=SCANNER_UP),
+    ".laz": Reader("las", "read_las", up=SCANNER_UP),
+    ".e57": Reader("e57", "read_e57", up=SCANNER_UP),
 }
 #: Writers by format name: ``write(model, path, *, text)`` for a SurfelSet or TriangleMesh.
 WRITERS = {
-    "ply": write_ply_model,
-    "obj": write_obj,
-    "glb": write_glb,
+    "ply": _Writer("ply", "write_ply_model"),
+    "obj": _Writer("obj", "write_obj"),
+    "glb": _Writer("gltf", "write_glb"),
 }
 
 #: Suffixes of the mesh formats read (PLY may also hold surfels or points).

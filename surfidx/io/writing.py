@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from ..geometry.mesh import TriangleMesh
 from ..geometry.surfels import SurfelSet
 from .registry import OUTPUT_FORMATS, WRITERS
 
@@ -80,6 +79,7 @@ def write_model(model, path, *, format: str | None = None, text: bool = False,
     ``TEXCOORD_0`` and a ``baseColorTexture`` (:func:`~surfidx.io.gltf.write_glb`); PLY with
     the texture read at the vertices as vertex colours.
     """
+    from ..geometry.mesh import TriangleMesh     # scipy.sparse: not for output_format alone
     from .texture import check_image_options
 
     image_format, image_quality = check_image_options(image_format, image_quality)

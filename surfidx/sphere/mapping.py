@@ -17,8 +17,6 @@ from ..geometry.icosphere import choose_level
 from ..progress import report
 from ..geometry.unitsphere import hull_triangles, map_points
 from ..geometry.surfels import SurfelSet
-from .cloud import cloud_map
-from .mds import geodesics, mds_map
 from .balance import inverted
 from .multilevel import mesh_map
 from .surface import check_surfels, has_faces, oriented_faces
@@ -203,9 +201,13 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
                                 **route)
         stages = [Stage.of("multilevel", figures)]
     elif method == "tutte":
+        from .cloud import cloud_map        # scipy.ndimage and the proxy: point clouds only
+
         pts, figures, proxy = cloud_map(surfels, options=options, **route)
         stages = [Stage.of("proxy", proxy), Stage.of("multilevel", figures)]
     else:
+        from .mds import mds_map
+
         if has_faces(surfels):
             oriented_faces(surfels)  # topology check before mapping
         pts, figures, lm, dist = mds_map(surfels, options=options, landmarks=landmarks,
@@ -224,6 +226,8 @@ def parameterize(surfels: SurfelSet, *, method: str | None = None, seed: int | N
     st = float("nan")
     if stress:
         if lm is None:
+            from .mds import geodesics
+
             lm, dist = geodesics(surfels, min(landmarks, len(surfels)), seed)
         st = landmark_stress(pts, lm, dist)
     report(progress, "figures", 1, 1)

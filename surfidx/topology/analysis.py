@@ -9,7 +9,8 @@ corner ``c = 3 f + j`` is vertex ``faces[f, j]`` in face ``f``.
 
 from __future__ import annotations
 
-from ..jit import numba
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
@@ -143,8 +144,15 @@ def orientation(faces: np.ndarray, n: int, *, table=None):
     return flip
 
 
-@numba.njit(cache=True)
-def _trace(nxt, starts):
+@functools.cache
+def _trace_kernel():
+    """:func:`_trace` compiled (numba, imported here: a mesh without boundary never loads it)."""
+    from ..jit import numba
+
+    return numba.njit(cache=True)(_trace)
+
+
+def _trace(nxt, starts):  # pragma: no cover - compiled
     n = len(nxt)
     seen = np.zeros(n, np.bool_)
     out = np.empty(len(starts), np.int64)
@@ -192,7 +200,7 @@ def boundary_loops(faces: np.ndarray, n: int) -> list:
         raise ValueError("a vertex starts two boundary half-edges")
     nxt = np.full(n, -1, np.int64)
     nxt[a] = b
-    out, offs = _trace(nxt, np.sort(a))
+    out, offs = _trace_kernel()(nxt, np.sort(a))
     return [out[offs[i]:offs[i + 1]] for i in range(len(offs) - 1)]
 
 

@@ -37,8 +37,6 @@ from ..geometry.mesh import TriangleMesh
 from ..validate import as_array
 from .analysis import (boundary_loops, distinct_corners, edge_table, euler_characteristic,
                        face_components, orientation, used_count)
-from .handles import cut_shortest_handle
-from .holes import fill_holes
 from .options import RepairOptions
 from .pieces import drop_threshold, piece_faces
 from .pinch import split_pinched
@@ -514,6 +512,8 @@ def close_surface(vertices, faces, *, options: RepairOptions = RepairOptions()) 
     V = v[origin_all] if len(origin) else v.copy()
     cuts, cut_lengths = [], []
     for _ in range(max(genus, 0)):
+        from .handles import cut_shortest_handle
+
         f, cycle, copies, _ = cut_shortest_handle(V, f, options)
         V = np.vstack([V, V[cycle]])
         origin_all = np.concatenate([origin_all, origin_all[cycle]])
@@ -532,6 +532,8 @@ def close_surface(vertices, faces, *, options: RepairOptions = RepairOptions()) 
         on_cut[cut.vertices] = True
         on_cut[cut.copies] = True
     lids = np.array([bool(on_cut[lp].all()) for lp in loops], bool)
+    from .holes import fill_holes
+
     allv, patch, hole = fill_holes(V, f, loops, options, membrane=lids)
     nv, m_real = len(allv), len(f)
     faces_out = np.vstack([f, patch]).astype(np.int64)
