@@ -805,14 +805,13 @@ def run_scan_jobs(jobs, workers):
 
 
 def view_scan_version() -> str:
-    """Hash of what makes a view scan's light record (:func:`compute_view_scan`): the
-    simulation (:func:`partial_version`) and the sources of the view descriptors."""
+    """Hash of what makes a view scan's record (:func:`compute_view_scan`): the simulation
+    (:func:`partial_version`) and the worker's source. The scans' views are not in the record
+    (they are computed from it on every run), so a change of the view descriptors recomputes
+    no scan."""
     import inspect
 
-    from surfidx.describe import views
-
     h = hashlib.sha256(partial_version().encode())
-    h.update(inspect.getsource(views).encode())
     h.update(inspect.getsource(compute_view_scan).encode())
     return h.hexdigest()[:12]
 
@@ -820,37 +819,33 @@ def view_scan_version() -> str:
 def compute_view_scan(job: dict) -> dict:
     """Worker: the single-view scans of one model (every seed of ``job["seeds"]``, clean and,
     with ``job["noise"]``, jittered: the jitter draws follow the view's from the same generator,
-    as :func:`make_scan` draws them), described without the spherical map: their views
-    (:func:`surfidx.describe.views.scan_views`), the angle between the estimated and the true
-    camera direction, SH and D2. Cached per model in ``job["cache_file"]``."""
+    as :func:`make_scan` draws them), as geometry: scan ``n``'s vertices and faces (``v{n}``,
+    ``f{n}``), the true camera direction, SH and D2. Cached per model in
+    ``job["cache_file"]``."""
     cache_file = Path(job["cache_file"])
     if cache_file.exists():
         with np.load(cache_file, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     import surfidx
-    from surfidx.describe.views import scan_direction, scan_views
 
     mesh = surfidx.read_mesh(job["path"])
     v0, f0 = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-    out = {k: [] for k in ("views", "angle", "sh", "d2", "noisy", "seed", "cpu")}
+    out = {k: [] for k in ("true", "sh", "d2", "noisy", "seed")}
+    arrays = {}
     for seed in job["seeds"]:
-        t0 = time.process_time()
         rng = np.random.default_rng(seed)
         true = np.random.default_rng(seed).normal(size=3)    # simulate_view's first draw
         true /= np.linalg.norm(true)
         v, f = sb.simulate_view(v0, f0, rng)
         variants = [(False, v)] + ([(True, sb.jitter(v, rng))] if job["noise"] else [])
         for noisy, vv in variants:
-            t1 = time.process_time()
-            out["views"].append(scan_views(vv, f))
-            d = scan_direction(vv, f)
-            out["angle"].append(float(np.degrees(np.arccos(np.clip(d @ true, -1.0, 1.0)))))
+            arrays[f"v{len(out['seed'])}"], arrays[f"f{len(out['seed'])}"] = vv, f
+            out["true"].append(true)
             out["sh"].append(sb.sh_descriptor(vv, f))
             out["d2"].append(sb.d2_histogram(vv, f))
             out["noisy"].append(noisy)
             out["seed"].append(seed)
-            out["cpu"].append(time.process_time() - t1)
-    out = {k: np.asarray(v) for k, v in out.items()}
+    out = {k: np.asarray(v) for k, v in out.items()} | arrays
     cache_file.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(str(cache_file) + f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **out)
@@ -858,14 +853,36 @@ def compute_view_scan(job: dict) -> dict:
     return out
 
 
+def describe_view_scans(rec) -> dict:
+    """The views of every scan of a :func:`compute_view_scan` record as a query describes them
+    (:func:`surfidx.describe.views.scan_views`), the error of the estimated camera direction
+    (degrees), the CPU seconds of the description and the scan's surface samples."""
+    from surfidx.describe.views import scan_direction, scan_views, surface_samples
+
+    out = {k: [] for k in ("views", "angle", "cpu", "points")}
+    for n in range(len(rec["seed"])):
+        v, f = rec[f"v{n}"], rec[f"f{n}"]
+        t0 = time.process_time()
+        out["views"].append(scan_views(v, f))
+        out["cpu"].append(time.process_time() - t0)
+        d = scan_direction(v, f)
+        out["angle"].append(float(np.degrees(np.arccos(np.clip(d @ rec["true"][n], -1, 1)))))
+        out["points"].append(surface_samples(v, f))
+    return out
+
+
 def stored_views(grid, level, cache_dir):
     """(k, d) views of a stored model (:func:`surfidx.describe.views.model_views` of its
     grid), cached on disk."""
+    import inspect
+
+    from surfidx.describe import views
     from surfidx.describe.views import model_views
     from surfidx.geometry.icosphere import icosphere
 
     h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
-    h.update(f"{level}-{view_scan_version()}".encode())
+    h.update(f"{level}".encode())
+    h.update(inspect.getsource(views).encode())
     f = cache_dir / f"stored-{h.hexdigest()[:24]}.npy"
     if f.exists():
         return np.load(f)
@@ -908,6 +925,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                 print(f"  [{n + 1}/{len(todo)}] {Path(futs[fut]['path']).name} "
                       f"({time.perf_counter() - t0:.0f}s)", file=sys.stderr, flush=True)
     recs = [compute_view_scan(j) for j in jobs]     # cached now (or computed here)
+    for r in recs:
+        r.update(describe_view_scans(r))
     base = run_jobs(base_jobs, args.workers)
     sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir)
           for r in base]
@@ -964,8 +983,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         ang = np.array([recs[i]["angle"][k] for i, k in sel])
         cpu = np.array([recs[i]["cpu"][k] for i, k in sel])
         REPORT.print(f"{label}: camera direction error median {np.median(ang):.1f}°, q3 "
-                     f"{np.percentile(ang, 75):.1f}°, max {ang.max():.1f}°; scan description "
-                     f"(views, SH, D2) CPU s median {np.median(cpu):.2f}, max {cpu.max():.2f}")
+                     f"{np.percentile(ang, 75):.1f}°, max {ang.max():.1f}°; scan views "
+                     f"CPU s median {np.median(cpu):.2f}, max {cpu.max():.2f}")
     for (label, name), st in results.items():
         pq = st["per_query"]["map"]
         rows.append([label, name, st["n"], f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",

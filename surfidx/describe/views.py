@@ -61,6 +61,10 @@ VIEW_DEPTH_WEIGHT = 1.0
 VIEW_SEED = 0
 #: Icosphere level whose vertices are the candidate camera directions of a scan (2,562).
 SCAN_DIRECTION_LEVEL = 4
+#: Icosphere level of the first, coarse search for a scan's camera direction (162).
+SCAN_COARSE_LEVEL = 2
+#: Coarse directions near which the fine level is searched.
+SCAN_COARSE_KEEP = 3
 #: Weight of the alignment with the mean normal that breaks ties between camera directions.
 SCAN_DIRECTION_TIE = 1e-3
 
@@ -179,21 +183,41 @@ def model_views(vertices, faces, *, level: int = VIEW_LEVEL) -> np.ndarray:
     return np.stack([view_vector(p, d) for d in view_directions(level)]).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=1)
+def _direction_search():
+    """The camera directions :func:`scan_direction` tries: the level-
+    :data:`SCAN_COARSE_LEVEL` icosphere's vertices, and for each of them the level-
+    :data:`SCAN_DIRECTION_LEVEL` vertices within the coarse spacing (the largest angle between
+    neighbouring coarse vertices) of it, as an index array per coarse vertex."""
+    from ..geometry.icosphere import icosphere
+
+    coarse = icosphere(SCAN_COARSE_LEVEL)
+    c = np.asarray(coarse.vertices, np.float64)
+    fine = np.asarray(icosphere(SCAN_DIRECTION_LEVEL).vertices, np.float64)
+    f = np.asarray(coarse.faces, np.int64)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    spacing = float(np.min(np.einsum("ij,ij->i", c[edges[:, 0]], c[edges[:, 1]])))
+    near = [np.flatnonzero(fine @ d >= spacing) for d in c]
+    c.flags.writeable = False
+    fine.flags.writeable = False
+    return c, fine, near
+
+
 def scan_direction(vertices, faces) -> np.ndarray:
     """(3,) unit direction from a single-view scan towards its camera.
 
     Every face of a single view faces its camera, so the camera direction is the one from which
-    the least of the scan is back-facing: among the vertices of the level-
-    :data:`SCAN_DIRECTION_LEVEL` icosphere, the one of least back-facing projected area
+    the least of the scan is back-facing: the direction of least back-facing projected area
     ``Σ_f A_f·max(-n_f·d, 0)`` (faces as wound), ties going to the area-weighted mean normal.
+    It is searched coarse to fine: among the vertices of the level-:data:`SCAN_COARSE_LEVEL`
+    icosphere, then among the level-:data:`SCAN_DIRECTION_LEVEL` vertices near the
+    :data:`SCAN_COARSE_KEEP` best of them (the whole fine level costs ten times more).
 
     Raises
     ------
     InputError
         The scan has zero area.
     """
-    from ..geometry.icosphere import icosphere
-
     v = np.asarray(vertices, np.float64)
     t = v[np.asarray(faces, np.int64)]
     na = 0.5 * np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
@@ -201,9 +225,15 @@ def scan_direction(vertices, faces) -> np.ndarray:
     if not area > 0:
         raise InputError("the scan has zero area; its camera direction is unknown")
     mean = na.sum(axis=0) / area
-    cand = np.asarray(icosphere(SCAN_DIRECTION_LEVEL).vertices, np.float64)
-    back = np.maximum(-(na @ cand.T), 0.0).sum(axis=0) / area
-    return cand[int(np.argmin(back - SCAN_DIRECTION_TIE * (cand @ mean)))].copy()
+    coarse, fine, near = _direction_search()
+
+    def cost(cand):
+        back = np.maximum(-(na @ cand.T), 0.0).sum(axis=0) / area
+        return back - SCAN_DIRECTION_TIE * (cand @ mean)
+
+    best = np.argsort(cost(coarse), kind="stable")[:SCAN_COARSE_KEEP]
+    idx = np.unique(np.concatenate([near[k] for k in best]))
+    return fine[idx[int(np.argmin(cost(fine[idx])))]].copy()
 
 
 def scan_views(vertices, faces) -> np.ndarray:
