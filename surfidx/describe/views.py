@@ -22,8 +22,10 @@ seen from other directions. A query's view is compared with every stored view an
 counts, which tolerates any turn up to the spacing of the directions.
 
 A partial scan is seen from where the camera stood: the direction from which the least of it is
-back-facing (:func:`scan_direction`). Both signs of it are kept, as
-the winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
+back-facing (:func:`scan_direction`), from :data:`SCAN_TURNS` directions :data:`SCAN_TILT`
+degrees around it (the stored directions lie up to half their spacing from the camera, in
+a direction that depends on the pose), and from the opposite direction, as the winding of a
+scan file may be inward. :func:`view_distance` compares a query's views with a
 model's by the smallest distance over the pairs (a partial query: one direction against all of
 the model's), :func:`view_set_distance` two complete models by the mean nearest-view distance
 both ways.
@@ -40,7 +42,8 @@ from ..validate import as_array
 
 __all__ = ["VIEW_LEVEL", "VIEW_PIXELS", "VIEW_SAMPLES", "VIEW_RINGS", "VIEW_HARMONICS",
            "VIEW_RMAX", "VIEW_DEPTH_WEIGHT", "view_directions", "surface_samples",
-           "view_vector", "model_views", "scan_direction", "scan_views", "view_dim",
+           "view_vector", "model_views", "scan_direction", "tilted_directions", "scan_views",
+           "view_dim", "SCAN_TILT", "SCAN_TURNS",
            "view_distance", "view_set_distance", "view_params", "partial_view_l2"]
 
 #: Icosphere level whose vertices are the view directions (level 1: 42 directions).
@@ -65,6 +68,10 @@ SCAN_DIRECTION_LEVEL = 4
 SCAN_COARSE_LEVEL = 2
 #: Coarse directions near which the fine level is searched.
 SCAN_COARSE_KEEP = 3
+#: Angle (degrees) from a scan's camera direction of the further directions it is seen from.
+SCAN_TILT = 10.0
+#: How many directions :data:`SCAN_TILT` from the camera direction a scan is seen from.
+SCAN_TURNS = 6
 #: Weight of the alignment with the mean normal that breaks ties between camera directions.
 SCAN_DIRECTION_TIE = 1e-3
 
@@ -236,12 +243,33 @@ def scan_direction(vertices, faces) -> np.ndarray:
     return fine[idx[int(np.argmin(cost(fine[idx])))]].copy()
 
 
+def tilted_directions(direction, *, tilt: float = SCAN_TILT, turns: int = SCAN_TURNS):
+    """(1 + turns, 3) float64 unit directions: ``direction``, then ``turns`` directions
+    ``tilt`` degrees from it, evenly spaced around it.
+
+    The stored views are seen from fixed directions, up to half their spacing from any
+    camera; a scan seen also from directions tilted about as far from its own camera is
+    nearly seen from one of them, whatever its pose (its hidden side shows little at such
+    tilts).
+    """
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    e1, e2 = _plane_basis(d)
+    phi = 2.0 * np.pi * np.arange(turns) / turns
+    side = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+    t = np.radians(tilt)
+    return np.vstack([d, np.cos(t) * d + np.sin(t) * side])
+
+
 def scan_views(vertices, faces) -> np.ndarray:
-    """(2, view_dim()) float32 views of a single-view scan from its camera direction
-    (:func:`scan_direction`) and from the opposite one."""
+    """(SCAN_TURNS + 2, view_dim()) float32 views of a single-view scan: from its camera
+    direction (:func:`scan_direction`), from the :data:`SCAN_TURNS` directions
+    :data:`SCAN_TILT` degrees around it (:func:`tilted_directions`), and from the opposite
+    direction (the winding of a scan file may be inward)."""
     d = scan_direction(vertices, faces)
     p = surface_samples(vertices, faces)
-    return np.stack([view_vector(p, d), view_vector(p, -d)]).astype(np.float32)
+    return np.stack([view_vector(p, x) for x in tilted_directions(d)]
+                    + [view_vector(p, -d)]).astype(np.float32)
 
 
 def view_distance(query: np.ndarray, stored: np.ndarray) -> np.ndarray:
