@@ -58,7 +58,8 @@ descriptors in ``/tmp/partial-cache/descriptors``.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
 [--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]
-[--partial view|base [--views N] [--noise] [--partial-study]]``
+[--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
+L,L]]]``
 """
 
 from __future__ import annotations
@@ -871,9 +872,9 @@ def describe_view_scans(rec) -> dict:
     return out
 
 
-def stored_views(grid, level, cache_dir):
+def stored_views(grid, level, cache_dir, view_level=None):
     """(k, d) views of a stored model (:func:`surfidx.describe.views.model_views` of its
-    grid), cached on disk."""
+    grid; from the level-``view_level`` directions, default the library's), cached on disk."""
     import inspect
 
     from surfidx.describe import views
@@ -881,12 +882,13 @@ def stored_views(grid, level, cache_dir):
     from surfidx.geometry.icosphere import icosphere
 
     h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
-    h.update(f"{level}".encode())
+    view_level = views.VIEW_LEVEL if view_level is None else view_level
+    h.update(f"{level}-{view_level}".encode())
     h.update(inspect.getsource(views).encode())
     f = cache_dir / f"stored-{h.hexdigest()[:24]}.npy"
     if f.exists():
         return np.load(f)
-    vv = model_views(grid[:, :3], icosphere(level).faces)
+    vv = model_views(grid[:, :3], icosphere(level).faces, level=view_level)
     f.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(str(f) + f".{os.getpid()}.tmp.npy")
     np.save(tmp, vv)
@@ -928,12 +930,26 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
     for r in recs:
         r.update(describe_view_scans(r))
     base = run_jobs(base_jobs, args.workers)
-    sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir)
-          for r in base]
-    k_views = max(len(v) for v in sv if v is not None)
-    stored = {"views": np.stack([np.zeros(k_views * view_dim(), np.float32) if v is None
-                                 else v.ravel() for v in sv])}
-    present = {"views": np.array([v is not None for v in sv])}
+    from surfidx.describe.views import VIEW_LEVEL, model_views, view_directions
+    from surfidx.geometry.icosphere import icosphere
+
+    levels = [VIEW_LEVEL] + [int(x) for x in (args.view_levels or "").split(",")
+                             if x and int(x) != VIEW_LEVEL]
+    stored, cost_rows = {}, []
+    for lv in levels:
+        sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir, lv)
+              for r in base]
+        k_views = len(view_directions(lv))
+        stored[lv] = {"views": np.stack([np.zeros(k_views * view_dim(), np.float32)
+                                         if v is None else v.ravel() for v in sv])}
+        cpu = []
+        for r in [r for r in base if r["grid"] is not None][:3]:     # uncached, timed
+            t1 = time.process_time()
+            model_views(r["grid"][:, :3], icosphere(r["level"]).faces, level=lv)
+            cpu.append(time.process_time() - t1)
+        cost_rows.append([lv, k_views, f"{k_views * view_dim() * 4 / 1024:.1f}",
+                          f"{np.median(cpu):.2f}"])
+    present = {"views": np.array([r["grid"] is not None for r in base])}
     sh_recs = run_scan_jobs([{"path": str(args.data / p), "kind": "sh", "cache_file": str(
         cache_dir / f"partial-{pver}" / f"{file_hash(args.data / p)}-sh.npz")} for p in paths],
         args.workers)
@@ -963,9 +979,16 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         own = np.array([i for i, _ in sel])
         qcls = classes[own]
         label = f"view{' + jitter' if noisy else ''}"
-        variants = {
-            "surfidx views": np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
-                                                       stored, present) for i, k in sel]),
+        variants = {}
+        for lv in levels:
+            t1 = time.process_time()
+            name = "surfidx views" + ("" if lv == VIEW_LEVEL else f", level {lv}")
+            variants[name] = np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
+                                                       stored[lv], present) for i, k in sel])
+            if not noisy:
+                cost_rows[levels.index(lv)].append(
+                    f"{1000 * (time.process_time() - t1) / len(sel):.1f}")
+        variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
             "D2": np.abs(np.stack([recs[i]["d2"][k] for i, k in sel])[:, None, :]
@@ -996,6 +1019,11 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                  "mAP >= 65, own first >= 60 %)\n")
     print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
                  "own rank (median)", "AP q1/med/q3"], rows)
+    REPORT.print(f"\nStored views per level of the view directions (model views CPU: median of "
+                 f"3 models; search: partial_view_l2 against the {len(paths)} models, per "
+                 f"query of {recs[0]['views'][0].shape[0]} views)\n")
+    print_table(["level", "directions", "KiB per model (float32)", "model views CPU s",
+                 "search CPU ms per query"], cost_rows)
     if args.confusion:
         st = results[("view", "surfidx views")]
         sel_own = np.array([i for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1398,6 +1426,9 @@ def main(argv=None) -> int:
     ap.add_argument("--view-descriptors", action="store_true",
                     help="with --partial view: query the scans by their views (no spherical "
                          "map of the scans) against the stored models' views")
+    ap.add_argument("--view-levels", default=None, metavar="L1,L2",
+                    help="with --view-descriptors: also the stored views from the directions "
+                         "of these icosphere levels (the library's VIEW_LEVEL always)")
     ap.add_argument("--with-default", action="store_true",
                     help="with --view-descriptors: also the default distance on the scans "
                          "whose maps are cached")
