@@ -21,11 +21,11 @@ The views are not invariant as a set: the directions are fixed in space, so a tu
 seen from other directions. A query's view is compared with every stored view and the nearest
 counts, which tolerates any turn up to the spacing of the directions.
 
-A partial scan is seen from where the camera stood: the direction from which the least of it is
-back-facing (:func:`scan_direction`), from :data:`SCAN_TURNS` directions :data:`SCAN_TILT`
-degrees around it (the stored directions lie up to half their spacing from the camera, in
-a direction that depends on the pose), and from the opposite direction, as the winding of a
-scan file may be inward. :func:`view_distance` compares a query's views with a
+A partial scan is seen from where the camera stood: the direction from which the least of it
+is back-facing (:func:`scan_direction`), from rings of :data:`SCAN_TURNS` directions
+:data:`SCAN_TILTS` degrees around it (the stored directions lie up to half their spacing from
+the camera, in a direction that depends on the pose), and from the opposite direction, as the
+winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
 model's by the smallest distance over the pairs (a partial query: one direction against all of
 the model's), :func:`view_set_distance` two complete models by the mean nearest-view distance
 both ways.
@@ -43,7 +43,7 @@ from ..validate import as_array
 __all__ = ["VIEW_LEVEL", "VIEW_PIXELS", "VIEW_SAMPLES", "VIEW_RINGS", "VIEW_HARMONICS",
            "VIEW_RMAX", "VIEW_DEPTH_WEIGHT", "view_directions", "surface_samples",
            "view_vector", "model_views", "scan_direction", "tilted_directions", "scan_views",
-           "view_dim", "SCAN_TILT", "SCAN_TURNS",
+           "view_dim", "SCAN_TILTS", "SCAN_TURNS",
            "view_distance", "view_set_distance", "view_params", "partial_view_l2"]
 
 #: Icosphere level whose vertices are the view directions (level 1: 42 directions).
@@ -68,10 +68,11 @@ SCAN_DIRECTION_LEVEL = 4
 SCAN_COARSE_LEVEL = 2
 #: Coarse directions near which the fine level is searched.
 SCAN_COARSE_KEEP = 3
-#: Angle (degrees) from a scan's camera direction of the further directions it is seen from.
-SCAN_TILT = 10.0
-#: How many directions :data:`SCAN_TILT` from the camera direction a scan is seen from.
-SCAN_TURNS = 6
+#: Angles (degrees) from a scan's camera direction of the further directions it is seen from.
+SCAN_TILTS = (8.0, 16.0)
+#: How many directions each angle of :data:`SCAN_TILTS` from the camera direction a scan is
+#: seen from.
+SCAN_TURNS = 8
 #: Weight of the alignment with the mean normal that breaks ties between camera directions.
 SCAN_DIRECTION_TIE = 1e-3
 
@@ -243,9 +244,10 @@ def scan_direction(vertices, faces) -> np.ndarray:
     return fine[idx[int(np.argmin(cost(fine[idx])))]].copy()
 
 
-def tilted_directions(direction, *, tilt: float = SCAN_TILT, turns: int = SCAN_TURNS):
-    """(1 + turns, 3) float64 unit directions: ``direction``, then ``turns`` directions
-    ``tilt`` degrees from it, evenly spaced around it.
+def tilted_directions(direction, *, tilts=SCAN_TILTS, turns: int = SCAN_TURNS):
+    """(1 + len(tilts)·turns, 3) float64 unit directions: ``direction``, then for each angle of
+    ``tilts`` (degrees) ``turns`` directions that far from it, evenly spaced around it (each
+    ring turned half a step from the one before).
 
     The stored views are seen from fixed directions, up to half their spacing from any
     camera; a scan seen also from directions tilted about as far from its own camera is
@@ -255,16 +257,19 @@ def tilted_directions(direction, *, tilt: float = SCAN_TILT, turns: int = SCAN_T
     d = np.asarray(direction, np.float64)
     d = d / np.linalg.norm(d)
     e1, e2 = _plane_basis(d)
-    phi = 2.0 * np.pi * np.arange(turns) / turns
-    side = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
-    t = np.radians(tilt)
-    return np.vstack([d, np.cos(t) * d + np.sin(t) * side])
+    out = [d[None, :]]
+    for ring, tilt in enumerate(tilts):
+        phi = 2.0 * np.pi * (np.arange(turns) + 0.5 * ring) / turns
+        side = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+        t = np.radians(tilt)
+        out.append(np.cos(t) * d + np.sin(t) * side)
+    return np.vstack(out)
 
 
 def scan_views(vertices, faces) -> np.ndarray:
-    """(SCAN_TURNS + 2, view_dim()) float32 views of a single-view scan: from its camera
-    direction (:func:`scan_direction`), from the :data:`SCAN_TURNS` directions
-    :data:`SCAN_TILT` degrees around it (:func:`tilted_directions`), and from the opposite
+    """(len(SCAN_TILTS)·SCAN_TURNS + 2, view_dim()) float32 views of a single-view scan:
+    from its camera direction (:func:`scan_direction`), from the rings of directions
+    :data:`SCAN_TILTS` degrees around it (:func:`tilted_directions`), and from the opposite
     direction (the winding of a scan file may be inward)."""
     d = scan_direction(vertices, faces)
     p = surface_samples(vertices, faces)
