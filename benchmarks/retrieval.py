@@ -988,6 +988,10 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
             if not noisy:
                 cost_rows[levels.index(lv)].append(
                     f"{1000 * (time.process_time() - t1) / len(sel):.1f}")
+            # the scan seen from its camera and the opposite direction only (no tilted views)
+            variants[name + ", camera direction only"] = np.stack([partial_view_l2(
+                {"views": recs[i]["views"][k][[0, -1]].ravel()}, stored[lv], present)
+                for i, k in sel])
         variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
