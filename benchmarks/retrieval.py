@@ -1442,6 +1442,13 @@ def main(argv=None) -> int:
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
     REPORT.output = args.markdown
+    if args.partial is not None:
+        REPORT.title = f"Queries by simulated partial scans ({args.partial})"
+        REPORT.note = ("Simulated scans of the labelled models of `../shared/data/retrieval` "
+                       "(single views from random cameras, or base cuts; optionally jittered) "
+                       "queried against the complete collection: own model first, class of "
+                       "the first result (NN), first tier, mAP, beside the SH (Kazhdan) and D2 "
+                       "descriptors of the same scans.")
     global DESC_CACHE
     if args.cache != CACHE:
         DESC_CACHE = args.cache / "descriptors"     # beside the maps
