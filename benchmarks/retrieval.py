@@ -58,7 +58,8 @@ descriptors in ``/tmp/partial-cache/descriptors``.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
 [--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]
-[--partial view|base [--views N] [--noise] [--partial-study]]``
+[--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
+L,L]]]``
 """
 
 from __future__ import annotations
@@ -805,14 +806,13 @@ def run_scan_jobs(jobs, workers):
 
 
 def view_scan_version() -> str:
-    """Hash of what makes a view scan's light record (:func:`compute_view_scan`): the
-    simulation (:func:`partial_version`) and the sources of the view descriptors."""
+    """Hash of what makes a view scan's record (:func:`compute_view_scan`): the simulation
+    (:func:`partial_version`) and the worker's source. The scans' views are not in the record
+    (they are computed from it on every run), so a change of the view descriptors recomputes
+    no scan."""
     import inspect
 
-    from surfidx.describe import views
-
     h = hashlib.sha256(partial_version().encode())
-    h.update(inspect.getsource(views).encode())
     h.update(inspect.getsource(compute_view_scan).encode())
     return h.hexdigest()[:12]
 
@@ -820,37 +820,33 @@ def view_scan_version() -> str:
 def compute_view_scan(job: dict) -> dict:
     """Worker: the single-view scans of one model (every seed of ``job["seeds"]``, clean and,
     with ``job["noise"]``, jittered: the jitter draws follow the view's from the same generator,
-    as :func:`make_scan` draws them), described without the spherical map: their views
-    (:func:`surfidx.describe.views.scan_views`), the angle between the estimated and the true
-    camera direction, SH and D2. Cached per model in ``job["cache_file"]``."""
+    as :func:`make_scan` draws them), as geometry: scan ``n``'s vertices and faces (``v{n}``,
+    ``f{n}``), the true camera direction, SH and D2. Cached per model in
+    ``job["cache_file"]``."""
     cache_file = Path(job["cache_file"])
     if cache_file.exists():
         with np.load(cache_file, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     import surfidx
-    from surfidx.describe.views import scan_direction, scan_views
 
     mesh = surfidx.read_mesh(job["path"])
     v0, f0 = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
-    out = {k: [] for k in ("views", "angle", "sh", "d2", "noisy", "seed", "cpu")}
+    out = {k: [] for k in ("true", "sh", "d2", "noisy", "seed")}
+    arrays = {}
     for seed in job["seeds"]:
-        t0 = time.process_time()
         rng = np.random.default_rng(seed)
         true = np.random.default_rng(seed).normal(size=3)    # simulate_view's first draw
         true /= np.linalg.norm(true)
         v, f = sb.simulate_view(v0, f0, rng)
         variants = [(False, v)] + ([(True, sb.jitter(v, rng))] if job["noise"] else [])
         for noisy, vv in variants:
-            t1 = time.process_time()
-            out["views"].append(scan_views(vv, f))
-            d = scan_direction(vv, f)
-            out["angle"].append(float(np.degrees(np.arccos(np.clip(d @ true, -1.0, 1.0)))))
+            arrays[f"v{len(out['seed'])}"], arrays[f"f{len(out['seed'])}"] = vv, f
+            out["true"].append(true)
             out["sh"].append(sb.sh_descriptor(vv, f))
             out["d2"].append(sb.d2_histogram(vv, f))
             out["noisy"].append(noisy)
             out["seed"].append(seed)
-            out["cpu"].append(time.process_time() - t1)
-    out = {k: np.asarray(v) for k, v in out.items()}
+    out = {k: np.asarray(v) for k, v in out.items()} | arrays
     cache_file.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(str(cache_file) + f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **out)
@@ -858,18 +854,41 @@ def compute_view_scan(job: dict) -> dict:
     return out
 
 
-def stored_views(grid, level, cache_dir):
+def describe_view_scans(rec) -> dict:
+    """The views of every scan of a :func:`compute_view_scan` record as a query describes them
+    (:func:`surfidx.describe.views.scan_views`), the error of the estimated camera direction
+    (degrees), the CPU seconds of the description and the scan's surface samples."""
+    from surfidx.describe.views import scan_direction, scan_views, surface_samples
+
+    out = {k: [] for k in ("views", "angle", "cpu", "points")}
+    for n in range(len(rec["seed"])):
+        v, f = rec[f"v{n}"], rec[f"f{n}"]
+        t0 = time.process_time()
+        out["views"].append(scan_views(v, f))
+        out["cpu"].append(time.process_time() - t0)
+        d = scan_direction(v, f)
+        out["angle"].append(float(np.degrees(np.arccos(np.clip(d @ rec["true"][n], -1, 1)))))
+        out["points"].append(surface_samples(v, f))
+    return out
+
+
+def stored_views(grid, level, cache_dir, view_level=None):
     """(k, d) views of a stored model (:func:`surfidx.describe.views.model_views` of its
-    grid), cached on disk."""
+    grid; from the level-``view_level`` directions, default the library's), cached on disk."""
+    import inspect
+
+    from surfidx.describe import views
     from surfidx.describe.views import model_views
     from surfidx.geometry.icosphere import icosphere
 
     h = hashlib.sha256(np.ascontiguousarray(grid).tobytes())
-    h.update(f"{level}-{view_scan_version()}".encode())
+    view_level = views.VIEW_LEVEL if view_level is None else view_level
+    h.update(f"{level}-{view_level}".encode())
+    h.update(inspect.getsource(views).encode())
     f = cache_dir / f"stored-{h.hexdigest()[:24]}.npy"
     if f.exists():
         return np.load(f)
-    vv = model_views(grid[:, :3], icosphere(level).faces)
+    vv = model_views(grid[:, :3], icosphere(level).faces, level=view_level)
     f.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(str(f) + f".{os.getpid()}.tmp.npy")
     np.save(tmp, vv)
@@ -908,13 +927,29 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                 print(f"  [{n + 1}/{len(todo)}] {Path(futs[fut]['path']).name} "
                       f"({time.perf_counter() - t0:.0f}s)", file=sys.stderr, flush=True)
     recs = [compute_view_scan(j) for j in jobs]     # cached now (or computed here)
+    for r in recs:
+        r.update(describe_view_scans(r))
     base = run_jobs(base_jobs, args.workers)
-    sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir)
-          for r in base]
-    k_views = max(len(v) for v in sv if v is not None)
-    stored = {"views": np.stack([np.zeros(k_views * view_dim(), np.float32) if v is None
-                                 else v.ravel() for v in sv])}
-    present = {"views": np.array([v is not None for v in sv])}
+    from surfidx.describe.views import VIEW_LEVEL, model_views, view_directions
+    from surfidx.geometry.icosphere import icosphere
+
+    levels = [VIEW_LEVEL] + [int(x) for x in (args.view_levels or "").split(",")
+                             if x and int(x) != VIEW_LEVEL]
+    stored, cost_rows = {}, []
+    for lv in levels:
+        sv = [None if r["grid"] is None else stored_views(r["grid"], r["level"], vdir, lv)
+              for r in base]
+        k_views = len(view_directions(lv))
+        stored[lv] = {"views": np.stack([np.zeros(k_views * view_dim(), np.float32)
+                                         if v is None else v.ravel() for v in sv])}
+        cpu = []
+        for r in [r for r in base if r["grid"] is not None][:3]:     # uncached, timed
+            t1 = time.process_time()
+            model_views(r["grid"][:, :3], icosphere(r["level"]).faces, level=lv)
+            cpu.append(time.process_time() - t1)
+        cost_rows.append([lv, k_views, f"{k_views * view_dim() * 4 / 1024:.1f}",
+                          f"{np.median(cpu):.2f}"])
+    present = {"views": np.array([r["grid"] is not None for r in base])}
     sh_recs = run_scan_jobs([{"path": str(args.data / p), "kind": "sh", "cache_file": str(
         cache_dir / f"partial-{pver}" / f"{file_hash(args.data / p)}-sh.npz")} for p in paths],
         args.workers)
@@ -944,9 +979,20 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         own = np.array([i for i, _ in sel])
         qcls = classes[own]
         label = f"view{' + jitter' if noisy else ''}"
-        variants = {
-            "surfidx views": np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
-                                                       stored, present) for i, k in sel]),
+        variants = {}
+        for lv in levels:
+            t1 = time.process_time()
+            name = "surfidx views" + ("" if lv == VIEW_LEVEL else f", level {lv}")
+            variants[name] = np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
+                                                       stored[lv], present) for i, k in sel])
+            if not noisy:
+                cost_rows[levels.index(lv)].append(
+                    f"{1000 * (time.process_time() - t1) / len(sel):.1f}")
+            # the scan seen from its camera and the opposite direction only (no tilted views)
+            variants[name + ", camera direction only"] = np.stack([partial_view_l2(
+                {"views": recs[i]["views"][k][[0, -1]].ravel()}, stored[lv], present)
+                for i, k in sel])
+        variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
             "D2": np.abs(np.stack([recs[i]["d2"][k] for i, k in sel])[:, None, :]
@@ -964,8 +1010,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         ang = np.array([recs[i]["angle"][k] for i, k in sel])
         cpu = np.array([recs[i]["cpu"][k] for i, k in sel])
         REPORT.print(f"{label}: camera direction error median {np.median(ang):.1f}°, q3 "
-                     f"{np.percentile(ang, 75):.1f}°, max {ang.max():.1f}°; scan description "
-                     f"(views, SH, D2) CPU s median {np.median(cpu):.2f}, max {cpu.max():.2f}")
+                     f"{np.percentile(ang, 75):.1f}°, max {ang.max():.1f}°; scan views "
+                     f"CPU s median {np.median(cpu):.2f}, max {cpu.max():.2f}")
     for (label, name), st in results.items():
         pq = st["per_query"]["map"]
         rows.append([label, name, st["n"], f"{100 * st['own']:.1f}", f"{100 * st['nn']:.1f}",
@@ -977,6 +1023,11 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                  "mAP >= 65, own first >= 60 %)\n")
     print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
                  "own rank (median)", "AP q1/med/q3"], rows)
+    REPORT.print(f"\nStored views per level of the view directions (model views CPU: median of "
+                 f"3 models; search: partial_view_l2 against the {len(paths)} models, per "
+                 f"query of {recs[0]['views'][0].shape[0]} views)\n")
+    print_table(["level", "directions", "KiB per model (float32)", "model views CPU s",
+                 "search CPU ms per query"], cost_rows)
     if args.confusion:
         st = results[("view", "surfidx views")]
         sel_own = np.array([i for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1379,6 +1430,9 @@ def main(argv=None) -> int:
     ap.add_argument("--view-descriptors", action="store_true",
                     help="with --partial view: query the scans by their views (no spherical "
                          "map of the scans) against the stored models' views")
+    ap.add_argument("--view-levels", default=None, metavar="L1,L2",
+                    help="with --view-descriptors: also the stored views from the directions "
+                         "of these icosphere levels (the library's VIEW_LEVEL always)")
     ap.add_argument("--with-default", action="store_true",
                     help="with --view-descriptors: also the default distance on the scans "
                          "whose maps are cached")
@@ -1388,6 +1442,13 @@ def main(argv=None) -> int:
     add_markdown_option(ap, 'retrieval')
     args = ap.parse_args(argv)
     REPORT.output = args.markdown
+    if args.partial is not None:
+        REPORT.title = f"Queries by simulated partial scans ({args.partial})"
+        REPORT.note = ("Simulated scans of the labelled models of `../shared/data/retrieval` "
+                       "(single views from random cameras, or base cuts; optionally jittered) "
+                       "queried against the complete collection: own model first, class of "
+                       "the first result (NN), first tier, mAP, beside the SH (Kazhdan) and D2 "
+                       "descriptors of the same scans.")
     global DESC_CACHE
     if args.cache != CACHE:
         DESC_CACHE = args.cache / "descriptors"     # beside the maps

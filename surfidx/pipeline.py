@@ -519,8 +519,9 @@ def describe_scan(path, *, options=None, texture=None, samples: int | None = Non
 
     The scan is read and repaired as :func:`describe_model` reads it (so its virtual share is
     known), but not mapped: its real faces (:func:`scan_surface`) are seen from the camera
-    direction (:func:`surfidx.describe.views.scan_direction`) and from the opposite one, and
-    described as a stored model's views are (:func:`surfidx.describe.views.scan_views`).
+    direction (:func:`surfidx.describe.views.scan_direction`), from directions tilted around
+    it and from the opposite one, and described as a stored model's views are
+    (:func:`surfidx.describe.views.scan_views`).
 
     Parameters
     ----------
@@ -531,8 +532,9 @@ def describe_scan(path, *, options=None, texture=None, samples: int | None = Non
     Returns
     -------
     DescribedModel
-        ``descriptors`` holds one kind, ``views`` (2·:func:`surfidx.describe.views.view_dim`
-        values); ``grid_level`` is 0 (nothing is resampled).
+        ``descriptors`` holds one kind, ``views`` (the
+        :func:`surfidx.describe.views.scan_views` flattened); ``grid_level`` is 0 (nothing is
+        resampled).
 
     Raises
     ------

@@ -100,6 +100,24 @@ def test_the_camera_direction_of_a_view_is_found(direction):
     assert angle(V.scan_direction(sv, sf), direction) < 8.0
 
 
+def test_a_scan_is_seen_from_its_camera_and_from_tilted_directions_around_it():
+    d = np.array([0.2, -0.5, 0.8])
+    t = V.tilted_directions(d, tilts=(12.0, 20.0), turns=5)
+    assert t.shape == (11, 3)
+    assert np.allclose(np.linalg.norm(t, axis=1), 1.0)
+    assert angle(t[0], d) < 1e-6
+    assert all(angle(x, d) == pytest.approx(12.0) for x in t[1:6])
+    assert all(angle(x, d) == pytest.approx(20.0) for x in t[6:])
+    side = t[1:] - (t[1:] @ t[0])[:, None] * t[0]       # evenly spaced around d
+    assert angle(side[0], side[1]) == pytest.approx(72.0)
+    assert angle(side[0], side[2]) == pytest.approx(144.0)
+    assert angle(side[0], side[5]) == pytest.approx(36.0)   # the next ring half a step on
+    sv, sf = one_view(*capsule(), (1.0, 0.3, 0.2))
+    views = V.scan_views(sv, sf)
+    assert views.shape == (len(V.SCAN_TILTS) * V.SCAN_TURNS + 2, V.view_dim())
+    assert not np.allclose(views[0], views[1])
+
+
 def test_a_view_is_invariant_to_a_similarity_of_the_model():
     rng = np.random.default_rng(5)
     v, f = capsule(length=3.0)

@@ -21,9 +21,11 @@ The views are not invariant as a set: the directions are fixed in space, so a tu
 seen from other directions. A query's view is compared with every stored view and the nearest
 counts, which tolerates any turn up to the spacing of the directions.
 
-A partial scan is seen from where the camera stood: the direction from which the least of it is
-back-facing (:func:`scan_direction`). Both signs of it are kept, as
-the winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
+A partial scan is seen from where the camera stood: the direction from which the least of it
+is back-facing (:func:`scan_direction`), from rings of :data:`SCAN_TURNS` directions
+:data:`SCAN_TILTS` degrees around it (the stored directions lie up to half their spacing from
+the camera, in a direction that depends on the pose), and from the opposite direction, as the
+winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
 model's by the smallest distance over the pairs (a partial query: one direction against all of
 the model's), :func:`view_set_distance` two complete models by the mean nearest-view distance
 both ways.
@@ -40,7 +42,8 @@ from ..validate import as_array
 
 __all__ = ["VIEW_LEVEL", "VIEW_PIXELS", "VIEW_SAMPLES", "VIEW_RINGS", "VIEW_HARMONICS",
            "VIEW_RMAX", "VIEW_DEPTH_WEIGHT", "view_directions", "surface_samples",
-           "view_vector", "model_views", "scan_direction", "scan_views", "view_dim",
+           "view_vector", "model_views", "scan_direction", "tilted_directions", "scan_views",
+           "view_dim", "SCAN_TILTS", "SCAN_TURNS",
            "view_distance", "view_set_distance", "view_params", "partial_view_l2"]
 
 #: Icosphere level whose vertices are the view directions (level 1: 42 directions).
@@ -61,6 +64,15 @@ VIEW_DEPTH_WEIGHT = 1.0
 VIEW_SEED = 0
 #: Icosphere level whose vertices are the candidate camera directions of a scan (2,562).
 SCAN_DIRECTION_LEVEL = 4
+#: Icosphere level of the first, coarse search for a scan's camera direction (162).
+SCAN_COARSE_LEVEL = 2
+#: Coarse directions near which the fine level is searched.
+SCAN_COARSE_KEEP = 3
+#: Angles (degrees) from a scan's camera direction of the further directions it is seen from.
+SCAN_TILTS = (8.0, 16.0)
+#: How many directions each angle of :data:`SCAN_TILTS` from the camera direction a scan is
+#: seen from.
+SCAN_TURNS = 8
 #: Weight of the alignment with the mean normal that breaks ties between camera directions.
 SCAN_DIRECTION_TIE = 1e-3
 
@@ -184,21 +196,41 @@ def model_views(vertices, faces, *, level: int = VIEW_LEVEL) -> np.ndarray:
     return np.stack([view_vector(p, d) for d in view_directions(level)]).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=1)
+def _direction_search():
+    """The camera directions :func:`scan_direction` tries: the level-
+    :data:`SCAN_COARSE_LEVEL` icosphere's vertices, and for each of them the level-
+    :data:`SCAN_DIRECTION_LEVEL` vertices within the coarse spacing (the largest angle between
+    neighbouring coarse vertices) of it, as an index array per coarse vertex."""
+    from ..geometry.icosphere import icosphere
+
+    coarse = icosphere(SCAN_COARSE_LEVEL)
+    c = np.asarray(coarse.vertices, np.float64)
+    fine = np.asarray(icosphere(SCAN_DIRECTION_LEVEL).vertices, np.float64)
+    f = np.asarray(coarse.faces, np.int64)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    spacing = float(np.min(np.einsum("ij,ij->i", c[edges[:, 0]], c[edges[:, 1]])))
+    near = [np.flatnonzero(fine @ d >= spacing) for d in c]
+    c.flags.writeable = False
+    fine.flags.writeable = False
+    return c, fine, near
+
+
 def scan_direction(vertices, faces) -> np.ndarray:
     """(3,) unit direction from a single-view scan towards its camera.
 
     Every face of a single view faces its camera, so the camera direction is the one from which
-    the least of the scan is back-facing: among the vertices of the level-
-    :data:`SCAN_DIRECTION_LEVEL` icosphere, the one of least back-facing projected area
+    the least of the scan is back-facing: the direction of least back-facing projected area
     ``Σ_f A_f·max(-n_f·d, 0)`` (faces as wound), ties going to the area-weighted mean normal.
+    It is searched coarse to fine: among the vertices of the level-:data:`SCAN_COARSE_LEVEL`
+    icosphere, then among the level-:data:`SCAN_DIRECTION_LEVEL` vertices near the
+    :data:`SCAN_COARSE_KEEP` best of them (the whole fine level costs ten times more).
 
     Raises
     ------
     InputError
         The scan has zero area.
     """
-    from ..geometry.icosphere import icosphere
-
     v = np.asarray(vertices, np.float64)
     t = v[np.asarray(faces, np.int64)]
     na = 0.5 * np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
@@ -206,17 +238,48 @@ def scan_direction(vertices, faces) -> np.ndarray:
     if not area > 0:
         raise InputError("the scan has zero area; its camera direction is unknown")
     mean = na.sum(axis=0) / area
-    cand = np.asarray(icosphere(SCAN_DIRECTION_LEVEL).vertices, np.float64)
-    back = np.maximum(-(na @ cand.T), 0.0).sum(axis=0) / area
-    return cand[int(np.argmin(back - SCAN_DIRECTION_TIE * (cand @ mean)))].copy()
+    coarse, fine, near = _direction_search()
+
+    def cost(cand):
+        back = np.maximum(-(na @ cand.T), 0.0).sum(axis=0) / area
+        return back - SCAN_DIRECTION_TIE * (cand @ mean)
+
+    best = np.argsort(cost(coarse), kind="stable")[:SCAN_COARSE_KEEP]
+    idx = np.unique(np.concatenate([near[k] for k in best]))
+    return fine[idx[int(np.argmin(cost(fine[idx])))]].copy()
+
+
+def tilted_directions(direction, *, tilts=SCAN_TILTS, turns: int = SCAN_TURNS):
+    """(1 + len(tilts)·turns, 3) float64 unit directions: ``direction``, then for each angle of
+    ``tilts`` (degrees) ``turns`` directions that far from it, evenly spaced around it (each
+    ring turned half a step from the one before).
+
+    The stored views are seen from fixed directions, up to half their spacing from any
+    camera; a scan seen also from directions tilted about as far from its own camera is
+    nearly seen from one of them, whatever its pose (its hidden side shows little at such
+    tilts).
+    """
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    e1, e2 = _plane_basis(d)
+    out = [d[None, :]]
+    for ring, tilt in enumerate(tilts):
+        phi = 2.0 * np.pi * (np.arange(turns) + 0.5 * ring) / turns
+        side = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+        t = np.radians(tilt)
+        out.append(np.cos(t) * d + np.sin(t) * side)
+    return np.vstack(out)
 
 
 def scan_views(vertices, faces) -> np.ndarray:
-    """(2, view_dim()) float32 views of a single-view scan from its camera direction
-    (:func:`scan_direction`) and from the opposite one."""
+    """(len(SCAN_TILTS)·SCAN_TURNS + 2, view_dim()) float32 views of a single-view scan:
+    from its camera direction (:func:`scan_direction`), from the rings of directions
+    :data:`SCAN_TILTS` degrees around it (:func:`tilted_directions`), and from the opposite
+    direction (the winding of a scan file may be inward)."""
     d = scan_direction(vertices, faces)
     p = surface_samples(vertices, faces)
-    return np.stack([view_vector(p, d), view_vector(p, -d)]).astype(np.float32)
+    return np.stack([view_vector(p, x) for x in tilted_directions(d)]
+                    + [view_vector(p, -d)]).astype(np.float32)
 
 
 def view_distance(query: np.ndarray, stored: np.ndarray) -> np.ndarray:
