@@ -25,6 +25,8 @@ from __future__ import annotations
 from ..jit import numba
 import numpy as np
 
+from .relax import Relaxation
+
 __all__ = ["balance", "segment_embedded", "inverted"]
 
 
@@ -214,9 +216,10 @@ class Energy:
         return e, (g if grad else None)
 
 
-def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
-            tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
-            lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
+def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
+            memory: int = 8, tol: float = 1e-7, precondition: bool = True,
+            shift: float = 1e-3, lam: float | None = None, max_cot: float = 4.0,
+            patience: int = 20):
     """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
     spherical embedding.
 
@@ -230,8 +233,15 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     f : (m, 3) int64
         Faces, counter-clockwise seen from outside.
     iterations : int
-        Stop after this many L-BFGS steps (a count, never the clock: the result is the same on
-        every machine at any load).
+        Stop after this many L-BFGS steps in all (a count, never the clock: the result is the
+        same on every machine at any load).
+    sweeps : int
+        With ``lam``: sweeps of vertex-by-vertex relaxation (:mod:`surfidx.sphere.relax`)
+        before each of the ``rounds`` runs of L-BFGS and after the last; they open up the
+        squeezed stars that cut the global steps short.
+    rounds : int
+        The L-BFGS steps are split into this many runs (the first takes the remainder), each
+        from a fresh history after its sweeps.
     memory : int
         L-BFGS history length.
     tol, patience : float, int
@@ -253,7 +263,8 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     x : (n, 3) float64
         The balanced embedding, still fold-free.
     info : dict
-        ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``.
+        ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``, ``moves``
+        (vertex moves of the sweeps).
     """
     energy = Energy(p, f, max_cot=max_cot)
     if lam is not None:
@@ -262,14 +273,29 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     y = np.array(x, dtype=np.float64)
     e0, _ = energy(y, grad=False)
     if not np.isfinite(e0):
-        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0}
-    if precondition:
+        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0, "moves": 0}
+    iterations, rounds = max(int(iterations), 0), max(int(rounds), 1)
+    relax = Relaxation(energy.f, energy.cot, energy.area3, energy.radius, energy.lam,
+                       energy.n) if sweeps > 0 and lam is not None else None
+    solve = apply = _identity
+    if precondition and iterations:
         solve, apply = energy.preconditioner(shift=shift)
-    else:
-        solve = apply = _identity
-    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience)
+    e, steps, moves = e0, 0, 0
+    for r in range(rounds):
+        if relax is not None:
+            y, m = relax(y, sweeps)
+            moves += m
+        run = iterations // rounds + (iterations % rounds if r == 0 else 0)
+        if run:
+            y, e, s = _lbfgs(energy, y, solve, apply, run, memory, tol, patience)
+            steps += s
+    if relax is not None:
+        y, m = relax(y / np.linalg.norm(y, axis=1)[:, None], sweeps)
+        moves += m
+    if relax is not None or not steps:
+        e, _ = energy(y, grad=False)
     x = y / np.linalg.norm(y, axis=1)[:, None]
-    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
+    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps, "moves": moves}
 
 
 def _identity(r):
