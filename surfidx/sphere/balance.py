@@ -25,7 +25,7 @@ from __future__ import annotations
 from ..jit import numba
 import numpy as np
 
-from .relax import Relaxation
+from .relax import Relaxation, _projected_area
 
 __all__ = ["balance", "segment_embedded", "inverted"]
 
@@ -86,20 +86,12 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
         a0, a1, a2 = q[i0, 0], q[i0, 1], q[i0, 2]
         b0, b1, b2 = q[i1, 0], q[i1, 1], q[i1, 2]
         e0, e1, e2 = q[i2, 0], q[i2, 1], q[i2, 2]
-        u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
-        v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
-        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-        s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
-        # signed area projected on the tangent plane at the centroid direction u: it vanishes
-        # when the corners fall on one great circle (where the plain area |c|/2 does not)
-        sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
-        ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+        ar, c0, c1, c2, n0, n1, n2, sl = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)
         if ar <= 0.0:
             return np.inf, g
         w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
         x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
-        z0, z1, z2 = u0, u1, u2
+        z0, z1, z2 = b0 - a0, b1 - a1, b2 - a2
         ct0, ct1, ct2 = cot[t, 0], cot[t, 1], cot[t, 2]   # cotangents at corners 0, 1, 2
         d = 0.5 * ct0 * (w0 * w0 + w1 * w1 + w2 * w2)
         d += 0.5 * ct1 * (x0 * x0 + x1 * x1 + x2 * x2)

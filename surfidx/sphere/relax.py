@@ -30,6 +30,21 @@ _FIRST_MOVE = 0.25    # a vertex's first move is at most this share of its short
 
 
 @numba.njit(cache=True)
+def _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2):  # pragma: no cover - compiled
+    """Signed area of the triangle ``(a, b, e)`` projected on the tangent plane at its centroid
+    direction ``n`` (it vanishes when the corners fall on one great circle, where the plain
+    area ``|c| / 2`` does not), with ``c = (b - a) × (e - a)``, ``n`` and the centroid sum's
+    length ``sl``: ``(area, c0, c1, c2, n0, n1, n2, sl)``."""
+    u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
+    v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
+    c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
+    sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
+    return 0.5 * (c0 * n0 + c1 * n1 + c2 * n2), c0, c1, c2, n0, n1, n2, sl
+
+
+@numba.njit(cache=True)
 def _star(x, v, q0, q1, q2, ptr, idx, f, cot, area3, lam, radius, grad, g):  # pragma: no cover
     """Energy of the star of vertex ``v`` placed at the unit vector ``q``, its neighbours at
     ``x``; with ``grad``, its gradient with respect to ``q`` (unnormalised, as in
@@ -44,15 +59,10 @@ def _star(x, v, q0, q1, q2, ptr, idx, f, cot, area3, lam, radius, grad, g):  # p
         ib, ic = f[t, kb], f[t, kc]
         b0, b1, b2 = radius * x[ib, 0], radius * x[ib, 1], radius * x[ib, 2]
         e0, e1, e2 = radius * x[ic, 0], radius * x[ic, 1], radius * x[ic, 2]
-        u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
-        v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
-        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-        s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
-        sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
-        ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+        ar, c0, c1, c2, n0, n1, n2, sl = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)
         if ar <= 0.0:
             return np.inf
+        u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
         w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
         x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
         ct0, ct1, ct2 = cot[t, k], cot[t, kb], cot[t, kc]
