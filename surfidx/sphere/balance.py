@@ -25,6 +25,8 @@ from __future__ import annotations
 from ..jit import numba
 import numpy as np
 
+from .relax import Relaxation, _projected_area
+
 __all__ = ["balance", "segment_embedded", "inverted"]
 
 
@@ -84,20 +86,12 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
         a0, a1, a2 = q[i0, 0], q[i0, 1], q[i0, 2]
         b0, b1, b2 = q[i1, 0], q[i1, 1], q[i1, 2]
         e0, e1, e2 = q[i2, 0], q[i2, 1], q[i2, 2]
-        u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
-        v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
-        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-        s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
-        # signed area projected on the tangent plane at the centroid direction u: it vanishes
-        # when the corners fall on one great circle (where the plain area |c|/2 does not)
-        sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
-        ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+        ar, c0, c1, c2, n0, n1, n2, sl = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)
         if ar <= 0.0:
             return np.inf, g
         w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
         x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
-        z0, z1, z2 = u0, u1, u2
+        z0, z1, z2 = b0 - a0, b1 - a1, b2 - a2
         ct0, ct1, ct2 = cot[t, 0], cot[t, 1], cot[t, 2]   # cotangents at corners 0, 1, 2
         d = 0.5 * ct0 * (w0 * w0 + w1 * w1 + w2 * w2)
         d += 0.5 * ct1 * (x0 * x0 + x1 * x1 + x2 * x2)
@@ -214,9 +208,10 @@ class Energy:
         return e, (g if grad else None)
 
 
-def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
-            tol: float = 1e-7, precondition: bool = True, shift: float = 1e-3,
-            lam: float | None = None, max_cot: float = 4.0, patience: int = 20):
+def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
+            memory: int = 8, tol: float = 1e-7, precondition: bool = True,
+            shift: float = 1e-3, lam: float | None = None, max_cot: float = 4.0,
+            patience: int = 20):
     """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
     spherical embedding.
 
@@ -230,8 +225,15 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     f : (m, 3) int64
         Faces, counter-clockwise seen from outside.
     iterations : int
-        Stop after this many L-BFGS steps (a count, never the clock: the result is the same on
-        every machine at any load).
+        Stop after this many L-BFGS steps in all (a count, never the clock: the result is the
+        same on every machine at any load).
+    sweeps : int
+        With ``lam``: sweeps of vertex-by-vertex relaxation (:mod:`surfidx.sphere.relax`)
+        before each of the ``rounds`` runs of L-BFGS and after the last; they open up the
+        squeezed stars that cut the global steps short.
+    rounds : int
+        The L-BFGS steps are split into this many runs (the first takes the remainder), each
+        from a fresh history after its sweeps.
     memory : int
         L-BFGS history length.
     tol, patience : float, int
@@ -253,7 +255,8 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     x : (n, 3) float64
         The balanced embedding, still fold-free.
     info : dict
-        ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``.
+        ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``, ``moves``
+        (vertex moves of the sweeps).
     """
     energy = Energy(p, f, max_cot=max_cot)
     if lam is not None:
@@ -262,14 +265,29 @@ def balance(x, p, f, *, iterations: int = 500, memory: int = 8,
     y = np.array(x, dtype=np.float64)
     e0, _ = energy(y, grad=False)
     if not np.isfinite(e0):
-        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0}
-    if precondition:
+        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0, "moves": 0}
+    iterations, rounds = max(int(iterations), 0), max(int(rounds), 1)
+    relax = Relaxation(energy.f, energy.cot, energy.area3, energy.radius, energy.lam,
+                       energy.n) if sweeps > 0 and lam is not None else None
+    solve = apply = _identity
+    if precondition and iterations:
         solve, apply = energy.preconditioner(shift=shift)
-    else:
-        solve = apply = _identity
-    y, e, steps = _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience)
+    e, steps, moves = e0, 0, 0
+    for r in range(rounds):
+        if relax is not None:
+            y, m = relax(y, sweeps)
+            moves += m
+        run = iterations // rounds + (iterations % rounds if r == 0 else 0)
+        if run:
+            y, e, s = _lbfgs(energy, y, solve, apply, run, memory, tol, patience)
+            steps += s
+    if relax is not None:
+        y, m = relax(y / np.linalg.norm(y, axis=1)[:, None], sweeps)
+        moves += m
+    if relax is not None or not steps:
+        e, _ = energy(y, grad=False)
     x = y / np.linalg.norm(y, axis=1)[:, None]
-    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps}
+    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps, "moves": moves}
 
 
 def _identity(r):

@@ -82,7 +82,10 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
     # a settled level's start was squeezed: it takes the single-level map's step count
     steps = (single_level_steps(n, options) if settled else options.level_steps) if _depth else (
         options.final_steps_large if large else options.final_steps)
+    sweeps, rounds = ((options.relax_sweeps, options.level_rounds) if _depth else
+                      (options.final_sweeps, options.final_rounds))
     x, binfo = balance_map(x, p, f, iterations=steps if balance else 0,
+                           sweeps=sweeps if balance else 0, rounds=rounds,
                            lam=options.energy_lambda, max_cot=np.inf,
                            tol=options.loose_tol if large else options.strict_tol,
                            patience=options.loose_patience if large else options.strict_patience)
@@ -116,7 +119,8 @@ def _settle(round_faces, p, options: MapOptions):
         local = np.full(len(x), -1, dtype=np.int64)
         local[verts] = np.arange(len(verts))
         y, _ = balance_map(x[verts], p[verts], local[f], iterations=options.round_steps,
-                           lam=options.energy_lambda, max_cot=np.inf)
+                           sweeps=options.relax_sweeps, lam=options.energy_lambda,
+                           max_cot=np.inf)
         x[verts] = y
         return x
     return settle

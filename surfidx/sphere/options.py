@@ -21,9 +21,10 @@ the default), by the codec and by the CLI."""
 STAGES = ("multilevel", "proxy", "mds")
 """Names of the stage records of a :class:`surfidx.sphere.SphericalMap`, in the order they run."""
 
-MAP_VERSION = 2
+MAP_VERSION = 3
 """Version of the map's construction, stored with the data it produced (the codec's report):
-2 is the map that embeds every level by construction (no fold repair)."""
+2 is the map that embeds every level by construction (no fold repair), 3 the same map balanced
+by vertex relaxation sweeps between runs of fewer L-BFGS steps."""
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,13 @@ class MapOptions:
     level_ratio : int
         Each level has this many times the vertices of the next coarser one (≥ 2).
     level_steps : int
-        Most balancing steps at each level but the finest.
+        Most L-BFGS balancing steps at each level but the finest.
+    level_rounds : int
+        Runs those steps are split into, each after ``relax_sweeps`` sweeps of vertex-by-vertex
+        relaxation (:mod:`surfidx.sphere.relax`), with sweeps after the last run too.
+    relax_sweeps : int
+        Relaxation sweeps before each run of L-BFGS steps on every level but the finest (and
+        in the single-level map, and after each round of a level prolonged round by round).
     settle_energy : float
         A level whose prolonged start has a balancing energy per unit area above this (4 for
         an isometry; kernel insertions nested in thin wedges give 1e10 and more, which the
@@ -60,10 +67,13 @@ class MapOptions:
     round_steps : int
         Most balancing steps after each round of such a level.
     final_steps : int
-        Most balancing steps at the finest level: long limbs keep gaining area after
-        ``level_steps``.
+        Most L-BFGS balancing steps at the finest level.
     final_steps_large : int
         ... at a finest level above ``large_level`` vertices, where a step costs far more.
+    final_rounds : int
+        Runs the finest level's steps are split into, each after ``final_sweeps`` sweeps.
+    final_sweeps : int
+        Relaxation sweeps before each run at the finest level and after its last.
     large_level : int
         Vertex count above which a level is large: ``final_steps_large`` and the loose stop.
     strict_tol, strict_patience : float, int
@@ -101,11 +111,15 @@ class MapOptions:
     balance: bool = True
     coarse_vertices: int = option(4, min=4)
     level_ratio: int = 4
-    level_steps: int = 300
+    level_steps: int = 90
+    level_rounds: int = option(3, min=1)
+    relax_sweeps: int = option(10, min=0)
     settle_energy: float = 1e4
     round_steps: int = 30
-    final_steps: int = 1500
-    final_steps_large: int = 600
+    final_steps: int = 600
+    final_steps_large: int = 150
+    final_rounds: int = option(2, min=1)
+    final_sweeps: int = option(10, min=0)
     large_level: int = 20000
     strict_tol: float = 1e-7
     strict_patience: int = 20
