@@ -178,7 +178,9 @@ def _into_kernels(x, out, kept, ptr, ring, owner, nxt, positions, removed):
     prv[nxt] = np.arange(len(nxt))
     k, a, b = out[kept[bad]], out[ring[nxt[at]]], out[ring[prv[at]]]
     n1, n2 = np.cross(k, a), np.cross(b, k)
-    d = (n1 / np.linalg.norm(n1, axis=1)[:, None] + n2 / np.linalg.norm(n2, axis=1)[:, None])
+    # a ring neighbour on the kept vertex (a zero normal) contributes no direction
+    d = (n1 / np.maximum(np.linalg.norm(n1, axis=1), 1e-300)[:, None]
+         + n2 / np.maximum(np.linalg.norm(n2, axis=1), 1e-300)[:, None])
     d *= (0.5 * np.minimum(np.linalg.norm(a - k, axis=1), np.linalg.norm(b - k, axis=1))
           / np.maximum(np.linalg.norm(d, axis=1), 1e-300))[:, None]
     for _ in range(_KERNEL_HALVINGS):
