@@ -149,10 +149,11 @@ SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "normals", "heat", "layers"
 #: :data:`SHAPE_PARTS` order) on the retrieval benchmark's genus-0 set: a convention stored
 #: with the vectors (``part_scales`` of :func:`descriptor_params`).
 SHAPE_PART_MEDIANS = (0.1193, 0.1820, 0.3568, 1.923, 0.3119, 0.5957, 0.3448)
-#: Relative weight of each shape part (its median distance becomes 1.15 × the weight): the
-#: mean (geometric) of the weights chosen on each of five folds of the retrieval models, each
-#: fold's scored on the models left out (``benchmarks/retrieval.py --cv`` prints both); scaling
-#: any one weight by 0.8 or 1.25 keeps the figures.
+#: Relative weight of each shape part (its median distance becomes 1.15 × the weight): about the
+#: geometric mean of the weights chosen on each of five folds of the retrieval models, each
+#: fold's choice scored on the models it left out (``benchmarks/retrieval.py --cv`` prints the
+#: folds' weights, the cross-validated figures and the library weights they stand for beside
+#: these); scaling any one weight by 0.8 or 1.25 keeps the figures.
 SHAPE_PART_WEIGHTS = (0.2, 0.3, 0.3, 1.7, 1.5, 2.0, 1.5)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
 
