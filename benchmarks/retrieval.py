@@ -17,7 +17,14 @@ the same run on every model, on the input mesh.
 Statistics (leave-one-out, Princeton Shape Benchmark): nearest neighbour, first tier, second
 tier, normalised DCG, mean average precision. "genus-0" rows restrict both queries and database to
 the genus-0 models (``meta.csv``), as the issue's reference figures (D2 NN 0.62 mAP 0.53; Kazhdan
-SH NN 0.68 mAP 0.53); a query whose class has no other model there is skipped.
+SH NN 0.68 mAP 0.53); a query whose class has no other model there is skipped. Beside the table:
+the per-query AP quartiles and a 95 % bootstrap interval of the mAP over the queries.
+``--confusion`` adds, per class over all models, the mAP of each shape part alone and the classes
+the misses go to (which part confuses a class). ``--cv OUT.json`` chooses the shape part weights
+by cross-validation: five folds of one model per class, the weights (coordinate ascent of the mAP,
+each part's distance over its median) chosen on four folds and scored on the fifth fold's
+queries against all models; it prints the folds' weights, the cross-validated figures, and the
+geometric mean of the folds' weights as library weights (``SHAPE_PART_WEIGHTS``).
 
 Invariance: for a subset of genus-0 models, a copy that is randomly rotated, scaled (0.2–5×),
 translated and resampled (a random 30% of the faces split 1→3 at random interior points: the same
@@ -57,7 +64,7 @@ scored on the others). Scans and their grids are cached beside the maps (``parti
 descriptors in ``/tmp/partial-cache/descriptors``.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
-[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json]
+[--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json] [--confusion] [--cv out.json]
 [--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
 L,L]]]``
 """
@@ -499,6 +506,166 @@ def run_study(parts, n_base, inv_pairs, classes, g0, weights, json_out):
     if json_out is not None:
         json_out.write_text(json.dumps({"kinds": record, "variants": vrec, "plateau": prec},
                                        indent=1))
+
+
+# --------------------------------------------------------------------- cross-validated weights
+CV_FOLDS = 5
+"""Folds of ``--cv``: fold ``f`` holds the ``f``-th model of every class (in labels.csv order)."""
+CV_STEPS = (0.0, 0.25, 0.5, 0.71, 1.0, 1.41, 2.0, 2.83, 4.0)
+"""Weights tried for each shape part (on its median-normalised distance) by ``--cv``."""
+CV_SPECTRUM = 0.1
+"""Fixed weight of the KLT spectrum (median-normalised) in ``--cv``: it ranks as well at any
+small weight, and fixing it fixes the scale of the others."""
+CV_ROUNDS = 3
+BOOTSTRAP = 2000
+"""Resamplings of the queries for the mAP intervals."""
+
+
+def bootstrap_interval(ap, n=BOOTSTRAP, seed=0):
+    """95 % percentile interval of the mean of per-query values ``ap`` over resampled queries."""
+    rng = np.random.default_rng(seed)
+    means = ap[rng.integers(0, len(ap), (n, len(ap)))].mean(axis=1)
+    return tuple(float(v) for v in np.percentile(means, [2.5, 97.5]))
+
+
+def _cv_parts(descs):
+    """Per part of the shape vector (unscaled) and the KLT spectrum, the (n, n) squared distances
+    over their median between different models."""
+    from surfidx.describe import descriptors as D
+
+    slices = part_slices()
+    out = {}
+    for name, scale in zip(D.SHAPE_PARTS, D.SHAPE_PART_SCALES):
+        d = pairwise([None if v is None else v["shape"][slices[name]] / scale for v in descs])
+        out[name] = d ** 2
+    out["spectrum"] = pairwise([None if v is None else v["spectrum"] for v in descs]) ** 2
+    return out
+
+
+def _cv_distance(sqn, w):
+    return np.sqrt(sum(w[k] ** 2 * sqn[k] for k in w if w[k]))
+
+
+def _cv_score(sqn, w, classes, idx):
+    d = _cv_distance(sqn, w)
+    return sb.psb_statistics(d[np.ix_(idx, idx)], classes[idx])["map"]
+
+
+def _cv_search(sqn, classes, idx):
+    """Coordinate ascent of the mean AP of the queries ``idx`` among themselves over the part
+    weights (each one of :data:`CV_STEPS`, the spectrum's fixed), from all weights 1."""
+    w = {k: (CV_SPECTRUM if k == "spectrum" else 1.0) for k in sqn}
+    best = _cv_score(sqn, w, classes, idx)
+    for _ in range(CV_ROUNDS):
+        changed = False
+        for k in w:
+            if k == "spectrum":
+                continue
+            for step in CV_STEPS:
+                cand = dict(w, **{k: step})
+                score = _cv_score(sqn, cand, classes, idx)
+                if score > best + 1e-9:
+                    best, w, changed = score, cand, True
+        if not changed:
+            break
+    return w
+
+
+def cross_validate(descs, classes, g0, json_out=None):
+    """``--cv``: part weights chosen on four folds (their models as queries and database),
+    scored on the fifth fold's queries against all models; the folds' weights, their geometric
+    mean, its figures on all models and the library weights it stands for."""
+    from surfidx.describe import descriptors as D
+
+    sq = _cv_parts(descs)
+    n = len(classes)
+    off = ~np.eye(n, dtype=bool)
+    med = {k: float(np.median(np.sqrt(v[off][np.isfinite(v[off])]))) for k, v in sq.items()}
+    sqn = {k: v / med[k] ** 2 for k, v in sq.items()}
+    fold = np.zeros(n, int)
+    for c in set(classes):
+        fold[classes == c] = np.arange(int(np.sum(classes == c))) % CV_FOLDS
+    per_query = {m: np.zeros(n) for m in ("nn", "ft", "map")}
+    weights, rows = [], []
+    for f in range(CV_FOLDS):
+        w = _cv_search(sqn, classes, np.flatnonzero(fold != f))
+        weights.append(w)
+        st = sb.psb_statistics(_cv_distance(sqn, w), classes, queries=fold == f)
+        for m in per_query:
+            per_query[m][st["queries"]] = st["per_query"][m]
+        rows.append([f, st["n"], f"{st['nn']:.3f}", f"{st['map']:.3f}"]
+                    + [f"{w[k]:g}" for k in sqn])
+    gm = {k: (CV_SPECTRUM if k == "spectrum" else
+              float(np.exp(np.mean([np.log(max(w[k], CV_STEPS[1] / 2)) for w in weights]))))
+          for k in sqn}
+    full = _cv_distance(sqn, gm)
+    st_all = sb.psb_statistics(full, classes)
+    g0_idx = np.flatnonzero(g0)
+    st_g0 = sb.psb_statistics(full[np.ix_(g0_idx, g0_idx)], classes[g0_idx])
+    # the library's convention: scale_k = 1.15 W_k / (median on the genus-0 set), the spectrum
+    # unscaled, the median total distance that of today's default
+    g0_off = ~np.eye(len(g0_idx), dtype=bool)
+    med_g0 = {k: float(np.median(np.sqrt(v[np.ix_(g0_idx, g0_idx)][g0_off]))) for k, v in sq.items()}
+    factor = {k: (gm[k] / med[k]) / (gm["spectrum"] / med["spectrum"]) for k in D.SHAPE_PARTS}
+    default = np.sqrt(sum(s ** 2 * sq[k] for k, s in zip(D.SHAPE_PARTS, D.SHAPE_PART_SCALES))
+                      + sq["spectrum"])
+    mine = np.sqrt(sum(factor[k] ** 2 * sq[k] for k in D.SHAPE_PARTS) + sq["spectrum"])
+    r = float(np.median(default[off]) / np.median(mine[off]))
+    lib = {k: factor[k] * r * med_g0[k] / 1.15 for k in D.SHAPE_PARTS}
+    REPORT.print(f"\nCross-validated part weights ({CV_FOLDS} folds, one model of each class per "
+                 "fold): weights chosen on the other folds' models (mAP among themselves, "
+                 "coordinate ascent over " + ", ".join(f"{v:g}" for v in CV_STEPS)
+                 + " times each part's median-normalised distance, spectrum fixed at "
+                 f"{CV_SPECTRUM:g}), scored on the fold's queries against all models\n")
+    print_table(["fold", "queries", "NN", "mAP"] + list(sqn), rows)
+    lo, hi = bootstrap_interval(per_query["map"])
+    REPORT.print(f"\ncross-validated (every query scored once, by weights chosen without it): "
+                 f"NN {per_query['nn'].mean():.3f}, FT {per_query['ft'].mean():.3f}, "
+                 f"mAP {per_query['map'].mean():.3f} (95 % bootstrap interval {lo:.3f}–{hi:.3f})")
+    REPORT.print("geometric mean of the folds' weights: "
+                 + ", ".join(f"{k} {v:.2f}" for k, v in gm.items())
+                 + f"; on all models NN {st_all['nn']:.3f}, FT {st_all['ft']:.3f}, mAP "
+                 f"{st_all['map']:.3f}, genus-0 mAP {st_g0['map']:.3f}")
+    REPORT.print("as library weights (SHAPE_PART_WEIGHTS, over the genus-0 medians "
+                 + ", ".join(f"{med_g0[k]:.4g}" for k in D.SHAPE_PARTS) + "): "
+                 + ", ".join(f"{k} {lib[k]:.2f}" for k in D.SHAPE_PARTS) + "; library now: "
+                 + ", ".join(f"{k} {w:g}" for k, w in zip(D.SHAPE_PARTS, D.SHAPE_PART_WEIGHTS)))
+    if json_out is not None:
+        json_out.write_text(json.dumps({
+            "folds": weights, "geometric_mean": gm, "library_weights": lib,
+            "genus0_medians": med_g0,
+            "cv": {m: float(v.mean()) for m, v in per_query.items()},
+            "cv_map_interval": [lo, hi],
+            "geometric_mean_all": {m: st_all[m] for m in ("nn", "ft", "map")},
+            "geometric_mean_genus0_map": st_g0["map"]}, indent=1))
+
+
+def class_parts_table(descs, ours, classes):
+    """``--confusion``, all models: per class the NN and mAP of the default distance, the mAP
+    of each shape part alone (and the KLT spectrum) and the classes of the nearest neighbours
+    that miss (which part confuses a class, which helps)."""
+    sq = _cv_parts(descs)
+    alone = {k: sb.psb_statistics(np.sqrt(v), classes)["per_query"]["map"] for k, v in sq.items()}
+    st = sb.psb_statistics(ours, classes)
+    rows = []
+    for c in dict.fromkeys(classes):
+        qs = np.flatnonzero(classes[st["queries"]] == c)
+        if not len(qs):
+            continue
+        misses = []
+        for k in qs:
+            q = st["queries"][k]
+            row = ours[q].copy()
+            row[q] = np.inf
+            nn = classes[int(np.argmin(row))]
+            if nn != c:
+                misses.append(nn)
+        rows.append([c, len(qs), f"{st['per_query']['nn'][qs].mean():.2f}",
+                     f"{st['per_query']['map'][qs].mean():.2f}"]
+                    + [f"{alone[k][qs].mean():.2f}" for k in sq] + [",".join(misses)])
+    REPORT.print("\nPer class (all models): NN and mAP of the default distance, mAP of each "
+                 "part alone, nearest-neighbour classes of the misses\n")
+    print_table(["class", "q", "NN", "mAP"] + [f"{k} mAP" for k in sq] + ["NN misses"], rows)
 
 
 # --------------------------------------------------------------------- texture descriptor
@@ -1402,6 +1569,10 @@ def main(argv=None) -> int:
     ap.add_argument("--study", type=Path, default=None, metavar="OUT.json",
                     help="also measure every descriptor part alone, the layer-energy variants "
                          "and the layers weight plateau; figures to this file")
+    ap.add_argument("--cv", type=Path, default=None, metavar="OUT.json",
+                    help="also choose the shape part weights by cross-validation (folds' "
+                         "weights, the cross-validated figures, the library weights they stand "
+                         "for); figures to this file")
     ap.add_argument("--weights", default=None,
                     help="comma-separated layers weights of the --study plateau (default "
                          + ",".join(f"{w:g}" for w in STUDY_WEIGHTS) + ")")
@@ -1591,8 +1762,17 @@ def main(argv=None) -> int:
           f"all NN >= {TARGET_ALL['nn']}, mAP >= {TARGET_ALL['map']})\n")
     print_table(["descriptor", "models", "queries", "NN", "FT", "ST", "DCG", "mAP", "target met"],
                 rows)
+    for subset in ("all", "genus-0"):
+        ap = stats[("surfidx", subset)]["per_query"]["map"]
+        lo, hi = bootstrap_interval(ap)
+        q1, q2, q3 = np.percentile(ap, [25, 50, 75])
+        REPORT.print(f"surfidx {subset}: per-query AP quartiles {q1:.2f} / {q2:.2f} / {q3:.2f}; "
+                     f"mAP 95 % bootstrap interval over the queries {lo:.3f}–{hi:.3f}")
+    if args.cv is not None:
+        cross_validate(descs, classes, g0, args.cv)
 
     if args.confusion:
+        class_parts_table(descs, ours, classes)
         REPORT.print("\nPer class (genus-0 database): queries, NN and mAP, surfidx vs D2; "
               "surfidx nearest-neighbour classes of the misses\n")
         idx = np.flatnonzero(g0)

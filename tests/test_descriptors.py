@@ -27,7 +27,7 @@ def test_object_rotation_translation_scale_invariance():
         np.testing.assert_allclose(a.vectors[k], b.vectors[k], atol=1e-5)
     assert set(a.vectors) == {"shape", "layers", "texture", "spectrum", "views"}
     assert a.params["lmax"] == 24 and a.params["normalization"] == "4pi"
-    assert a.params["version"] == DESCRIPTOR_VERSION == 8 and a.params["shape"]["shells"] == 8
+    assert a.params["version"] == DESCRIPTOR_VERSION == 9 and a.params["shape"]["shells"] == 8
     assert a.params["shape"]["spectral_k"] == 30
     # a reflection too, and the descriptor does see a different shape
     c = describe_grid(np.c_[0.3 * s * [1, -1, 1] - 5, col], 5)
@@ -130,6 +130,51 @@ def test_spectral_part_is_intrinsic_and_finite_on_squeezed_grids():
     squeezed[squeezed[:, 2] > 0.9] = [0.0, 0.0, 1.0]
     assert np.all(np.isfinite(log_spectrum(squeezed, 4)))
     assert np.all(np.isfinite(describe_grid(squeezed, 4).vectors["shape"]))
+
+
+def test_heat_part_is_intrinsic_and_tells_limbs_from_bodies():
+    """The heat histograms come from the spectral part's eigenpairs: bending a thin strip keeps
+    them, a strip of another length (more or less of it far from the middle) does not; each
+    time's histogram is a distribution (its square roots' squares sum to 1)."""
+    from surfidx.describe.descriptors import (HEAT_BINS, HEAT_TIMES, heat_part,
+                                              laplacian_eigenpairs)
+
+    v = icosphere(4).vertices
+    flat = v * [1.0, 3.0, 0.05]
+    r = 1.5
+    bent = np.c_[flat[:, 0], r * np.sin(flat[:, 1] / r), r * (1 - np.cos(flat[:, 1] / r))]
+    bent = bent + np.c_[np.zeros((len(v), 1)), -flat[:, [2]] * np.sin(flat[:, 1] / r)[:, None],
+                        flat[:, [2]] * np.cos(flat[:, 1] / r)[:, None]]
+
+    def heat(x):
+        return heat_part(*laplacian_eigenpairs(x, 4, vectors=True))
+
+    a, b = heat(flat), heat(bent)
+    assert a.shape == (len(HEAT_TIMES) * HEAT_BINS,)
+    np.testing.assert_allclose((a.reshape(len(HEAT_TIMES), -1) ** 2).sum(axis=1), 1.0)
+    for other in (v * [1.0, 1.0, 0.05], v * [1.0, 6.0, 0.05]):
+        assert np.linalg.norm(a - b) < 0.05 * np.linalg.norm(a - heat(other))
+    lam, phi, share = laplacian_eigenpairs(flat, 4, vectors=True)
+    np.testing.assert_allclose(share @ phi ** 2, 1.0, rtol=1e-6)       # mean square 1
+    np.testing.assert_allclose(lam, laplacian_eigenpairs(flat, 4)[0], rtol=1e-10, atol=1e-12)
+
+
+def test_normals_part_is_the_gaussian_image_energy():
+    """A sphere faces every way equally: its normals' measure has energy at degree 0 only; a
+    flattened ellipsoid's normals crowd at its poles (degree 2)."""
+    from surfidx.describe.descriptors import NORMALS_LMAX, _normal_energies
+
+    v = icosphere(5).vertices
+    round_ = _normal_energies(v, 5, None)
+    assert round_.shape == (NORMALS_LMAX + 1,)
+    assert round_[0] == pytest.approx(1.0 / np.sqrt(4.0 * np.pi))    # orthonormal Y_00
+    assert np.all(round_[1:] < 0.001)
+    flat = _normal_energies(v * [1.0, 1.0, 0.3], 5, None)
+    assert flat[2] > 0.3
+    assert flat[1] < 0.01            # a closed surface's normals balance: no degree-1 energy
+    # weighing out half of the surface (the faces of the x > 0 half as virtual) unbalances them
+    half = _normal_energies(v, 5, (v[:, 0] < 0).astype(float))
+    assert half[1] > 0.2
 
 
 def test_describe_grid_rejects_level_zero():

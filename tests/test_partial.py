@@ -68,7 +68,7 @@ def test_partial_l2_weighs_the_parts_and_is_weighted_l2_with_unit_weights(monkey
 def test_partial_l2_refuses_other_shape_vectors():
     query, stored, present = _stored(np.random.default_rng(1))
     query["shape"] = query["shape"][:12]
-    with pytest.raises(InputError, match="partial_l2 compares shape vectors of 237 values"):
+    with pytest.raises(InputError, match="partial_l2 compares shape vectors of 278 values"):
         partial_l2(query, stored, present)
     with pytest.raises(InputError, match="shape_weight must be in"):
         partial_l2(*_stored(np.random.default_rng(1)), shape_weight=2.0)
@@ -91,7 +91,7 @@ def test_describe_grid_of_the_real_surface_changes_only_the_measure_parts():
     sl = part_slices()
     for name in ("spectral", "layers"):
         np.testing.assert_array_equal(full["shape"][sl[name]], real["shape"][sl[name]])
-    for name in ("shells", "d2", "radial"):
+    for name in ("shells", "d2", "radial", "normals", "heat"):
         assert not np.allclose(full["shape"][sl[name]], real["shape"][sl[name]])
     np.testing.assert_array_equal(
         describe_grid(x, level, virtual=np.zeros(len(x), bool)).vectors["shape"], full["shape"])

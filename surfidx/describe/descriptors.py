@@ -15,7 +15,7 @@ Invariance, by construction:
 
 Descriptor vectors (float32), by kind:
 
-``shape``  — the retrieval shape descriptor (version 5), five parts concatenated
+``shape``  — the retrieval shape descriptor, seven parts concatenated
            (:data:`SHAPE_PARTS`), part ``k`` scaled by
            ``SHAPE_PART_WEIGHTS[k] · 1.15 / SHAPE_PART_MEDIANS[k]`` (the medians are each part's
            median distance between different models of the retrieval benchmark's genus-0 set, so
@@ -38,6 +38,16 @@ Descriptor vectors (float32), by kind:
              ``min(level, SPECTRAL_LEVEL)``, as ``log(λ_i · A / (4π i))`` with ``A`` the surface
              area (Weyl's law makes the values O(1) and the part scale invariant). Intrinsic, so
              unchanged by bending: the part that tells articulated classes apart;
+           * *normals* (``NORMALS_LMAX+1``): the sqrt per-degree energies of the grid surface's
+             area measure (level ``min(level, NORMALS_LEVEL)``) on the sphere of its face
+             normals (the extended Gaussian image,
+             Horn 1984): how much of the surface faces each way, which tells flat-sided,
+             winged and round shapes apart where the radial parts see the same extent;
+           * *heat* (``len(HEAT_TIMES)·HEAT_BINS``): for each diffusion time of ``HEAT_TIMES``
+             (in units of ``A/(4π)``), sqrt of the area-weighted histogram of the log heat
+             kernel signature (Sun, Ovsjanikov & Guibas 2009) from the spectral part's
+             eigenpairs: the share of the surface that is tips, limbs or body, intrinsic as the
+             spectrum is;
            * *layers* (``3·(LAYERS_LMAX+1)``): the spherical-harmonic energies of the three
              geometric KLT layers as functions on the sphere, ``sqrt(E_jl)`` per layer ``j`` and
              degree ``l``, degrees 0..``LAYERS_LMAX`` on the Driscoll–Healy grid
@@ -45,12 +55,12 @@ Descriptor vectors (float32), by kind:
              other parts see the surface as a measure or an intrinsic metric.
 
            Area weights are the 3D areas of the grid mesh (the icosphere's triangles at the
-           resampled positions), so shells, D2 and radial measure the surface, not the sphere
-           map: limbs the map squeezes keep their surface share. They use the grid of level
-           ``min(level, SHAPE_LEVEL)`` (a prefix of the grid). Square roots make the L2 distance
-           a Hellinger one. The weights (:data:`SHAPE_PART_WEIGHTS`, version 7) were chosen by
-           measurement on the models of ``benchmarks/retrieval.py`` (which prints the retrieval
-           figures), in the middle of a plateau of weights that give the same figures.
+           resampled positions), so shells, D2, radial and normals measure the surface, not the
+           sphere map: limbs the map squeezes keep their surface share. They use the grid of
+           level ``min(level, SHAPE_LEVEL)`` (a prefix of the grid). Square roots make the L2
+           distance a Hellinger one. The weights (:data:`SHAPE_PART_WEIGHTS`) were chosen by
+           cross-validation on the models of ``benchmarks/retrieval.py`` (which prints the
+           retrieval figures), in the middle of a plateau of weights that give the same figures.
 ``layers`` (3·(lmax+1),) — ``sqrt`` of the per-degree energies (pyshtools) of the three geometric
            KLT layers up to the ``lmax`` argument (the raw vector of the shape vector's layers
            part, kept for other distances).
@@ -67,8 +77,8 @@ Descriptor vectors (float32), by kind:
            to the nearest of them.
 
 Invariance of ``shape``: rotation and reflection by per-degree energies of a point measure (exact,
-computed with complex spherical harmonics at the points), by distances, by the intrinsic
-spectrum and by the per-degree energies of the KLT layers; translation by the area centroid and
+computed with complex spherical harmonics at the points: shells and normals), by distances, by
+the intrinsic spectrum and heat kernel and by the per-degree energies of the KLT layers; translation by the area centroid and
 the KLT mean; scale by the RMS radius, the mean pair distance, the area and the total variance;
 the sphere map through which surface points the grid samples and, for the layers part, through
 where the map puts them.
@@ -104,7 +114,7 @@ __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_
 from .options import DEFAULT_LMAX  # noqa: E402  (defined with DescribeOptions)
 SH_NORMALIZATION = "4pi"  # pyshtools norm=1: 4π-normalised real harmonics, no Condon-Shortley phase
 """Normalisation of the spherical harmonics the descriptors use (stored with them)."""
-DESCRIPTOR_VERSION = 8
+DESCRIPTOR_VERSION = 9
 """Version of the descriptor vectors; queries refuse to compare vectors of different versions."""
 
 SHELLS = 8
@@ -123,19 +133,32 @@ SPECTRAL_LEVEL = 5
 #: to about its square.
 SPECTRAL_TOL = 1e-8
 SHAPE_LEVEL = 6
+NORMALS_LMAX = 8
+#: Grid level (at most) of the *normals* part: 20,480 faces; level 6 ranks the same at four
+#: times the cost.
+NORMALS_LEVEL = 5
+#: Diffusion times of the *heat* part, in units of ``A / (4π)`` (the surface area over that of
+#: the unit sphere), so that they scale with the surface.
+HEAT_TIMES = (0.1, 0.5)
+HEAT_BINS = 16
+#: The *heat* histograms cover ``log`` heat-kernel values in [-HEAT_LOG_RANGE, HEAT_LOG_RANGE]
+#: (values beyond fall in the end bins).
+HEAT_LOG_RANGE = 4.0
 LAYERS_LMAX = 12
 LAYERS_GRID_LMAX = 24
 SEED = 0
 #: Names of the parts of the ``shape`` vector, in order.
-SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "layers")
-#: Median distance between different models of each unscaled shape part (shells, D2, radial,
-#: spectral, layers) on the retrieval benchmark's genus-0 set.
-SHAPE_PART_MEDIANS = (0.1191, 0.1799, 0.3515, 1.989, 0.3359)
-#: Relative weight of each shape part (its median distance becomes 1.15 × the weight): chosen
-#: by measurement on the retrieval models, genus > 0 ones repaired, in the middle of a plateau
-#: where changing any one weight a little keeps the figures (``benchmarks/retrieval.py`` prints
-#: them).
-SHAPE_PART_WEIGHTS = (0.5, 0.25, 0.25, 3.0, 2.0)
+SHAPE_PARTS = ("shells", "d2", "radial", "spectral", "normals", "heat", "layers")
+#: Median distance between different models of each unscaled shape part (in
+#: :data:`SHAPE_PARTS` order) on the retrieval benchmark's genus-0 set: a convention stored
+#: with the vectors (``part_scales`` of :func:`descriptor_params`).
+SHAPE_PART_MEDIANS = (0.1193, 0.1820, 0.3568, 1.923, 0.3115, 0.5957, 0.3448)
+#: Relative weight of each shape part (its median distance becomes 1.15 × the weight): about the
+#: geometric mean of the weights chosen on each of five folds of the retrieval models, each
+#: fold's choice scored on the models it left out (``benchmarks/retrieval.py --cv`` prints the
+#: folds' weights, the cross-validated figures and the library weights they stand for beside
+#: these); scaling any one weight by 0.8 or 1.25 keeps the figures.
+SHAPE_PART_WEIGHTS = (0.2, 0.3, 0.3, 1.7, 1.5, 2.0, 1.5)
 SHAPE_PART_SCALES = tuple(1.15 * w / m for w, m in zip(SHAPE_PART_WEIGHTS, SHAPE_PART_MEDIANS))
 
 
@@ -209,28 +232,59 @@ def _hist(values, weights, bins, rmax):
     return h / max(h.sum(), 1e-300)
 
 
-def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(SHELLS, SHELL_LMAX+1) sqrt per-degree energies of the shells' area measures."""
+def _measure_energies(u: np.ndarray, w: np.ndarray, group: np.ndarray, groups: int,
+                      lmax: int) -> np.ndarray:
+    """(groups, lmax+1) per-degree energies of weighted point measures on the direction sphere.
+
+    Point ``i`` of direction ``u[i]`` (not necessarily unit) and weight ``w[i]`` belongs to the
+    measure ``group[i]``; the energy of degree ``l`` is ``Σ_m |Σ_i w_i Y_lm(u_i)|²`` over the
+    orthonormal real harmonics, computed with the complex ones, so it is exact and invariant
+    under any orthogonal map of the directions.
+    """
     from scipy.special import sph_harm_y
 
-    r = np.linalg.norm(y, axis=1)
-    theta = np.arccos(np.clip(y[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
-    phi = np.arctan2(y[:, 1], y[:, 0])
-    shell = np.minimum((r / SHELL_RMAX * SHELLS).astype(np.int64), SHELLS - 1)
-    out = np.zeros((SHELLS, SHELL_LMAX + 1))
-    cos = [np.cos(m * phi) for m in range(SHELL_LMAX + 1)]     # each order's, for every degree
-    sin = [np.sin(m * phi) for m in range(SHELL_LMAX + 1)]
-    for l in range(SHELL_LMAX + 1):
+    r = np.linalg.norm(u, axis=1)
+    theta = np.arccos(np.clip(u[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+    phi = np.arctan2(u[:, 1], u[:, 0])
+    out = np.zeros((groups, lmax + 1))
+    cos = [np.cos(m * phi) for m in range(lmax + 1)]     # each order's, for every degree
+    sin = [np.sin(m * phi) for m in range(lmax + 1)]
+    for l in range(lmax + 1):
         for m in range(l + 1):
             wy = w * sph_harm_y(l, m, theta, 0.0).real
-            c = np.bincount(shell, weights=wy * cos[m], minlength=SHELLS)
+            c = np.bincount(group, weights=wy * cos[m], minlength=groups)
             c2 = c ** 2
             if m:
-                c = np.bincount(shell, weights=wy * sin[m], minlength=SHELLS)
+                c = np.bincount(group, weights=wy * sin[m], minlength=groups)
                 c2 = 2.0 * (c2 + c ** 2)
             out[:, l] += c2
+    return out
+
+
+def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(SHELLS, SHELL_LMAX+1) sqrt per-degree energies of the shells' area measures."""
+    r = np.linalg.norm(y, axis=1)
+    shell = np.minimum((r / SHELL_RMAX * SHELLS).astype(np.int64), SHELLS - 1)
     damp = np.exp(-np.arange(SHELL_LMAX + 1) * np.arange(1, SHELL_LMAX + 2) / (4 * SHELL_KAPPA))
-    return np.sqrt(out) * damp
+    return np.sqrt(_measure_energies(y, w, shell, SHELLS, SHELL_LMAX)) * damp
+
+
+def _normal_energies(x: np.ndarray, level: int, real) -> np.ndarray:
+    """(NORMALS_LMAX+1,) the *normals* part: sqrt per-degree energies of the grid surface's
+    area measure on the sphere of its face normals (an extended Gaussian image).
+
+    ``real`` (n_grid,) float64 weighs each face by the mean of its vertices' values (1: scanned,
+    0: virtual), or None (every face counts).
+    """
+    f = icosphere(level).faces
+    t = x[f]
+    na = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    a = np.linalg.norm(na, axis=1)
+    if real is not None:
+        a = a * real[f].mean(axis=1)
+    a = a / a.sum()
+    group = np.zeros(len(f), np.int64)
+    return np.sqrt(_measure_energies(na, a, group, 1, NORMALS_LMAX)[0])
 
 
 def shape_parts(x: np.ndarray, level: int, layers: np.ndarray, *, virtual=None) -> dict:
@@ -243,20 +297,28 @@ def shape_parts(x: np.ndarray, level: int, layers: np.ndarray, *, virtual=None) 
     layers : (n_grid, 3) float64
         The geometric KLT layers over the square root of the total geometric variance.
     virtual : (n_grid,) bool, optional
-        Grid vertices that sample a virtual patch: the measure parts (shells, D2, radial) then
-        weigh them by zero, so they describe the scanned surface only (centroid and scale
-        included); the spectral and layers parts need the closed surface and keep it.
+        Grid vertices that sample a virtual patch: the measure parts (shells, D2, radial,
+        normals) and the heat histograms then weigh them by zero, so they describe the scanned
+        surface only (centroid and scale included); the spectral and layers parts, and the heat
+        kernel itself, need the closed surface and keep it.
 
     The measure parts (shells, D2, radial) use the grid of level ``min(level, SHAPE_LEVEL)`` (a
-    prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin histograms.
+    prefix of ``x``): 40,962 area-weighted samples resolve degree-8 shells and 64-bin
+    histograms; the normals part that of level ``min(level, NORMALS_LEVEL)``. The spectral and
+    heat parts share one eigensolve.
     """
-    spectral = log_spectrum(x, level)
-    part = {"layers": layers_part(layers, level)}
+    lam, phi, share = laplacian_eigenpairs(x, level, vectors=True)
+    if virtual is not None:
+        share = np.where(virtual[:len(share)], 0.0, share)
+    part = {"layers": layers_part(layers, level),
+            "spectral": _log_weyl(lam),
+            "heat": heat_part(lam, phi, share)}
     level = min(level, SHAPE_LEVEL)
     x = x[:vertex_count(level)]
     a = _grid_areas(x, level)
+    real = None if virtual is None else (~virtual[:vertex_count(level)]).astype(np.float64)
     if virtual is not None:
-        a = np.where(virtual[:vertex_count(level)], 0.0, a)
+        a = a * real
     if not a.sum() > 0:
         raise InputError("the resampled surface has zero area; cannot normalise its scale")
     w = a / a.sum()
@@ -272,7 +334,9 @@ def shape_parts(x: np.ndarray, level: int, layers: np.ndarray, *, virtual=None) 
     d = pair_distances(y, i, j)
     part["d2"] = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
     part["radial"] = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
-    part["spectral"] = spectral
+    lev = min(level, NORMALS_LEVEL)
+    part["normals"] = _normal_energies(x[:vertex_count(lev)], lev,
+                                       None if real is None else real[:vertex_count(lev)])
     return {name: part[name] for name in SHAPE_PARTS}
 
 
@@ -339,7 +403,22 @@ def _grid_solver(level: int) -> SPDSolver:
 
 
 def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
-    """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator.
+    """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator
+    (:func:`laplacian_eigenpairs`, eigenvalues only)."""
+    lam = laplacian_eigenpairs(x, level, max_level=max_level)[0]
+    return _log_weyl(lam)
+
+
+def _log_weyl(lam: np.ndarray) -> np.ndarray:
+    """(SPECTRAL_K,) the *spectral* part, ``log(λ_i A / (4π i))``, from
+    :func:`laplacian_eigenpairs`' eigenvalues."""
+    return np.log(np.maximum(lam[1:], 1e-12) / np.arange(1, SPECTRAL_K + 1))
+
+
+def laplacian_eigenpairs(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL,
+                         vectors: bool = False) -> tuple:
+    """The lowest ``SPECTRAL_K + 1`` eigenpairs of the grid surface's Laplace–Beltrami operator,
+    scaled by the surface area ``A``.
 
     Cotangent stiffness ``K`` and lumped (barycentric) mass ``M`` on the icosphere mesh of level
     ``min(level, max_level)`` at the resampled positions (a prefix of ``x``). Cotangents of
@@ -347,6 +426,16 @@ def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) 
     a squeezed map gives a finite spectrum. Dense solve up to 700 vertices; beyond, shift-invert
     Lanczos on the standard form ``M^-½ K M^-½`` (one operator solve per Lanczos step, none with
     ``M``) with one LU factor in the grid's nested-dissection order.
+
+    Returns
+    -------
+    lam : (SPECTRAL_K+1,) float64
+        ``λ_i A / (4π)``, ascending (``lam[0]`` about 0); Weyl's law makes ``lam[i]`` about ``i``.
+    phi : (n, SPECTRAL_K+1) float64 or None
+        With ``vectors``: the eigenfunctions at the ``n`` grid vertices, ``M``-orthonormal times
+        ``sqrt(A)`` (their area-weighted mean square is 1).
+    share : (n,) float64
+        Each vertex's (floored) mass over the area.
     """
     import scipy.linalg
     from scipy.sparse.linalg import LinearOperator, eigsh
@@ -368,9 +457,11 @@ def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) 
     mass = vertex_area_shares(f, 0.5 * area2, n)
     mass = np.maximum(mass, TOL.degenerate_area * total / n)
     k = SPECTRAL_K
+    phi = None
     if n <= 700:
-        lam = scipy.linalg.eigh(stiff.toarray(), np.diag(mass), eigvals_only=True,
+        out = scipy.linalg.eigh(stiff.toarray(), np.diag(mass), eigvals_only=not vectors,
                                 subset_by_index=(0, k))
+        lam, phi = out if vectors else (out, None)
     else:
         # the standard form C = M^-1/2 K M^-1/2 shifted below 0, so that K - sigma M is
         # positive definite (a plain LU works); (C - sigma)^-1 y = M^1/2 (K - sigma M)^-1 M^1/2 y
@@ -383,11 +474,37 @@ def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) 
 
         # a fixed start vector: ARPACK's own random start depends on its earlier calls
         v0 = np.random.default_rng(SEED).standard_normal(n)
-        mu = eigsh(LinearOperator((n, n), matvec=solve, dtype=np.float64), k=k + 1,
-                   which="LA", v0=v0, tol=SPECTRAL_TOL, return_eigenvectors=False)
-        lam = np.sort(sigma + 1.0 / mu)
-    lam = np.maximum(lam[1:k + 1] * total / (4.0 * np.pi), 1e-12)
-    return np.log(lam / np.arange(1, k + 1))
+        out = eigsh(LinearOperator((n, n), matvec=solve, dtype=np.float64), k=k + 1,
+                    which="LA", v0=v0, tol=SPECTRAL_TOL, return_eigenvectors=vectors)
+        mu, y = out if vectors else (out, None)
+        order = np.argsort(sigma + 1.0 / mu, kind="stable")
+        lam = (sigma + 1.0 / mu)[order]
+        if vectors:
+            phi = y[:, order] / root[:, None]
+    lam = np.maximum(lam * total / (4.0 * np.pi), 0.0)
+    if phi is not None:
+        phi = phi * np.sqrt(total)
+    return lam, phi, mass / total
+
+
+def heat_part(lam: np.ndarray, phi: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """(len(HEAT_TIMES)·HEAT_BINS,) the *heat* part: for each time ``t`` of :data:`HEAT_TIMES`,
+    sqrt of the area-weighted histogram of ``log h_t(x)``, the heat kernel signature
+    ``h_t(x) = Σ_{i≥1} exp(-λ_i t) φ_i(x)²`` (Sun, Ovsjanikov & Guibas 2009) from the
+    eigenpairs of :func:`laplacian_eigenpairs` (the constant mode left out).
+
+    How much heat stays at a point after a time ``t`` tells tips and thin limbs (much) from
+    bodies and flat parts (little), independently of how the surface bends; the histograms are
+    the share of the surface at each level. ``share`` (n,) weighs the vertices (zeros leave
+    them out).
+    """
+    sq = phi[:, 1:] ** 2
+    out = []
+    for t in HEAT_TIMES:
+        h = sq @ np.exp(-lam[1:] * t)
+        lh = np.log(np.maximum(h, np.exp(-HEAT_LOG_RANGE)))
+        out.append(_hist(lh + HEAT_LOG_RANGE, share, HEAT_BINS, 2 * HEAT_LOG_RANGE))
+    return np.sqrt(np.concatenate(out))
 
 
 def describe_grid(values, level: int, *, lmax: int = DEFAULT_LMAX,
@@ -474,7 +591,10 @@ def descriptor_params(*, lmax: int = DEFAULT_LMAX) -> dict:
                       "d2_pairs": D2_PAIRS, "radial_bins": RADIAL_BINS,
                       "radial_rmax": RADIAL_RMAX, "spectral_k": SPECTRAL_K,
                       "spectral_level": SPECTRAL_LEVEL, "spectral_tol": SPECTRAL_TOL,
-                      "shape_level": SHAPE_LEVEL, "layers_lmax": LAYERS_LMAX,
+                      "shape_level": SHAPE_LEVEL, "normals_lmax": NORMALS_LMAX,
+                      "normals_level": NORMALS_LEVEL,
+                      "heat_times": list(HEAT_TIMES), "heat_bins": HEAT_BINS,
+                      "heat_log_range": HEAT_LOG_RANGE, "layers_lmax": LAYERS_LMAX,
                       "layers_grid_lmax": LAYERS_GRID_LMAX,
                       "seed": SEED,
                       "part_scales": [float(v) for v in SHAPE_PART_SCALES]},

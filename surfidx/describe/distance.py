@@ -11,8 +11,9 @@ lives with the descriptors it compares, below the store. With the shape weight `
 
 where the shape vector is ``"shape"`` with the KLT ``"spectrum"`` appended (when both carry one)
 and ``Δ`` is the difference between query and stored vector. The ``"shape"`` vector holds its
-parts already weighted (shells, D2, radial, Laplace–Beltrami spectrum and the spherical-harmonic
-energies of the geometric KLT layers; :data:`surfidx.describe.descriptors.SHAPE_PART_WEIGHTS`), so its
+parts already weighted (shells, D2, radial, Laplace–Beltrami spectrum, normals, heat kernel
+histograms and the spherical-harmonic energies of the geometric KLT layers;
+:data:`surfidx.describe.descriptors.SHAPE_PART_WEIGHTS`), so its
 plain L2 distance is the weighted sum of squares of the parts' distances. The texture term
 counts only when the query and the stored model both have colour (both carry a ``"texture"``
 descriptor and the model's ``has_color`` is set); a pair without it is compared by shape alone,

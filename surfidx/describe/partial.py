@@ -36,7 +36,7 @@ PARTIAL_SHARE = 0.2
 #: :func:`surfidx.describe.distance.weighted_l2`: no measured re-weighting ranked partial scans
 #: better).
 PARTIAL_PART_WEIGHTS = {"shells": 1.0, "d2": 1.0, "radial": 1.0, "spectral": 1.0,
-                        "layers": 1.0, "spectrum": 1.0}
+                        "normals": 1.0, "heat": 1.0, "layers": 1.0, "spectrum": 1.0}
 
 
 def part_slices() -> dict:
@@ -48,11 +48,12 @@ def part_slices() -> dict:
         By part name (:data:`surfidx.describe.descriptors.SHAPE_PARTS`), in order.
     """
     # imported here: the command line reads this module's constants without loading numba
-    from .descriptors import (D2_BINS, LAYERS_LMAX, RADIAL_BINS, SHAPE_PARTS, SHELL_LMAX,
-                              SHELLS, SPECTRAL_K)
+    from .descriptors import (D2_BINS, HEAT_BINS, HEAT_TIMES, LAYERS_LMAX, NORMALS_LMAX,
+                              RADIAL_BINS, SHAPE_PARTS, SHELL_LMAX, SHELLS, SPECTRAL_K)
 
     dims = {"shells": SHELLS * (SHELL_LMAX + 1), "d2": D2_BINS, "radial": RADIAL_BINS,
-            "spectral": SPECTRAL_K, "layers": 3 * (LAYERS_LMAX + 1)}
+            "spectral": SPECTRAL_K, "normals": NORMALS_LMAX + 1,
+            "heat": len(HEAT_TIMES) * HEAT_BINS, "layers": 3 * (LAYERS_LMAX + 1)}
     out, start = {}, 0
     for name in SHAPE_PARTS:
         out[name] = slice(start, start + dims[name])
