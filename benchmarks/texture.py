@@ -109,6 +109,7 @@ class Model:
         self.model = read_textured(path, texture)
         self.surfels = real_surfels(self.model)
         self.name, self.samples, self.n = name, samples, len(self.surfels)
+        self.resized, self.files, self.lumas = {}, {}, {}   # image_alone's, across budgets
         self.reference = Reference(self.mesh.to_surfels(samples=samples))
 
     def psnr_d2(self, mesh: TriangleMesh) -> float:
@@ -204,34 +205,51 @@ def _resized(texture: np.ndarray, size: int) -> np.ndarray:
 def image_alone(model: Model, fmt: str, budget: float) -> dict | None:
     """The texture as one ``fmt`` image within ``budget`` bytes, no geometry (see the module
     docstring): per size the highest quality whose file fits (by bisection: a file grows with
-    the quality), the size whose image reads the best luma on the original geometry."""
-    from PIL import Image
-
+    the quality), the size whose image reads the best luma on the original geometry. Files and
+    lumas are kept on ``model`` for the next budget."""
     tex = model.mesh.texture
     best = None
     for size in ALONE_SIZES:
-        if size > max(tex.shape[:2]):
+        if size > max(tex.shape[:2]) or len(_image_file(model, fmt, size, 1)) > budget:
             continue
-        small = _resized(tex, size)
-        lo, hi, fit = 1, 100, None
+        lo, hi, fit = 2, 100, 1
         while lo <= hi:
             q = (lo + hi) // 2
-            data = encode_image(small, image_format=fmt, image_quality=q)
-            if len(data) <= budget:
-                lo, fit = q + 1, (q, data)
+            if len(_image_file(model, fmt, size, q)) <= budget:
+                lo, fit = q + 1, q
             else:
                 hi = q - 1
-        if fit is None:
-            continue
-        with Image.open(io.BytesIO(fit[1])) as im:
+        y = _image_luma(model, fmt, size, fit)
+        if best is None or y > best["y"]:
+            nbytes = len(_image_file(model, fmt, size, fit))
+            best = {"y": y, "bytes": nbytes, "rate": model.rate(nbytes),
+                    "setting": f"{size}² q{fit}"}
+    return best
+
+
+def _image_file(model: Model, fmt: str, size: int, quality: int) -> bytes:
+    """The texture resized to ``size`` as a ``fmt`` file at ``quality`` (kept on ``model``)."""
+    key = (fmt, size, quality)
+    if key not in model.files:
+        if size not in model.resized:
+            model.resized[size] = _resized(model.mesh.texture, size)
+        model.files[key] = encode_image(model.resized[size], image_format=fmt,
+                                        image_quality=quality)
+    return model.files[key]
+
+
+def _image_luma(model: Model, fmt: str, size: int, quality: int) -> float:
+    """Luma of :func:`_image_file`'s image on the original geometry (kept on ``model``)."""
+    from PIL import Image
+
+    key = (fmt, size, quality)
+    if key not in model.lumas:
+        with Image.open(io.BytesIO(_image_file(model, fmt, size, quality))) as im:
             decoded = np.asarray(im.convert("RGB"))
         m = model.mesh
-        y = model.psnr_y(TriangleMesh(m.vertices, m.faces, uv=m.uv, uv_faces=m.uv_faces,
-                                      texture=decoded))
-        if best is None or y > best["y"]:
-            best = {"y": y, "bytes": len(fit[1]), "rate": model.rate(len(fit[1])),
-                    "setting": f"{size}² q{fit[0]}"}
-    return best
+        model.lumas[key] = model.psnr_y(TriangleMesh(m.vertices, m.faces, uv=m.uv,
+                                                     uv_faces=m.uv_faces, texture=decoded))
+    return model.lumas[key]
 
 
 def pair(model: Model, draco: list[dict], images: list[dict], fmt: str, budget: float,
