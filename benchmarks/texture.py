@@ -3,9 +3,12 @@ texture as a JPEG or WebP image), luma and geometry at equal total bytes.
 
 For each textured model (the bundled spot, and the YCB banana and scissors of the shared data):
 
-* **surfidx**: the input surfels (one per mesh vertex, as ``surfidx encode`` reads the model)
-  coded by one ``surfidx.codec.Encoder`` at each rate, decoded at the stream's level as a mesh
-  with its colour as a texture (``decode(mesh=True, texture=True)``). Bytes: the whole ``.sfz``.
+* **surfidx**: the model read and repaired as ``ingest`` reads it (``surfidx.topology.read_model``:
+  one surfel per mesh vertex; a surface of higher genus cut at its handles, the cuts closed by
+  virtual patches) and coded as ``ingest`` codes it (``surfidx.codec.PartsEncoder`` with the
+  textured mesh as the colour source) at each rate, decoded as ``get`` decodes it, as a mesh with
+  its colour as a texture (``decode(mesh=True, texture=True)``: the input's genus and holes
+  restored). Bytes: the whole ``.sfz``.
 * **Draco + image**: the mesh split at its UV seams (one vertex per vertex/UV pair, as a glTF
   holds it) and coded by Draco (DracoPy, compression level 10) with its texture coordinates, at
   position quantisation ``DRACO_BITS`` and UV quantisation ``UV_BITS``; the texture resized
@@ -21,7 +24,8 @@ Measures, the same functions for every coder (``surfidx.geometry.metrics``):
 * **D2 dB**: symmetric point-to-plane PSNR (:class:`~surfidx.geometry.metrics.Reference`) between
   ``--samples`` uniform samples of the original surface and as many of the decoded one (peak:
   the original's bounding-box diagonal);
-* **b/s**: total bits per input surfel (= per vertex of the input mesh).
+* **b/s**: total bits per input surfel (a vertex of the input mesh; the virtual surfels of a
+  repaired model's patches not counted).
 
 Pairing at a total budget of ``rate * surfels / 8`` bytes, per image format, two ways:
 
@@ -30,6 +34,12 @@ Pairing at a total budget of ``rate * surfels / 8`` bytes, per image format, two
   pair with the best luma; "-" when none fits. The baseline buys no colour with shape.
 * **best colour**: the (Draco setting, image) pair with the best luma within the budget,
   whatever its geometry (its D2 beside it).
+
+**Texture alone, no geometry**: the ceiling of every codec that sends the colour as this
+texture: the whole budget spent on the image alone (per format, each of ``ALONE_SIZES`` not
+above the texture's own, at the highest quality 1 … 100 whose file fits, the best of them),
+its luma measured on the original geometry. A surfidx luma above it would need colour coded
+better than the image codec codes the texture itself.
 
 Pairs are ranked by the luma expected from the two errors added (the image's on the original
 geometry, the Draco setting's quantised positions and UVs with the original texture); the
@@ -58,11 +68,12 @@ import numpy as np  # noqa: E402
 from surfidx import TriangleMesh  # noqa: E402
 from surfidx.errors import SurfidxError  # noqa: E402
 from surfidx.geometry.metrics import Reference, psnr_luma_surface  # noqa: E402
-from surfidx.io import read_mesh, read_surfels  # noqa: E402
+from surfidx.io import read_mesh  # noqa: E402
 from surfidx.io.texture import encode_image  # noqa: E402
 
 from _draco import dracopy  # noqa: E402
 from _markdown import Report, add_markdown_option  # noqa: E402
+from _textured import parts_encoder, read_textured, real_surfels  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "models"
@@ -77,8 +88,10 @@ DRACO_BITS = tuple(range(6, 15))
 UV_BITS = (8, 10, 12)
 DRACO_LEVEL = 10
 SIZES = (128, 256, 512, 1024, 2048)
+ALONE_SIZES = (64, 96, 128, 192, 256, 384, 512, 768, 1024, 1536, 2048)
 QUALITIES = (20, 40, 60, 80, 95)
 FORMATS = ("jpeg", "webp")
+TARGETS = {3.56: 36.0, 16.0: 42.0}   # the issue's luma targets (dB) at these rates
 SAMPLES = 50_000
 
 
@@ -93,8 +106,10 @@ class Model:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             self.mesh = read_mesh(path, **kw)
-            self.surfels = read_surfels(path, **kw)
+        self.model = read_textured(path, texture)
+        self.surfels = real_surfels(self.model)
         self.name, self.samples, self.n = name, samples, len(self.surfels)
+        self.resized, self.files, self.lumas = {}, {}, {}   # image_alone's, across budgets
         self.reference = Reference(self.mesh.to_surfels(samples=samples))
 
     def psnr_d2(self, mesh: TriangleMesh) -> float:
@@ -110,14 +125,14 @@ class Model:
 
 
 def run_surfidx(model: Model, rates) -> list[dict]:
-    from surfidx.codec import Encoder, decode
+    from surfidx.codec import decode
 
-    # the textured mesh goes in as the colour source (as ingest passes it): colour is sampled
-    # from the texture on its own grid, not from the surfels' vertex colours
-    enc = Encoder(model.surfels, texture=model.mesh)
+    # as ingest codes it: colour sampled from the texture on its own grid
+    enc = parts_encoder(model.model)
     rows = []
     for rate in rates:
-        data = enc.encode(rate)
+        # the encoder's rate counts the virtual surfels too: the same bytes as the baselines'
+        data = enc.encode(rate * model.n / enc.n_surfels)
         t0 = time.perf_counter()
         dec = decode(data, mesh=True, texture=True)
         t_dec = time.perf_counter() - t0
@@ -157,13 +172,11 @@ def run_images(model: Model) -> list[dict]:
 
     tex = model.mesh.texture
     h, w = tex.shape[:2]
-    base = Image.fromarray(tex, "RGB")
     rows = []
     for size in SIZES:
         if size > max(h, w):
             continue
-        side = (max(1, round(w * size / max(h, w))), max(1, round(h * size / max(h, w))))
-        small = np.asarray(base.resize(side, Image.LANCZOS) if side != (w, h) else base)
+        small = _resized(tex, size)
         for fmt in FORMATS:
             for quality in QUALITIES:
                 data = encode_image(small, image_format=fmt, image_quality=quality)
@@ -176,6 +189,67 @@ def run_images(model: Model) -> list[dict]:
                              "bytes": len(data), "y": model.psnr_y(on_original),
                              "image": decoded})
     return rows
+
+
+def _resized(texture: np.ndarray, size: int) -> np.ndarray:
+    """The texture resized (Lanczos) so that its longer side is ``size``."""
+    from PIL import Image
+
+    h, w = texture.shape[:2]
+    side = (max(1, round(w * size / max(h, w))), max(1, round(h * size / max(h, w))))
+    if side == (w, h):
+        return texture
+    return np.asarray(Image.fromarray(texture, "RGB").resize(side, Image.LANCZOS))
+
+
+def image_alone(model: Model, fmt: str, budget: float) -> dict | None:
+    """The texture as one ``fmt`` image within ``budget`` bytes, no geometry (see the module
+    docstring): per size the highest quality whose file fits (by bisection: a file grows with
+    the quality), the size whose image reads the best luma on the original geometry. Files and
+    lumas are kept on ``model`` for the next budget."""
+    tex = model.mesh.texture
+    best = None
+    for size in ALONE_SIZES:
+        if size > max(tex.shape[:2]) or len(_image_file(model, fmt, size, 1)) > budget:
+            continue
+        lo, hi, fit = 2, 100, 1
+        while lo <= hi:
+            q = (lo + hi) // 2
+            if len(_image_file(model, fmt, size, q)) <= budget:
+                lo, fit = q + 1, q
+            else:
+                hi = q - 1
+        y = _image_luma(model, fmt, size, fit)
+        if best is None or y > best["y"]:
+            nbytes = len(_image_file(model, fmt, size, fit))
+            best = {"y": y, "bytes": nbytes, "rate": model.rate(nbytes),
+                    "setting": f"{size}² q{fit}"}
+    return best
+
+
+def _image_file(model: Model, fmt: str, size: int, quality: int) -> bytes:
+    """The texture resized to ``size`` as a ``fmt`` file at ``quality`` (kept on ``model``)."""
+    key = (fmt, size, quality)
+    if key not in model.files:
+        if size not in model.resized:
+            model.resized[size] = _resized(model.mesh.texture, size)
+        model.files[key] = encode_image(model.resized[size], image_format=fmt,
+                                        image_quality=quality)
+    return model.files[key]
+
+
+def _image_luma(model: Model, fmt: str, size: int, quality: int) -> float:
+    """Luma of :func:`_image_file`'s image on the original geometry (kept on ``model``)."""
+    from PIL import Image
+
+    key = (fmt, size, quality)
+    if key not in model.lumas:
+        with Image.open(io.BytesIO(_image_file(model, fmt, size, quality))) as im:
+            decoded = np.asarray(im.convert("RGB"))
+        m = model.mesh
+        model.lumas[key] = model.psnr_y(TriangleMesh(m.vertices, m.faces, uv=m.uv,
+                                                     uv_faces=m.uv_faces, texture=decoded))
+    return model.lumas[key]
 
 
 def pair(model: Model, draco: list[dict], images: list[dict], fmt: str, budget: float,
@@ -212,6 +286,25 @@ def _joint_y(y_geometry: float, y_image: float) -> float:
 
 
 # ---------------------------------------------------------------------- output
+def _ceiling_note(name: str, ours: list[dict], ceiling: dict) -> str:
+    """What the texture alone reads at the whole budget of each target rate of the issue
+    (36 dB at 3.56 b/s, 42 dB at 16 b/s), beside surfidx."""
+    parts = []
+    for rate, target in TARGETS.items():
+        got = {fmt: a for fmt in FORMATS for r, a in ceiling[fmt] if r == rate and a}
+        mine = [r["y"] for r in ours if r["target"] == rate]
+        if not got or not mine:
+            continue
+        fmt = max(got, key=lambda f: got[f]["y"])
+        y = got[fmt]["y"]
+        verdict = ("below the target, so no codec of this family (the model's colour sent as "
+                   "this texture) can meet it at this rate") if y < target else "at or above it"
+        parts.append(f"at {rate:g} b/s the texture alone ({fmt.upper()} {got[fmt]['setting']}, "
+                     f"the whole budget, no geometry) reads Y {y:.2f} dB against the target "
+                     f"{target:g} dB, {verdict}; surfidx {mine[0]:.2f} dB")
+    return f"{name}: " + "; ".join(parts) + "." if parts else f"{name}: no target rate measured."
+
+
 def _cells(r: dict | None) -> list[str]:
     if r is None:
         return ["-", "-", "-", "-"]
@@ -246,12 +339,21 @@ def main(argv=None) -> int:
         tex = model.mesh.texture
         try:
             ours = run_surfidx(model, rates)
-        except SurfidxError as exc:   # e.g. a surface of higher genus: the codec alone needs 0
+        except SurfidxError as exc:
             report.text(f"{name}: skipped, surfidx cannot code it as read ({exc})")
             continue
+        summary = model.model.summary() if model.model.repaired else None
+        if summary:
+            report.text(f"{name}: repaired as ingest repairs it: {summary['parts']} part(s), "
+                        f"genus {summary['genus_before']} before, {summary['handles_cut']} "
+                        f"handle(s) cut, {summary['holes_filled']} hole(s) filled, "
+                        f"{summary['virtual_surfels']:,} virtual surfels "
+                        f"({summary['virtual_area_share']:.1%} of the area) not counted in "
+                        f"the rate")
         draco = run_draco(model)
         images = run_images(model)
         rows = []
+        ceiling = {fmt: [] for fmt in FORMATS}
         for r in ours:
             budget = r["target"] * model.n / 8
             line = [f"{r['target']:g}", f"{r['rate']:.2f}", f"{r['y']:.2f}", f"{r['d2']:.2f}"]
@@ -259,13 +361,20 @@ def main(argv=None) -> int:
                 line += _cells(pair(model, draco, images, fmt, budget, r["d2"]))
             for fmt in FORMATS:
                 line += _cells(pair(model, draco, images, fmt, budget, None))
+            for fmt in FORMATS:
+                alone = image_alone(model, fmt, budget)
+                ceiling[fmt].append((r["target"], alone))
+                line += ["-", "-"] if alone is None else [f"{alone['y']:.2f}", alone["setting"]]
             rows.append(line)
         head = ["b/s", "surfidx b/s", "surfidx Y", "surfidx D2"]
         for label in ("shape matched", "best colour"):
             for fmt in ("JPEG", "WebP"):
                 head += [f"{fmt} {label} b/s", "Y", "D2", "setting"]
+        for fmt in ("JPEG", "WebP"):
+            head += [f"{fmt} texture alone, no geometry: Y", "setting"]
         report.table(head, rows, title=f"{name}: {model.n:,} surfels, texture "
                                        f"{tex.shape[1]}×{tex.shape[0]}")
+        report.text(_ceiling_note(name, ours, ceiling))
         report.table(["Draco setting", "bytes", "b/s", "D2", "Y with the original texture"],
                      [[g["setting"], f"{g['bytes']:,}", f"{g['rate']:.2f}", f"{g['d2']:.2f}",
                        f"{g['y']:.2f}"] for g in draco],

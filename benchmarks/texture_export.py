@@ -1,8 +1,9 @@
 """Colour written as vertex colours or as a texture baked on the grid's atlas: luma PSNR
 against a dense sampling of the original texture, and the bytes of each file.
 
-For each textured model of the shared data the stream is coded once at the largest rate and the
-others are its prefixes. At each rate the decoded grid mesh is written as GLB twice: with
+For each textured model of the shared data the model is read and coded as ``ingest`` does
+(``_textured``: repaired into parts, the textured mesh as the colour source, so the colour grid
+is sampled from the texture), once at the largest rate, and the others are its prefixes. At each rate the decoded grid mesh is written as GLB twice: with
 vertex colours (``--vertex-colors``) and with its colour as a texture (PNG, and WebP at quality
 90). Each written GLB is read back with trimesh; luma PSNR (BT.709) against the original mesh and its
 own texture is :func:`surfidx.geometry.metrics.psnr_luma_surface` (``SAMPLES`` points on each
@@ -27,11 +28,13 @@ use_portable_profile()
 import numpy as np  # noqa: E402
 
 from surfidx import TriangleMesh  # noqa: E402
-from surfidx.codec import decode, encode  # noqa: E402
+from surfidx.codec import decode, max_file_bytes  # noqa: E402
+from surfidx.codec.container import truncate  # noqa: E402
 from surfidx.geometry.metrics import psnr_luma_surface  # noqa: E402
-from surfidx.io import read_mesh, read_surfels, write_model  # noqa: E402
+from surfidx.io import read_mesh, write_model  # noqa: E402
 
 from _markdown import Report, add_markdown_option  # noqa: E402
+from _textured import parts_encoder, read_textured, real_surfels  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "models"
 MODELS = {"spot": "spot/spot_triangulated.obj",
@@ -60,9 +63,12 @@ def measure(name: str, data: Path, rates):
     path = data / MODELS[name]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        surfels = read_surfels(path)
         reference = read_mesh(path)
-    stream = encode(surfels, bits_per_surfel=max(rates))
+    model = read_textured(path)
+    surfels = real_surfels(model)
+    enc = parts_encoder(model)
+    # the rates count the input's surfels, not the virtual patches'
+    stream = enc.encode(max(rates) * len(surfels) / enc.n_surfels)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for rate in rates:
@@ -72,7 +78,8 @@ def measure(name: str, data: Path, rates):
                         "texture WebP q90": dict(texture=True, image_format="webp")}
             for label, opts in variants.items():
                 fmt = opts.pop("image_format", "png")
-                m = decode(stream, bits_per_surfel=rate, mesh=True, **opts)
+                m = decode(truncate(stream, max_file_bytes(rate, len(surfels))), mesh=True,
+                           **opts)
                 out = Path(tmp) / f"{name}_{rate:g}_{len(row)}.glb"
                 write_model(m, out, image_format=fmt)
                 row[label] = (psnr_luma_surface(reference, _read_back(out), samples=SAMPLES),
@@ -85,7 +92,8 @@ def measure(name: str, data: Path, rates):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", nargs="+", choices=sorted(MODELS), default=["spot", "ycb_banana"])
+    ap.add_argument("--models", nargs="+", choices=sorted(MODELS),
+                    default=["spot", "ycb_banana", "ycb_scissors"])
     ap.add_argument("--rates", nargs="+", type=float, default=list(RATES),
                     help="bits per input surfel; the stream is coded at the largest and the "
                          "others are its prefixes")
