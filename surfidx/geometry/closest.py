@@ -174,26 +174,56 @@ def closest_points(points, vertices, faces, *, candidates: int = 16):
     check_positive_int(candidates, "candidates")
     tri = vertices[faces]
     cen = tri.mean(axis=1)
-    reach = float(np.linalg.norm(tri - cen[:, None, :], axis=2).max())
+    radius = np.linalg.norm(tri - cen[:, None, :], axis=2).max(axis=1)
+    # triangles far larger than nearly all others are tried for every point (few, in chunks),
+    # so that one long sliver does not widen every point's search to the whole mesh
+    big = np.flatnonzero(radius > _BIG_RADIUS * float(np.quantile(radius, 0.99)))
+    small = np.setdiff1d(np.arange(len(faces)), big) if len(big) else np.arange(len(faces))
+    face, bary, dist = _closest_small(points, vertices, faces, small, cen[small],
+                                      float(radius[small].max()), candidates)
+    rows = max(1, _CHUNK // max(len(big), 1))
+    for s in range(0, len(points) if len(big) else 0, rows):
+        r = np.arange(s, min(s + rows, len(points)))
+        cand = np.ascontiguousarray(np.broadcast_to(big, (len(r), len(big))))
+        f2, b2, d22 = project_to_candidates(points[r], cand, vertices, faces)
+        better = np.sqrt(d22) < dist[r]
+        sel = r[better]
+        face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
+    return face, bary, dist
+
+
+_BIG_RADIUS = 4.0
+"""A triangle whose centroid-to-corner radius exceeds this multiple of the 99th percentile is
+tried for every point instead of through the centroid tree."""
+
+_CHUNK = 1 << 22
+"""Point-candidate pairs projected at once where the search widens (bounds the memory)."""
+
+
+def _closest_small(points, vertices, faces, small, cen, reach, candidates):
+    """Closest of the triangles ``small`` (centroids ``cen``, radii at most ``reach``): the
+    nearest-centroid candidates first; a point whose answer the distance bound does not certify
+    tries twice as many, in chunks of at most ``_CHUNK`` pairs, until it does."""
     tree = cKDTree(cen)
-    k = min(candidates, len(faces))
+    k = min(candidates, len(small))
     dk, cand = tree.query(points, k=k, workers=-1)
     if k == 1:
         dk, cand = dk[:, None], cand[:, None]
-    cand = np.ascontiguousarray(cand, np.int64)
-    face, bary, d2 = project_to_candidates(points, cand, vertices, faces)
+    face, bary, d2 = project_to_candidates(points, small[cand], vertices, faces)
     dist = np.sqrt(d2)
-    if k < len(faces):
-        # an untried triangle is at least (its centroid distance - reach) >= dk[:, -1] - reach away
-        redo = np.flatnonzero(dist > dk[:, -1] - reach)
-        if len(redo):
-            lists = tree.query_ball_point(points[redo], dist[redo] + reach + 1e-12 * (1 + reach))
-            width = max(len(x) for x in lists)
-            more = np.full((len(redo), width), -1, np.int64)
-            for r, x in enumerate(lists):  # one row per uncertified point (few)
-                more[r, :len(x)] = x
-            f2, b2, d22 = project_to_candidates(points[redo], more, vertices, faces)
-            better = d22 < d2[redo]
-            sel = redo[better]
+    # an untried triangle is at least (its centroid distance - reach) >= dk[:, -1] - reach away
+    redo = np.flatnonzero(dist > dk[:, -1] - reach)
+    while len(redo) and k < len(small):
+        k = min(2 * k, len(small))
+        last = np.empty(len(redo))
+        rows = max(1, _CHUNK // k)
+        for s in range(0, len(redo), rows):
+            r = redo[s:s + rows]
+            dr, cr = tree.query(points[r], k=k, workers=-1)
+            f2, b2, d22 = project_to_candidates(points[r], small[cr], vertices, faces)
+            better = np.sqrt(d22) < dist[r]
+            sel = r[better]
             face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
+            last[s:s + len(r)] = dr[:, -1]
+        redo = redo[dist[redo] > last - reach]
     return face, bary, dist
