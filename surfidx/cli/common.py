@@ -342,9 +342,8 @@ def export_options(func=None, *, folder: bool = False):
                         help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ "
                              "and GLB, surfels for PLY).")(func)
     func = click.option("--level", type=int, default=None,
-                        help="Grid level of the output (default: the stream's own, or at a "
-                             "rate too low for its finest levels the one the prefix supports; "
-                             "lower: fewer surfels, but --max-vertices keeps the shape "
+                        help="Grid level of the output (default: the stream's own, at any "
+                             "rate; lower: fewer surfels, but --max-vertices keeps the shape "
                              "better).")(func)
     func = rate_option(func, help="Decode (or keep, for .sfz) only the prefix of the stream "
                                   "that fits this rate (default: all of it).")

@@ -64,7 +64,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
-           "READ_LEVEL_MIN", "pass_bits", "output_levels"]
+           "READ_LEVEL_MIN", "pass_bits"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 """Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
@@ -996,7 +996,12 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
     the coefficients down to that level only, see :func:`read_level`). A stream with a colour
     grid appends its decoded colour grid to ``fine`` (when given)."""
     level = header.level if level is None else level
-    stream = _served(data, header, stream, bits_per_surfel)
+    if bits_per_surfel is not None:
+        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
+        if keep < 4:
+            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
+                             "file (header plus 4 bytes)")
+        stream = stream[:keep]
     zh, klt, field = checked
     if header.color_level is not None:
         values, colors = _decode_color_grid(header, stream, path, checked, level)
@@ -1032,92 +1037,6 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
                              f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
                              path=path)
     return values
-
-
-def _served(data, header, stream, bits_per_surfel):
-    """The prefix of a part's zerotree ``stream`` that a rate of ``bits_per_surfel`` keeps
-    (all of it when None)."""
-    if bits_per_surfel is None:
-        return stream
-    keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
-    if keep < 4:
-        raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
-                         "file (header plus 4 bytes)")
-    return stream[:keep]
-
-
-def _default_level(data, header, stream, bits_per_surfel, path, checked) -> int:
-    """The grid level a part decodes to by default (see :func:`output_levels`): one above the
-    finest level with a significant geometry coefficient in the prefix served, at most the
-    stream's."""
-    stream = _served(data, header, stream, bits_per_surfel)
-    zh = checked[0]
-    rl, k, options = header.level, header.layers, {}
-    if header.color_level is not None:
-        groups, limits = _layout(header.level, header.color_level)
-        rl, k = header.color_level, 6
-        options = {"schedule": _stream_schedule(header, zh, path), "groups": groups,
-                   "depth_limits": limits}
-    _, planes = zerotree.decode(stream, vertex_count(rl), k, _grid_forest(rl), None, None,
-                                header=zh, planes=True, **options)
-    ng = vertex_count(header.level)
-    coded = np.any(planes.magnitudes[:ng, :3] != 0, axis=1)
-    levels = icosphere(header.level).level_of[coded]
-    return min(int(header.level), int(levels.max()) + 1) if levels.size else 0
-
-
-def _served_parts(data: bytes, bits_per_surfel, path):
-    """A container's parts, unpacked, and the rate left to serve each part at: a multi-part
-    file is cut to ``bits_per_surfel`` over all its parts' surfels first (as
-    :func:`surfidx.codec.container.truncate` splits it), so that its parts are served whole."""
-    data = bytes(data)
-    blobs = container.unpack_parts(data, path=path)
-    unpacked = [container.unpack(b, path=path) for b in blobs]
-    if bits_per_surfel is not None and len(blobs) > 1:
-        total = sum(h.n_surfels for h, _ in unpacked)
-        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
-        blobs = container.unpack_parts(data, path=path)
-        unpacked = [container.unpack(b, path=path) for b in blobs]
-        bits_per_surfel = None
-    return blobs, unpacked, bits_per_surfel
-
-
-def output_levels(data: bytes, *, bits_per_surfel: float | None = None, path=None) -> list:
-    """The grid level each part of a container decodes to by default (:func:`decode` without
-    ``level``), following the prefix served.
-
-    The level is one above the finest grid level that holds a significant geometry
-    coefficient, at most the stream's own: at the rates where the finest levels hold coded
-    coefficients, the stream's level. Below them those levels' vertices would be the wavelets'
-    interpolation of the coarser surface alone; one such level still follows the surface
-    closer than the coarser grid (its points fill in between the coded ones), but further
-    ones only add points that lie further from the surface than the coded ones. Costs one
-    zerotree decoding of each part.
-
-    Parameters
-    ----------
-    data : bytes
-        A ``.sfz`` container.
-    bits_per_surfel : float, optional
-        The rate it is served at, as for :func:`decode`.
-    path : str, optional
-        Name for messages.
-
-    Returns
-    -------
-    list of int
-        One level per part, in part order.
-
-    Raises
-    ------
-    BitstreamError
-        A damaged container.
-    InputError
-        A rate below the file's lowest.
-    """
-    blobs, unpacked, bits = _served_parts(data, bits_per_surfel, path)
-    return [_default_level(b, h, s, bits, path, check_header(h, path=path))
-            for b, (h, s) in zip(blobs, unpacked)]
 
 
 def _decode_color_grid(header, stream, path, checked, level: int):
@@ -1196,10 +1115,9 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
     level : int, optional
         Return the decoded surface on the grid of this level (0 … the stream's level; default:
-        the level the prefix served supports, :func:`output_levels`: the stream's own once
-        its finest levels hold coded coefficients, one above the finest level that does below
-        that, so that at most one level of the output is the wavelets' interpolation of a
-        coarser surface). Coarser grids
+        the stream's level, at any rate: where a prefix left the finest levels' coefficients
+        zero, the wavelets interpolate them from the coarser surface, which follows a smooth
+        surface far better than the coarser grid and costs little elsewhere). Coarser grids
         are prefixes of finer ones, so this keeps the first ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
         grid is coarser than ``level`` is decoded at its own. The stream is read down to
@@ -1356,7 +1274,15 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
         One per part (a single-part file gives a list of one).
     """
     bake = _texture_plan(texture, texture_size, mesh=mesh, max_vertices=None)
-    blobs, unpacked, bits_per_surfel = _served_parts(data, bits_per_surfel, path)
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    unpacked = [container.unpack(b, path=path) for b in blobs]
+    if bits_per_surfel is not None and len(blobs) > 1:
+        total = sum(h.n_surfels for h, _ in unpacked)
+        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
+        blobs = container.unpack_parts(data, path=path)
+        unpacked = [container.unpack(b, path=path) for b in blobs]
+        bits_per_surfel = None
     checked = [check_header(h, path=path) for h, _ in unpacked]
     if level is not None and not (isinstance(level, (int, np.integer))
                                   and not isinstance(level, bool)
@@ -1372,9 +1298,6 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
                          f"{sum(vertex_count(lv) for lv in levels):,} surfels, more than "
                          f"max_surfels = {limit:,}; decode at a coarser level or raise "
                          "max_surfels", path=path)
-    if level is None:   # checked at the streams' levels first: nothing decoded beyond them
-        levels = [_default_level(b, h, s, bits_per_surfel, path, chk)
-                  for b, (h, s), chk in zip(blobs, unpacked, checked)]
     name = Path(path).stem if path else None
     tile = None
     if bake is not None:
