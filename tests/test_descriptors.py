@@ -162,18 +162,18 @@ def test_heat_part_is_intrinsic_and_tells_limbs_from_bodies():
 def test_normals_part_is_the_gaussian_image_energy():
     """A sphere faces every way equally: its normals' measure has energy at degree 0 only; a
     flattened ellipsoid's normals crowd at its poles (degree 2)."""
-    from surfidx.describe.descriptors import NORMALS_LMAX, _normal_energies
+    from surfidx.describe.descriptors import NORMALS_LMAX, normal_energies
 
     v = icosphere(5).vertices
-    round_ = _normal_energies(v, 5, None)
+    round_ = normal_energies(v, 5, None)
     assert round_.shape == (NORMALS_LMAX + 1,)
     assert round_[0] == pytest.approx(1.0 / np.sqrt(4.0 * np.pi))    # orthonormal Y_00
     assert np.all(round_[1:] < 0.001)
-    flat = _normal_energies(v * [1.0, 1.0, 0.3], 5, None)
+    flat = normal_energies(v * [1.0, 1.0, 0.3], 5, None)
     assert flat[2] > 0.3
     assert flat[1] < 0.01            # a closed surface's normals balance: no degree-1 energy
     # weighing out half of the surface (the faces of the x > 0 half as virtual) unbalances them
-    half = _normal_energies(v, 5, (v[:, 0] < 0).astype(float))
+    half = normal_energies(v, 5, (v[:, 0] < 0).astype(float))
     assert half[1] > 0.2
 
 

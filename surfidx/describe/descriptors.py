@@ -108,7 +108,7 @@ from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, w
 from .views import model_views, view_params
 
 __all__ = ["DescriptorSet", "describe_grid", "descriptor_distance", "descriptor_params",
-           "DEFAULT_LMAX",
+           "DEFAULT_LMAX", "normal_energies", "heat_part",
            "SH_NORMALIZATION", "DESCRIPTOR_VERSION"]
 
 from .options import DEFAULT_LMAX  # noqa: E402  (defined with DescribeOptions)
@@ -269,7 +269,7 @@ def _shell_energies(y: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(_measure_energies(y, w, shell, SHELLS, SHELL_LMAX)) * damp
 
 
-def _normal_energies(x: np.ndarray, level: int, real) -> np.ndarray:
+def normal_energies(x: np.ndarray, level: int, real) -> np.ndarray:
     """(NORMALS_LMAX+1,) the *normals* part: sqrt per-degree energies of the grid surface's
     area measure on the sphere of its face normals (an extended Gaussian image).
 
@@ -335,7 +335,7 @@ def shape_parts(x: np.ndarray, level: int, layers: np.ndarray, *, virtual=None) 
     part["d2"] = np.sqrt(_hist(d / max(d.mean(), 1e-300), None, D2_BINS, D2_RMAX))
     part["radial"] = np.sqrt(_hist(np.linalg.norm(y, axis=1), w, RADIAL_BINS, RADIAL_RMAX))
     lev = min(level, NORMALS_LEVEL)
-    part["normals"] = _normal_energies(x[:vertex_count(lev)], lev,
+    part["normals"] = normal_energies(x[:vertex_count(lev)], lev,
                                        None if real is None else real[:vertex_count(lev)])
     return {name: part[name] for name in SHAPE_PARTS}
 
