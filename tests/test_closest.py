@@ -42,6 +42,17 @@ def test_closest_points_checks_its_input():
         closest_points(np.zeros((1, 3)), v, [[0, 1, 3]])
 
 
+def _grid_with_sliver(n, sliver):
+    """An n x n vertex grid of small triangles in z = 0 plus one triangle ``sliver`` (3, 3)."""
+    xs, ys = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    v = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(n * n)])
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    f = np.concatenate([np.column_stack([i, i + 1, i + n]), np.column_stack([i + 1, i + n + 1, i + n])])
+    v = np.vstack([v, sliver])
+    f = np.vstack([f, [[n * n, n * n + 1, n * n + 2]]]).astype(np.int64)
+    return v, f
+
+
 def _brute_force(points, v, f):
     from surfidx.geometry.closest import project_to_candidates
     cand = np.broadcast_to(np.arange(len(f)), (len(points), len(f))).copy()
@@ -53,13 +64,7 @@ def test_one_long_sliver_and_far_points_give_the_exact_closest_points():
     # the sliver is tried for every point apart, and points far off the surface widen their
     # search in chunks; every answer equals the brute-force one
     rng = np.random.default_rng(7)
-    n = 30
-    xs, ys = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
-    v = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(n * n)])
-    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
-    f = np.concatenate([np.column_stack([i, i + 1, i + n]), np.column_stack([i + 1, i + n + 1, i + n])])
-    v = np.vstack([v, [[-500.0, 3.0, 2.0], [500.0, 3.2, 2.0], [0.0, 3.1, 2.5]]])
-    f = np.vstack([f, [[n * n, n * n + 1, n * n + 2]]]).astype(np.int64)
+    v, f = _grid_with_sliver(30, [[-500.0, 3.0, 2.0], [500.0, 3.2, 2.0], [0.0, 3.1, 2.5]])
     pts = np.vstack([rng.uniform([-5, -5, -3], [35, 35, 3], (300, 3)),
                      rng.uniform(-200, 200, (20, 3))])
     face, bary, dist = closest_points(pts, v, f, candidates=4)
@@ -75,13 +80,7 @@ def test_a_long_sliver_does_not_widen_every_search():
     # local (a ball as wide as the sliver for every point would take gigabytes)
     import tracemalloc
     rng = np.random.default_rng(3)
-    n = 51
-    xs, ys = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
-    v = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(n * n)])
-    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
-    f = np.concatenate([np.column_stack([i, i + 1, i + n]), np.column_stack([i + 1, i + n + 1, i + n])])
-    v = np.vstack([v, [[-1000.0, 25.0, 1.0], [1000.0, 25.5, 1.0], [0.0, 25.2, 1.5]]])
-    f = np.vstack([f, [[n * n, n * n + 1, n * n + 2]]]).astype(np.int64)
+    v, f = _grid_with_sliver(51, [[-1000.0, 25.0, 1.0], [1000.0, 25.5, 1.0], [0.0, 25.2, 1.5]])
     pts = rng.uniform([0, 0, -2], [50, 50, 2], (10_000, 3))
     closest_points(pts[:10], v, f)          # compiled kernels loaded outside the measurement
     tracemalloc.start()
