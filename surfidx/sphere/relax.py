@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import numba
+from .decimate import _vertex_faces
 
 __all__ = ["Relaxation"]
 
@@ -137,15 +138,6 @@ def _sweeps(x, ptr, idx, f, cot, area3, lam, radius, sweeps, reach):  # pragma: 
     return moves
 
 
-def _vertex_triangles(f, n: int):
-    """The triangles around each vertex as CSR ``(ptr, idx)``, each vertex's in increasing
-    order."""
-    flat = f.ravel()
-    ptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(flat, minlength=n), out=ptr[1:])
-    return ptr, (np.argsort(flat, kind="stable") // 3).astype(np.int64)
-
-
 class Relaxation:
     """Sweeps of vertex-by-vertex relaxation of one mesh's balancing energy.
 
@@ -175,7 +167,7 @@ class Relaxation:
         self.cot = np.ascontiguousarray(cot, dtype=np.float64)
         self.area3 = np.ascontiguousarray(area3, dtype=np.float64)
         self.radius, self.lam = float(radius), float(lam)
-        self.ptr, self.idx = _vertex_triangles(self.f, n)
+        self.ptr, self.idx = _vertex_faces(self.f, n)
         self.reach = np.zeros(n)
 
     def __call__(self, x, sweeps: int):
