@@ -178,18 +178,15 @@ def closest_points(points, vertices, faces, *, candidates: int = 16):
     # triangles far larger than nearly all others are tried for every point (few, in chunks),
     # so that one long sliver does not widen every point's search to the whole mesh
     big = np.flatnonzero(radius > _BIG_RADIUS * float(np.quantile(radius, 0.99)))
-    small = np.setdiff1d(np.arange(len(faces)), big) if len(big) else np.arange(len(faces))
-    face, bary, dist = _closest_small(points, vertices, faces, small, cen[small],
-                                      float(radius[small].max()), candidates)
-    rows = max(1, _CHUNK // max(len(big), 1))
-    for s in range(0, len(points) if len(big) else 0, rows):
-        r = np.arange(s, min(s + rows, len(points)))
-        cand = np.ascontiguousarray(np.broadcast_to(big, (len(r), len(big))))
-        f2, b2, d22 = project_to_candidates(points[r], cand, vertices, faces)
-        better = np.sqrt(d22) < dist[r]
-        sel = r[better]
-        face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
-    return face, bary, dist
+    small = np.setdiff1d(np.arange(len(faces)), big)
+    found = _closest_small(points, vertices, faces, small, cen[small],
+                           float(radius[small].max()), candidates)
+    if len(big):
+        rows = max(1, _CHUNK // len(big))
+        for s in range(0, len(points), rows):
+            r = np.arange(s, min(s + rows, len(points)))
+            _improve(points, r, np.broadcast_to(big, (len(r), len(big))), vertices, faces, found)
+    return found
 
 
 _BIG_RADIUS = 4.0
@@ -220,10 +217,18 @@ def _closest_small(points, vertices, faces, small, cen, reach, candidates):
         for s in range(0, len(redo), rows):
             r = redo[s:s + rows]
             dr, cr = tree.query(points[r], k=k, workers=-1)
-            f2, b2, d22 = project_to_candidates(points[r], small[cr], vertices, faces)
-            better = np.sqrt(d22) < dist[r]
-            sel = r[better]
-            face[sel], bary[sel], dist[sel] = f2[better], b2[better], np.sqrt(d22[better])
+            _improve(points, r, small[cr], vertices, faces, (face, bary, dist))
             last[s:s + len(r)] = dr[:, -1]
         redo = redo[dist[redo] > last - reach]
     return face, bary, dist
+
+
+def _improve(points, rows, cand, vertices, faces, found):
+    """Try the candidate triangles ``cand`` (one row per index of ``rows``) for those points and
+    keep, in ``found = (face, bary, dist)``, each one closer than the answer held."""
+    face, bary, dist = found
+    f2, b2, d22 = project_to_candidates(points[rows], np.ascontiguousarray(cand), vertices, faces)
+    d = np.sqrt(d22)
+    better = d < dist[rows]
+    sel = rows[better]
+    face[sel], bary[sel], dist[sel] = f2[better], b2[better], d[better]
