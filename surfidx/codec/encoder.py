@@ -553,10 +553,28 @@ def _code_mask(surfels, sphere_points, location, face_patch, level):
         if where:
             _, near = cKDTree(icosphere(level).vertices).query(np.array(list(where.values())))
             anchors[list(where)] = near
-    bits, codes = mask_regions(patches, level, surfels.patch_cut, anchors=anchors)
+    bits, codes = mask_regions(patches, level, surfels.patch_cut, anchors=anchors,
+                               centres=_patch_centres(surfels, sphere_points, face_patch, P))
     if bits.any():
         return encode_mask(bits, level), codes, float(bits.mean())
     return b"", (), 0.0
+
+
+def _patch_centres(surfels, sphere_points, face_patch, P):
+    """(P, 3) float64: each patch's centre on the unit sphere, the normalised mean of the
+    sphere points of its virtual surfels and of its faces' corners (``face_patch``); NaN for a
+    patch with neither."""
+    pts = np.asarray(sphere_points, np.float64)
+    total = np.zeros((P, 3))
+    on = np.flatnonzero(surfels.patch >= 0)
+    np.add.at(total, surfels.patch[on], pts[on])
+    if face_patch is not None and surfels.faces is not None:
+        fp = np.asarray(face_patch, np.int64)
+        f = np.flatnonzero(fp >= 0)
+        np.add.at(total, fp[f], pts[surfels.faces[f]].sum(axis=1))
+    norm = np.linalg.norm(total, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(norm[:, None] > 0, total / norm[:, None], np.nan)
 
 
 def quantise(prepared: Prepared):

@@ -6,8 +6,16 @@ smallest grid vertex) each get a code (:func:`surfidx.codec.container.region_cod
 input, or a side of a handle cut) in the container's region table. :func:`mask_regions` makes
 each patch one region: a patch the grid misses gets the real grid vertex nearest one of its
 surfels with no patch beside it, two patches on neighbouring grid vertices are moved apart (the
-larger gives up its vertices beside the smaller), and a patch the grid splits is joined along
-shortest grid paths that pass beside no other patch.
+larger gives up its vertices beside the smaller), a patch the grid splits is joined along
+shortest grid paths that pass beside no other patch, and patches that still meet (each on its
+last grid vertices beside the other: two holes closer together than the grid's spacing) are
+parted by moving the smaller to one real grid vertex with no patch beside it, the one nearest
+its image on the sphere within 3 hops. The mask's regions are its connected pieces, so two
+patches on neighbouring grid vertices would be one hole to the decoder whatever it does.
+Last, the encoder runs the decoder's clean-up (below) on the mask, and where two regions
+would still drop as one hole (crowded within two grid hops) it moves the smaller patch of
+each such group to a vertex with no other patch within 2 hops, so that each patch with a grid
+vertex decodes as its own hole or cut side wherever the grid has room for it.
 
 Decoder side (:func:`restore`): the grid faces over each region are dropped as one clean disk, and
 the two boundary loops of each cut are zipped together again, so that the decoded mesh has the
@@ -17,7 +25,9 @@ input's boundary loops and genus:
 2. repeated until nothing changes: each region keeps only its largest edge-connected piece of
    faces (a region left without a face takes the star of its smallest vertex, or one face of it
    where the star would touch another region); pieces of the kept surface cut off from its
-   largest piece join the region around them; a vertex where the kept surface is pinched (more
+   largest piece join the region around them, except a piece that shares a vertex with the
+   largest piece at which two regions meet (a band between two holes two grid hops apart: the
+   next rule joins it again); a vertex where the kept surface is pinched (more
    than two of its boundary edges) gives its whole star to the region holding it, or back to the
    kept surface where two regions meet there (so two holes closer together than the grid's
    spacing decode as two);
@@ -89,8 +99,14 @@ def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
     return count, region
 
 
-def mask_regions(patches, level: int, patch_cut, *, anchors=None):
+def mask_regions(patches, level: int, patch_cut, *, anchors=None, centres=None):
     """The mask bits and region table of the grid's patch labels.
+
+    Each patch with a grid vertex (or an anchor) is one region of the mask, and one hole or
+    cut side of :func:`restore`'s mesh, when the grid has room for it: patches that would meet
+    on the grid or in the decoder's clean-up are parted (module docs); only where no free grid
+    vertex lies within 3 hops of a patch's vertices do two patches stay one region or one hole.
+    (A patch the grid splits and no fenced path joins stays several regions.)
 
     Parameters
     ----------
@@ -102,6 +118,10 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
     anchors : (P,) int, optional
         A grid vertex for each patch (-1: none), made virtual when the patch has no grid
         vertex (a patch smaller than the grid's spacing).
+    centres : (P, 3) float64, optional
+        Where each patch lies on the unit sphere (a row of NaN: unknown). A patch moved off
+        another goes to the candidate vertex nearest its centre (default, and for an unknown
+        centre: the candidate of smallest index).
 
     Returns
     -------
@@ -118,7 +138,11 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
         for p in range(P):
             a = int(anchors[p])
             if a >= 0 and not (lab == p).any():
-                _place(lab, level, p, a)
+                v = _place(lab, level, p, [a])
+                if v >= 0:
+                    lab[v] = p
+                elif lab[a] < 0:    # no free vertex near: a itself
+                    lab[a] = p
     _separate(lab, level, P)
     graph = None
     for p in _split_patches(lab, level):   # joined along shortest grid paths
@@ -144,6 +168,8 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None):
             while v >= 0 and region[v] != 0:
                 lab[v] = p
                 v = int(pred[v])
+    _part(lab, level, P, centres)
+    _part_decoded(lab, level, P, centres)
     bits = lab >= 0
     count, region = grid_regions(bits, level)
     codes = []
@@ -185,32 +211,135 @@ def _separate(lab, level: int, P: int) -> None:
     lab[gone[left[lab[gone]] > 0]] = -1     # both would vanish: they stay, and meet
 
 
-def _place(lab, level: int, p: int, a: int) -> None:
-    """Give patch ``p`` (on no grid vertex) the grid vertex nearest ``a`` in grid hops (of
-    equal hops, the smallest index) that is real and has no patch beside it, in place; ``a``
-    itself when none within 3 hops is (and it is real)."""
+def _place(lab, level: int, p: int, seeds, centre=None, gap: int = 1) -> int:
+    """The grid vertex for patch ``p`` (on no grid vertex): of the real vertices with no other
+    patch within ``gap`` grid hops, one fewest grid hops from ``seeds`` (within 3 hops), of
+    those the one nearest ``centre`` on the sphere (no centre, or NaN: the smallest index); -1
+    when there is none. ``lab`` is only read."""
     g = _grid_graph(level)
     taken = lab >= 0
-    near = _beside_others(lab, level, p)    # p has no vertex yet: beside any patch
-    ring, seen = np.array([a]), {a}
+    near = _beside_others(lab, level, p, gap)
+    ring = np.unique(np.asarray(seeds, np.int64))
+    seen = set(ring.tolist())
     for _ in range(4):
         ok = ring[~taken[ring] & ~near[ring]]
         if len(ok):
-            lab[int(ok.min())] = p
-            return
+            if centre is None or not np.isfinite(centre).all():
+                return int(ok.min())
+            d = icosphere(level).vertices[ok] @ np.asarray(centre, np.float64)
+            return int(ok[np.lexsort((ok, -d))[0]])
         nxt = np.unique(g[ring].indices)
         ring = np.array([x for x in nxt.tolist() if x not in seen], np.int64)
         seen.update(ring.tolist())
         if not len(ring):
             break
-    if lab[a] < 0:
-        lab[a] = p
+    return -1
 
 
-def _beside_others(lab, level: int, p: int) -> np.ndarray:
-    """(n,) bool: grid vertices with a neighbour in a patch other than ``p``."""
-    other = ((lab >= 0) & (lab != p)).astype(np.int8)
-    return (_grid_graph(level) @ other) > 0
+def _part_decoded(lab, level: int, P: int, centres=None) -> None:
+    """Part the patches whose regions the decoder would drop as one hole, in place.
+
+    The decoder's clean-up (:func:`restore`) runs on the mask: regions whose dropped faces
+    share a boundary loop of the kept surface, or a region left with no loop of its own,
+    would decode as fewer holes than the mask has regions (small regions crowded within two
+    grid hops of each other). Of each such group of regions, the patch with the fewest grid
+    vertices (of equal counts, the higher index) that has not moved yet goes to the vertex
+    :func:`_place` finds from its vertices with no other patch within 2 grid hops, so that no
+    face of the grid touches it and another patch. Then the decoder's clean-up runs again;
+    each patch moves at most once, so this ends, with the decoded holes the regions or no
+    patch left to move.
+    """
+    faces, nbr, _ = _grid_faces(level)
+    moved = np.zeros(P, bool)
+    while True:
+        count, region = grid_regions(lab >= 0, level)
+        if count < 2:
+            return
+        label = _clean(level, region, count)
+        root = np.arange(count)         # regions sharing a loop: union-find
+
+        def find(r):
+            while root[r] != r:
+                root[r] = root[root[r]]
+                r = root[r]
+            return r
+
+        own = np.zeros(count, bool)
+        for _, labs in _boundary_loops(faces, nbr, label):
+            rs = np.unique(labs[labs >= 0])
+            if len(rs) == 1:
+                own[rs[0]] = True
+            for r in rs[1:]:
+                root[find(r)] = find(rs[0])
+        group = np.array([find(r) for r in range(count)])
+        bad = (np.bincount(group, minlength=count)[group] > 1) | ~own
+        if not bad.any():
+            return
+        on = np.flatnonzero(lab >= 0)
+        size = np.bincount(lab[on], minlength=P)
+        patch_of = np.zeros(count, np.int64)    # each region's patch (its most frequent)
+        for r in np.flatnonzero(bad):
+            patch_of[r] = np.bincount(lab[region == r]).argmax()
+        chosen = []
+        for gid in np.unique(group[bad]):       # groups in order of their smallest region
+            ps = np.unique(patch_of[bad & (group == gid)])
+            ps = ps[~moved[ps]]
+            if len(ps):
+                chosen.append(int(ps[np.lexsort((-ps, size[ps]))[0]]))
+        if not chosen:
+            return
+        for p in chosen:
+            moved[p] = True
+            _move(lab, level, p, None if centres is None else centres[p], gap=2)
+
+
+def _part(lab, level: int, P: int, centres=None) -> None:
+    """Part the patches that still share a region of the mask, in place.
+
+    While a connected piece of the mask holds more than one patch, the patch of that piece
+    with the fewest grid vertices (of equal counts, the higher index) that has not moved yet
+    leaves its vertices for the one :func:`_place` finds from them (nearest its centre): a
+    real vertex with no patch beside it, so the move joins nothing. A patch with no such
+    vertex within 3 hops keeps its vertices. Each patch moves at most once, so this ends.
+    """
+    moved = np.zeros(P, bool)
+    while True:
+        count, region = grid_regions(lab >= 0, level)
+        on = np.flatnonzero(lab >= 0)
+        pairs = np.unique(np.stack([region[on], lab[on]], axis=1), axis=0)
+        shared = np.flatnonzero(np.bincount(pairs[:, 0], minlength=count) > 1) \
+            if len(pairs) else np.zeros(0, np.int64)
+        size = np.bincount(lab[on], minlength=P)
+        for r in shared:            # the pieces in order of their smallest vertex
+            ps = pairs[pairs[:, 0] == r, 1]
+            ps = ps[~moved[ps]]
+            if len(ps):
+                break
+        else:
+            return
+        p = int(ps[np.lexsort((-ps, size[ps]))[0]])
+        moved[p] = True
+        _move(lab, level, p, None if centres is None else centres[p], gap=1)
+
+
+def _move(lab, level: int, p: int, centre, gap: int) -> None:
+    """Patch ``p`` leaves its grid vertices for the one :func:`_place` finds from them, in
+    place; it keeps them when there is none."""
+    old = np.flatnonzero(lab == p)
+    lab[old] = -1
+    v = _place(lab, level, p, old, centre, gap=gap)
+    lab[old if v < 0 else [v]] = p
+
+
+def _beside_others(lab, level: int, p: int, hops: int = 1) -> np.ndarray:
+    """(n,) bool: grid vertices reached from a vertex of a patch other than ``p`` by 1 to
+    ``hops`` grid edges (``hops = 1``: a neighbour in another patch)."""
+    g = _grid_graph(level)
+    other = (lab >= 0) & (lab != p)
+    near = (g @ other.astype(np.int8)) > 0
+    for _ in range(hops - 1):
+        near = ((g @ (near | other).astype(np.int8)) > 0) | near
+    return near
 
 
 def _split_patches(lab, level: int) -> np.ndarray:
@@ -382,13 +511,15 @@ def _clean(level, region, n_regions):
         lab, count = _components(kept, nbr)
         if count > 1:
             big = _largest(lab, count)
+            on_big = np.zeros(n, bool)
+            on_big[faces[lab == big].ravel()] = True
             for c in range(count):
                 if c == big:
                     continue
                 isl = np.flatnonzero(lab == c)
                 around = label[nbr[isl].ravel()]
                 around = around[around >= 0]
-                if len(around):
+                if len(around) and not _bridge(faces[isl], on_big, star, label):
                     label[isl] = np.bincount(around).argmax()
         # pinched vertices of the kept surface: more than two boundary edges
         kept = label < 0
@@ -408,6 +539,19 @@ def _clean(level, region, n_regions):
         if np.array_equal(before, label):
             break
     return label
+
+
+def _bridge(corners, on_big, star, label) -> bool:
+    """Whether a piece of the kept surface (its faces' ``corners``) cut off from the largest
+    piece shares a vertex with it at which two regions meet: the pinch step then gives that
+    vertex's star back to the kept surface, which joins the piece again and keeps the two
+    regions apart (a band of faces between two holes two grid hops apart)."""
+    shared = np.unique(corners)
+    for v in shared[on_big[shared]]:
+        held = label[star[v].indices]
+        if len(np.unique(held[held >= 0])) > 1:
+            return True
+    return False
 
 
 def _boundary_loops(faces, nbr, label):
