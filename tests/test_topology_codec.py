@@ -237,6 +237,29 @@ def test_two_patches_at_any_distance_are_two_holes_on_the_grid(a, radii, hops):
     assert topo == dict(loops=2, genus=(0,), parts=1, manifold=True)
 
 
+def test_touching_one_vertex_patches_part_toward_the_centre():
+    """Two patches on neighbouring grid vertices, each its patch's only one: patch 1 (equal
+    sizes: the higher index) moves to the free vertex nearest its centre, or without centres
+    to the free vertex of smallest index; patch 0 stays."""
+    from surfidx.geometry.icosphere import icosphere
+
+    level = 3
+    V = np.asarray(icosphere(level).vertices)
+    G = _grid_graph(level)
+    a = 300
+    b = int(G[a].indices.max())
+    free = [w for w in G[b].indices.tolist() if w != a and a not in G[w].indices]
+    lab = np.full(len(V), -1)
+    lab[[a, b]] = [0, 1]
+    for want in free:
+        c = V[b] + V[want]
+        bits, codes = mask_regions(lab, level, [-1, -1],
+                                   centres=np.stack([V[a], c / np.linalg.norm(c)]))
+        assert codes == (0, 0) and np.flatnonzero(bits).tolist() == sorted([a, want])
+    bits, _ = mask_regions(lab, level, [-1, -1])
+    assert np.flatnonzero(bits).tolist() == sorted([a, min(free)])
+
+
 @settings(max_examples=60)
 @given(st.integers(0, 641), st.lists(st.tuples(st.integers(0, 3), st.integers(0, 5),
                                                st.integers(0, 1)), min_size=2, max_size=4))
