@@ -66,3 +66,21 @@ def test_sweeps_are_deterministic():
     a, _ = Relaxation(f, energy.cot, energy.area3, energy.radius, energy.lam, len(x))(x, 3)
     b, _ = Relaxation(f, energy.cot, energy.area3, energy.radius, energy.lam, len(x))(x, 3)
     assert np.array_equal(a, b)
+
+
+def test_sweeps_stop_after_one_that_gains_less_than_the_tolerance():
+    """With ``tol``, the sweeps stop after the first whose fall of the energy is below that
+    fraction of it: fewer sweeps than asked, each a prefix of the untolerant run's."""
+    _, f, x, energy = _start()
+    full = Relaxation(f, energy.cot, energy.area3, energy.radius, energy.lam, len(x))
+    a, _ = full(x, 40)
+    assert full.passes == 40
+    short = Relaxation(f, energy.cot, energy.area3, energy.radius, energy.lam, len(x))
+    b, moves = short(x, 40, tol=1e-2)
+    assert moves > 0 and 1 <= short.passes < 40
+    again = Relaxation(f, energy.cot, energy.area3, energy.radius, energy.lam, len(x))
+    c, _ = again(x, short.passes)
+    assert np.array_equal(b, c)         # the same sweeps, stopped by a count of them
+    e = energy(b, grad=False)[0]
+    assert energy(a, grad=False)[0] <= e < energy(x, grad=False)[0]
+    assert np.all(orientation(b, f) > 0)

@@ -25,7 +25,8 @@ needs repair afterwards. The steps, one module each:
    step only when no triangle degenerates anywhere along it (the exact form of the Smith &
    Schaefer step bound), so every iterate is an embedding. Its runs alternate with sweeps of
    :mod:`.relax`, which move one vertex at a time on its star's energy and open up the
-   squeezed stars that would cut the global steps short. The energy is smallest for a
+   squeezed stars that would cut the global steps short (a batch of sweeps stops after one that
+   lowers the energy by less than ``sweep_tol`` of it). The energy is smallest for a
    similarity of unit area ratio, so limbs keep the share of the sphere the grid needs. A level
    whose start is squeezed beyond ``settle_energy`` (kernels nested in thin wedges round after
    round) is prolonged again with each round's mesh balanced. A Möbius normalisation that turns

@@ -211,7 +211,7 @@ class Energy:
 def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
             memory: int = 8, tol: float = 1e-7, precondition: bool = True,
             shift: float = 1e-3, lam: float | None = None, max_cot: float = 4.0,
-            patience: int = 20):
+            patience: int = 20, sweep_tol: float = 0.0):
     """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
     spherical embedding.
 
@@ -231,6 +231,9 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
         With ``lam``: sweeps of vertex-by-vertex relaxation (:mod:`surfidx.sphere.relax`)
         before each of the ``rounds`` runs of L-BFGS and after the last; they open up the
         squeezed stars that cut the global steps short.
+    sweep_tol : float
+        Each batch of sweeps stops after a sweep that lowers the energy by less than this
+        fraction of it (0: all ``sweeps``).
     rounds : int
         The L-BFGS steps are split into this many runs (the first takes the remainder), each
         from a fresh history after its sweeps.
@@ -256,7 +259,7 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
         The balanced embedding, still fold-free.
     info : dict
         ``energy_start``, ``energy`` (per unit area; 4 is an isometry), ``steps``, ``moves``
-        (vertex moves of the sweeps).
+        (vertex moves of the sweeps), ``sweeps`` (sweeps run).
     """
     energy = Energy(p, f, max_cot=max_cot)
     if lam is not None:
@@ -265,7 +268,8 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
     y = np.array(x, dtype=np.float64)
     e0, _ = energy(y, grad=False)
     if not np.isfinite(e0):
-        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0, "moves": 0}
+        return x, {"energy_start": np.inf, "energy": np.inf, "steps": 0, "moves": 0,
+                   "sweeps": 0}
     iterations, rounds = max(int(iterations), 0), max(int(rounds), 1)
     relax = Relaxation(energy.f, energy.cot, energy.area3, energy.radius, energy.lam,
                        energy.n) if sweeps > 0 and lam is not None else None
@@ -275,19 +279,20 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
     e, steps, moves = e0, 0, 0
     for r in range(rounds):
         if relax is not None:
-            y, m = relax(y, sweeps)
+            y, m = relax(y, sweeps, tol=sweep_tol)
             moves += m
         run = iterations // rounds + (iterations % rounds if r == 0 else 0)
         if run:
             y, e, s = _lbfgs(energy, y, solve, apply, run, memory, tol, patience)
             steps += s
     if relax is not None:
-        y, m = relax(y / np.linalg.norm(y, axis=1)[:, None], sweeps)
+        y, m = relax(y / np.linalg.norm(y, axis=1)[:, None], sweeps, tol=sweep_tol)
         moves += m
     if relax is not None or not steps:
         e, _ = energy(y, grad=False)
     x = y / np.linalg.norm(y, axis=1)[:, None]
-    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps, "moves": moves}
+    return x, {"energy_start": e0 / total, "energy": e / total, "steps": steps, "moves": moves,
+               "sweeps": relax.passes if relax is not None else 0}
 
 
 def _identity(r):

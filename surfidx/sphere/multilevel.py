@@ -86,7 +86,8 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
                       (options.final_sweeps, options.final_rounds))
     x, binfo = balance_map(x, p, f, iterations=steps if balance else 0,
                            sweeps=sweeps if balance else 0, rounds=rounds,
-                           lam=options.energy_lambda, max_cot=np.inf,
+                           sweep_tol=options.sweep_tol, lam=options.energy_lambda,
+                           max_cot=np.inf,
                            tol=options.loose_tol if large else options.strict_tol,
                            patience=options.loose_patience if large else options.strict_patience)
     x = centre(x, vertex_areas(f, areas3(p, f), n), f, iterations=options.centre_iterations)
@@ -112,15 +113,16 @@ def _balanced_start(x, p, f, options: MapOptions) -> bool:
 
 def _settle(round_faces, p, options: MapOptions):
     """The ``settle`` of :meth:`surfidx.sphere.decimate.Hierarchy.prolong` that balances the
-    mesh of each round (``round_faces``) for ``options.round_steps`` steps."""
+    mesh of each round (``round_faces``) for ``options.round_steps`` steps, with
+    ``options.round_sweeps`` relaxation sweeps before and after them."""
     def settle(x, r):
         f = round_faces[r]
         verts = np.unique(f)
         local = np.full(len(x), -1, dtype=np.int64)
         local[verts] = np.arange(len(verts))
         y, _ = balance_map(x[verts], p[verts], local[f], iterations=options.round_steps,
-                           sweeps=options.relax_sweeps, lam=options.energy_lambda,
-                           max_cot=np.inf)
+                           sweeps=options.round_sweeps, sweep_tol=options.sweep_tol,
+                           lam=options.energy_lambda, max_cot=np.inf)
         x[verts] = y
         return x
     return settle

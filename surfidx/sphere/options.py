@@ -21,10 +21,12 @@ the default), by the codec and by the CLI."""
 STAGES = ("multilevel", "proxy", "mds")
 """Names of the stage records of a :class:`surfidx.sphere.SphericalMap`, in the order they run."""
 
-MAP_VERSION = 3
+MAP_VERSION = 4
 """Version of the map's construction, stored with the data it produced (the codec's report):
 2 is the map that embeds every level by construction (no fold repair), 3 the same map balanced
-by vertex relaxation sweeps between runs of fewer L-BFGS steps."""
+by vertex relaxation sweeps between runs of fewer L-BFGS steps, 4 the same with each batch of
+sweeps stopped after one that gains less than ``sweep_tol`` and no sweeps in the balancing
+after each round of a level prolonged round by round (``round_sweeps``)."""
 
 
 @dataclass(frozen=True)
@@ -59,13 +61,19 @@ class MapOptions:
         relaxation (:mod:`surfidx.sphere.relax`), with sweeps after the last run too.
     relax_sweeps : int
         Relaxation sweeps before each run of L-BFGS steps on every level but the finest (and
-        in the single-level map, and after each round of a level prolonged round by round).
+        in the single-level map).
+    sweep_tol : float
+        Every batch of relaxation sweeps stops after a sweep that lowers the level's energy by
+        less than this fraction of it (0: all of them).
     settle_energy : float
         A level whose prolonged start has a balancing energy per unit area above this (4 for
         an isometry; kernel insertions nested in thin wedges give 1e10 and more, which the
         balancing cannot undo) is prolonged again round by round, each round's mesh balanced.
     round_steps : int
         Most balancing steps after each round of such a level.
+    round_sweeps : int
+        Relaxation sweeps before and after those steps (each round's mesh is balanced again
+        by the next round and the whole level after the last, so a round needs few).
     final_steps : int
         Most L-BFGS balancing steps at the finest level.
     final_steps_large : int
@@ -114,8 +122,10 @@ class MapOptions:
     level_steps: int = 90
     level_rounds: int = option(3, min=1)
     relax_sweeps: int = option(10, min=0)
+    sweep_tol: float = 1e-5
     settle_energy: float = 1e4
-    round_steps: int = 30
+    round_steps: int = 10
+    round_sweeps: int = option(0, min=0)
     final_steps: int = 600
     final_steps_large: int = 150
     final_rounds: int = option(2, min=1)

@@ -10,7 +10,10 @@ pass over the mesh, and the global steps that follow are long again.
 
 Each move is along the great circle through the vertex in the direction of steepest descent,
 its length halved until the star's energy falls by the Armijo fraction; the accepted length,
-doubled, is the next sweep's first try for that vertex. A triangle's orientation
+doubled, is the next sweep's first try for that vertex. The sweeps stop early when one of them
+lowers the mesh's energy by less than a given fraction of it (a move lowers the whole energy by
+what it lowers its star's, so the fall is summed move by move): a sweep that gains that little
+is followed by ones that gain less. A triangle's orientation
 ``det[q, b, c]`` is linear in the unnormalised vertex ``q``, so a star counter-clockwise at both
 ends of a move is counter-clockwise along it: an embedding stays an embedding at every move.
 Vertices are visited in index order, so the result depends on the input alone.
@@ -101,13 +104,39 @@ def _shortest_edge(x, v, ptr, idx, f):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _sweeps(x, ptr, idx, f, cot, area3, lam, radius, sweeps, reach):  # pragma: no cover
-    """``sweeps`` passes over the vertices in index order, each vertex moved once per pass (in
-    place); ``reach[v]``, the length of ``v``'s next first try (0: not yet known), is updated.
-    Returns the number of moves."""
+def _total(x, f, cot, area3, lam, radius):  # pragma: no cover - compiled
+    """The mesh's energy at the unit vectors ``x`` (infinite when a triangle is not
+    counter-clockwise): the sum over triangles of :func:`_star`'s terms."""
+    e = 0.0
+    for t in range(f.shape[0]):
+        i0, i1, i2 = f[t, 0], f[t, 1], f[t, 2]
+        a0, a1, a2 = radius * x[i0, 0], radius * x[i0, 1], radius * x[i0, 2]
+        b0, b1, b2 = radius * x[i1, 0], radius * x[i1, 1], radius * x[i1, 2]
+        e0, e1, e2 = radius * x[i2, 0], radius * x[i2, 1], radius * x[i2, 2]
+        ar = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)[0]
+        if ar <= 0.0:
+            return np.inf
+        d = 0.5 * (cot[t, 0] * ((e0 - b0) ** 2 + (e1 - b1) ** 2 + (e2 - b2) ** 2)
+                   + cot[t, 1] * ((a0 - e0) ** 2 + (a1 - e1) ** 2 + (a2 - e2) ** 2)
+                   + cot[t, 2] * ((b0 - a0) ** 2 + (b1 - a1) ** 2 + (b2 - a2) ** 2))
+        det = ar / area3[t]
+        e += (d + lam * area3[t] * (det * det + 1.0)) / det
+    return e
+
+
+@numba.njit(cache=True)
+def _sweeps(x, ptr, idx, f, cot, area3, lam, radius, sweeps, reach, total, tol):  # pragma: no cover
+    """At most ``sweeps`` passes over the vertices in index order, each vertex moved once per
+    pass (in place); ``reach[v]``, the length of ``v``'s next first try (0: not yet known), is
+    updated. ``total`` is the mesh's energy at ``x``: the passes stop after one that lowers it
+    by less than the fraction ``tol`` (``tol <= 0``: never). Returns the number of moves and of
+    passes."""
     g = np.zeros(3)
     moves = 0
+    passes = 0
     for _ in range(sweeps):
+        fall = 0.0
+        passes += 1
         for v in range(x.shape[0]):
             q0, q1, q2 = x[v, 0], x[v, 1], x[v, 2]
             g[0] = g[1] = g[2] = 0.0
@@ -131,11 +160,15 @@ def _sweeps(x, ptr, idx, f, cot, area3, lam, radius, sweeps, reach):  # pragma: 
                 if e2 <= e - _ARMIJO * h * gn * gn:
                     x[v, 0], x[v, 1], x[v, 2] = y0, y1, y2
                     moves += 1
+                    fall += e - e2
                     length *= 2.0
                     break
                 length *= 0.5
             reach[v] = length
-    return moves
+        if fall < tol * total:
+            break
+        total -= fall
+    return moves, passes
 
 
 class Relaxation:
@@ -159,7 +192,7 @@ class Relaxation:
     Notes
     -----
     The object keeps each vertex's last accepted move length, so sweeps split over several
-    calls go on where the last call stopped.
+    calls go on where the last call stopped, and counts the sweeps run in :attr:`passes`.
     """
 
     def __init__(self, f, cot, area3, radius: float, lam: float, n: int):
@@ -169,9 +202,12 @@ class Relaxation:
         self.radius, self.lam = float(radius), float(lam)
         self.ptr, self.idx = _vertex_faces(self.f, n)
         self.reach = np.zeros(n)
+        self.passes = 0
 
-    def __call__(self, x, sweeps: int):
-        """Relax the embedding ``x`` ``(n, 3)`` (unit vectors) for ``sweeps`` sweeps.
+    def __call__(self, x, sweeps: int, *, tol: float = 0.0):
+        """Relax the embedding ``x`` ``(n, 3)`` (unit vectors) for at most ``sweeps`` sweeps,
+        stopping after the first that lowers the mesh's energy by less than the fraction
+        ``tol`` of it (``tol <= 0``: all ``sweeps``).
 
         Returns
         -------
@@ -181,6 +217,11 @@ class Relaxation:
             Vertex moves taken.
         """
         y = np.array(x, dtype=np.float64, order="C")
-        moves = _sweeps(y, self.ptr, self.idx, self.f, self.cot, self.area3, self.lam,
-                        self.radius, int(sweeps), self.reach)
+        total = _total(y, self.f, self.cot, self.area3, self.lam, self.radius) if tol > 0 \
+            else 0.0
+        if not np.isfinite(total):      # not an embedding: no fraction of it to compare with
+            total, tol = 0.0, 0.0
+        moves, passes = _sweeps(y, self.ptr, self.idx, self.f, self.cot, self.area3, self.lam,
+                                self.radius, int(sweeps), self.reach, float(total), float(tol))
+        self.passes += int(passes)
         return y, int(moves)

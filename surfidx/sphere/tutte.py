@@ -249,7 +249,8 @@ def tutte_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma
     x_start, sd_start = x, sd
     x, binfo = balance_map(x, p, f, iterations=single_level_steps(n, options),
                            sweeps=options.relax_sweeps, rounds=options.level_rounds,
-                           lam=options.energy_lambda, max_cot=np.inf)
+                           sweep_tol=options.sweep_tol, lam=options.energy_lambda,
+                           max_cot=np.inf)
     x = centre(x, va, f, iterations=options.centre_iterations)
     sd = spread(x)
     if sd > sd_start:
