@@ -8,7 +8,8 @@ as ingest does, coded once at the top rate, and the stream's prefixes at each ra
 * ``stream``: at the stream's own level (the default before the level followed the prefix);
 * ``default``: as :func:`surfidx.codec.decode` does now (and which level): the stream's own, or
   the coarser one its header's output-level hints give for the prefix served
-  (:func:`surfidx.codec.output_levels`; the encoder measured them, :func:`surfidx.codec.level_hints`);
+  (:func:`surfidx.codec.output_levels`; measured by the encoder,
+  :func:`surfidx.codec.level_hints`);
 * ``best``: the best PSNR_D2 over every level 0 … the stream's (and which level), so
   ``default - best`` says what the default rule leaves on the table;
 * ``max_vertices``: ``decode(..., mesh=True, max_vertices=n)`` with ``n`` the input's vertex

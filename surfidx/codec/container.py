@@ -26,12 +26,12 @@ __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "h
 
 MAGIC = b"\x89SFZ"
 FORMAT_VERSION = 6
-"""Version 6 (this one): version 5 plus an optional output-level section after the colour-grid
-section (flag bit 6; :data:`HINT_SECTION_BYTES` bytes after the colour-grid section, and the
-fixed header's reserved byte): the stream-prefix lengths below which a decoding without a level
-asked for is written on a coarser grid (:func:`hinted_level`). A file without it is written as
-version 5, 4 or 3, byte for byte as before. Version 5: version 4 plus an optional colour-grid section after the mask (flag
-bit 5): the colour layers on their own finer grid and the schedule of geometry and colour bit
+"""Version 6 (this one): version 5 plus an optional output-level section (flag bit 6;
+:data:`HINT_SECTION_BYTES` bytes after the colour-grid section, and the fixed header's reserved
+byte): the stream-prefix lengths below which a decoding without a level asked for is written on
+a coarser grid (:func:`hinted_level`). A file without it is written as version 5, 4 or 3, byte
+for byte as before. Version 5: version 4 plus an optional colour-grid section after the mask
+(flag bit 5): the colour layers on their own finer grid and the schedule of geometry and colour bit
 planes in the stream. A file without it is written as version 4 or 3, byte for byte as before.
 Version 4: version 3 plus an optional virtual-region mask and region table after
 the density-weight field (flag bit 4), and multi-part files (several part containers in one,
@@ -248,8 +248,8 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors:
 
 def hint_bytes(code: int) -> int:
     """The stream length an output-level code stands for: ``ceil(2^(code / 8))`` bytes (a code
-    step is a factor of 2^(1/8), 9 %; code 0 is 1 byte, shorter than any stream); code 255 stands for 2^32, beyond any stream (a stream's
-    length is stored in 32 bits)."""
+    step is a factor of 2^(1/8), 9 %; code 0 is 1 byte, shorter than any stream); code 255
+    stands for 2^32, beyond any stream (a stream's length is stored in 32 bits)."""
     if int(code) >= 255:
         return 2 ** 32
     return int(math.ceil(2.0 ** (int(code) / 8.0) - 1e-9))
@@ -581,7 +581,8 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         schedule = tuple(int(b) for b in np.unpackbits(raw, bitorder="little")[:n_passes])
     header = Header(
         color_level=color_level, color_top=color_top, schedule=schedule,
-        level_hints=tuple(int(c) for c in level_hints), mask=mask, regions=tuple(int(r) for r in regions),
+        level_hints=tuple(int(c) for c in level_hints), mask=mask,
+        regions=tuple(int(r) for r in regions),
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
         mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
         map_method=method, version=version, tangent_weight=tangent_weight, anchors=anchors,
