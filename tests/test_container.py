@@ -55,10 +55,11 @@ def test_level_hints_round_trip_and_choose_the_level():
     for hints in [(0, 0, 0, 0), (255, 225, 195, 165), (9, 9, 9, 1), (200, 170, 0, 0)]:
         h.level_hints = hints
         assert unpack(pack(h, b"abcd"))[0].level_hints == hints
-    assert (hint_bytes(0), hint_bytes(8), hint_bytes(64), hint_bytes(80)) == (1, 2, 256, 1024)
-    assert hint_bytes(255) == 2 ** 32
-    # level 5 at 1024 bytes and more, 4 from 256 bytes, 3 below
-    assert [hinted_level(h2, n) for n in (4, 255, 256, 1023, 1024, 10 ** 6)] == [3, 3, 4, 4, 5, 5]
+    # codes are rates over the header's 1234 surfels: 128 is 1 bit/surfel, 16 steps an octave
+    assert [hint_bytes(c, 1234) for c in (0, 64, 80, 128, 144, 255)] == [
+        0, 10, 20, 155, 309, 2 ** 64]
+    # level 5 from 20 bytes (80: 1/8 bit/surfel), 4 from 10 bytes (64: 1/16), 3 below
+    assert [hinted_level(h2, n) for n in (4, 9, 10, 19, 20, 10 ** 6)] == [3, 3, 4, 4, 5, 5]
     # a truncated file keeps its hints: its level is that of the prefix it holds
     cut, _ = unpack(truncate(data, len(data) - 100))
     assert cut.level_hints == h2.level_hints

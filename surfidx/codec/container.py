@@ -173,10 +173,10 @@ class Header:
         1 colour; :func:`surfidx.codec.zerotree.group_schedule`).
     level_hints : tuple of int
         Output-level codes (format version 6, flag bit 6): :data:`MAX_LEVEL_HINTS` codes in
-        0 … 255, non-increasing; a prefix whose embedded stream is shorter than
-        :func:`hint_bytes` of the ``i``-th code decodes by default at least ``i + 1`` levels
-        below ``level`` (:func:`hinted_level`; code 0, one byte, never applies). Empty: no
-        section, the stream's level at any rate.
+        0 … 255, non-increasing; a prefix whose container (header and stream served) is
+        smaller than :func:`hint_bytes` of the ``i``-th code decodes by default at least
+        ``i + 1`` levels below ``level`` (:func:`hinted_level`; code 0 never applies, 255
+        always). Empty: no section, the stream's level at any rate.
     """
 
     n_surfels: int
@@ -246,32 +246,37 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors:
     return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
 
 
-def hint_bytes(code: int) -> int:
-    """The stream length an output-level code stands for: ``ceil(2^(code / 8))`` bytes (a code
-    step is a factor of 2^(1/8), 9 %; code 0 is 1 byte, shorter than any stream); code 255
-    stands for 2^32, beyond any stream (a stream's length is stored in 32 bits)."""
-    if int(code) >= 255:
-        return 2 ** 32
-    return int(math.ceil(2.0 ** (int(code) / 8.0) - 1e-9))
+def hint_bytes(code: int, n_surfels: int) -> int:
+    """The container size an output-level code stands for: the bytes of a rate of
+    ``2^((code - 128) / 16)`` bits per input surfel, ``ceil(n_surfels · rate / 8)`` (code 128:
+    1 bit/surfel; a code step is a factor of 2^(1/16), 4.4 %; codes 1 … 254 span 0.004 … 234
+    bits/surfel). Code 0 stands for 0 bytes (never applies), 255 for 2^64 (always)."""
+    code = int(code)
+    if code <= 0:
+        return 0
+    if code >= 255:
+        return 2 ** 64
+    return int(math.ceil(int(n_surfels) * 2.0 ** ((code - 128) / 16.0) / 8.0 - 1e-9))
 
 
-def hinted_level(header: Header, stream_bytes: int) -> int:
+def hinted_level(header: Header, file_bytes: int) -> int:
     """The grid level a prefix decodes to by default: ``header.level`` less the number of
-    :attr:`Header.level_hints` whose :func:`hint_bytes` exceed ``stream_bytes``, the length of
-    the embedded stream served (a function of the bytes served only, so a truncated file
-    decodes as the same prefix served).
+    :attr:`Header.level_hints` whose :func:`hint_bytes` exceed ``file_bytes``, the size of the
+    container served (header and stream prefix: a function of the bytes served only, so a
+    truncated file decodes as the same prefix served).
 
     Parameters
     ----------
     header : Header
-    stream_bytes : int
+    file_bytes : int
 
     Returns
     -------
     int
         In ``max(0, level - len(level_hints))`` … ``level``.
     """
-    below = sum(1 for c in header.level_hints if int(stream_bytes) < hint_bytes(c))
+    below = sum(1 for c in header.level_hints
+                if int(file_bytes) < hint_bytes(c, header.n_surfels))
     return max(0, int(header.level) - below)
 
 

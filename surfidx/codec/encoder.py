@@ -127,9 +127,9 @@ HINT_SLACK = 0.05
 """dB a prefix may lose against its best level measured at no cost in :func:`level_hints`'
 choice: a coarser level must win by more than this to be kept."""
 
-HINT_ROUNDS = 3
+HINT_ROUNDS = 4
 """Rounds in which :func:`level_hints` measures the geometric mean of each two neighbouring
-prefixes whose levels differ: after three, neighbours are 2^(1/8) apart, one code step of
+prefixes whose levels differ: after four, neighbours are 2^(1/16) apart, one code step of
 :func:`surfidx.codec.container.hint_bytes`."""
 
 
@@ -882,6 +882,7 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
         if not new:
             break
     sizes, offsets = _hint_offsets(measured, depth)
+    head = len(blob) - len(stream)
     codes = []
     for i in range(1, depth + 1):
         coarse = [k for k, o in enumerate(offsets) if o >= i]
@@ -891,13 +892,15 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
         if k == 0:
             codes.append(255)
             continue
-        below, above = sizes[k], sizes[k - 1]   # coarser below, finer at and above
-        code = int(round(4.0 * math.log2(below * above)))
-        while container.hint_bytes(code) <= below:
-            code += 1
-        while code > 1 and container.hint_bytes(code) > above:
-            code -= 1
+        # container sizes: coarser at `below`, finer at `above`
+        below, above = sizes[k] + head, sizes[k - 1] + head
+        code = int(round(8.0 * math.log2(below * above * 2.0 ** 6 / header.n_surfels ** 2)
+                         + 128))
         code = min(max(code, 1), 254)
+        while code < 254 and container.hint_bytes(code, header.n_surfels) <= below:
+            code += 1
+        while code > 1 and container.hint_bytes(code, header.n_surfels) > above:
+            code -= 1
         if codes and codes[-1] - code >= container.HINT_GAPS:
             break   # beyond the section's largest gap: this step and the later ones dropped
         codes.append(code)
@@ -1216,8 +1219,8 @@ def _served_length(data, header, stream, bits_per_surfel, path=None) -> int:
 
 def _default_level(data, header, stream, bits_per_surfel, path) -> int:
     """The grid level a part decodes to by default (see :func:`output_levels`)."""
-    return container.hinted_level(header, _served_length(data, header, stream,
-                                                         bits_per_surfel, path))
+    return container.hinted_level(header, len(data) - len(stream) + _served_length(
+        data, header, stream, bits_per_surfel, path))
 
 
 def _served_parts(data: bytes, bits_per_surfel, path):
@@ -1242,7 +1245,7 @@ def output_levels(data: bytes, *, bits_per_surfel: float | None = None, path=Non
 
     The stream's own level, or a coarser one where the encoder measured that the prefix served
     scores a better PSNR_D2 there: the header's output-level hints
-    (:func:`surfidx.codec.container.hinted_level` of the length of the part's stream served,
+    (:func:`surfidx.codec.container.hinted_level` of the size of the part's container served,
     see :func:`level_hints`). The bytes served decide it, so a truncated file decodes as the
     same prefix served; a file without hints (format version 5 and older, or a stream whose
     own level is best at every rate measured) decodes at its own level.
