@@ -53,19 +53,22 @@ def test_prefix_decoding_equals_direct_encoding(enc):
 
 
 def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
-    """Format versions 4 (virtual-region masks, parts) and 5 (colour grids) write colourless
-    closed genus-0 single-part models as version 3, byte for byte (hashes re-measured when the map
-    that embeds every level, map version 2, and its relaxation sweeps, map version 3, changed
-    every map); a coloured stream has its colour grid and is version 5."""
+    """Format versions 4 (virtual-region masks, parts), 5 (colour grids) and 6 (output-level
+    hints) write colourless closed genus-0 single-part models without hints
+    (``CodecOptions.level_hints=False``) as version 3, byte for byte (hashes re-measured when
+    the map that embeds every level, map version 2, and its relaxation sweeps, map version 3,
+    changed every map); with hints (the default) a stream is version 6."""
     import hashlib
+
+    from surfidx.codec import CodecOptions
 
     want = {2.0: "3639a9880cc4330f5b9d56e8788e41b61015f822e84fde139cd561f3ed7d38d3",
             4.0: "7591c72817e0e5a7c2d407db675a23089d0697a7aa8f4eea797a53f3b9ce0303"}
-    plain = Encoder(blob, level=5, color=False)
+    plain = Encoder(blob, level=5, color=False, options=CodecOptions(level_hints=False))
     for rate, digest in want.items():
         data = plain.encode(rate)
         assert data[4] == 3 and hashlib.sha256(data).hexdigest() == digest
-        assert enc.encode(rate)[4] == 5
+        assert enc.encode(rate)[4] == 6
 
 
 def test_high_rate_reproduces_the_grid(blob):
@@ -273,7 +276,7 @@ def test_cli_info_of_a_stream(tmp_path, blob):
     assert r.exit_code == 0, r.output
     info = json.loads(r.output)
     assert info["bytes"] == len(data) and info["input_surfels"] == len(blob)
-    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 5
+    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 6
     assert info["color_level"] >= 4
     assert info["local_frames"] and info["tangent_weight"] == 0.5
     assert len(info["frame_anchors"]) == 4 and info["density_weighted"]

@@ -115,9 +115,9 @@ def read_level(out_level: int, stream_level: int) -> int:
     return min(stream_level, max(out_level + READ_BELOW, READ_LEVEL_MIN))
 
 
-HINT_PREFIXES = 6
-"""Stream prefixes :func:`level_hints` measures first: the whole stream and each 2 times shorter
-one (down to 2^-5 of it: 8 bits/surfel down to 0.25)."""
+HINT_PREFIXES = 11
+"""Stream prefixes :func:`level_hints` measures first: the whole stream and each 2^(1/2) times
+shorter one (down to 2^-5 of it: 8 bits/surfel down to 0.25)."""
 
 HINT_TOLERANCE = 0.15
 """dB: two neighbouring prefixes whose levels differ are refined only when one of them would
@@ -127,9 +127,9 @@ HINT_SLACK = 0.05
 """dB a prefix may lose against its best level measured at no cost in :func:`level_hints`'
 choice: a coarser level must win by more than this to be kept."""
 
-HINT_ROUNDS = 4
+HINT_ROUNDS = 3
 """Rounds in which :func:`level_hints` measures the geometric mean of each two neighbouring
-prefixes whose levels differ: after four, neighbours are 2^(1/16) apart, one code step of
+prefixes whose levels differ: after three, neighbours are 2^(1/16) apart, one code step of
 :func:`surfidx.codec.container.hint_bytes`."""
 
 
@@ -803,7 +803,7 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     tangent planes pass further out, nearer those input points. On a model with sharp creases
     the finest level's points can score worse at any rate.
 
-    The prefixes measured are the whole stream and each 2 times shorter one
+    The prefixes measured are the whole stream and each 2^(1/2) times shorter one
     (:data:`HINT_PREFIXES`), each decoded at the stream's level and up to
     :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` levels below and scored by PSNR_D2 against
     ``reference``. The levels kept for them, the stream's own or coarser and never finer for a
@@ -858,7 +858,7 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
         measured[size] = row
 
     for k in range(HINT_PREFIXES):
-        size = int(len(stream) * 2.0 ** -k)
+        size = int(len(stream) * 2.0 ** (-k / 2))
         if size < 4 or size in measured:
             break
         try:
