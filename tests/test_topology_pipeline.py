@@ -222,7 +222,7 @@ def test_bundled_example_gives_todays_surfels_and_stream():
     ba6312e with read_surfels) and its 2 b/s stream (re-measured when a change of the map, the
     nested-dissection factorisation, Newton steps of the centring, the map that embeds every
     level, its relaxation sweeps (map version 3), changed every map; and when colour got its own grid and pass schedule, format
-    version 5)."""
+    version 5, and the header its output-level hints, format version 6)."""
     import hashlib
     from pathlib import Path
 
@@ -235,7 +235,7 @@ def test_bundled_example_gives_todays_surfels_and_stream():
         "9b0881e4292e36705768e92f816306117c948fd8fbfb421be74cf61a79614a89"
     stream = Encoder(m.parts[0]).encode(2.0)
     assert hashlib.sha256(stream).hexdigest() == \
-        "536c447d95312c4d14471885b69f53b4b47e5acb9392966ff9f411ab1983be4c"
+        "4f44ce731720e51a56fade6f43a89075d9df9565c09a08aa01a0246ff2372ca0"
 
 
 # ---------------------------------------------------------------------------- pipeline, store
