@@ -16,3 +16,4 @@ from .options import CodecOptions as CodecOptions
 from .options import COLOR_IMPORTANCE as COLOR_IMPORTANCE
 from .colorgrid import TextureSource as TextureSource
 from .encoder import Prepared as Prepared, prepare as prepare, code as code
+from .encoder import with_level_hints as with_level_hints

@@ -64,7 +64,8 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
-           "READ_LEVEL_MIN", "pass_bits", "level_hints", "output_levels", "HINT_PREFIXES",
+           "READ_LEVEL_MIN", "pass_bits", "level_hints", "with_level_hints", "output_levels",
+           "HINT_PREFIXES",
            "HINT_ROUNDS", "HINT_SLACK", "HINT_TOLERANCE"]
 
 CODEC_VERSION = container.FORMAT_VERSION
@@ -246,7 +247,8 @@ class Prepared:
     color_importance : float
     level_hints : bool
         The header has an output-level section (:attr:`surfidx.codec.container.Header.level_hints`),
-        which :class:`Encoder` fills (:func:`level_hints`); :func:`code` writes it empty.
+        which :class:`Encoder` fills (:func:`with_level_hints`); :func:`code` writes it with
+        codes 0 (the stream's level at any rate).
     """
 
     n_surfels: int
@@ -785,11 +787,7 @@ class Encoder:
             return code_bytes(p, max_bytes, quantised=None, progress=progress, rate=rate)
         out = code_bytes(p, max_bytes, quantised=self._prepared(), progress=progress,
                          rate=rate)
-        if not p.level_hints:
-            return out
-        header, stream = container.unpack(out)
-        header.level_hints = level_hints(out, self._reference)
-        return container.pack(header, stream)
+        return with_level_hints(out, self._reference) if p.level_hints else out
 
 
 def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
@@ -910,6 +908,35 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
 def _loss(row, offset: int) -> float:
     """dB a measured prefix loses at ``offset`` against its best measured level."""
     return float(max(row) - row[offset]) if np.isfinite(row[offset]) else math.inf
+
+
+def with_level_hints(blob: bytes, reference: SurfelSet) -> bytes:
+    """A one-part container of :func:`code` with its output-level section filled
+    (:func:`level_hints`; the step :class:`Encoder` takes after :func:`code`).
+
+    Parameters
+    ----------
+    blob : bytes
+        A container with an output-level section (``Prepared.level_hints``).
+    reference : SurfelSet
+        The surface it codes (its real surfels, without virtual patches).
+
+    Returns
+    -------
+    bytes
+        The same container, its codes measured: the stream and its length unchanged.
+
+    Raises
+    ------
+    InputError
+        A container without an output-level section.
+    """
+    header, stream = container.unpack(blob)
+    if not header.level_hints:
+        raise InputError("the container has no output-level section (code it with "
+                         "CodecOptions(level_hints=True))")
+    header.level_hints = level_hints(blob, reference)
+    return container.pack(header, stream)
 
 
 def _hint_offsets(measured: dict, depth: int):
