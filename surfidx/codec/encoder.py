@@ -128,10 +128,21 @@ HINT_SLACK = 0.05
 """dB a prefix may lose against its best level measured at no cost in :func:`level_hints`'
 choice: a coarser level must win by more than this to be kept."""
 
+HINT_MARGIN = 1.0
+"""dB by which a coarser level must lose against a finer one on a prefix for :func:`level_hints`
+to measure it no more on longer prefixes (where it loses more: the finer levels' details come
+with the longer prefix), and to measure no longer prefix once every coarser level has."""
+
 HINT_ROUNDS = 3
 """Rounds in which :func:`level_hints` measures the geometric mean of each two neighbouring
 prefixes whose levels differ: after three, neighbours are 2^(1/16) apart, one code step of
 :func:`surfidx.codec.container.hint_bytes`."""
+
+
+HINT_SAMPLES = 4096
+"""Points per direction on which :func:`level_hints` scores PSNR_D2
+(:meth:`surfidx.geometry.metrics.Reference.psnr_d2_sampled`): the same seeded sample of the
+input for every decoding, and as many of each decoding's points."""
 
 
 MAX_COEFFICIENT = 1e12
@@ -802,9 +813,12 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     the finest level's points can score worse at any rate.
 
     The prefixes measured are the whole stream and each 2^(1/2) times shorter one
-    (:data:`HINT_PREFIXES`), each decoded at the stream's level and up to
-    :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` levels below and scored by PSNR_D2 against
-    ``reference``. The levels kept for them, the stream's own or coarser and never finer for a
+    (:data:`HINT_PREFIXES`), the shortest first, each decoded at the stream's level and up to
+    :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` levels below (once per grid level read,
+    :func:`read_level`) and scored by PSNR_D2 against ``reference`` on :data:`HINT_SAMPLES`
+    points per direction. A coarser level that loses more than :data:`HINT_MARGIN` against a
+    finer one on a prefix is not measured on the longer ones, and once every coarser level
+    has lost so, no longer prefix is measured (the stream's level is kept there). The levels kept for them, the stream's own or coarser and never finer for a
     shorter prefix, are those whose largest loss against each prefix's best level is smallest
     (losses within :data:`HINT_SLACK` count as none; then the smallest total loss, then the
     finer levels). Between two neighbouring prefixes whose levels differ and where either
@@ -837,11 +851,12 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     measured = {}   # prefix length -> PSNR_D2 at offsets 0 … depth (-inf: not measured)
     checked = check_header(header)
 
+    least = container.min_file_bytes(top if header.color_level is None else header.color_level)
+    dropped = {}   # offset -> shortest prefix from which it is not measured
+
     def measure(size, offsets):
         part = stream[:size]
-        if len(part) + len(blob) - len(stream) < container.min_file_bytes(
-                top if header.color_level is None else header.color_level):
-            raise InputError("below the grid's smallest container")
+        offsets = [o for o in offsets if size < dropped.get(o, math.inf)]
         row = [-np.inf] * (depth + 1)
         for read in sorted({read_level(top - o, top) for o in offsets}, reverse=True):
             values = _decode_values(blob, header, part, None, None, checked, read)
@@ -849,20 +864,26 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
                 if read_level(top - o, top) != read:
                     continue
                 try:   # as decode_parts decodes the prefix at level top - o
-                    row[o] = ref.psnr_d2(_model(values, header, top - o, read, mesh=False,
-                                                keep_virtual=False, name=None, path=None))
-                except InputError:   # virtual regions that merge on the coarser grid
-                    pass
+                    row[o] = ref.psnr_d2_sampled(_model(
+                        values, header, top - o, read, mesh=False, keep_virtual=False,
+                        name=None, path=None), HINT_SAMPLES)
+                except InputError:   # virtual regions that merge on the coarser grid (any prefix)
+                    dropped[o] = 0
         measured[size] = row
+        for o in range(1, depth + 1):   # a coarser level only loses more on a longer prefix
+            if np.isfinite(row[o]) and max(row[:o]) - row[o] > HINT_MARGIN:
+                dropped[o] = min(dropped.get(o, size), size)
 
+    sizes = []
     for k in range(HINT_PREFIXES):
         size = int(len(stream) * 2.0 ** (-k / 2))
-        if size < 4 or size in measured:
+        if size < 4 or size in sizes or size + len(blob) - len(stream) < least:
+            break   # below the grid's smallest container
+        sizes.append(size)
+    for size in reversed(sizes):   # the shortest first, until every coarser level lost
+        if len(dropped) == depth:
             break
-        try:
-            measure(size, range(depth + 1))
-        except InputError:   # below the grid's smallest container
-            break
+        measure(size, range(depth + 1))
     if not measured:
         return none
     for _ in range(HINT_ROUNDS):
@@ -948,13 +969,13 @@ def _hint_offsets(measured: dict, depth: int):
     scores = np.array([measured[s] for s in sizes])
     scores = np.where(np.isfinite(scores), scores, np.copysign(1e6, scores))   # ±inf: ±1e6 dB
     loss = np.maximum(scores.max(axis=1, keepdims=True) - scores - HINT_SLACK, 0.0)
-    best = None
-    for offsets in itertools.combinations_with_replacement(range(depth + 1), len(sizes)):
-        lost = loss[np.arange(len(sizes)), list(offsets)]
-        key = (round(float(lost.max()), 2), round(float(lost.sum()), 2), sum(offsets))
-        if best is None or key < best[0]:
-            best = (key, offsets)
-    return sizes, best[1]
+    combos = np.array(list(itertools.combinations_with_replacement(range(depth + 1),
+                                                                   len(sizes))))
+    lost = loss[np.arange(len(sizes)), combos]
+    # the first in enumeration order of the smallest (largest loss, total loss, offsets' sum)
+    keys = (np.round(lost.max(axis=1), 2), np.round(lost.sum(axis=1), 2), combos.sum(axis=1))
+    best = np.lexsort(keys[::-1])[0]
+    return sizes, tuple(int(o) for o in combos[best])
 
 
 def encode(surfels: SurfelSet, *, bits_per_surfel: float | None = None,
