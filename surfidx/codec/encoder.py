@@ -66,7 +66,7 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
            "READ_LEVEL_MIN", "pass_bits", "level_hints", "with_level_hints", "output_levels",
            "HINT_PREFIXES",
-           "HINT_ROUNDS", "HINT_SLACK", "HINT_TOLERANCE"]
+           "HINT_ROUNDS", "HINT_SLACK", "HINT_TOLERANCE", "HINT_SAMPLES", "HINT_MARGIN"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 """Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
