@@ -819,9 +819,10 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     points per direction. A coarser level that loses more than :data:`HINT_MARGIN` against a
     finer one on a prefix is not measured on the longer ones, and once every coarser level
     has lost so, no longer prefix is measured (the stream's level is kept there). The levels
-    kept for them, the stream's own or coarser and never finer for a shorter prefix, are those whose largest loss against each prefix's best level is smallest
-    (losses within :data:`HINT_SLACK` count as none; then the smallest total loss, then the
-    finer levels). Between two neighbouring prefixes whose levels differ and where either
+    kept for them, the stream's own or coarser and never finer for a shorter prefix, are
+    those whose largest loss against each prefix's best level is smallest (losses within
+    :data:`HINT_SLACK` count as none; then the smallest total loss, then the finer levels).
+    Between two neighbouring prefixes whose levels differ and where either
     level loses more than :data:`HINT_TOLERANCE`, their geometric mean is measured too, for
     :data:`HINT_ROUNDS` rounds; each step down is placed at the geometric mean of the two
     prefix lengths it lies between, rounded to a code (:func:`surfidx.codec.container.hint_bytes`).
