@@ -1,11 +1,15 @@
 """What ``get``/``decode`` write: PSNR_D2 of the default output level and of a vertex budget.
 
-For each model (a few shared models and one retrieval mesh), the model is read and repaired
+For each model (a few shared models and retrieval meshes), the model is read and repaired
 as ingest does, coded once at the top rate, and the stream's prefixes at each rate are decoded:
 
 * ``old``: at the level whose vertex count is closest to the input's surfel count (the former
   default, one level or more below the stream's own);
-* ``default``: as :func:`surfidx.codec.decode` does now, at the stream's own level;
+* ``stream``: at the stream's own level (the default before the level followed the prefix);
+* ``default``: as :func:`surfidx.codec.decode` does now (and which level): the stream's own, or
+  the coarser one its header's output-level hints give for the prefix served
+  (:func:`surfidx.codec.output_levels`; measured by the encoder,
+  :func:`surfidx.codec.level_hints`);
 * ``best``: the best PSNR_D2 over every level 0 … the stream's (and which level), so
   ``default - best`` says what the default rule leaves on the table;
 * ``max_vertices``: ``decode(..., mesh=True, max_vertices=n)`` with ``n`` the input's vertex
@@ -21,6 +25,7 @@ Run::
 
     python benchmarks/output_level.py                       # spot, homer, armadillo, d000
     python benchmarks/output_level.py --models spot d000 --rates 1 2 8 --json out.json
+    python benchmarks/output_level.py --markdown            # docs/benchmarks/output_level.md
 """
 
 from __future__ import annotations
@@ -37,11 +42,13 @@ from surfidx.numerics import use_portable_profile
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np  # noqa: E402
 
-from surfidx.codec import PartsEncoder, decode, max_file_bytes  # noqa: E402
+from surfidx.codec import PartsEncoder, decode, max_file_bytes, output_levels  # noqa: E402
 from surfidx.codec.container import truncate, unpack_parts, unpack  # noqa: E402
 from surfidx.geometry.icosphere import vertex_count  # noqa: E402
 from surfidx.geometry.metrics import Reference  # noqa: E402
 from surfidx.topology import read_model  # noqa: E402
+
+from _markdown import Report, add_markdown_option  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
@@ -52,8 +59,10 @@ MODELS = {
     "d000": ("retrieval/meshes/d000.off", None),
     "bunny": ("models/bunny_hr.obj", None),
     "banana": ("models/ycb_banana/textured_simple_reoriented.obj", None),
+    "d001": ("retrieval/meshes/d001.off", None),
+    "d002": ("retrieval/meshes/d002.off", None),
 }
-RATES = (1.0, 3.56, 8.0)
+RATES = (1.0, 2.0, 3.56, 8.0)
 SURFACE_SAMPLES = 4   # per input surfel, on both meshes of the surface comparison
 
 
@@ -92,7 +101,8 @@ def measure(name: str, data_dir: Path, rates) -> list[dict]:
         old = old_level(n, level)
         rows.append({
             "model": name, "n": n, "rate": rate, "level": level, "old_level": old,
-            "old": per_level[old], "default": ref.psnr_d2(decode(data)),
+            "old": per_level[old], "stream": per_level[level],
+            "default_level": max(output_levels(data)), "default": ref.psnr_d2(decode(data)),
             "best_level": best, "best": per_level[best],
             "max_vertices": len(small.vertices), "simplified_vtx": vtx_small,
             "full_surf": surf_full, "simplified_surf": surf_small,
@@ -115,33 +125,44 @@ def main(argv=None) -> int:
                          "others are its prefixes")
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--json", type=Path, metavar="OUT.json")
+    add_markdown_option(ap, "output_level")
     args = ap.parse_args(argv)
     if not args.data.is_dir():
         print(f"no shared data at {args.data}", file=sys.stderr)
         return 1
-
-    head = (f"{'model':>10} {'n':>6} {'b/s':>5} {'L':>2} | {'old (L)':>10} {'default':>8} "
-            f"{'best (L)':>10} {'def-best':>8} | {'N':>6} {'vtx':>6} {'surf full':>9} "
-            f"{'surf N':>7} {'s':>5}")
-    print("PSNR_D2 in dB; old = the level closest to n, default = the stream's level; "
-          "N = max_vertices=n\n")
-    print(head)
-    print("-" * len(head))
+    report = Report(
+        "output_level", "What get/decode write: the default output level and max_vertices",
+        args.markdown,
+        note="PSNR_D2 (dB, symmetric point-to-plane against the scan's surfels). Each model "
+             "coded once at the top rate, its prefixes decoded. old: the level whose vertex "
+             "count is closest to the input's; stream: the stream's own level; default: the "
+             "level decode chooses from the prefix (output_levels: the stream's own, or a "
+             "coarser one where the header's output-level hints, measured by the encoder, say "
+             "it scores better); best: the best of every "
+             "level; N = max_vertices=n (the full level simplified), measured at its vertices "
+             "(vtx) and as a surface beside the full level (surf, 4 samples per input surfel); "
+             "s: CPU seconds of the simplification.")
     rows = []
     for name in args.models:
-        for r in measure(name, args.data, sorted(args.rates)):
-            rows.append(r)
-            print(f"{r['model']:>10} {r['n']:>6} {r['rate']:>5g} {r['level']:>2} | "
-                  f"{r['old']:>6.2f} ({r['old_level']}) {r['default']:>8.2f} "
-                  f"{r['best']:>6.2f} ({r['best_level']}) {r['default'] - r['best']:>8.2f} | "
-                  f"{r['max_vertices']:>6} {r['simplified_vtx']:>6.2f} {r['full_surf']:>9.2f} "
-                  f"{r['simplified_surf']:>7.2f} {r['simplify_seconds']:>5.2f}", flush=True)
+        rows += measure(name, args.data, sorted(args.rates))
+    report.table(["model", "n", "b/s", "L", "old (L)", "stream", "default (L)", "best (L)",
+                  "default - best", "N", "vtx", "surf full", "surf N", "s"],
+                 [[r["model"], f"{r['n']:,}", f"{r['rate']:g}", f"{r['level']}",
+                   f"{r['old']:.2f} ({r['old_level']})", f"{r['stream']:.2f}",
+                   f"{r['default']:.2f} ({r['default_level']})",
+                   f"{r['best']:.2f} ({r['best_level']})", f"{r['default'] - r['best']:+.2f}",
+                   f"{r['max_vertices']:,}", f"{r['simplified_vtx']:.2f}",
+                   f"{r['full_surf']:.2f}", f"{r['simplified_surf']:.2f}",
+                   f"{r['simplify_seconds']:.2f}"] for r in rows])
     worst = min(r["default"] - r["best"] for r in rows)
+    before = min(r["stream"] - r["best"] for r in rows)
     gap = min(r["simplified_surf"] - r["full_surf"] for r in rows)
-    print(f"\ndefault vs best level: worst {worst:+.2f} dB (target >= -0.2); "
-          f"max_vertices=n vs the full level as surfaces: worst {gap:+.2f} dB (target >= -1)")
+    report.text(f"default vs best level: worst {worst:+.2f} dB (target >= -0.2; the stream's "
+                f"own level: {before:+.2f}); max_vertices=n vs the full level as surfaces: "
+                f"worst {gap:+.2f} dB (target >= -1)")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
+    report.finish()
     return 0
 
 

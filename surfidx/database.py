@@ -510,7 +510,8 @@ class Database(Catalog):
         bits_per_surfel : float, optional
             Serve the stream truncated to this rate (default: all of it).
         level : int, optional
-            Grid level of the output; default the stream's own, at any rate
+            Grid level of the output; default the stream's own, or a coarser one at the
+            rates where the encoder measured that it is closer to the input
             (:func:`surfidx.pipeline.output_level`).
         mesh : bool
             A :class:`~surfidx.TriangleMesh` on the grid instead of surfels.
@@ -531,13 +532,9 @@ class Database(Catalog):
             Named after the model; ``to_trimesh()`` converts either (a ``trimesh.PointCloud``
             or a ``trimesh.Trimesh``).
         """
-        from .pipeline import output_level
-
         mid = self.resolve(model)
         stream = self.get_stream(mid)
         name = self.get_model(mid)["name"]
-        if level is None:
-            level = output_level(stream)
         options = {} if level is None else {"level": level}
         if mesh:
             options["mesh"] = True
@@ -686,8 +683,6 @@ class Database(Catalog):
             return out
         from .pipeline import export_texture, output_level
 
-        if level is None:
-            level = output_level(self.get_stream(mid))
         as_mesh = fmt in ("obj", "glb") if mesh is None else bool(mesh)
         textured = export_texture(texture, fmt=fmt, mesh=as_mesh, max_vertices=max_vertices,
                                   texture_size=texture_size)
@@ -698,6 +693,8 @@ class Database(Catalog):
                     image_quality=image_quality)
         n = len(decoded.vertices) if hasattr(decoded, "vertices") else len(decoded)
         image = getattr(decoded, "texture", None)
+        if level is None:
+            level = output_level(self.get_stream(mid), bits_per_surfel=bits_per_surfel)
         out.update({"surfels": int(n), "level": level,
                     "texture": None if image is None else int(image.shape[0])})
         if as_mesh and hasattr(decoded, "faces") and decoded.faces is not None:

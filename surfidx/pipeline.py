@@ -560,14 +560,17 @@ def describe_scan(path, *, options=None, texture=None, samples: int | None = Non
                           topology=model.summary() if model.repaired else None)
 
 
-def output_level(stream: bytes, *, path=None) -> int | None:
-    """The grid level a stream decodes to by default, at any rate: the stream's own (of a
-    multi-part file, its deepest part's), as :func:`surfidx.codec.decode` does.
+def output_level(stream: bytes, *, bits_per_surfel: float | None = None,
+                 path=None) -> int | None:
+    """The grid level a stream decodes to by default at a rate, as :func:`surfidx.codec.decode`
+    chooses it (:func:`surfidx.codec.output_levels`; of a multi-part file, its deepest part's).
 
     Parameters
     ----------
     stream : bytes
         A container file.
+    bits_per_surfel : float, optional
+        The rate it is served at (default: all of it).
     path : str, optional
         Name for messages.
 
@@ -577,11 +580,10 @@ def output_level(stream: bytes, *, path=None) -> int | None:
         None when ``stream`` is not a container (a stand-in decoder's data).
     """
     from .errors import BitstreamError
-    from .codec.container import unpack, unpack_parts
+    from .codec import output_levels
 
     try:
-        return max(int(unpack(b, path=path)[0].level)
-                   for b in unpack_parts(bytes(stream), path=path))
+        return max(output_levels(bytes(stream), bits_per_surfel=bits_per_surfel, path=path))
     except BitstreamError:
         return None
 

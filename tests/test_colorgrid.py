@@ -36,7 +36,7 @@ def test_checkerboard_decodes_above_a_luma_floor_and_beats_vertex_colours(checke
     mesh, surfels, enc = checker
     data = enc.encode(64.0)
     header, _ = container.unpack(data)
-    assert header.version == 5 and header.color_level == enc.prepared.color_level
+    assert header.version == 6 and header.color_level == enc.prepared.color_level
     textured = decode(data, mesh=True, texture=True)
     luma = psnr_luma_surface(mesh, textured, samples=20000)
     assert luma > 24.0      # measured 25.0 dB; vertex colours on the geometry's grid 14.5
@@ -67,7 +67,8 @@ def test_coarser_output_levels_decode(checker):
 
 def test_colourless_streams_keep_their_format(checker):
     _, surfels, _ = checker
-    plain = Encoder(surfels, color=False).encode(4.0)
+    # without output-level hints (version 6): version 3, as before colour grids
+    plain = Encoder(surfels, color=False, options=CodecOptions(level_hints=False)).encode(4.0)
     assert container.unpack(plain)[0].version == 3
 
 

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from surfidx import BitstreamError, InputError
-from surfidx.codec.container import (FORMAT_VERSION, MAGIC, Header, header_size, pack, storable,
-                               truncate, unpack)
+from surfidx.codec.container import (FORMAT_VERSION, HINT_SECTION_BYTES, MAGIC, Header,
+                                     header_size, hint_bytes, hinted_level, pack, storable,
+                                     truncate, unpack)
 
 
 def _header(color=True):
@@ -28,7 +29,7 @@ def test_round_trip(color):
     # no virtual-region mask: written as version 3, byte for byte as before version 4
     assert (h2.n_surfels, h2.level, h2.color, h2.lifted, h2.coder, h2.map_method, h2.version) == (
         1234, 5, color, True, b"\x07\x01abc", 2, 3)
-    assert FORMAT_VERSION == 5
+    assert FORMAT_VERSION == 6
     np.testing.assert_array_equal(h2.basis, np.float16(h.basis))
     np.testing.assert_array_equal(h2.mean, np.float32(h.mean))
     np.testing.assert_array_equal(h2.weights, np.float32(h.weights))
@@ -40,6 +41,63 @@ def test_header_sizes():
     # fixed 16 + mean 4k + float16 basis 2k^2 + 1 or 2 group weights + coder + tail 12
     assert header_size(3, 8) == 16 + 12 + 18 + 4 + 8 + 12 == 70
     assert header_size(6, 8) == 16 + 24 + 72 + 8 + 8 + 12 == 140
+
+
+def test_level_hints_round_trip_and_choose_the_level():
+    h = _header(False)
+    h.level_hints = (80, 64, 0, 0)
+    data = pack(h, bytes(300))
+    assert len(data) == header_size(3, len(h.coder), hints=True) + 300
+    assert len(data) == len(pack(_header(False), bytes(300))) + HINT_SECTION_BYTES
+    h2, s2 = unpack(data)
+    assert h2.version == 6 and h2.level_hints == (80, 64, 0, 0) and s2 == bytes(300)
+    assert data[13] == 80   # the first code in the fixed header's reserved byte
+    for hints in [(0, 0, 0, 0), (255, 225, 195, 165), (9, 9, 9, 1), (200, 170, 0, 0)]:
+        h.level_hints = hints
+        assert unpack(pack(h, b"abcd"))[0].level_hints == hints
+    # codes are rates over the header's 1234 surfels: 128 is 1 bit/surfel, 16 steps an octave
+    assert [hint_bytes(c, 1234) for c in (0, 64, 80, 128, 144, 255)] == [
+        0, 10, 20, 155, 309, 2 ** 64]
+    # level 5 from 20 bytes (80: 1/8 bit/surfel), 4 from 10 bytes (64: 1/16), 3 below
+    assert [hinted_level(h2, n) for n in (4, 9, 10, 19, 20, 10 ** 6)] == [3, 3, 4, 4, 5, 5]
+    # a truncated file keeps its hints: its level is that of the prefix it holds
+    cut, _ = unpack(truncate(data, len(data) - 100))
+    assert cut.level_hints == h2.level_hints
+    # no section: the stream's level at any length
+    assert unpack(pack(_header(False), bytes(10)))[0].level_hints == ()
+    assert hinted_level(_header(False), 4) == 5
+
+
+def _reseal(data: bytearray, tail: int) -> bytes:
+    """``data`` with its header checksum recomputed (the header ends at ``tail``)."""
+    import struct
+    import zlib
+
+    data[tail + 4:tail + 8] = struct.pack("<I", zlib.crc32(bytes(data[:tail + 4])))
+    return bytes(data)
+
+
+def test_level_hints_are_checked():
+    h = _header(False)
+    for bad in [(1, 2, 0, 0), (80, 64), (300, 0, 0, 0), (80, 40, 0, 0)]:
+        h.level_hints = bad
+        with pytest.raises(InputError, match="output-level hints must be 4 non-increasing"):
+            pack(h, bytes(20))
+    h.level_hints = (80, 64, 0, 0)
+    tail = header_size(3, len(h.coder), hints=True) - 12
+    data = bytearray(pack(h, bytes(20)))
+    data[13] = 10   # a first code below the gap after it
+    with pytest.raises(BitstreamError, match=r"corrupt header \(output-level hints"):
+        unpack(_reseal(data, tail))
+    data = bytearray(pack(h, bytes(20)))
+    data[tail - 1] |= 0x80   # the section's unused top bit
+    with pytest.raises(BitstreamError, match=r"corrupt header \(output-level hints"):
+        unpack(_reseal(data, tail))
+    # the flag in an older version is unknown
+    older = bytearray(pack(_header(False), bytes(20)))
+    older[5] |= 0x40
+    with pytest.raises(BitstreamError, match="unknown flags 0x42"):
+        unpack(_reseal(older, header_size(3, len(h.coder)) - 12))
 
 
 def test_weights_must_be_one_per_group():

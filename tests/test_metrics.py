@@ -260,6 +260,24 @@ def test_a_reference_probes_large_sets_in_blocks_with_the_same_answers():
             assert reference.psnr_d2_at_least(test, floor) is (value >= floor)
 
 
+def test_a_sampled_psnr_d2_estimates_it_from_a_seeded_sample():
+    """Sets no larger than the sample measure as psnr_d2 does (to rounding); larger ones near
+    it, the same for the same seed, and the sample size is checked."""
+    rng = np.random.default_rng(7)
+    ref = sphere_points(3000, rng)
+    test = perturbed(sphere_points(5000, rng), rng.normal(scale=0.002, size=(5000, 3)))
+    reference = Reference(ref)
+    assert reference.psnr_d2_sampled(test, 5000) == pytest.approx(psnr_d2(ref, test), abs=1e-9)
+    value = reference.psnr_d2_sampled(test, 1000)
+    assert value == pytest.approx(psnr_d2(ref, test), abs=0.5)
+    assert Reference(ref).psnr_d2_sampled(test, 1000) == value
+    assert reference.psnr_d2_sampled(test, 1000, seed=1) != value
+    with pytest.raises(InputError, match="samples must be at least 1, got 0"):
+        reference.psnr_d2_sampled(test, 0)
+    with pytest.raises(InputError, match="test surfel set is empty"):
+        reference.psnr_d2_sampled(test.subset(np.zeros(0, int)), 10)
+
+
 def test_a_reference_checks_its_sets(sphere_surfels):
     empty = SurfelSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     with pytest.raises(InputError, match="reference surfel set is empty"):

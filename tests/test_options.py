@@ -1,13 +1,15 @@
 """The options tree: round trip, files, validation, and its way from the CLI to the map."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from surfidx import InputError, TriangleMesh
-from surfidx.codec import CodecOptions, Encoder, code, decode, prepare
+from surfidx.codec import CodecOptions, Encoder, code, decode, prepare, with_level_hints
+from surfidx.codec.container import unpack
 from surfidx.describe import DescribeOptions
 from surfidx.options import ProcessOptions
 from surfidx.sphere import MapOptions
@@ -111,13 +113,16 @@ def test_encoder_steps_give_the_encoders_stream(ball):
     p = prepare(ball, CodecOptions(level=3))
     assert p.level == 3 and p.grid.shape == (642, 3) and p.coeffs.shape[0] == 642
     assert p.report()["grid_level"] == 3 and p.report()["map_method"] == "tutte"
-    a = code(p, 4.0)
+    a = with_level_hints(code(p, 4.0), ball)   # the output-level codes measured on the input
     assert a == Encoder(ball, level=3).encode(4.0)
+    assert unpack(code(p, 4.0))[1] == unpack(a)[1]
+    with pytest.raises(InputError, match="no output-level section"):
+        with_level_hints(code(replace(p, level_hints=False), 4.0), ball)
     assert len(a) <= int(np.ceil(4.0 * len(ball) / 8))
     assert len(decode(a).positions) > 0
     # the map's options reach parameterize (a sphere_map given skips it)
     q = prepare(ball, CodecOptions(level=3), sphere_map=p.sphere_map)
-    assert code(q, 4.0) == a
+    assert with_level_hints(code(q, 4.0), ball) == a
 
 
 def test_code_refuses_a_rate_below_the_header(ball):

@@ -166,7 +166,6 @@ def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_ve
             write_atomic(output, lambda tmp: tmp.write_bytes(cut))
             out["bytes"] = len(cut)
         else:
-            level = output_level(data, path=input) if level is None else level
             as_mesh = fmt in ("obj", "glb") if mesh is None else mesh
             textured = export_texture(texture, fmt=fmt, mesh=as_mesh, max_vertices=max_vertices,
                                       texture_size=texture_size)
@@ -179,6 +178,8 @@ def decode(input, output, fmt, bits_per_surfel, level, mesh, max_surfels, max_ve
             write_model(model, output, format=fmt, text=text, image_format=image_format,
                         image_quality=image_quality)
             image = getattr(model, "texture", None)
+            if level is None:
+                level = output_level(data, bits_per_surfel=bits, path=input)
             out.update({"surfels": len(model.vertices) if as_mesh else len(model),
                         "level": level, "faces": len(model.faces) if as_mesh else None,
                         "texture": None if image is None else int(image.shape[0])})

@@ -342,9 +342,10 @@ def export_options(func=None, *, folder: bool = False):
                         help="Write the grid's triangle mesh, or surfels (default: mesh for OBJ "
                              "and GLB, surfels for PLY).")(func)
     func = click.option("--level", type=int, default=None,
-                        help="Grid level of the output (default: the stream's own, at any "
-                             "rate; lower: fewer surfels, but --max-vertices keeps the shape "
-                             "better).")(func)
+                        help="Grid level of the output (default: the stream's own, or a coarser "
+                             "one at the rates where the encoder measured that it is closer to "
+                             "the input; lower: fewer surfels, but --max-vertices keeps the "
+                             "shape better).")(func)
     func = rate_option(func, help="Decode (or keep, for .sfz) only the prefix of the stream "
                                   "that fits this rate (default: all of it).")
     func = output_format_option(func)

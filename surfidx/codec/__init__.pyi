@@ -9,9 +9,11 @@ from .encoder import (Encoder as Encoder, encode as encode, decode as decode,
                       MAX_COEFFICIENT as MAX_COEFFICIENT, check_header as check_header,
                       PartsEncoder as PartsEncoder, encode_parts as encode_parts,
                       decode_parts as decode_parts, stream_summary as stream_summary,
-                      read_level as read_level)
+                      read_level as read_level, output_levels as output_levels,
+                      level_hints as level_hints)
 from .container import max_file_bytes as max_file_bytes
 from .options import CodecOptions as CodecOptions
 from .options import COLOR_IMPORTANCE as COLOR_IMPORTANCE
 from .colorgrid import TextureSource as TextureSource
 from .encoder import Prepared as Prepared, prepare as prepare, code as code
+from .encoder import with_level_hints as with_level_hints

@@ -21,12 +21,17 @@ __all__ = ["MAGIC", "FORMAT_VERSION", "Header", "pack", "unpack", "truncate", "h
            "storable", "min_file_bytes", "max_file_bytes", "GRID_PER_BYTE", "MAX_WEIGHT", "MAX_MEAN", "MAX_PLANE",
            "pack_parts", "unpack_parts", "is_multipart", "split_budget", "parts_overhead",
            "MAX_PARTS", "MAX_REGIONS", "REGION_HOLE", "region_code", "region_cut",
-           "part_surfels"]
+           "part_surfels", "FLAG_LEVELS", "MAX_LEVEL_HINTS", "HINT_SECTION_BYTES", "HINT_GAPS",
+           "hint_bytes", "hinted_level"]
 
 MAGIC = b"\x89SFZ"
-FORMAT_VERSION = 5
-"""Version 5 (this one): version 4 plus an optional colour-grid section after the mask (flag
-bit 5): the colour layers on their own finer grid and the schedule of geometry and colour bit
+FORMAT_VERSION = 6
+"""Version 6 (this one): version 5 plus an optional output-level section (flag bit 6;
+:data:`HINT_SECTION_BYTES` bytes after the colour-grid section, and the fixed header's reserved
+byte): the stream-prefix lengths below which a decoding without a level asked for is written on
+a coarser grid (:func:`hinted_level`). A file without it is written as version 5, 4 or 3, byte
+for byte as before. Version 5: version 4 plus an optional colour-grid section after the mask
+(flag bit 5): the colour layers on their own finer grid and the schedule of geometry and colour bit
 planes in the stream. A file without it is written as version 4 or 3, byte for byte as before.
 Version 4: version 3 plus an optional virtual-region mask and region table after
 the density-weight field (flag bit 4), and multi-part files (several part containers in one,
@@ -35,7 +40,7 @@ byte (closed genus-0 single-part models keep their streams). Version 3: optional
 tangent weight and density-weight field after the coder header (flag bits 2 and 3). Version 2
 (still read): the same without them. Version 1 stored the basis and one weight per layer as
 float32 (132 bytes more with colour)."""
-READ_VERSIONS = (2, 3, 4, 5)
+READ_VERSIONS = (2, 3, 4, 5, 6)
 
 FLAG_COLOR = 1
 FLAG_LIFTED = 2
@@ -43,11 +48,27 @@ FLAG_FRAMES = 4
 FLAG_WEIGHTED = 8
 FLAG_MASK = 16
 FLAG_COLOR_GRID = 32
+FLAG_LEVELS = 64
 FLAG_PARTS = 128
 
 MAX_PARTS = 4096
 """Most parts a multi-part file may hold (each part is a complete container of at least 70
 bytes)."""
+
+MAX_LEVEL_HINTS = 4
+"""Codes of an output-level section: the default output level of a prefix is at most this many
+levels below the stream's."""
+
+HINT_SECTION_BYTES = 2
+"""Bytes of an output-level section besides the fixed header's reserved byte, which holds the
+first code: the three gaps between successive codes, 5 bits each (0 … 30 code steps, 31: that
+step and the later ones never apply). The section has a fixed size, so that a stream coded at a
+rate and the same prefix of a stream coded at a higher rate have headers of one size, hence
+streams of one length and bit-identical coefficients."""
+
+HINT_GAPS = 31
+"""The stored gap that stands for "this step and the later ones never apply": the gaps between
+successive nonzero output-level codes are 0 … HINT_GAPS - 1."""
 
 MAX_REGIONS = 0xFFFF
 """Most regions a virtual-region table may list."""
@@ -150,6 +171,12 @@ class Header:
     schedule : tuple of int
         With ``color_level``: the group of each bit-plane pass in stream order (0 geometry,
         1 colour; :func:`surfidx.codec.zerotree.group_schedule`).
+    level_hints : tuple of int
+        Output-level codes (format version 6, flag bit 6): :data:`MAX_LEVEL_HINTS` codes in
+        0 … 255, non-increasing; a prefix whose container (header and stream served) is
+        smaller than :func:`hint_bytes` of the ``i``-th code decodes by default at least
+        ``i + 1`` levels below ``level`` (:func:`hinted_level`; code 0 never applies, 255
+        always). Empty: no section, the stream's level at any rate.
     """
 
     n_surfels: int
@@ -170,6 +197,7 @@ class Header:
     color_level: int | None = None
     color_top: int = -1
     schedule: tuple = ()
+    level_hints: tuple = ()
     extra: dict = field(default_factory=dict)
 
     @property
@@ -183,7 +211,7 @@ def _n_weights(k: int) -> int:
 
 def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors: int = 0,
                 field_bytes: int | None = None, mask_bytes: int | None = None,
-                regions: int = 0, passes: int | None = None) -> int:
+                regions: int = 0, passes: int | None = None, hints: bool = False) -> int:
     """Bytes of a container's header.
 
     Parameters
@@ -207,12 +235,49 @@ def header_size(layers: int, coder_bytes: int, *, frames: bool = False, anchors:
     passes : int, optional
         With a colour grid: the schedule's passes (3 bytes plus one bit per pass); None: no
         colour grid.
+    hints : bool
+        Whether the header has an output-level section (:data:`HINT_SECTION_BYTES`).
     """
     k = layers
     extra = (5 + anchors if frames else 0) + (0 if field_bytes is None else 2 + field_bytes)
     extra += 0 if mask_bytes is None else 6 + mask_bytes + 2 * regions
     extra += 0 if passes is None else _grid_section_size(passes)
+    extra += HINT_SECTION_BYTES if hints else 0
     return _FIXED.size + 4 * k + 2 * k * k + 4 * _n_weights(k) + coder_bytes + extra + _TAIL.size
+
+
+def hint_bytes(code: int, n_surfels: int) -> int:
+    """The container size an output-level code stands for: the bytes of a rate of
+    ``2^((code - 128) / 16)`` bits per input surfel, ``ceil(n_surfels · rate / 8)`` (code 128:
+    1 bit/surfel; a code step is a factor of 2^(1/16), 4.4 %; codes 1 … 254 span 0.004 … 234
+    bits/surfel). Code 0 stands for 0 bytes (never applies), 255 for 2^64 (always)."""
+    code = int(code)
+    if code <= 0:
+        return 0
+    if code >= 255:
+        return 2 ** 64
+    return int(math.ceil(int(n_surfels) * 2.0 ** ((code - 128) / 16.0) / 8.0 - 1e-9))
+
+
+def hinted_level(header: Header, file_bytes: int) -> int:
+    """The grid level a prefix decodes to by default: ``header.level`` less the number of
+    :attr:`Header.level_hints` whose :func:`hint_bytes` exceed ``file_bytes``, the size of the
+    container served (header and stream prefix: a function of the bytes served only, so a
+    truncated file decodes as the same prefix served).
+
+    Parameters
+    ----------
+    header : Header
+    file_bytes : int
+
+    Returns
+    -------
+    int
+        In ``max(0, level - len(level_hints))`` … ``level``.
+    """
+    below = sum(1 for c in header.level_hints
+                if int(file_bytes) < hint_bytes(c, header.n_surfels))
+    return max(0, int(header.level) - below)
 
 
 def _grid_section_size(passes: int) -> int:
@@ -281,6 +346,7 @@ def pack(header: Header, stream: bytes) -> bytes:
     if problem:
         raise InputError(f"the KLT values cannot be stored: {problem}")
     flags = (FLAG_COLOR if header.color else 0) | (FLAG_LIFTED if header.lifted else 0)
+    reserved = 0
     if len(header.coder) > 0xFFFF:
         raise InputError("coder header longer than 65535 bytes")
     extra = b""
@@ -329,8 +395,20 @@ def pack(header: Header, stream: bytes) -> bytes:
             if order else b""
         extra += struct.pack("<BbB", header.color_level, header.color_top, len(order)) + bits
         smallest = min_file_bytes(header.color_level)
+    if header.level_hints:
+        hints = [int(c) for c in header.level_hints]
+        if len(hints) != MAX_LEVEL_HINTS or any(not 0 <= c <= 255 for c in hints) or any(
+                b > a or (b and a - b >= HINT_GAPS) for a, b in zip(hints, hints[1:])):
+            raise InputError(f"output-level hints must be {MAX_LEVEL_HINTS} non-increasing "
+                             f"codes in 0..255, each nonzero one less than {HINT_GAPS} below "
+                             f"the one before, got {hints}")
+        flags |= FLAG_LEVELS
+        version = 6
+        reserved = hints[0]
+        gaps = [a - b if b else HINT_GAPS for a, b in zip(hints, hints[1:])]
+        extra += struct.pack("<H", gaps[0] | gaps[1] << 5 | gaps[2] << 10)
     body = _FIXED.pack(MAGIC, version, flags, header.level, k, header.n_surfels,
-                       header.map_method, 0, len(header.coder))
+                       header.map_method, reserved, len(header.coder))
     body += mean.tobytes() + basis.tobytes() + weights.tobytes() + bytes(header.coder) + extra
     body += struct.pack("<I", len(stream))
     if len(body) + 8 + len(stream) < smallest:
@@ -378,7 +456,7 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         if len(data) >= 4 and data[:4] == MAGIC:
             raise BitstreamError(f"truncated header ({len(data)} bytes)", path=path)
         raise BitstreamError("not a surfidx .sfz file (too short)", path=path)
-    magic, version, flags, level, k, n, method, _, clen = _FIXED.unpack_from(data, 0)
+    magic, version, flags, level, k, n, method, reserved, clen = _FIXED.unpack_from(data, 0)
     _check_magic_version(magic, version, path)
     if version >= 4 and flags & FLAG_PARTS:
         raise BitstreamError(f"a multi-part file ({struct.unpack_from('<H', data, 6)[0]} parts): "
@@ -392,7 +470,8 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
     known = {2: FLAG_COLOR | FLAG_LIFTED, 3: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES
              | FLAG_WEIGHTED, 4: FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
              | FLAG_MASK}.get(version, FLAG_COLOR | FLAG_LIFTED | FLAG_FRAMES | FLAG_WEIGHTED
-                              | FLAG_MASK | FLAG_COLOR_GRID)
+                              | FLAG_MASK | FLAG_COLOR_GRID
+                              | (FLAG_LEVELS if version >= 6 else 0))
     if version < 5 and flags & (FLAG_FRAMES | FLAG_WEIGHTED | FLAG_MASK | FLAG_COLOR_GRID) \
             & ~known:
         raise BitstreamError(f"corrupt header (flags {flags:#04x} unknown to version {version})",
@@ -425,6 +504,10 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         if len(data) >= grid_off + 3:
             color_level, color_top, n_passes = struct.unpack_from("<BbB", data, grid_off)
         tail_off = grid_off + _grid_section_size(n_passes)
+    hints_off = tail_off
+    hinted = bool(flags & FLAG_LEVELS) and version >= 6   # an unknown flag before version 6
+    if hinted:
+        tail_off = hints_off + HINT_SECTION_BYTES
     if len(data) < tail_off + _TAIL.size:
         raise BitstreamError(f"truncated header ({len(data)} of {tail_off + _TAIL.size} bytes)",
                              path=path)
@@ -451,6 +534,16 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
                              f"{color_top})", path=path)
     if (k == 6) != bool(flags & FLAG_COLOR):
         raise BitstreamError("corrupt header (inconsistent layer count, flags or level)",
+                             path=path)
+    level_hints = ()
+    if hinted:
+        packed = struct.unpack_from("<H", data, hints_off)[0]
+        codes = [reserved]
+        for gap in (packed & 31, packed >> 5 & 31, packed >> 10 & 31):
+            codes.append(0 if gap == HINT_GAPS or codes[-1] == 0 else codes[-1] - gap)
+        level_hints = tuple(codes)
+    if min(level_hints, default=0) < 0 or (hinted and packed >> 15):
+        raise BitstreamError(f"corrupt header (output-level hints {list(level_hints)})",
                              path=path)
     stream = data[tail_off + _TAIL.size:]
     if len(stream) < s_len:
@@ -493,7 +586,8 @@ def unpack(data: bytes, *, path=None) -> tuple[Header, bytes]:
         schedule = tuple(int(b) for b in np.unpackbits(raw, bitorder="little")[:n_passes])
     header = Header(
         color_level=color_level, color_top=color_top, schedule=schedule,
-        mask=mask, regions=tuple(int(r) for r in regions),
+        level_hints=tuple(int(c) for c in level_hints), mask=mask,
+        regions=tuple(int(r) for r in regions),
         n_surfels=n, level=level, color=bool(flags & FLAG_COLOR), lifted=bool(flags & FLAG_LIFTED),
         mean=mean, basis=basis, weights=weights, coder=bytes(data[coder_end - clen:coder_end]),
         map_method=method, version=version, tangent_weight=tangent_weight, anchors=anchors,

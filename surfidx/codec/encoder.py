@@ -64,7 +64,9 @@ __all__ = ["Encoder", "Prepared", "prepare", "quantise", "code", "code_bytes", "
            "TANGENT_WEIGHT", "CODEC_VERSION", "MAP_METHODS", "MAX_SURFELS",
            "MAX_EXTENT", "MAX_COLOR_WEIGHT", "MAX_COEFFICIENT", "check_header", "PartsEncoder",
            "encode_parts", "decode_parts", "stream_summary", "read_level", "READ_BELOW",
-           "READ_LEVEL_MIN", "pass_bits"]
+           "READ_LEVEL_MIN", "pass_bits", "level_hints", "with_level_hints", "output_levels",
+           "HINT_PREFIXES",
+           "HINT_ROUNDS", "HINT_SLACK", "HINT_TOLERANCE", "HINT_SAMPLES", "HINT_MARGIN"]
 
 CODEC_VERSION = container.FORMAT_VERSION
 """Version of the container format the encoder writes (``data_schema/bitstream.md``)."""
@@ -112,6 +114,35 @@ def read_level(out_level: int, stream_level: int) -> int:
     int
     """
     return min(stream_level, max(out_level + READ_BELOW, READ_LEVEL_MIN))
+
+
+HINT_PREFIXES = 11
+"""Stream prefixes :func:`level_hints` measures first: the whole stream and each 2^(1/2) times
+shorter one (down to 2^-5 of it: 8 bits/surfel down to 0.25)."""
+
+HINT_TOLERANCE = 0.15
+"""dB: two neighbouring prefixes whose levels differ are refined only when one of them would
+lose more than this at the other's level (between them, either costs about as little)."""
+
+HINT_SLACK = 0.05
+"""dB a prefix may lose against its best level measured at no cost in :func:`level_hints`'
+choice: a coarser level must win by more than this to be kept."""
+
+HINT_MARGIN = 1.0
+"""dB by which a coarser level must lose against a finer one on a prefix for :func:`level_hints`
+to measure it no more on longer prefixes (where it loses more: the finer levels' details come
+with the longer prefix), and to measure no longer prefix once every coarser level has."""
+
+HINT_ROUNDS = 3
+"""Rounds in which :func:`level_hints` measures the geometric mean of each two neighbouring
+prefixes whose levels differ: after three, neighbours are 2^(1/16) apart, one code step of
+:func:`surfidx.codec.container.hint_bytes`."""
+
+
+HINT_SAMPLES = 4096
+"""Points per direction on which :func:`level_hints` scores PSNR_D2
+(:meth:`surfidx.geometry.metrics.Reference.psnr_d2_sampled`): the same seeded sample of the
+input for every decoding, and as many of each decoding's points."""
 
 
 MAX_COEFFICIENT = 1e12
@@ -225,6 +256,10 @@ class Prepared:
         With colour: the coefficients quantised on the colour grid's forest.
     allocation : str
     color_importance : float
+    level_hints : bool
+        The header has an output-level section (:attr:`surfidx.codec.container.Header.level_hints`),
+        which :class:`Encoder` fills (:func:`with_level_hints`); :func:`code` writes it with
+        codes 0 (the stream's level at any rate).
     """
 
     n_surfels: int
@@ -252,6 +287,7 @@ class Prepared:
     quantised: object = None
     allocation: str = "rd"
     color_importance: float = 1.0
+    level_hints: bool = False
 
     def report(self) -> dict:
         """What the codec says about itself for a model's stored params: its version, grid
@@ -275,7 +311,8 @@ class Prepared:
             anchors=len(self.anchors),
             field_bytes=len(self.weight_field) if self.weight_field else None,
             mask_bytes=len(self.mask) if self.mask else None, regions=len(self.regions),
-            passes=len(self.schedule) if self.color_level is not None else None)
+            passes=len(self.schedule) if self.color_level is not None else None,
+            hints=self.level_hints)
 
     def lowest_bytes(self) -> int:
         """The smallest file this model's container can be."""
@@ -448,7 +485,8 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
                     map_method=map_method, seconds=t, color_level=clevel, color_grid=cgrid,
                     color_top=color_top, schedule=schedule, quantised=quantised,
                     allocation=options.allocation,
-                    color_importance=options.color_importance)
+                    color_importance=options.color_importance,
+                    level_hints=bool(options.level_hints))
 
 
 def _color_level(options, level: int, texture) -> int:
@@ -645,7 +683,8 @@ def code_bytes(prepared: Prepared, max_bytes: int, *, quantised=None, progress=N
         coder=zerotree.pack_header(zh), map_method=p.map_method,
         tangent_weight=p.tangent_weight, weight_field=p.weight_field,
         anchors=p.anchors, mask=p.mask, regions=p.regions, color_level=p.color_level,
-        color_top=p.color_top, schedule=p.schedule)
+        color_top=p.color_top, schedule=p.schedule,
+        level_hints=(0,) * container.MAX_LEVEL_HINTS if p.level_hints else ())
     out = container.pack(header, stream)
     if progress is not None:
         progress("code", 1, 1)
@@ -730,6 +769,7 @@ class Encoder:
                 setattr(self, f.name, getattr(self.prepared, f.name))
         self.setup_seconds = dict(self.prepared.seconds)
         self._zerotree = None   # quantise's, at the first encode
+        self._reference = surfels if surfels.patch is None else surfels.subset(~surfels.virtual)
 
     def _prepared(self):
         """The quantised coefficients (:func:`quantise`), made at the first :meth:`encode` and
@@ -774,8 +814,187 @@ class Encoder:
         p = self.prepared
         if int(max_bytes) - p.header_bytes() < p.lowest_bytes() - p.header_bytes():
             return code_bytes(p, max_bytes, quantised=None, progress=progress, rate=rate)
-        return code_bytes(p, max_bytes, quantised=self._prepared(), progress=progress,
-                          rate=rate)
+        out = code_bytes(p, max_bytes, quantised=self._prepared(), progress=progress,
+                         rate=rate)
+        return with_level_hints(out, self._reference) if p.level_hints else out
+
+
+def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
+    """The output-level codes of a one-part container
+    (:attr:`surfidx.codec.container.Header.level_hints`), measured against the surface it codes.
+
+    Why a coarser level can score better: where a prefix has not yet coded the fine levels'
+    details, the decoded surface is a smooth surface that lies inside the input's protrusions,
+    and PSNR_D2 measures each input point against the tangent plane of its nearest decoded
+    point; a coarser grid's nearest points lie further away, and on a convex surface their
+    tangent planes pass further out, nearer those input points. On a model with sharp creases
+    the finest level's points can score worse at any rate.
+
+    The prefixes measured are the whole stream and each 2^(1/2) times shorter one
+    (:data:`HINT_PREFIXES`), the shortest first, each decoded at the stream's level and up to
+    :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` levels below (once per grid level read,
+    :func:`read_level`) and scored by PSNR_D2 against ``reference`` on :data:`HINT_SAMPLES`
+    points per direction. A coarser level that loses more than :data:`HINT_MARGIN` against a
+    finer one on a prefix is not measured on the longer ones, and once every coarser level
+    has lost so, no longer prefix is measured (the stream's level is kept there). The levels
+    kept for them, the stream's own or coarser and never finer for a shorter prefix, are
+    those whose largest loss against each prefix's best level is smallest (losses within
+    :data:`HINT_SLACK` count as none; then the smallest total loss, then the finer levels).
+    Between two neighbouring prefixes whose levels differ and where either
+    level loses more than :data:`HINT_TOLERANCE`, their geometric mean is measured too, for
+    :data:`HINT_ROUNDS` rounds; each step down is placed at the geometric mean of the two
+    prefix lengths it lies between, rounded to a code (:func:`surfidx.codec.container.hint_bytes`).
+
+    Parameters
+    ----------
+    blob : bytes
+        A one-part container (its own hints are not read).
+    reference : SurfelSet
+        The surface it codes (its real surfels, without virtual patches).
+
+    Returns
+    -------
+    tuple of int
+        :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` non-increasing codes in 0 … 255
+        (0: that step down never applies).
+    """
+    from ..geometry.metrics import Reference
+
+    header, stream = container.unpack(blob)
+    top = int(header.level)
+    depth = min(container.MAX_LEVEL_HINTS, top)
+    none = (0,) * container.MAX_LEVEL_HINTS
+    if depth == 0 or len(reference) == 0:
+        return none
+    ref = Reference(reference)
+    measured = {}   # prefix length -> PSNR_D2 at offsets 0 … depth (-inf: not measured)
+    checked = check_header(header)
+
+    least = container.min_file_bytes(top if header.color_level is None else header.color_level)
+    dropped = {}   # offset -> shortest prefix from which it is not measured
+
+    def measure(size, offsets):
+        part = stream[:size]
+        offsets = [o for o in offsets if size < dropped.get(o, math.inf)]
+        row = [-np.inf] * (depth + 1)
+        for read in sorted({read_level(top - o, top) for o in offsets}, reverse=True):
+            values = _decode_values(blob, header, part, None, None, checked, read)
+            for o in offsets:
+                if read_level(top - o, top) != read:
+                    continue
+                try:   # as decode_parts decodes the prefix at level top - o
+                    row[o] = ref.psnr_d2_sampled(_model(
+                        values, header, top - o, read, mesh=False, keep_virtual=False,
+                        name=None, path=None), HINT_SAMPLES)
+                except InputError:   # virtual regions that merge on the coarser grid (any prefix)
+                    dropped[o] = 0
+        measured[size] = row
+        for o in range(1, depth + 1):   # a coarser level only loses more on a longer prefix
+            if np.isfinite(row[o]) and max(row[:o]) - row[o] > HINT_MARGIN:
+                dropped[o] = min(dropped.get(o, size), size)
+
+    sizes = []
+    for k in range(HINT_PREFIXES):
+        size = int(len(stream) * 2.0 ** (-k / 2))
+        if size < 4 or size in sizes or size + len(blob) - len(stream) < least:
+            break   # below the grid's smallest container
+        sizes.append(size)
+    for size in reversed(sizes):   # the shortest first, until every coarser level lost
+        if len(dropped) == depth:
+            break
+        measure(size, range(depth + 1))
+    if not measured:
+        return none
+    for _ in range(HINT_ROUNDS):
+        sizes, offsets = _hint_offsets(measured, depth)
+        # between two neighbours whose levels differ, the levels from the one to the other
+        # where either level would lose more than HINT_TOLERANCE at one of them
+        new = {int(round(math.sqrt(sizes[k] * sizes[k - 1]))): range(offsets[k - 1],
+                                                                    offsets[k] + 1)
+               for k in range(1, len(sizes)) if offsets[k] != offsets[k - 1]
+               and max(_loss(measured[sizes[k]], offsets[k - 1]),
+                       _loss(measured[sizes[k - 1]], offsets[k])) > HINT_TOLERANCE}
+        new = {size: o for size, o in new.items() if size not in measured}
+        for size in sorted(new, reverse=True):
+            measure(size, new[size])
+        if not new:
+            break
+    sizes, offsets = _hint_offsets(measured, depth)
+    head = len(blob) - len(stream)
+    codes = []
+    for i in range(1, depth + 1):
+        coarse = [k for k, o in enumerate(offsets) if o >= i]
+        if not coarse:
+            break
+        k = coarse[0]
+        if k == 0:
+            codes.append(255)
+            continue
+        # container sizes: coarser at `below`, finer at `above`
+        below, above = sizes[k] + head, sizes[k - 1] + head
+        code = int(round(8.0 * math.log2(below * above * 2.0 ** 6 / header.n_surfels ** 2)
+                         + 128))
+        code = min(max(code, 1), 254)
+        while code < 254 and container.hint_bytes(code, header.n_surfels) <= below:
+            code += 1
+        while code > 1 and container.hint_bytes(code, header.n_surfels) > above:
+            code -= 1
+        if codes and codes[-1] - code >= container.HINT_GAPS:
+            break   # beyond the section's largest gap: this step and the later ones dropped
+        codes.append(code)
+    return tuple(codes) + (0,) * (container.MAX_LEVEL_HINTS - len(codes))
+
+
+def _loss(row, offset: int) -> float:
+    """dB a measured prefix loses at ``offset`` against its best measured level."""
+    return float(max(row) - row[offset]) if np.isfinite(row[offset]) else math.inf
+
+
+def with_level_hints(blob: bytes, reference: SurfelSet) -> bytes:
+    """A one-part container of :func:`code` with its output-level section filled
+    (:func:`level_hints`; the step :class:`Encoder` takes after :func:`code`).
+
+    Parameters
+    ----------
+    blob : bytes
+        A container with an output-level section (``Prepared.level_hints``).
+    reference : SurfelSet
+        The surface it codes (its real surfels, without virtual patches).
+
+    Returns
+    -------
+    bytes
+        The same container, its codes measured: the stream and its length unchanged.
+
+    Raises
+    ------
+    InputError
+        A container without an output-level section.
+    """
+    header, stream = container.unpack(blob)
+    if not header.level_hints:
+        raise InputError("the container has no output-level section (code it with "
+                         "CodecOptions(level_hints=True))")
+    header.level_hints = level_hints(blob, reference)
+    return container.pack(header, stream)
+
+
+def _hint_offsets(measured: dict, depth: int):
+    """The measured prefix lengths, longest first, and the levels below the stream's kept for
+    them (non-decreasing along the list) that :func:`level_hints` chooses."""
+    import itertools
+
+    sizes = sorted(measured, reverse=True)
+    scores = np.array([measured[s] for s in sizes])
+    scores = np.where(np.isfinite(scores), scores, np.copysign(1e6, scores))   # ±inf: ±1e6 dB
+    loss = np.maximum(scores.max(axis=1, keepdims=True) - scores - HINT_SLACK, 0.0)
+    combos = np.array(list(itertools.combinations_with_replacement(range(depth + 1),
+                                                                   len(sizes))))
+    lost = loss[np.arange(len(sizes)), combos]
+    # the first in enumeration order of the smallest (largest loss, total loss, offsets' sum)
+    keys = (np.round(lost.max(axis=1), 2), np.round(lost.sum(axis=1), 2), combos.sum(axis=1))
+    best = np.lexsort(keys[::-1])[0]
+    return sizes, tuple(int(o) for o in combos[best])
 
 
 def encode(surfels: SurfelSet, *, bits_per_surfel: float | None = None,
@@ -1015,11 +1234,7 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
     grid appends its decoded colour grid to ``fine`` (when given)."""
     level = header.level if level is None else level
     if bits_per_surfel is not None:
-        keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
-        if keep < 4:
-            raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
-                             "file (header plus 4 bytes)")
-        stream = stream[:keep]
+        stream = stream[:_served_length(data, header, stream, bits_per_surfel)]
     zh, klt, field = checked
     if header.color_level is not None:
         values, colors = _decode_color_grid(header, stream, path, checked, level)
@@ -1055,6 +1270,76 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
                              f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
                              path=path)
     return values
+
+
+def _served_length(data, header, stream, bits_per_surfel, path=None) -> int:
+    """Bytes of a part's embedded ``stream`` that a rate of ``bits_per_surfel`` serves (all of
+    them when None)."""
+    if bits_per_surfel is None:
+        return len(stream)
+    keep = max_file_bytes(bits_per_surfel, header.n_surfels) - (len(data) - len(stream))
+    if keep < 4:
+        raise InputError(f"{bits_per_surfel} bits/surfel is below the lowest rate of this "
+                         "file (header plus 4 bytes)", path=path)
+    return min(keep, len(stream))
+
+
+def _default_level(data, header, stream, bits_per_surfel, path) -> int:
+    """The grid level a part decodes to by default (see :func:`output_levels`)."""
+    return container.hinted_level(header, len(data) - len(stream) + _served_length(
+        data, header, stream, bits_per_surfel, path))
+
+
+def _served_parts(data: bytes, bits_per_surfel, path):
+    """A container's parts, unpacked, and the rate left to serve each part at: a multi-part
+    file is cut to ``bits_per_surfel`` over all its parts' surfels first (as
+    :func:`surfidx.codec.container.truncate` splits it), so that its parts are served whole."""
+    data = bytes(data)
+    blobs = container.unpack_parts(data, path=path)
+    unpacked = [container.unpack(b, path=path) for b in blobs]
+    if bits_per_surfel is not None and len(blobs) > 1:
+        total = sum(h.n_surfels for h, _ in unpacked)
+        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
+        blobs = container.unpack_parts(data, path=path)
+        unpacked = [container.unpack(b, path=path) for b in blobs]
+        bits_per_surfel = None
+    return blobs, unpacked, bits_per_surfel
+
+
+def output_levels(data: bytes, *, bits_per_surfel: float | None = None, path=None) -> list:
+    """The grid level each part of a container decodes to by default (:func:`decode` without
+    ``level``) at a rate.
+
+    The stream's own level, or a coarser one where the encoder measured that the prefix served
+    scores a better PSNR_D2 there: the header's output-level hints
+    (:func:`surfidx.codec.container.hinted_level` of the size of the part's container served,
+    see :func:`level_hints`). The bytes served decide it, so a truncated file decodes as the
+    same prefix served; a file without hints (format version 5 and older, or a stream whose
+    own level is best at every rate measured) decodes at its own level.
+
+    Parameters
+    ----------
+    data : bytes
+        A ``.sfz`` container.
+    bits_per_surfel : float, optional
+        The rate it is served at, as for :func:`decode`.
+    path : str, optional
+        Name for messages.
+
+    Returns
+    -------
+    list of int
+        One level per part, in part order.
+
+    Raises
+    ------
+    BitstreamError
+        A damaged container.
+    InputError
+        A rate below the file's lowest.
+    """
+    blobs, unpacked, bits = _served_parts(data, bits_per_surfel, path)
+    return [_default_level(b, h, s, bits, path) for b, (h, s) in zip(blobs, unpacked)]
 
 
 def _decode_color_grid(header, stream, path, checked, level: int):
@@ -1133,9 +1418,8 @@ def decode(data: bytes, *, bits_per_surfel: float | None = None, mesh: bool = Fa
         Return a :class:`~surfidx.TriangleMesh` instead of a :class:`~surfidx.SurfelSet`.
     level : int, optional
         Return the decoded surface on the grid of this level (0 … the stream's level; default:
-        the stream's level, at any rate: where a prefix left the finest levels' coefficients
-        zero, the wavelets interpolate them from the coarser surface, which follows a smooth
-        surface far better than the coarser grid and costs little elsewhere). Coarser grids
+        :func:`output_levels`, the stream's level or, at the rates where the encoder measured
+        that a coarser grid scores a better PSNR_D2, that grid's). Coarser grids
         are prefixes of finer ones, so this keeps the first ``10·4^level + 2`` grid values: fewer surfels of the same surface (a stream holds 4–16 grid
         vertices per input surfel, see :func:`surfidx.geometry.icosphere.choose_level`). A part whose
         grid is coarser than ``level`` is decoded at its own. The stream is read down to
@@ -1292,22 +1576,15 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
         One per part (a single-part file gives a list of one).
     """
     bake = _texture_plan(texture, texture_size, mesh=mesh, max_vertices=None)
-    data = bytes(data)
-    blobs = container.unpack_parts(data, path=path)
-    unpacked = [container.unpack(b, path=path) for b in blobs]
-    if bits_per_surfel is not None and len(blobs) > 1:
-        total = sum(h.n_surfels for h, _ in unpacked)
-        data = container.truncate(data, max_file_bytes(bits_per_surfel, total), path=path)
-        blobs = container.unpack_parts(data, path=path)
-        unpacked = [container.unpack(b, path=path) for b in blobs]
-        bits_per_surfel = None
+    blobs, unpacked, bits_per_surfel = _served_parts(data, bits_per_surfel, path)
     checked = [check_header(h, path=path) for h, _ in unpacked]
     if level is not None and not (isinstance(level, (int, np.integer))
                                   and not isinstance(level, bool)
                                   and 0 <= level <= max(h.level for h, _ in unpacked)):
         raise InputError(f"level must be an integer from 0 to the stream's grid level "
                          f"{max(h.level for h, _ in unpacked)}, got {level!r}")
-    levels = [h.level if level is None else min(int(level), h.level) for h, _ in unpacked]
+    levels = [_default_level(b, h, s, bits_per_surfel, path) if level is None
+              else min(int(level), h.level) for b, (h, s) in zip(blobs, unpacked)]
     limit = check_positive_int(max_surfels, "max_surfels")
     if len(blobs) == 1:
         _check_surfels(levels[0], unpacked[0][0].level, limit, path)

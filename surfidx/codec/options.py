@@ -77,6 +77,12 @@ class CodecOptions:
     density_weighting : bool or None
         Weight coefficients by the surfel density on the sphere (None: when its estimated gain
         is worth it, :mod:`surfidx.codec.density`).
+    level_hints : bool
+        Measure, on prefixes of the coded stream, the grid level that gives the best PSNR_D2
+        against the input and store where the default output level steps down
+        (:func:`surfidx.codec.encoder.level_hints`; a few decodings of the stream, and up to
+        :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` + 1 header bytes when a coarser
+        level wins).
     """
 
     bits_per_surfel: float = option(DEFAULT_BITS_PER_SURFEL, min=0, min_open=True)
@@ -89,6 +95,7 @@ class CodecOptions:
     color_level: int | None = option(None, max=MAX_LEVEL)
     tangent_weight: float | None = option(TANGENT_WEIGHT, min=0, min_open=True, max=1)
     density_weighting: bool | None = None
+    level_hints: bool = True
 
     def __post_init__(self):
         check_option_fields(self)
