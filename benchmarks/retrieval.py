@@ -1201,8 +1201,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
     print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
                  "own rank (median)", "AP q1/med/q3"], rows)
     REPORT.print(f"\nStored views per level of the view directions (model views CPU: median of "
-                 f"3 models; search: partial_view_l2 and its expansion against the {len(paths)} models, per "
-                 f"query of {recs[0]['views'][0].shape[0]} views)\n")
+                 f"3 models; search: partial_view_l2 and its expansion against the "
+                 f"{len(paths)} models, per query of {recs[0]['views'][0].shape[0]} views)\n")
     print_table(["level", "directions", "KiB per model (float32)", "model views CPU s",
                  "search CPU ms per query"], cost_rows)
     if args.confusion:
