@@ -61,12 +61,15 @@ mAP (the stored model the scan was made from counts as one of its class's), the 
 own model and the per-query AP quartiles. ``--partial-study`` adds each shape part alone and the
 part weights of the best mAP, with a 2-fold cross-validated figure (chosen on half the models,
 scored on the others). Scans and their grids are cached beside the maps (``partial-<hash>/``),
-descriptors in ``/tmp/partial-cache/descriptors``.
+descriptors in ``/tmp/partial-cache/descriptors``. ``--view-descriptors`` ranks the single views
+as a query does (their views against the stored models', :func:`surfidx.describe.views.
+partial_view_l2`, expanded by the first match's complete model, :func:`surfidx.describe.views.
+expand_by_first`), beside the views alone; ``--expansion`` adds the expansion's weights.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
 [--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json] [--confusion] [--cv out.json]
 [--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
-L,L]]]``
+L,L] [--expansion]]]``
 """
 
 from __future__ import annotations
@@ -1140,6 +1143,7 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                                          np.where(dpresent["shape"],
                                                   weighted_l2(q, dstored, dpresent), np.inf))
     rows, results = [], {}
+    complete = complete_dist(base, lmax)    # what a query reads from the database, untimed
     for noisy in ([False, True] if args.noise else [False]):
         sel = [(i, k) for i, r in enumerate(recs) for k in range(len(r["seed"]))
                if bool(r["noisy"][k]) == noisy]
@@ -1150,8 +1154,10 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         for lv in levels:
             t1 = time.process_time()
             name = "surfidx views" + ("" if lv == VIEW_LEVEL else f", level {lv}")
-            variants[name] = np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
-                                                       stored[lv], present) for i, k in sel])
+            alone = np.stack([partial_view_l2({"views": recs[i]["views"][k].ravel()},
+                                              stored[lv], present) for i, k in sel])
+            variants[name] = expanded(alone, complete)
+            variants[name + ", views alone"] = alone
             if not noisy:
                 cost_rows[levels.index(lv)].append(
                     f"{1000 * (time.process_time() - t1) / len(sel):.1f}")
@@ -1159,6 +1165,10 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
             variants[name + ", camera direction only"] = np.stack([partial_view_l2(
                 {"views": recs[i]["views"][k][[0, -1]].ravel()}, stored[lv], present)
                 for i, k in sel])
+        if args.expansion:
+            dv = variants["surfidx views, views alone"]
+            for name, dx in expansion_variants(dv, complete).items():
+                variants[name] = dx
         variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
@@ -1191,8 +1201,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
     print_table(["scans", "descriptor", "queries", "own first %", "NN %", "FT %", "mAP",
                  "own rank (median)", "AP q1/med/q3"], rows)
     REPORT.print(f"\nStored views per level of the view directions (model views CPU: median of "
-                 f"3 models; search: partial_view_l2 against the {len(paths)} models, per "
-                 f"query of {recs[0]['views'][0].shape[0]} views)\n")
+                 f"3 models; search: partial_view_l2 and its expansion against the "
+                 f"{len(paths)} models, per query of {recs[0]['views'][0].shape[0]} views)\n")
     print_table(["level", "directions", "KiB per model (float32)", "model views CPU s",
                  "search CPU ms per query"], cost_rows)
     if args.confusion:
@@ -1263,6 +1273,59 @@ def scan_descriptors(rec, lmax, *, real_only=False):
         vec = describe_cached(rec["arrays"][f"grid{k}"], level, lmax, mask=mask)
         sets.append(DescriptorSet(vec, descriptor_params(lmax=lmax)))
     return combine_descriptors(sets, rec["counts"]).vectors
+
+
+def complete_dist(base, lmax):
+    """(n, n) :func:`surfidx.describe.distance.weighted_l2` between the complete models'
+    descriptors (``inf`` where a model has none), computed once per run."""
+    from surfidx.describe.distance import weighted_l2
+
+    if "complete" not in _MEMO:
+        descs = [None if r["grid"] is None else describe_cached(r["grid"], r["level"], lmax)
+                 for r in base]
+        stored, present = stack_descriptors(descs)
+        rows = []
+        for d in descs:
+            rows.append(np.full(len(descs), np.inf) if d is None else np.where(
+                present["shape"], weighted_l2(d, stored, present), np.inf))
+        _MEMO["complete"] = np.stack(rows)
+    return _MEMO["complete"]
+
+
+_MEMO: dict = {}
+
+
+def expanded(dv, dc, weight=None):
+    """Single-view distances ``dv`` (q, n) as a query ranks them: each row expanded by the
+    complete models' distances ``dc`` (n, n) from its first match
+    (:func:`surfidx.describe.views.expand_by_first`, the library's weight by default)."""
+    from surfidx.describe.views import EXPANSION_WEIGHT, expand_by_first
+
+    w = EXPANSION_WEIGHT if weight is None else weight
+    first = [int(np.lexsort((np.arange(len(r)), r))[0]) for r in dv]
+    return np.stack([expand_by_first(r, dc[f], weight=w) for r, f in zip(dv, first)])
+
+
+def expansion_variants(dv, dc):
+    """``--expansion``: the weight of the first match's complete distances, and a blend of the
+    top 2 or 3 matches' instead of the first's (the first kept first)."""
+    def scaled(d):
+        fin = np.isfinite(d)
+        return d / np.median(d[fin]) if fin.any() else d
+
+    out = {f"views expanded, weight {w:g}": expanded(dv, dc, w)
+           for w in (0.5, 1.0, 2.0, 4.0, 8.0, 1000.0)}
+    first = np.argmin(dv, axis=1)
+    for top in (2, 3):
+        rows = []
+        for q in range(len(dv)):
+            best = np.argsort(dv[q], kind="stable")[:top]
+            wt = 1.0 / (1.0 + np.arange(top))
+            mix = sum(wt[j] * scaled(dc[b]) for j, b in enumerate(best)) / wt.sum()
+            mix[first[q]] = 0.0
+            rows.append(scaled(dv[q]) + 4.0 * mix)
+        out[f"views expanded by the top {top}, weight 4"] = np.stack(rows)
+    return out
 
 
 def stack_descriptors(descs):
@@ -1598,6 +1661,9 @@ def main(argv=None) -> int:
     ap.add_argument("--partial-study", action="store_true",
                     help="with --partial: each shape part alone and the part weights chosen "
                          "on the partial queries")
+    ap.add_argument("--expansion", action="store_true",
+                    help="with --view-descriptors: also the weights of the expansion by the "
+                    "first match's complete descriptors, and expansions by the top 2 or 3")
     ap.add_argument("--view-descriptors", action="store_true",
                     help="with --partial view: query the scans by their views (no spherical "
                          "map of the scans) against the stored models' views")

@@ -396,7 +396,7 @@ class Database(Catalog):
                              "compare; run `surfidx redescribe`, or query with --complete")
         if by_views:
             ids, dist = self._view_search(descriptors["views"], allowed,
-                                          k=k + (drop is not None) + older)
+                                          k=k + (drop is not None) + older, shape_weight=w)
         elif allowed is not None and (exact or not self._approximate()):
             ids, dist = self._filtered_search(descriptors, allowed,
                                               k=k + (drop is not None), shape_weight=w,
@@ -427,10 +427,12 @@ class Database(Catalog):
         return (kept is not None and kept.still_approximate()) or \
             self.count() >= DEFAULT_THRESHOLD
 
-    def _view_search(self, views, allowed, *, k):
+    def _view_search(self, views, allowed, *, k, shape_weight):
         """The ``k`` nearest stored models (of the ids ``allowed``; None: all) to a partial
-        query's views by :func:`surfidx.describe.views.partial_view_l2`, ties by id."""
-        from .describe.views import partial_view_l2
+        query's views by :func:`surfidx.describe.views.partial_view_l2`, the ranking expanded
+        by the first match's complete-model distances (:func:`surfidx.describe.views.
+        expand_by_first`), ties by id."""
+        from .describe.views import expand_by_first, partial_view_l2
 
         if allowed is None:
             allowed = np.asarray([r[0] for r in self.conn.execute(
@@ -441,8 +443,27 @@ class Database(Catalog):
         if ids.size == 0:
             return np.zeros(0, np.int64), np.zeros(0)
         dist = partial_view_l2({"views": views}, stored, present)
+        if np.isfinite(dist).any():
+            first = ids[np.lexsort((ids, dist))[0]]
+            dist = expand_by_first(dist, self._first_distances(ids, first,
+                                                               shape_weight=shape_weight))
         order = np.lexsort((ids, dist))[:k]
         return ids[order], dist[order]
+
+    def _first_distances(self, ids, first, *, shape_weight):
+        """(n,) :func:`surfidx.describe.weighted_l2` of the stored model ``first`` to each
+        stored model of ``ids`` by their complete-model descriptors (``inf``: none stored)."""
+        from .describe.distance import DEFAULT_KINDS, weighted_l2
+
+        out = np.full(len(ids), np.inf)
+        have, stored, present = self.descriptor_rows(ids, DEFAULT_KINDS)
+        at = np.searchsorted(have, first)
+        if at == have.size or have[at] != first:
+            return out
+        query = {kind: s[at] for kind, s in stored.items() if present[kind][at]}
+        d = weighted_l2(query, stored, present, shape_weight=shape_weight)
+        out[np.searchsorted(ids, have)] = d
+        return out
 
     def _search_index(self, make, *, exact: bool):
         """The search of :meth:`query`: an index on the approximate path is kept for the next

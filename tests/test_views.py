@@ -246,3 +246,41 @@ def test_a_database_without_views_falls_back_or_says_to_redescribe(shapes_db, tm
             assert len(rows) == 3
             with pytest.raises(InputError, match="no stored model has views"):
                 db.query(str(view), k=3, partial=True)
+
+
+def test_expansion_keeps_the_first_match_first_and_blends_the_rest():
+    v = np.array([3.0, 1.0, 2.0, np.inf, 4.0])
+    c = np.array([0.5, 0.0, 4.0, 1.0, np.inf])      # the first match (index 1) is 0 from itself
+    out = V.expand_by_first(v, c, weight=1.0)
+    assert int(np.argmin(out)) == 1 and np.isinf(out[3])
+    assert out[0] < out[2]                    # close to the first match's complete model
+    assert out[4] == pytest.approx(4.0 / 2.5 + 4.0 / 1.0)    # no descriptor: the farthest
+    np.testing.assert_allclose(V.expand_by_first(v, c, weight=0.0), v / 2.5)
+
+
+def test_expansion_refuses_bad_input():
+    with pytest.raises(InputError, match="weight must be a finite number >= 0"):
+        V.expand_by_first([1.0, 2.0], [0.0, 1.0], weight=-1.0)
+    with pytest.raises(InputError, match="must not hold NaN"):
+        V.expand_by_first([1.0, np.nan], [0.0, 1.0])
+    with pytest.raises(InputError, match="first_dist"):
+        V.expand_by_first([1.0, 2.0], [0.0, 1.0, 2.0])
+
+
+def test_a_partial_query_ranks_by_its_first_matchs_complete_model(shapes_db):
+    from surfidx.database import Database
+
+    db_path, view = shapes_db
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with Database(db_path) as db:
+            rows = db.query(str(view), k=3, partial=True)
+            ex = db.example(str(view), partial=True)
+            ids, stored, present = db.descriptor_rows([r["id"] for r in rows], ("views",))
+            first = rows[0]["name"]
+            complete = {r["id"]: r["distance"] for r in db.query(first, k=3, include_self=True)}
+    dv = V.partial_view_l2({"views": ex.descriptors["views"]}, stored, present)
+    assert ids[int(np.argmin(dv))] == rows[0]["id"]
+    want = V.expand_by_first(dv, np.array([complete[i] for i in ids.tolist()]))
+    got = {r["id"]: r["distance"] for r in rows}
+    np.testing.assert_allclose([got[i] for i in ids.tolist()], want, rtol=1e-6)

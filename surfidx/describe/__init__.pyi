@@ -12,4 +12,5 @@ from .partial import (partial_l2 as partial_l2, is_partial as is_partial,
                       PARTIAL_SHARE as PARTIAL_SHARE,
                       PARTIAL_PART_WEIGHTS as PARTIAL_PART_WEIGHTS, part_slices as part_slices)
 from .views import (partial_view_l2 as partial_view_l2, model_views as model_views,
-                    scan_views as scan_views, scan_direction as scan_direction)
+                    scan_views as scan_views, scan_direction as scan_direction,
+                    expand_by_first as expand_by_first, EXPANSION_WEIGHT as EXPANSION_WEIGHT)

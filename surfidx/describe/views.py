@@ -28,7 +28,8 @@ the camera, in a direction that depends on the pose), and from the opposite dire
 winding of a scan file may be inward. :func:`view_distance` compares a query's views with a
 model's by the smallest distance over the pairs (a partial query: one direction against all of
 the model's), :func:`view_set_distance` two complete models by the mean nearest-view distance
-both ways.
+both ways. :func:`expand_by_first` ranks the models after a partial query's first match also by
+their distance to it as complete models (query expansion).
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ __all__ = ["VIEW_LEVEL", "VIEW_PIXELS", "VIEW_SAMPLES", "VIEW_RINGS", "VIEW_HARM
            "VIEW_RMAX", "VIEW_DEPTH_WEIGHT", "view_directions", "surface_samples",
            "view_vector", "model_views", "scan_direction", "tilted_directions", "scan_views",
            "view_dim", "SCAN_TILTS", "SCAN_TURNS",
-           "view_distance", "view_set_distance", "view_params", "partial_view_l2"]
+           "view_distance", "view_set_distance", "view_params", "partial_view_l2",
+           "EXPANSION_WEIGHT", "expand_by_first"]
 
 #: Icosphere level whose vertices are the view directions (level 1: 42 directions).
 VIEW_LEVEL = 1
@@ -75,6 +77,9 @@ SCAN_TILTS = (8.0, 16.0)
 SCAN_TURNS = 8
 #: Weight of the alignment with the mean normal that breaks ties between camera directions.
 SCAN_DIRECTION_TIE = 1e-3
+#: Weight of the first match's complete-model distances in the ranking of a single-view query
+#: (:func:`expand_by_first`; ``benchmarks/retrieval.py --partial view --expansion`` measures it).
+EXPANSION_WEIGHT = 4.0
 
 
 def view_dim() -> int:
@@ -345,3 +350,55 @@ def partial_view_l2(query, stored, present, *, shape_weight: float = 1.0) -> np.
                          "(surfidx redescribe)")
     d = view_distance(q.reshape(-1, dim), s.reshape(len(s), -1, dim))
     return np.where(np.asarray(present["views"], bool), d, np.inf)
+
+
+def expand_by_first(view_dist, first_dist, *, weight: float = EXPANSION_WEIGHT) -> np.ndarray:
+    """A single-view query's ranking, expanded by the complete model of its first match.
+
+    A view finds its own model often but ranks the rest of its class poorly: one side of a
+    shape says little about how the other members look from their other sides. The first
+    match, once found, is a complete model, and complete models find their class well. So the
+    ranking blends the view distance with the first match's distance to every stored model
+    (query expansion, Chum et al. 2007), each divided by its median over the finite entries so
+    that neither scale dominates. The first match has the smallest view distance and distance 0
+    to itself: it stays first.
+
+    Parameters
+    ----------
+    view_dist : (m,) float64
+        :func:`partial_view_l2` of the query (``inf``: a model without views, never returned).
+    first_dist : (m,) float64
+        The distance of the first match (the smallest ``view_dist``) to every model by the
+        complete-model descriptors (:func:`surfidx.describe.weighted_l2`); ``inf`` where a
+        model has none (it counts as the farthest).
+    weight : float
+        Weight of ``first_dist`` (0: the view distance alone).
+
+    Returns
+    -------
+    (m,) float64
+        The blended distances (``inf`` where ``view_dist`` is).
+
+    Raises
+    ------
+    InputError
+        Arrays of different lengths, NaN, or a negative or non-finite ``weight``.
+    """
+    v = as_array(view_dist, "view_dist", shape=(None,), finite=False)
+    c = as_array(first_dist, "first_dist", shape=(v.size,), finite=False)
+    w = float(weight)
+    if not (np.isfinite(w) and w >= 0.0):
+        raise InputError(f"weight must be a finite number >= 0, got {weight!r}")
+    if np.isnan(v).any() or np.isnan(c).any():
+        raise InputError("view_dist and first_dist must not hold NaN")
+    fv, fc = np.isfinite(v), np.isfinite(c)
+    if not fv.any():
+        return v.copy()
+    c = np.where(fc, c, c[fc].max() if fc.any() else 0.0)
+    return v / _median_scale(v[fv]) + w * c / _median_scale(c)
+
+
+def _median_scale(d: np.ndarray) -> float:
+    """The median of ``d``, or 1 where it is 0 (every distance 0: nothing to scale)."""
+    m = float(np.median(d))
+    return m if m > 0.0 else 1.0
