@@ -348,24 +348,72 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
     ``dmax[l]``. ``sched`` lists the passes in stream order: row ``(g, p)`` codes the sorting
     and refinement passes of plane ``p`` of group ``g``'s layers; ``marks[s]`` receives the
     coder's ``(shifts, range)`` after row ``s`` (encoder) or stays untouched. ``done`` is the
-    lowest plane group 0 finished."""
-    sigp = np.full((k, n), -1, dtype=np.int8)
-    neg = np.zeros((k, n), dtype=np.uint8)
+    lowest plane group 0 finished.
+
+    The passes run on the forest relabelled in breadth-first order (:func:`_bfs_relabel`):
+    the lists then visit nodes close in memory, and as the roots keep their order and every
+    node its children's order, every decision is the same."""
+    order, b_parent, b_indptr, b_indices = _bfs_relabel(parent, indptr, indices)
+    b_depth = depth[order]
+    b_cut = cut[order]
+    encoder = tb.shape[1] == n
+    if encoder:
+        tb, dtop, ltop, mag, sgn = tb[:, order], dtop[:, order], ltop[:, order], \
+            mag[:, order], sgn[:, order]
+    b_sigp = np.full((k, n), -1, dtype=np.int8)
+    b_neg = np.zeros((k, n), dtype=np.uint8)
     lsp = np.empty((k, n), dtype=np.int64)
     lsp_len = np.zeros(k, dtype=np.int64)
     lsp_rows = np.empty((k, n, 3), dtype=np.int8)
     lsp_mag = np.empty((k, n, 2), dtype=np.int64)
-    complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, parent, indptr,
-                              indices, depth, tb, dtop, ltop, mag, sgn, cut, group, dmax, sched,
-                              marks, sigp, neg, lsp, lsp_len, lsp_rows, lsp_mag)
-    # the known bits and lowest known plane of every significant coefficient, node-indexed
+    complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, b_parent, b_indptr,
+                              b_indices, b_depth, tb, dtop, ltop, mag, sgn, b_cut, group, dmax,
+                              sched, marks, b_sigp, b_neg, lsp, lsp_len, lsp_rows, lsp_mag)
+    # back to the caller's node ids; the known bits and lowest known plane of every
+    # significant coefficient from the LSP
+    sigp = np.empty((k, n), dtype=np.int8)
+    neg = np.empty((k, n), dtype=np.uint8)
+    sigp[:, order] = b_sigp
+    neg[:, order] = b_neg
     known = np.zeros((k, n), dtype=np.int64)
     lo = np.zeros((k, n), dtype=np.int8)
     for l in range(k):
         for r in range(lsp_len[l]):
-            known[l, lsp[l, r]] = lsp_mag[l, r, 1]
-            lo[l, lsp[l, r]] = lsp_rows[l, r, 2]
+            i = order[lsp[l, r]]
+            known[l, i] = lsp_mag[l, r, 1]
+            lo[l, i] = lsp_rows[l, r, 2]
     return complete, sigp, neg, known, lo, gdone
+
+
+@njit(cache=True)
+def _bfs_relabel(parent, indptr, indices):
+    """The forest relabelled in breadth-first order: node ``u`` of the result is ``order[u]``.
+
+    Returns
+    -------
+    order : (n,) int64
+        :func:`_bfs` order: the roots in their order, then each node's children in its order.
+    parent, indptr, indices : (n,), (n + 1,), (n - n_roots,) int64
+        The relabelled forest (each node's children are consecutive ids).
+    """
+    n = parent.shape[0]
+    order, _, _ = _bfs(parent, indptr, indices)
+    inv = np.empty(n, dtype=np.int64)
+    for u in range(n):
+        inv[order[u]] = u
+    b_parent = np.empty(n, dtype=np.int64)
+    b_indptr = np.empty(n + 1, dtype=np.int64)
+    b_indices = np.empty(indices.shape[0], dtype=np.int64)
+    b_indptr[0] = 0
+    t = 0
+    for u in range(n):
+        v = order[u]
+        b_parent[u] = inv[parent[v]] if parent[v] >= 0 else -1
+        for j in range(indptr[v], indptr[v + 1]):
+            b_indices[t] = inv[indices[j]]
+            t += 1
+        b_indptr[u + 1] = t
+    return order, b_parent, b_indptr, b_indices
 
 
 @njit(cache=True)
