@@ -340,20 +340,37 @@ def _face_adjacency(faces, n):
 
 
 def _components(mask, nbr):
-    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count."""
-    idx = np.flatnonzero(mask)
-    lab = np.full(len(mask), -1, np.int64)
-    if not len(idx):
-        return lab, 0
-    pos = np.full(len(mask), -1, np.int64)
-    pos[idx] = np.arange(len(idx))
-    rows = np.repeat(np.arange(len(idx)), 3)
-    cols = pos[np.maximum(nbr[idx].ravel(), 0)]
-    ok = (nbr[idx].ravel() >= 0) & (cols >= 0)
-    g = sp.coo_matrix((np.ones(int(ok.sum())), (rows[ok], cols[ok])),
-                      shape=(len(idx), len(idx)))
-    count, c = connected_components(g, directed=False)
-    lab[idx] = c
+    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count,
+    numbered in the order of each component's smallest face."""
+    lab, count = _face_components(np.ascontiguousarray(mask, dtype=bool),
+                                  np.ascontiguousarray(nbr, dtype=np.int64))
+    return lab, int(count)
+
+
+@njit(cache=True)
+def _face_components(mask, nbr):
+    """:func:`_components` by flood fills through the face adjacency ``nbr`` (symmetric, -1
+    none) from each unlabelled face of ``mask`` in increasing order."""
+    m = mask.shape[0]
+    lab = np.full(m, -1, np.int64)
+    stack = np.empty(m, np.int64)
+    count = 0
+    for s in range(m):
+        if not mask[s] or lab[s] >= 0:
+            continue
+        lab[s] = count
+        stack[0] = s
+        top = 1
+        while top > 0:
+            top -= 1
+            f = stack[top]
+            for j in range(nbr.shape[1]):
+                g = nbr[f, j]
+                if g >= 0 and mask[g] and lab[g] < 0:
+                    lab[g] = count
+                    stack[top] = g
+                    top += 1
+        count += 1
     return lab, count
 
 
