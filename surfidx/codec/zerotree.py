@@ -350,38 +350,43 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
     coder's ``(shifts, range)`` after row ``s`` (encoder) or stays untouched. ``done`` is the
     lowest plane group 0 finished.
 
-    The passes run on the forest relabelled in breadth-first order (:func:`_bfs_relabel`):
-    the lists then visit nodes close in memory, and as the roots keep their order and every
-    node its children's order, every decision is the same."""
-    order, b_parent, b_indptr, b_indices = _bfs_relabel(parent, indptr, indices)
-    b_depth = depth[order]
-    b_cut = cut[order]
-    encoder = tb.shape[1] == n
-    if encoder:
-        tb, dtop, ltop, mag, sgn = tb[:, order], dtop[:, order], ltop[:, order], \
-            mag[:, order], sgn[:, order]
-    b_sigp = np.full((k, n), -1, dtype=np.int8)
-    b_neg = np.zeros((k, n), dtype=np.uint8)
+    A long run (a budget of more bytes than nodes: the full-rate pricing of the passes) runs
+    the passes on the forest relabelled in breadth-first order (:func:`_bfs_relabel`): the
+    lists then visit nodes close in memory, and as the roots keep their order and every node
+    its children's order, every decision is the same. A short run keeps the caller's labels,
+    as relabelling would cost more than it saves."""
+    sigp = np.full((k, n), -1, dtype=np.int8)
+    neg = np.zeros((k, n), dtype=np.uint8)
     lsp = np.empty((k, n), dtype=np.int64)
     lsp_len = np.zeros(k, dtype=np.int64)
     lsp_rows = np.empty((k, n, 3), dtype=np.int8)
     lsp_mag = np.empty((k, n, 2), dtype=np.int64)
-    complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, b_parent, b_indptr,
-                              b_indices, b_depth, tb, dtop, ltop, mag, sgn, b_cut, group, dmax,
-                              sched, marks, b_sigp, b_neg, lsp, lsp_len, lsp_rows, lsp_mag)
-    # back to the caller's node ids; the known bits and lowest known plane of every
-    # significant coefficient from the LSP
-    sigp = np.empty((k, n), dtype=np.int8)
-    neg = np.empty((k, n), dtype=np.uint8)
-    sigp[:, order] = b_sigp
-    neg[:, order] = b_neg
+    if budget > n:
+        order, b_parent, b_indptr, b_indices = _bfs_relabel(parent, indptr, indices)
+        if tb.shape[1] == n:      # the encoder's tables (the decoder passes (k, 1) dummies)
+            tb, dtop, ltop, mag, sgn = tb[:, order], dtop[:, order], ltop[:, order], \
+                mag[:, order], sgn[:, order]
+        complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, b_parent,
+                                  b_indptr, b_indices, depth[order], tb, dtop, ltop, mag, sgn,
+                                  cut[order], group, dmax, sched, marks, sigp, neg, lsp,
+                                  lsp_len, lsp_rows, lsp_mag)
+        # back to the caller's node ids
+        sigp[:, order] = sigp.copy()
+        neg[:, order] = neg.copy()
+        for l in range(k):
+            for r in range(lsp_len[l]):
+                lsp[l, r] = order[lsp[l, r]]
+    else:
+        complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, parent,
+                                  indptr, indices, depth, tb, dtop, ltop, mag, sgn, cut, group,
+                                  dmax, sched, marks, sigp, neg, lsp, lsp_len, lsp_rows, lsp_mag)
+    # the known bits and lowest known plane of every significant coefficient, from the LSP
     known = np.zeros((k, n), dtype=np.int64)
     lo = np.zeros((k, n), dtype=np.int8)
     for l in range(k):
         for r in range(lsp_len[l]):
-            i = order[lsp[l, r]]
-            known[l, i] = lsp_mag[l, r, 1]
-            lo[l, i] = lsp_rows[l, r, 2]
+            known[l, lsp[l, r]] = lsp_mag[l, r, 1]
+            lo[l, lsp[l, r]] = lsp_rows[l, r, 2]
     return complete, sigp, neg, known, lo, gdone
 
 
