@@ -8,8 +8,8 @@ import pytest
 
 from surfidx import BitstreamError, InputError, TriangleMesh
 from surfidx.codec import Encoder, container, decode, decode_grid
-from surfidx.codec.colorgrid import (TextureSource, color_level, fixed_schedule, rd_schedule,
-                                     texels)
+from surfidx.codec.colorgrid import (TextureSource, color_level, fixed_schedule,
+                                     pass_distortions, rd_schedule, texels)
 from surfidx.codec.options import CodecOptions
 from surfidx.codec import zerotree
 from surfidx.geometry.metrics import psnr_luma_surface
@@ -94,6 +94,24 @@ def test_rd_schedule_orders_by_gain_per_bit():
         zerotree.group_schedule([0, 0, 0], (1, 1), 0)
     with pytest.raises(InputError, match="uncoded"):
         zerotree.group_schedule([0], (1, 1), 0)
+
+
+def test_pass_distortions_are_the_array_expressions_bit_for_bit():
+    # the schedule (and so the stream) depends on these sums: the kernel must repeat the
+    # array expression's floating-point operations exactly
+    rng = np.random.default_rng(7)
+    full = rng.laplace(size=(5000, 6)) * 10.0 ** rng.uniform(-3, 1, size=(5000, 1))
+    step = float(np.float32(3e-4))
+    top = int(np.floor(np.log2(np.abs(full).max() / step + 0.5)))
+    for c, w in ((full[:3000, :3], np.ones(3)), (full[:, 3:], np.array([0.6, 0.2, 0.2]))):
+        q = np.floor(np.abs(c) / step + 0.5).astype(np.int64)
+        want = [float((c * c).sum(axis=0) @ w)]
+        for p in range(top, -1, -1):
+            kept = (q >> p) << p
+            frac = (2.0 ** (p - 1) - 0.5) if p > 0 else 0.0
+            err = np.abs(c) - np.where(kept > 0, (kept + frac) * step, 0.0)
+            want.append(float((err * err).sum(axis=0) @ w))
+        assert pass_distortions(c, step, top, 0, w).tobytes() == np.array(want).tobytes()
 
 
 def test_importance_moves_bits_to_colour(checker):

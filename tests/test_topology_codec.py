@@ -630,3 +630,27 @@ def test_cli_bad_region_table_names_the_file(tmp_path, holes3):
     assert r.exit_code != 0
     assert "regions.sfz" in r.output and "bad region table" in r.output
     assert "Traceback" not in r.output
+
+
+def test_grid_regions_are_the_components_numbered_by_smallest_vertex():
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from surfidx.geometry.icosphere import icosphere
+
+    g = icosphere(4)
+    n = g.n_vertices
+    ptr, nb = np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices)
+    adj = csr_matrix((np.ones(len(nb)), (np.repeat(np.arange(n), np.diff(ptr)), nb)), (n, n))
+    rng = np.random.default_rng(3)
+    for density in (0.0, 0.2, 0.55, 1.0):
+        bits = rng.random(n) < density
+        count, region = grid_regions(bits, 4)
+        on = np.flatnonzero(bits)
+        want, lab = connected_components(adj[on][:, on], directed=False) if len(on) else (0, on)
+        assert count == want
+        assert np.array_equal(region < 0, ~bits)
+        # the same partition, numbered in the order of each region's smallest vertex
+        firsts = [int(on[lab == c].min()) for c in range(want)]
+        for r, c in enumerate(np.argsort(firsts, kind="stable")):
+            assert np.array_equal(np.flatnonzero(region == r), on[lab == c])

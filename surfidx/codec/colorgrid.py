@@ -194,16 +194,45 @@ def pass_distortions(coeffs, step: float, top: int, final: int, weights) -> np.n
         Before any pass, then after the pass of each plane ``top`` … ``final``.
     """
     c = np.asarray(coeffs, np.float64)
-    q = np.floor(np.abs(c) / step + 0.5).astype(np.int64)
+    a = np.abs(c)
+    q = np.floor(a / step + 0.5).astype(np.int64)
     w = np.asarray(weights, np.float64)
     out = [float((c * c).sum(axis=0) @ w)]
     for p in range(int(top), int(final) - 1, -1):
-        kept = (q >> p) << p
         frac = (2.0 ** (p - 1) - 0.5) if p > 0 else 0.0
-        rec = np.where(kept > 0, (kept + frac) * step, 0.0)
-        err = np.abs(c) - rec
-        out.append(float((err * err).sum(axis=0) @ w))
+        out.append(float(_squared_errors(a, q, p, frac, float(step)).sum(axis=0) @ w))
     return np.array(out)
+
+
+@njit(cache=True)
+def _squared_errors(a, q, p, frac, step):
+    """``(|c| - r)**2`` of each coefficient, ``r`` its reconstruction once plane ``p`` is
+    coded: ``(kept + frac) · step`` for ``kept = (q >> p) << p > 0``, else 0.
+
+    Parameters
+    ----------
+    a : (n, k) float64
+        ``|c|``.
+    q : (n, k) int64
+        Quantised magnitudes.
+    p : int
+    frac, step : float
+
+    Returns
+    -------
+    (n, k) float64
+        The same operations as the array expression, element by element (so the sums the
+        caller takes are bit-identical).
+    """
+    n, k = a.shape
+    out = np.empty((n, k), dtype=np.float64)
+    for i in range(n):
+        for j in range(k):
+            kept = (q[i, j] >> p) << p
+            r = (np.float64(kept) + frac) * step if kept > 0 else 0.0
+            e = a[i, j] - r
+            out[i, j] = e * e
+    return out
 
 
 def fixed_schedule(top: int, color_top: int, final: int) -> tuple:

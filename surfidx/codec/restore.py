@@ -53,6 +53,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ..errors import BitstreamError, InputError
 from ..geometry.icosphere import icosphere, vertex_count
+from ..jit import njit
 
 __all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surfels",
            "RestoredMesh", "check_regions", "zip_loops"]
@@ -84,18 +85,38 @@ def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
     region : (n,) int64
         Region of each grid vertex, -1 where the bit is not set.
     """
-    bits = np.asarray(bits, bool)
-    region = np.full(len(bits), -1, np.int64)
-    on = np.flatnonzero(bits)
-    if not len(on):
-        return 0, region
-    g = _grid_graph(level)[on][:, on]
-    count, lab = connected_components(g, directed=False)
-    first = np.full(count, len(bits), np.int64)
-    np.minimum.at(first, lab, on)
-    rank = np.empty(count, np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(count)
-    region[on] = rank[lab]
+    bits = np.ascontiguousarray(bits, dtype=bool)
+    g = icosphere(level)
+    count, region = _label_regions(bits, np.asarray(g.neighbor_indptr),
+                                   np.asarray(g.neighbor_indices))
+    return int(count), region
+
+
+@njit(cache=True)
+def _label_regions(bits, indptr, indices):
+    """:func:`grid_regions` on the adjacency CSR: a flood fill from each unlabelled set vertex
+    in increasing order, so each region is found from its smallest vertex and numbered in the
+    order of those."""
+    n = bits.shape[0]
+    region = np.full(n, -1, np.int64)
+    stack = np.empty(n, np.int64)
+    count = 0
+    for s in range(n):
+        if not bits[s] or region[s] >= 0:
+            continue
+        region[s] = count
+        stack[0] = s
+        top = 1
+        while top > 0:
+            top -= 1
+            v = stack[top]
+            for j in range(indptr[v], indptr[v + 1]):
+                u = indices[j]
+                if bits[u] and region[u] < 0:
+                    region[u] = count
+                    stack[top] = u
+                    top += 1
+        count += 1
     return count, region
 
 
@@ -345,17 +366,40 @@ def _beside_others(lab, level: int, p: int, hops: int = 1) -> np.ndarray:
 def _split_patches(lab, level: int) -> np.ndarray:
     """Patches whose grid vertices form more than one component (through edges of the grid
     whose two ends sample the same patch), in increasing order."""
-    on = np.flatnonzero(lab >= 0)
-    if not len(on):
+    lab = np.ascontiguousarray(lab, dtype=np.int64)
+    if not (lab >= 0).any():
         return np.zeros(0, np.int64)
-    g = _grid_graph(level)[on][:, on].tocoo()
-    same = lab[on][g.row] == lab[on][g.col]
-    sub = sp.coo_matrix((np.ones(int(same.sum())), (g.row[same], g.col[same])),
-                        shape=(len(on), len(on)))
-    _, comp = connected_components(sub, directed=False)
-    pairs = np.unique(np.stack([lab[on], comp], axis=1), axis=0)
-    count = np.bincount(pairs[:, 0])
-    return np.flatnonzero(count > 1)
+    g = icosphere(level)
+    pieces = _patch_pieces(lab, np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices))
+    return np.flatnonzero(pieces > 1)
+
+
+@njit(cache=True)
+def _patch_pieces(lab, indptr, indices):
+    """Number of components of each patch's grid vertices (``lab``: patch of each vertex, -1
+    none), by flood fills through the neighbours of the same patch: ``(max(lab) + 1,)``."""
+    n = lab.shape[0]
+    pieces = np.zeros(lab.max() + 1, np.int64)
+    seen = np.zeros(n, np.bool_)
+    stack = np.empty(n, np.int64)
+    for s in range(n):
+        p = lab[s]
+        if p < 0 or seen[s]:
+            continue
+        pieces[p] += 1
+        seen[s] = True
+        stack[0] = s
+        top = 1
+        while top > 0:
+            top -= 1
+            v = stack[top]
+            for j in range(indptr[v], indptr[v + 1]):
+                u = indices[j]
+                if lab[u] == p and not seen[u]:
+                    seen[u] = True
+                    stack[top] = u
+                    top += 1
+    return pieces
 
 
 def check_regions(codes, count: int, *, path=None) -> None:
@@ -425,20 +469,37 @@ def _face_adjacency(faces, n):
 
 
 def _components(mask, nbr):
-    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count."""
-    idx = np.flatnonzero(mask)
-    lab = np.full(len(mask), -1, np.int64)
-    if not len(idx):
-        return lab, 0
-    pos = np.full(len(mask), -1, np.int64)
-    pos[idx] = np.arange(len(idx))
-    rows = np.repeat(np.arange(len(idx)), 3)
-    cols = pos[np.maximum(nbr[idx].ravel(), 0)]
-    ok = (nbr[idx].ravel() >= 0) & (cols >= 0)
-    g = sp.coo_matrix((np.ones(int(ok.sum())), (rows[ok], cols[ok])),
-                      shape=(len(idx), len(idx)))
-    count, c = connected_components(g, directed=False)
-    lab[idx] = c
+    """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count,
+    numbered in the order of each component's smallest face."""
+    lab, count = _face_components(np.ascontiguousarray(mask, dtype=bool),
+                                  np.ascontiguousarray(nbr, dtype=np.int64))
+    return lab, int(count)
+
+
+@njit(cache=True)
+def _face_components(mask, nbr):
+    """:func:`_components` by flood fills through the face adjacency ``nbr`` (symmetric, -1
+    none) from each unlabelled face of ``mask`` in increasing order."""
+    m = mask.shape[0]
+    lab = np.full(m, -1, np.int64)
+    stack = np.empty(m, np.int64)
+    count = 0
+    for s in range(m):
+        if not mask[s] or lab[s] >= 0:
+            continue
+        lab[s] = count
+        stack[0] = s
+        top = 1
+        while top > 0:
+            top -= 1
+            f = stack[top]
+            for j in range(nbr.shape[1]):
+                g = nbr[f, j]
+                if g >= 0 and mask[g] and lab[g] < 0:
+                    lab[g] = count
+                    stack[top] = g
+                    top += 1
+        count += 1
     return lab, count
 
 

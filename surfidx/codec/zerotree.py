@@ -267,8 +267,12 @@ def _code(mode, est, dst, buf, models, ctx, bit, budget):
 
 
 @njit(cache=True)
-def _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, src, group):
-    k = sigp.shape[0]
+def _sig_ctx(l, i, p, depth, parent, sigp, nsc, nsl, group, src):
+    """Context of the significance test of coefficient ``i`` of layer ``l`` at plane ``p``.
+
+    ``i`` is insignificant in layer ``l`` when it is tested, so ``nsc[l, parent]`` (significant
+    children of its parent) counts exactly its significant siblings and ``nsl[i, group[l]]``
+    (significant layers of ``i`` in that group) exactly its other significant layers."""
     lc = l if l < _NL - 1 else _NL - 1
     d = depth[i]
     if d > _ND - 1:
@@ -280,16 +284,10 @@ def _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, src, group):
         if sigp[l, par] >= 0:
             ps = sigp[l, par] - p
             ps = 3 if ps >= 2 else ps + 1
-        for j in range(indptr[par], indptr[par + 1]):
-            c = indices[j]
-            if c != i and sigp[l, c] >= 0:
-                sib += 1
+        sib = nsc[l, par]
         if sib > 2:
             sib = 2
-    oth = 0
-    for m in range(k):
-        if m != l and sigp[m, i] >= 0 and group[m] == group[l]:
-            oth += 1
+    oth = nsl[i, group[l]]
     if oth > 2:
         oth = 2
     return _B_SIG + ((((lc * _ND + d) * 4 + ps) * 3 + oth) * 3 + sib) * 2 + src
@@ -306,9 +304,14 @@ def _sign_ctx(l, i, parent, sigp, neg):
 
 
 @njit(cache=True)
-def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth, parent, sigp, neg,
-                       known, lo, lsp, lsp_len, sgn):
-    """Code the sign of a coefficient found significant at plane ``p`` and move it to the LSP."""
+def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, parent, depth, sigp, neg,
+                       mag, sgn, lsp, lsp_len, lsp_rows, lsp_mag, nsc, nsl, group):
+    """Code the sign of a coefficient found significant at plane ``p``, append it to the LSP
+    and count it in its parent's significant children and its node's significant layers.
+
+    The LSP keeps, in list order, what the refinement passes read and write: ``lsp[l, r]`` the
+    node, ``lsp_rows[l, r]`` its ``(plane of significance, min(depth, 3), lowest known plane)``,
+    ``lsp_mag[l, r]`` its magnitude (encoder) then its known bits."""
     b = 0
     if mode == 0:
         b = sgn[l, i]
@@ -317,10 +320,17 @@ def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth, pare
         return False
     sigp[l, i] = p
     neg[l, i] = b
-    known[l, i] = np.int64(1) << p
-    lo[l, i] = p
-    lsp[l, lsp_len[l]] = i
-    lsp_len[l] += 1
+    r = lsp_len[l]
+    lsp[l, r] = i
+    lsp_rows[l, r, 0] = p
+    lsp_rows[l, r, 1] = min(depth[i], 3)
+    lsp_rows[l, r, 2] = p
+    lsp_mag[l, r, 0] = mag[l, i] if mode == 0 else 0
+    lsp_mag[l, r, 1] = np.int64(1) << p
+    lsp_len[l] = r + 1
+    if parent[i] >= 0:
+        nsc[l, parent[i]] += 1
+    nsl[i, group[l]] += 1
     return True
 
 
@@ -338,21 +348,98 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
     ``dmax[l]``. ``sched`` lists the passes in stream order: row ``(g, p)`` codes the sorting
     and refinement passes of plane ``p`` of group ``g``'s layers; ``marks[s]`` receives the
     coder's ``(shifts, range)`` after row ``s`` (encoder) or stays untouched. ``done`` is the
-    lowest plane group 0 finished."""
+    lowest plane group 0 finished.
+
+    A long run (a budget of more bytes than nodes: the full-rate pricing of the passes) runs
+    the passes on the forest relabelled in breadth-first order (:func:`_bfs_relabel`): the
+    lists then visit nodes close in memory, and as the roots keep their order and every node
+    its children's order, every decision is the same. A short run keeps the caller's labels,
+    as relabelling would cost more than it saves."""
     sigp = np.full((k, n), -1, dtype=np.int8)
     neg = np.zeros((k, n), dtype=np.uint8)
+    lsp = np.empty((k, n), dtype=np.int64)
+    lsp_len = np.zeros(k, dtype=np.int64)
+    lsp_rows = np.empty((k, n, 3), dtype=np.int8)
+    lsp_mag = np.empty((k, n, 2), dtype=np.int64)
+    if budget > n:
+        order, b_parent, b_indptr, b_indices = _bfs_relabel(parent, indptr, indices)
+        if tb.shape[1] == n:      # the encoder's tables (the decoder passes (k, 1) dummies)
+            tb, dtop, ltop, mag, sgn = tb[:, order], dtop[:, order], ltop[:, order], \
+                mag[:, order], sgn[:, order]
+        complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, b_parent,
+                                  b_indptr, b_indices, depth[order], tb, dtop, ltop, mag, sgn,
+                                  cut[order], group, dmax, sched, marks, sigp, neg, lsp,
+                                  lsp_len, lsp_rows, lsp_mag)
+        # back to the caller's node ids
+        sigp[:, order] = sigp.copy()
+        neg[:, order] = neg.copy()
+        for l in range(k):
+            for r in range(lsp_len[l]):
+                lsp[l, r] = order[lsp[l, r]]
+    else:
+        complete, gdone = _passes(mode, buf, budget, est, dst, models, k, n, top, parent,
+                                  indptr, indices, depth, tb, dtop, ltop, mag, sgn, cut, group,
+                                  dmax, sched, marks, sigp, neg, lsp, lsp_len, lsp_rows, lsp_mag)
+    # the known bits and lowest known plane of every significant coefficient, from the LSP
     known = np.zeros((k, n), dtype=np.int64)
     lo = np.zeros((k, n), dtype=np.int8)
-    dsig = np.zeros((k, n), dtype=np.uint8)
-    lsig = np.zeros((k, n), dtype=np.uint8)
+    for l in range(k):
+        for r in range(lsp_len[l]):
+            known[l, lsp[l, r]] = lsp_mag[l, r, 1]
+            lo[l, lsp[l, r]] = lsp_rows[l, r, 2]
+    return complete, sigp, neg, known, lo, gdone
+
+
+@njit(cache=True)
+def _bfs_relabel(parent, indptr, indices):
+    """The forest relabelled in breadth-first order: node ``u`` of the result is ``order[u]``.
+
+    Returns
+    -------
+    order : (n,) int64
+        :func:`_bfs` order: the roots in their order, then each node's children in its order.
+    parent, indptr, indices : (n,), (n + 1,), (n - n_roots,) int64
+        The relabelled forest (each node's children are consecutive ids).
+    """
+    n = parent.shape[0]
+    order, _, _ = _bfs(parent, indptr, indices)
+    inv = np.empty(n, dtype=np.int64)
+    for u in range(n):
+        inv[order[u]] = u
+    b_parent = np.empty(n, dtype=np.int64)
+    b_indptr = np.empty(n + 1, dtype=np.int64)
+    b_indices = np.empty(indices.shape[0], dtype=np.int64)
+    b_indptr[0] = 0
+    t = 0
+    for u in range(n):
+        v = order[u]
+        b_parent[u] = inv[parent[v]] if parent[v] >= 0 else -1
+        for j in range(indptr[v], indptr[v + 1]):
+            b_indices[t] = inv[indices[j]]
+            t += 1
+        b_indptr[u + 1] = t
+    return order, b_parent, b_indptr, b_indices
+
+
+@njit(cache=True)
+def _passes(mode, buf, budget, est, dst, models, k, n, top, parent, indptr, indices, depth,
+            tb, dtop, ltop, mag, sgn, cut, group, dmax, sched, marks, sigp, neg, lsp, lsp_len,
+            lsp_rows, lsp_mag):
+    """The passes of :func:`_run` on its state (``sigp``, ``neg`` and the LSP arrays of
+    :func:`_newly_significant`, updated); returns ``(complete, done)``."""
     lip = np.empty((k, n), dtype=np.int64)
-    lsp = np.empty((k, n), dtype=np.int64)
     cap = 3 * n + 4
     lis = np.empty((k, cap), dtype=np.int64)
     lip_len = np.zeros(k, dtype=np.int64)
-    lsp_len = np.zeros(k, dtype=np.int64)
     lis_len = np.zeros(k, dtype=np.int64)
     lsp_old = np.zeros(k, dtype=np.int64)
+    # counts the contexts read, kept as the state changes: significant children of each node
+    # (per layer), and significant coefficients, D sets and L sets of each node (per group)
+    n_groups = group.max() + 1
+    nsc = np.zeros((k, n), dtype=np.int32)
+    nsl = np.zeros((n, n_groups), dtype=np.int32)
+    nds = np.zeros((n, n_groups), dtype=np.int32)
+    nls = np.zeros((n, n_groups), dtype=np.int32)
     for l in range(k):
         for i in range(n):
             if parent[i] < 0:
@@ -390,14 +477,15 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 b = 0
                 if mode == 0:
                     b = 1 if tb[l, i] >= p else 0
-                ctx = _sig_ctx(l, i, p, depth, parent, indptr, indices, sigp, 0, group)
+                ctx = _sig_ctx(l, i, p, depth, parent, sigp, nsc, nsl, group, 0)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo, gdone
+                    return False, gdone
                 if b == 1:
-                    if not _newly_significant(mode, est, dst, buf, models, budget, l, i, p, depth,
-                                              parent, sigp, neg, known, lo, lsp, lsp_len, sgn):
-                        return False, sigp, neg, known, lo, gdone
+                    if not _newly_significant(mode, est, dst, buf, models, budget, l, i, p,
+                                              parent, depth, sigp, neg, mag, sgn, lsp, lsp_len,
+                                              lsp_rows, lsp_mag, nsc, nsl, group):
+                        return False, gdone
                 else:
                     lip[l, w] = i
                     w += 1
@@ -413,12 +501,9 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 d = depth[v]
                 if d > _ND - 1:
                     d = _ND - 1
-                oth = 0
                 if (e & 1) == 0:
-                    # type A: D(v)
-                    for m in range(k):
-                        if m != l and dsig[m, v] != 0 and group[m] == group[l]:
-                            oth += 1
+                    # type A: D(v), still insignificant in layer l: nds counts the other layers
+                    oth = nds[v, g]
                     if oth > 2:
                         oth = 2
                     ss = 1 if sigp[l, v] >= 0 else 0
@@ -428,28 +513,29 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if dtop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo, gdone
+                        return False, gdone
                     if b == 0:
                         lis[l, w] = e
                         w += 1
                         continue
                     if cut[v]:
-                        return False, sigp, neg, known, lo, gdone
-                    dsig[l, v] = 1
+                        return False, gdone
+                    nds[v, g] += 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
                         b = 0
                         if mode == 0:
                             b = 1 if tb[l, c] >= p else 0
-                        ctx = _sig_ctx(l, c, p, depth, parent, indptr, indices, sigp, 1, group)
+                        ctx = _sig_ctx(l, c, p, depth, parent, sigp, nsc, nsl, group, 1)
                         b = _code(mode, est, dst, buf, models, ctx, b, budget)
                         if b < 0:
-                            return False, sigp, neg, known, lo, gdone
+                            return False, gdone
                         if b == 1:
-                            if not _newly_significant(mode, est, dst, buf, models, budget, l, c, p,
-                                                      depth, parent, sigp, neg, known, lo, lsp,
-                                                      lsp_len, sgn):
-                                return False, sigp, neg, known, lo, gdone
+                            if not _newly_significant(mode, est, dst, buf, models, budget, l, c,
+                                                      p, parent, depth, sigp, neg, mag, sgn,
+                                                      lsp, lsp_len, lsp_rows, lsp_mag, nsc,
+                                                      nsl, group):
+                                return False, gdone
                         else:
                             lip[l, lip_len[l]] = c
                             lip_len[l] += 1
@@ -457,16 +543,11 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         lis[l, end] = e | 1
                         end += 1
                 else:
-                    # type B: L(v)
-                    for m in range(k):
-                        if m != l and lsig[m, v] != 0 and group[m] == group[l]:
-                            oth += 1
+                    # type B: L(v), still insignificant in layer l: nls counts the other layers
+                    oth = nls[v, g]
                     if oth > 2:
                         oth = 2
-                    sc = 0
-                    for j in range(indptr[v], indptr[v + 1]):
-                        if sigp[l, indices[j]] >= 0:
-                            sc += 1
+                    sc = nsc[l, v]
                     if sc > 2:
                         sc = 2
                     ctx = _B_SETB + ((lc * _ND + d) * 3 + sc) * 3 + oth
@@ -475,12 +556,12 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                         b = 1 if ltop[l, v] >= p else 0
                     b = _code(mode, est, dst, buf, models, ctx, b, budget)
                     if b < 0:
-                        return False, sigp, neg, known, lo, gdone
+                        return False, gdone
                     if b == 0:
                         lis[l, w] = e
                         w += 1
                         continue
-                    lsig[l, v] = 1
+                    nls[v, g] += 1
                     for j in range(indptr[v], indptr[v + 1]):
                         c = indices[j]
                         if (indptr[c + 1] > indptr[c] or cut[c]) and depth[c] < dmax[l]:
@@ -493,28 +574,24 @@ def _run(mode, buf, budget, est, dst, models, k, n, top, final, parent, indptr, 
                 continue
             lc = l if l < _NL - 1 else _NL - 1
             for r in range(lsp_old[l]):
-                i = lsp[l, r]
-                age = sigp[l, i] - p - 1
+                age = lsp_rows[l, r, 0] - p - 1
                 if age > 2:
                     age = 2
-                d = depth[i]
-                if d > 3:
-                    d = 3
-                ctx = _B_REF + (lc * 3 + age) * 4 + d
+                ctx = _B_REF + (lc * 3 + age) * 4 + lsp_rows[l, r, 1]
                 b = 0
                 if mode == 0:
-                    b = np.int64((mag[l, i] >> p) & 1)
+                    b = np.int64((lsp_mag[l, r, 0] >> p) & 1)
                 b = _code(mode, est, dst, buf, models, ctx, b, budget)
                 if b < 0:
-                    return False, sigp, neg, known, lo, gdone
-                known[l, i] |= np.int64(b) << p
-                lo[l, i] = p
+                    return False, gdone
+                lsp_mag[l, r, 1] |= np.int64(b) << p
+                lsp_rows[l, r, 2] = p
         if g == 0:
             gdone = p
         if mode == 0:
             marks[s, 0] = est[5]
             marks[s, 1] = est[1]
-    return True, sigp, neg, known, lo, gdone
+    return True, gdone
 
 
 def _dequantize(q, lo, negative, step):
