@@ -276,6 +276,8 @@ def _tail_offset(data: bytes, grid: bool = True):
         if len(data) < off + 3:
             return None
         off += 3 + (data[off + 2] + 7) // 8
+    if flags & 64 and data[4] >= 6 and grid:       # output-level hints (format version 6)
+        off += 2
     return off if len(data) >= off + 12 else None
 
 
