@@ -69,11 +69,9 @@ def test_get_and_export(real, tmp_path):
     root, path = real
     with surfidx.Database.open(path, readonly=True) as db:
         s = db.get("ball")
-        # the level the stream's output-level hints choose for the whole stream: the
-        # 162-vertex input scores best at level 2 (162 grid vertices), below the stream's 4
-        assert s.name == "ball" and len(s) == 162
-        assert len(db.get(1, level=1)) == 42 and len(db.get("ball", level=4)) == 2562
-        mesh = db.get("ball", mesh=True, level=4)
+        assert s.name == "ball" and len(s) == 2562     # the stream's level 4: 2562 grid vertices
+        assert len(db.get(1, level=1)) == 42
+        mesh = db.get("ball", mesh=True)
         assert len(mesh.faces) == 5120
         # both convert to trimesh: the surfels to a point cloud, the mesh to a mesh
         cloud, tm = s.to_trimesh(), mesh.to_trimesh()
@@ -108,12 +106,12 @@ def test_get_and_export(real, tmp_path):
     # the CLI: decode the exported stream, get in every format, --json, errors as JSON
     r = invoke(["decode", tmp_path / "b.sfz", "-o", tmp_path / "d.glb", "--json"], obj=None)
     assert r.exit_code == 0, r.output
-    assert json.loads(r.stdout)["faces"] == 320     # level 2, as the hints choose
+    assert json.loads(r.stdout)["faces"] == 5120
     r = invoke(["decode", tmp_path / "b.sfz", "-o", tmp_path / "c.sfz",
                 "--bits-per-surfel", 8.5], obj=None)
     assert r.exit_code == 0 and "bytes of stream at 8.5 bits/surfel" in r.stdout, r.output
     r = invoke(["get", "ball", "--db", path, "-o", tmp_path / "g.obj"], obj=None)
-    assert r.exit_code == 0 and ("mesh of 162 vertices and 320 faces (OBJ, grid level 2, "
+    assert r.exit_code == 0 and ("mesh of 2,562 vertices and 5,120 faces (OBJ, grid level 4, "
                                  "256² texture)") in r.stdout
     r = invoke(["get", "ball", "--db", path, "-o", tmp_path / "g.x", "--format", "sfz",
                 "--json"], obj=None)

@@ -484,7 +484,7 @@ def test_grid_level_beyond_the_format(tmp_path):
     data = bytearray(encode(_bumpy_ball(), bits_per_surfel=8.0, level=3))
     data[6] = 12
     with pytest.raises(BitstreamError, match=r"big.sfz: corrupt header \(grid level 12; format "
-                                             r"version 6 allows 0 … 9\)"):
+                                             r"version 3 allows 0 … 9\)"):
         decode(bytes(data), path="big.sfz")
     (tmp_path / "big.sfz").write_bytes(bytes(data))
     one_line_error(["decode", tmp_path / "big.sfz", "-o", tmp_path / "o.ply"],

@@ -110,18 +110,18 @@ def ball():
 
 
 def test_encoder_steps_give_the_encoders_stream(ball):
-    p = prepare(ball, CodecOptions(level=3))
+    p = prepare(ball, CodecOptions(level=3, level_hints=True))
     assert p.level == 3 and p.grid.shape == (642, 3) and p.coeffs.shape[0] == 642
     assert p.report()["grid_level"] == 3 and p.report()["map_method"] == "tutte"
     a = with_level_hints(code(p, 4.0), ball)   # the output-level codes measured on the input
-    assert a == Encoder(ball, level=3).encode(4.0)
+    assert a == Encoder(ball, level=3, options=CodecOptions(level_hints=True)).encode(4.0)
     assert unpack(code(p, 4.0))[1] == unpack(a)[1]
     with pytest.raises(InputError, match="no output-level section"):
         with_level_hints(code(replace(p, level_hints=False), 4.0), ball)
     assert len(a) <= int(np.ceil(4.0 * len(ball) / 8))
     assert len(decode(a).positions) > 0
     # the map's options reach parameterize (a sphere_map given skips it)
-    q = prepare(ball, CodecOptions(level=3), sphere_map=p.sphere_map)
+    q = prepare(ball, CodecOptions(level=3, level_hints=True), sphere_map=p.sphere_map)
     assert with_level_hints(code(q, 4.0), ball) == a
 
 

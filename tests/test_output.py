@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from surfidx import InputError, TriangleMesh, write_model
 from surfidx.cli import cli
-from surfidx.codec import decode, encode, max_file_bytes, output_levels
+from surfidx.codec import CodecOptions, decode, encode, max_file_bytes, output_levels
 from surfidx.codec.container import truncate, unpack
 from surfidx.geometry import check_max_vertices, simplify_mesh
 from surfidx.geometry.icosphere import vertex_count
@@ -31,7 +31,7 @@ def coded(tmp_path_factory):
     """A sphere with limbs (1038 surfels, colour from position) coded at 8 bits/surfel, its
     stream written to a .sfz file."""
     s = coloured_limbs()
-    data = encode(s, bits_per_surfel=8.0)
+    data = encode(s, bits_per_surfel=8.0, options=CodecOptions(level_hints=True))
     path = tmp_path_factory.mktemp("out") / "limbs.sfz"
     path.write_bytes(data)
     return s, data, path

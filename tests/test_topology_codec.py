@@ -74,8 +74,7 @@ def test_mask_is_in_the_header_and_counted(holes3):
         data = holes3.encode(rate)
         assert len(data) <= max_file_bytes(rate, holes3.n_surfels)
         h, _ = container.unpack(data)
-        # version 6: the mask (version 4) and the output-level hints
-        assert h.version == 6 and h.mask == holes3.mask and h.regions == holes3.regions
+        assert h.version == 4 and h.mask == holes3.mask and h.regions == holes3.regions
     full = holes3.encode(4.0)
     cut = container.truncate(full, max_file_bytes(1.0, holes3.n_surfels))
     assert container.unpack(cut)[0].mask == holes3.mask      # the mask is kept whole
@@ -96,11 +95,11 @@ def test_closed_model_has_no_mask_and_writes_version_3(ball):
     from surfidx.codec import code
 
     assert ball.mask == b"" and ball.regions == ()
-    # without output-level hints (CodecOptions.level_hints=False) version 3, as before
+    # without output-level hints (the default, CodecOptions.level_hints=False) version 3
     data = code(replace(ball.prepared, level_hints=False), 4.0)
     assert data[4] == 3 and container.unpack(data)[0].version == 3
-    # with them (the default) version 6, the stream shorter by the section
-    hinted, stream = container.unpack(ball.encode(4.0))
+    # with them version 6, the stream shorter by the section
+    hinted, stream = container.unpack(code(replace(ball.prepared, level_hints=True), 4.0))
     assert hinted.version == 6 and len(hinted.level_hints) == container.MAX_LEVEL_HINTS
     assert len(stream) == len(container.unpack(data)[1]) - container.HINT_SECTION_BYTES
     assert container.FORMAT_VERSION == 6
@@ -426,7 +425,7 @@ def test_stream_summary(two, holes3, ball):
     assert s["mask_bytes"][0] == 6 + len(holes3.mask) + 2 * 3 and s["mask_bytes"][1] == 0
     assert 0 < s["mask_share"] < 0.2 and s["virtual_share"][0] == holes3.virtual_share
     one = stream_summary(ball.encode(4.0))
-    assert one["parts"] == 1 and one["version"] == 6 and one["mask_share"] == 0
+    assert one["parts"] == 1 and one["version"] == 3 and one["mask_share"] == 0
 
 
 def test_parts_encoder_errors(two):
@@ -605,7 +604,7 @@ def test_more_new_errors(holes3):
         stream_summary(_rewrite(data, mask=b"\xff\xff\xff\xff"), path="m.sfz")
     big = bytearray(data)
     big[6] = 10                                          # a grid finer than the format's
-    with pytest.raises(BitstreamError, match="grid level 10; format version 6 allows 0 … 9"):
+    with pytest.raises(BitstreamError, match="grid level 10; format version 4 allows 0 … 9"):
         stream_summary(bytes(big))
 
     class Huge(bytes):
