@@ -1,13 +1,15 @@
 """What ``get``/``decode`` write: PSNR_D2 of the default output level and of a vertex budget.
 
 For each model (a few shared models and retrieval meshes), the model is read and repaired
-as ingest does, coded once at the top rate, and the stream's prefixes at each rate are decoded:
+as ingest does, coded once at the top rate with output-level hints
+(``CodecOptions(level_hints=True)``; off by default, for their encoding cost), and the stream's
+prefixes at each rate are decoded:
 
 * ``old``: at the level whose vertex count is closest to the input's surfel count (the former
   default, one level or more below the stream's own);
 * ``stream``: at the stream's own level (the default before the level followed the prefix);
-* ``default``: as :func:`surfidx.codec.decode` does now (and which level): the stream's own, or
-  the coarser one its header's output-level hints give for the prefix served
+* ``default``: as :func:`surfidx.codec.decode` does with hints (and which level): the stream's
+  own, or the coarser one its header's output-level hints give for the prefix served
   (:func:`surfidx.codec.output_levels`; measured by the encoder,
   :func:`surfidx.codec.level_hints`);
 * ``best``: the best PSNR_D2 over every level 0 … the stream's (and which level), so
@@ -42,7 +44,8 @@ from surfidx.numerics import use_portable_profile
 use_portable_profile()   # before numpy loads: the bytes the surfidx command makes
 import numpy as np  # noqa: E402
 
-from surfidx.codec import PartsEncoder, decode, max_file_bytes, output_levels  # noqa: E402
+from surfidx.codec import (CodecOptions, PartsEncoder, decode, max_file_bytes,  # noqa: E402
+                           output_levels)
 from surfidx.codec.container import truncate, unpack_parts, unpack  # noqa: E402
 from surfidx.geometry.icosphere import vertex_count  # noqa: E402
 from surfidx.geometry.metrics import Reference  # noqa: E402
@@ -81,7 +84,7 @@ def measure(name: str, data_dir: Path, rates) -> list[dict]:
     surfels = model.surfels
     ref = Reference(surfels if surfels.patch is None else surfels.subset(~surfels.virtual))
     n = len(surfels)
-    pe = PartsEncoder(list(model.parts))
+    pe = PartsEncoder(list(model.parts), options=CodecOptions(level_hints=True))
     stream = pe.encode(max(rates))
     level = max(unpack(b)[0].level for b in unpack_parts(stream))
     rows = []
