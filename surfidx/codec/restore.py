@@ -94,9 +94,9 @@ def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
 
 @njit(cache=True)
 def _label_regions(bits, indptr, indices):
-    """:func:`grid_regions` on the adjacency CSR: a flood fill from each unlabelled set vertex
-    in increasing order, so each region is found from its smallest vertex and numbered in the
-    order of those."""
+    """:func:`grid_regions` (and :func:`_components`) on an adjacency CSR (-1 entries: no
+    neighbour): a flood fill from each unlabelled set vertex in increasing order, so each region
+    is found from its smallest vertex and numbered in the order of those."""
     n = bits.shape[0]
     region = np.full(n, -1, np.int64)
     stack = np.empty(n, np.int64)
@@ -112,7 +112,7 @@ def _label_regions(bits, indptr, indices):
             v = stack[top]
             for j in range(indptr[v], indptr[v + 1]):
                 u = indices[j]
-                if bits[u] and region[u] < 0:
+                if u >= 0 and bits[u] and region[u] < 0:
                     region[u] = count
                     stack[top] = u
                     top += 1
@@ -471,36 +471,10 @@ def _face_adjacency(faces, n):
 def _components(mask, nbr):
     """Edge-connected components of the faces in ``mask``: labels (-1 outside) and count,
     numbered in the order of each component's smallest face."""
-    lab, count = _face_components(np.ascontiguousarray(mask, dtype=bool),
-                                  np.ascontiguousarray(nbr, dtype=np.int64))
+    nbr = np.ascontiguousarray(nbr, dtype=np.int64)
+    indptr = np.arange(0, nbr.size + 1, max(nbr.shape[1], 1), dtype=np.int64)
+    count, lab = _label_regions(np.ascontiguousarray(mask, dtype=bool), indptr, nbr.ravel())
     return lab, int(count)
-
-
-@njit(cache=True)
-def _face_components(mask, nbr):
-    """:func:`_components` by flood fills through the face adjacency ``nbr`` (symmetric, -1
-    none) from each unlabelled face of ``mask`` in increasing order."""
-    m = mask.shape[0]
-    lab = np.full(m, -1, np.int64)
-    stack = np.empty(m, np.int64)
-    count = 0
-    for s in range(m):
-        if not mask[s] or lab[s] >= 0:
-            continue
-        lab[s] = count
-        stack[0] = s
-        top = 1
-        while top > 0:
-            top -= 1
-            f = stack[top]
-            for j in range(nbr.shape[1]):
-                g = nbr[f, j]
-                if g >= 0 and mask[g] and lab[g] < 0:
-                    lab[g] = count
-                    stack[top] = g
-                    top += 1
-        count += 1
-    return lab, count
 
 
 def _largest(lab, count):
