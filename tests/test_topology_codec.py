@@ -653,27 +653,3 @@ def test_grid_regions_are_the_components_numbered_by_smallest_vertex():
         firsts = [int(on[lab == c].min()) for c in range(want)]
         for r, c in enumerate(np.argsort(firsts, kind="stable")):
             assert np.array_equal(np.flatnonzero(region == r), on[lab == c])
-
-
-def test_face_components_are_the_edge_connected_pieces_numbered_by_smallest_face():
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    from surfidx.codec.restore import _components, _face_adjacency
-    from surfidx.geometry.icosphere import icosphere
-
-    f = np.asarray(icosphere(3).faces, np.int64)
-    nbr = _face_adjacency(f, int(f.max()) + 1)
-    m = len(f)
-    rows = np.repeat(np.arange(m), 3)
-    adj = csr_matrix((np.ones(3 * m), (rows, nbr.ravel())), (m, m))
-    rng = np.random.default_rng(5)
-    for density in (0.0, 0.3, 0.6, 1.0):
-        mask = rng.random(m) < density
-        lab, count = _components(mask, nbr)
-        on = np.flatnonzero(mask)
-        want, ref = connected_components(adj[on][:, on], directed=False) if len(on) else (0, on)
-        assert count == want and np.array_equal(lab < 0, ~mask)
-        firsts = [int(on[ref == c].min()) for c in range(want)]
-        for r, c in enumerate(np.argsort(firsts, kind="stable")):
-            assert np.array_equal(np.flatnonzero(lab == r), on[ref == c])
