@@ -85,24 +85,26 @@ def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
     region : (n,) int64
         Region of each grid vertex, -1 where the bit is not set.
     """
-    bits = np.ascontiguousarray(bits, dtype=bool)
+    lab = np.where(np.asarray(bits, dtype=bool), 0, -1).astype(np.int64)
     g = icosphere(level)
-    count, region = _label_regions(bits, np.asarray(g.neighbor_indptr),
+    count, region = _label_regions(lab, np.asarray(g.neighbor_indptr),
                                    np.asarray(g.neighbor_indices))
     return int(count), region
 
 
 @njit(cache=True)
-def _label_regions(bits, indptr, indices):
-    """:func:`grid_regions` (and :func:`_components`) on an adjacency CSR (-1 entries: no
-    neighbour): a flood fill from each unlabelled set vertex in increasing order, so each region
-    is found from its smallest vertex and numbered in the order of those."""
-    n = bits.shape[0]
+def _label_regions(lab, indptr, indices):
+    """The connected pieces of the vertices of each label (``lab`` >= 0; -1: none) on an
+    adjacency CSR (-1 entries: no neighbour), for :func:`grid_regions`, :func:`_components` and
+    :func:`_split_patches`: a flood fill through neighbours of the same label from each
+    unnumbered vertex in increasing order, so each piece is found from its smallest vertex and
+    numbered in the order of those. Returns the count and each vertex's piece (-1: none)."""
+    n = lab.shape[0]
     region = np.full(n, -1, np.int64)
     stack = np.empty(n, np.int64)
     count = 0
     for s in range(n):
-        if not bits[s] or region[s] >= 0:
+        if lab[s] < 0 or region[s] >= 0:
             continue
         region[s] = count
         stack[0] = s
@@ -112,7 +114,7 @@ def _label_regions(bits, indptr, indices):
             v = stack[top]
             for j in range(indptr[v], indptr[v + 1]):
                 u = indices[j]
-                if u >= 0 and bits[u] and region[u] < 0:
+                if u >= 0 and lab[u] == lab[s] and region[u] < 0:
                     region[u] = count
                     stack[top] = u
                     top += 1
@@ -370,36 +372,10 @@ def _split_patches(lab, level: int) -> np.ndarray:
     if not (lab >= 0).any():
         return np.zeros(0, np.int64)
     g = icosphere(level)
-    pieces = _patch_pieces(lab, np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices))
+    _, piece = _label_regions(lab, np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices))
+    first = np.unique(piece[piece >= 0], return_index=True)[1]
+    pieces = np.bincount(lab[piece >= 0][first], minlength=int(lab.max()) + 1)
     return np.flatnonzero(pieces > 1)
-
-
-@njit(cache=True)
-def _patch_pieces(lab, indptr, indices):
-    """Number of components of each patch's grid vertices (``lab``: patch of each vertex, -1
-    none), by flood fills through the neighbours of the same patch: ``(max(lab) + 1,)``."""
-    n = lab.shape[0]
-    pieces = np.zeros(lab.max() + 1, np.int64)
-    seen = np.zeros(n, np.bool_)
-    stack = np.empty(n, np.int64)
-    for s in range(n):
-        p = lab[s]
-        if p < 0 or seen[s]:
-            continue
-        pieces[p] += 1
-        seen[s] = True
-        stack[0] = s
-        top = 1
-        while top > 0:
-            top -= 1
-            v = stack[top]
-            for j in range(indptr[v], indptr[v + 1]):
-                u = indices[j]
-                if lab[u] == p and not seen[u]:
-                    seen[u] = True
-                    stack[top] = u
-                    top += 1
-    return pieces
 
 
 def check_regions(codes, count: int, *, path=None) -> None:
@@ -473,7 +449,8 @@ def _components(mask, nbr):
     numbered in the order of each component's smallest face."""
     nbr = np.ascontiguousarray(nbr, dtype=np.int64)
     indptr = np.arange(0, nbr.size + 1, max(nbr.shape[1], 1), dtype=np.int64)
-    count, lab = _label_regions(np.ascontiguousarray(mask, dtype=bool), indptr, nbr.ravel())
+    on = np.where(np.asarray(mask, dtype=bool), 0, -1).astype(np.int64)
+    count, lab = _label_regions(on, indptr, nbr.ravel())
     return lab, int(count)
 
 
