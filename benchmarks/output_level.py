@@ -1,9 +1,8 @@
 """What ``get``/``decode`` write: PSNR_D2 of the default output level and of a vertex budget.
 
 For each model (a few shared models and retrieval meshes), the model is read and repaired
-as ingest does, coded once at the top rate with output-level hints
-(``CodecOptions(level_hints=True)``; off by default, for their encoding cost), and the stream's
-prefixes at each rate are decoded:
+as ingest does, coded once at the top rate with output-level hints (the default,
+``CodecOptions(level_hints=True)``), and the stream's prefixes at each rate are decoded:
 
 * ``old``: at the level whose vertex count is closest to the input's surfel count (the former
   default, one level or more below the stream's own);
@@ -22,6 +21,11 @@ prefixes at each rate are decoded:
 
 PSNR_D2 is symmetric point-to-plane against the scan's own surfels, peak = its bounding-box
 diagonal (:mod:`surfidx.geometry.metrics`).
+
+The second table is the encoding's cost: CPU seconds of the encoder's set-up (map, resampling,
+transform), of the top rate's encoding with hints, and of the hints' measurement alone
+(:func:`surfidx.codec.with_level_hints` of each part again, the same bytes), and the hints'
+share of the whole encoding.
 
 Run::
 
@@ -45,7 +49,7 @@ use_portable_profile()   # before numpy loads: the bytes the surfidx command mak
 import numpy as np  # noqa: E402
 
 from surfidx.codec import (CodecOptions, PartsEncoder, decode, max_file_bytes,  # noqa: E402
-                           output_levels)
+                           output_levels, with_level_hints)
 from surfidx.codec.container import truncate, unpack_parts, unpack  # noqa: E402
 from surfidx.geometry.icosphere import vertex_count  # noqa: E402
 from surfidx.geometry.metrics import Reference  # noqa: E402
@@ -64,6 +68,7 @@ MODELS = {
     "banana": ("models/ycb_banana/textured_simple_reoriented.obj", None),
     "d001": ("retrieval/meshes/d001.off", None),
     "d002": ("retrieval/meshes/d002.off", None),
+    "frag_115": ("models/frag_115.ply", None),
 }
 RATES = (1.0, 2.0, 3.56, 8.0)
 SURFACE_SAMPLES = 4   # per input surfel, on both meshes of the surface comparison
@@ -84,8 +89,16 @@ def measure(name: str, data_dir: Path, rates) -> list[dict]:
     surfels = model.surfels
     ref = Reference(surfels if surfels.patch is None else surfels.subset(~surfels.virtual))
     n = len(surfels)
+    t0 = time.process_time()
     pe = PartsEncoder(list(model.parts), options=CodecOptions(level_hints=True))
+    t1 = time.process_time()
     stream = pe.encode(max(rates))
+    t2 = time.process_time()
+    for part, blob in zip(model.parts, unpack_parts(stream)):
+        real = part if part.patch is None else part.subset(~part.virtual)
+        assert with_level_hints(blob, real) == blob
+    cost = {"setup_seconds": t1 - t0, "code_seconds": t2 - t1,
+            "hint_seconds": time.process_time() - t2}
     level = max(unpack(b)[0].level for b in unpack_parts(stream))
     rows = []
     for rate in rates:
@@ -109,7 +122,7 @@ def measure(name: str, data_dir: Path, rates) -> list[dict]:
             "best_level": best, "best": per_level[best],
             "max_vertices": len(small.vertices), "simplified_vtx": vtx_small,
             "full_surf": surf_full, "simplified_surf": surf_small,
-            "simplify_seconds": max(seconds, 0.0)})
+            "simplify_seconds": max(seconds, 0.0), **cost})
     return rows
 
 
@@ -157,6 +170,13 @@ def main(argv=None) -> int:
                    f"{r['max_vertices']:,}", f"{r['simplified_vtx']:.2f}",
                    f"{r['full_surf']:.2f}", f"{r['simplified_surf']:.2f}",
                    f"{r['simplify_seconds']:.2f}"] for r in rows])
+    first = {r["model"]: r for r in rows}   # the cost is per model
+    report.table(["model", "n", "set-up s", "encode s (hints incl.)", "hints s",
+                  "hints / (set-up + encode)"],
+                 [[r["model"], f"{r['n']:,}", f"{r['setup_seconds']:.2f}",
+                   f"{r['code_seconds']:.2f}", f"{r['hint_seconds']:.2f}",
+                   f"{100 * r['hint_seconds'] / (r['setup_seconds'] + r['code_seconds']):.0f} %"]
+                  for r in first.values()])
     worst = min(r["default"] - r["best"] for r in rows)
     before = min(r["stream"] - r["best"] for r in rows)
     gap = min(r["simplified_surf"] - r["full_surf"] for r in rows)

@@ -55,10 +55,10 @@ def test_prefix_decoding_equals_direct_encoding(enc):
 def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
     """Format versions 4 (virtual-region masks, parts), 5 (colour grids) and 6 (output-level
     hints) write colourless closed genus-0 single-part models without hints
-    (the default, ``CodecOptions.level_hints=False``) as version 3, byte for byte (hashes
+    (``CodecOptions(level_hints=False)``) as version 3, byte for byte (hashes
     re-measured when the map that embeds every level, map version 2, its relaxation sweeps, map
     version 3, and their stop on the energy's fall, map version 4, changed every map); a coloured
-    stream is version 5, and with hints a stream is version 6."""
+    stream without hints is version 5, and with hints (the default) a stream is version 6."""
     import hashlib
 
     from surfidx.codec import CodecOptions
@@ -66,10 +66,11 @@ def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
     want = {2.0: "e6f5b07a3c4fa2c8172370a558b49339eccef4d4d759c2b2fb465ab246358fa5",
             4.0: "f6745c68828a49df2d4f2f54963c7d52460582dca157db3462601667cb26b762"}
     plain = Encoder(blob, level=5, color=False, options=CodecOptions(level_hints=False))
+    coloured = Encoder(blob, level=5, options=CodecOptions(level_hints=False))
     for rate, digest in want.items():
         data = plain.encode(rate)
         assert data[4] == 3 and hashlib.sha256(data).hexdigest() == digest
-        assert enc.encode(rate)[4] == 5
+        assert coloured.encode(rate)[4] == 5 and enc.encode(rate)[4] == 6
 
 
 def test_high_rate_reproduces_the_grid(blob):
@@ -277,7 +278,7 @@ def test_cli_info_of_a_stream(tmp_path, blob):
     assert r.exit_code == 0, r.output
     info = json.loads(r.output)
     assert info["bytes"] == len(data) and info["input_surfels"] == len(blob)
-    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 5
+    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 6   # hinted
     assert info["color_level"] >= 4
     assert info["local_frames"] and info["tangent_weight"] == 0.5
     assert len(info["frame_anchors"]) == 4 and info["density_weighted"]

@@ -278,6 +278,23 @@ def test_a_sampled_psnr_d2_estimates_it_from_a_seeded_sample():
         reference.psnr_d2_sampled(test.subset(np.zeros(0, int)), 10)
 
 
+def test_a_sampled_psnr_d2_of_arrays_is_that_of_their_surfels():
+    """psnr_d2_sampled_points gives the SurfelSet's figure to the bit, and checks its arrays."""
+    rng = np.random.default_rng(8)
+    ref = sphere_points(3000, rng)
+    test = perturbed(sphere_points(5000, rng), rng.normal(scale=0.002, size=(5000, 3)))
+    reference = Reference(ref)
+    for samples in (1000, 5000):
+        assert reference.psnr_d2_sampled_points(test.positions, test.normals, samples) == \
+            reference.psnr_d2_sampled(test, samples)
+    with pytest.raises(InputError, match=r"normals must have shape \(5000, 3\)"):
+        reference.psnr_d2_sampled_points(test.positions, test.normals[:10], 100)
+    with pytest.raises(InputError, match="test set is empty"):
+        reference.psnr_d2_sampled_points(np.zeros((0, 3)), np.zeros((0, 3)), 100)
+    with pytest.raises(InputError, match="samples must be at least 1, got 0"):
+        reference.psnr_d2_sampled_points(test.positions, test.normals, 0)
+
+
 def test_a_reference_checks_its_sets(sphere_surfels):
     empty = SurfelSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     with pytest.raises(InputError, match="reference surfel set is empty"):

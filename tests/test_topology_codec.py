@@ -19,7 +19,7 @@ from surfidx.codec import (Encoder, PartsEncoder, decode, decode_grid, decode_pa
                            max_file_bytes, stream_summary)
 from surfidx.topology import analyse, close_surface
 from surfidx.codec.restore import (closed_surfels, grid_regions, mask_regions, regions_at,
-                                   restore, zip_loops)
+                                   restore, restored_vertices, zip_loops)
 
 
 def _sphere_with_holes(centres, level=4):
@@ -74,7 +74,8 @@ def test_mask_is_in_the_header_and_counted(holes3):
         data = holes3.encode(rate)
         assert len(data) <= max_file_bytes(rate, holes3.n_surfels)
         h, _ = container.unpack(data)
-        assert h.version == 4 and h.mask == holes3.mask and h.regions == holes3.regions
+        # a mask (version 4) with output-level hints (the default): version 6
+        assert h.version == 6 and h.mask == holes3.mask and h.regions == holes3.regions
     full = holes3.encode(4.0)
     cut = container.truncate(full, max_file_bytes(1.0, holes3.n_surfels))
     assert container.unpack(cut)[0].mask == holes3.mask      # the mask is kept whole
@@ -321,6 +322,28 @@ def test_regions_two_hops_apart_decode_as_two_holes():
         loops=2, genus=(0,), parts=1, manifold=True)
 
 
+def test_restored_vertices_are_those_of_any_decoding(holes3, torus):
+    """The vertices restore keeps follow from the regions alone: the same for every prefix of
+    a stream (the output-level hints score each prefix with them), at its level and a coarser
+    one."""
+    from surfidx.codec.mask import decode_mask
+    from surfidx.geometry.icosphere import vertex_count
+
+    for enc in (holes3, torus):
+        data = enc.encode(8.0)
+        header = container.unpack(data)[0]
+        L = header.level
+        _, fine = grid_regions(decode_mask(header.mask, L), L)
+        for level in (L, L - 1):
+            region, codes = regions_at(fine, header.regions, L, level)
+            keep = restored_vertices(level, region, len(codes))
+            assert 0 < len(keep) < vertex_count(level)
+            for rate in (1.0, 2.0, None):
+                values, _ = decode_grid(data, bits_per_surfel=rate)
+                r = restore(values[:vertex_count(level), :3], level, region, codes)
+                assert np.array_equal(r.vertices, keep)
+
+
 @pytest.mark.parametrize("kw", [{}, {"bits_per_surfel": 1.0}, {"level": 4}, {"level": 3}])
 def test_torus_decodes_closed_with_genus_1(torus, kw):
     m = decode(torus.encode(4.0), mesh=True, **kw)
@@ -425,7 +448,7 @@ def test_stream_summary(two, holes3, ball):
     assert s["mask_bytes"][0] == 6 + len(holes3.mask) + 2 * 3 and s["mask_bytes"][1] == 0
     assert 0 < s["mask_share"] < 0.2 and s["virtual_share"][0] == holes3.virtual_share
     one = stream_summary(ball.encode(4.0))
-    assert one["parts"] == 1 and one["version"] == 3 and one["mask_share"] == 0
+    assert one["parts"] == 1 and one["version"] == 6 and one["mask_share"] == 0   # hinted
 
 
 def test_parts_encoder_errors(two):
@@ -604,7 +627,7 @@ def test_more_new_errors(holes3):
         stream_summary(_rewrite(data, mask=b"\xff\xff\xff\xff"), path="m.sfz")
     big = bytearray(data)
     big[6] = 10                                          # a grid finer than the format's
-    with pytest.raises(BitstreamError, match="grid level 10; format version 4 allows 0 … 9"):
+    with pytest.raises(BitstreamError, match="grid level 10; format version 6 allows 0 … 9"):
         stream_summary(bytes(big))
 
     class Huge(bytes):

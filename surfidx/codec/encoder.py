@@ -845,6 +845,12 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     :data:`HINT_ROUNDS` rounds; each step down is placed at the geometric mean of the two
     prefix lengths it lies between, rounded to a code (:func:`surfidx.codec.container.hint_bytes`).
 
+    Each prefix is decoded once per grid level read, its geometry only, and each level is
+    scored on the positions and normals that :func:`decode`'s surfels would have, to the bit,
+    without building them (:meth:`surfidx.geometry.metrics.Reference.psnr_d2_sampled_points`);
+    the vertices that a virtual-region mask keeps are found once per output level
+    (:func:`surfidx.codec.restore.restored_vertices`), as they do not depend on the prefix.
+
     Parameters
     ----------
     blob : bytes
@@ -872,20 +878,21 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
 
     least = container.min_file_bytes(top if header.color_level is None else header.color_level)
     dropped = {}   # offset -> shortest prefix from which it is not measured
+    kept = {}   # (output level, level read) -> the grid vertices a decoding keeps
 
     def measure(size, offsets):
         part = stream[:size]
         offsets = [o for o in offsets if size < dropped.get(o, math.inf)]
         row = [-np.inf] * (depth + 1)
         for read in sorted({read_level(top - o, top) for o in offsets}, reverse=True):
-            values = _decode_values(blob, header, part, None, None, checked, read)
+            values = _decode_values(blob, header, part, None, None, checked, read,
+                                    geometry=True)
             for o in offsets:
                 if read_level(top - o, top) != read:
                     continue
                 try:   # as decode_parts decodes the prefix at level top - o
-                    row[o] = ref.psnr_d2_sampled(_model(
-                        values, header, top - o, read, mesh=False, keep_virtual=False,
-                        name=None, path=None), HINT_SAMPLES)
+                    row[o] = ref.psnr_d2_sampled_points(
+                        *_hint_points(values, header, top - o, read, kept), HINT_SAMPLES)
                 except InputError:   # virtual regions that merge on the coarser grid (any prefix)
                     dropped[o] = 0
         measured[size] = row
@@ -943,6 +950,28 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
             break   # beyond the section's largest gap: this step and the later ones dropped
         codes.append(code)
     return tuple(codes) + (0,) * (container.MAX_LEVEL_HINTS - len(codes))
+
+
+def _hint_points(values, header, out_level: int, read: int, kept: dict):
+    """The positions and normals of the surfels :func:`decode_parts` makes of ``values`` at
+    ``out_level`` (what PSNR_D2 reads of them), to the bit. The vertices a virtual-region mask
+    keeps depend on the header only (:func:`surfidx.codec.restore.restored_vertices`), so
+    ``kept`` holds them per output level and level read, for every prefix of the stream."""
+    from .resample import _grid_points
+
+    p, nrm = _grid_points(values[:vertex_count(out_level), :3])
+    nrm = nrm / np.linalg.norm(nrm, axis=1)[:, None]   # as the SurfelSet normalises them
+    if not header.mask:
+        return p, nrm
+    key = (out_level, read)
+    if key not in kept:
+        from .restore import restored_vertices
+
+        region, codes = _regions(header, out_level, read, None)
+        kept[key] = restored_vertices(out_level, region, len(codes))
+    v = kept[key]
+    nrm = nrm[v]
+    return p[v], nrm / np.linalg.norm(nrm, axis=1)[:, None]   # the subset's SurfelSet's
 
 
 def _loss(row, offset: int) -> float:
@@ -1227,17 +1256,19 @@ def check_header(header, *, path=None):
 
 
 def _decode_values(data, header, stream, bits_per_surfel, path, checked,
-                   level: int | None = None, fine: list | None = None) -> np.ndarray:
+                   level: int | None = None, fine: list | None = None, *,
+                   geometry: bool = False) -> np.ndarray:
     """The grid values of an unpacked container whose header ``check_header`` passed (see
     :func:`decode_grid`), on the grid of ``level`` (default the stream's; a coarser one reads
     the coefficients down to that level only, see :func:`read_level`). A stream with a colour
-    grid appends its decoded colour grid to ``fine`` (when given)."""
+    grid appends its decoded colour grid to ``fine`` (when given); with ``geometry``, it gives
+    the x, y, z columns only (the same values) and synthesises no colour."""
     level = header.level if level is None else level
     if bits_per_surfel is not None:
         stream = stream[:_served_length(data, header, stream, bits_per_surfel)]
     zh, klt, field = checked
     if header.color_level is not None:
-        values, colors = _decode_color_grid(header, stream, path, checked, level)
+        values, colors = _decode_color_grid(header, stream, path, checked, level, geometry)
         if fine is not None:
             fine.append(colors)
         return values
@@ -1342,10 +1373,10 @@ def output_levels(data: bytes, *, bits_per_surfel: float | None = None, path=Non
     return [_default_level(b, h, s, bits, path) for b, (h, s) in zip(blobs, unpacked)]
 
 
-def _decode_color_grid(header, stream, path, checked, level: int):
+def _decode_color_grid(header, stream, path, checked, level: int, geometry: bool = False):
     """:func:`_decode_values` of a stream with a colour grid: the geometry on the grid of
     ``level``, colour on the colour grid (or, at a coarser ``level``, on its grid), and the
-    colour grid's values."""
+    colour grid's values (with ``geometry``: the geometry only, and None)."""
     zh, klt, field = checked
     full = level >= header.level
     rl = header.color_level if full else level
@@ -1359,10 +1390,8 @@ def _decode_color_grid(header, stream, path, checked, level: int):
     gl = min(level, header.level)
     ng = vertex_count(gl)
     gscales = wavelets.level_norms(header.level, lifted=header.lifted)[icosphere(gl).level_of]
-    cscales = wavelets.level_norms(header.color_level, lifted=header.lifted)[ico.level_of]
     if field is not None:
         gscales = gscales * density.vertex_scales(*field, gl)
-        cscales = cscales * density.vertex_scales(*field, rl)
     mean = np.asarray(klt.mean, np.float64)
     basis = np.asarray(klt.basis, np.float64)
     unit = np.asarray(klt.weights, np.float64)
@@ -1375,6 +1404,16 @@ def _decode_color_grid(header, stream, path, checked, level: int):
                                                                      layers=3))
         else:
             cg = wavelets.inverse(w[:ng, :3] / gscales[:, None], gl, lifted=header.lifted)
+        if geometry:
+            geo = (cg @ basis[:3, :3] + mean[:3]) / unit[:3]
+            spread = float(np.abs(geo * unit[:3] - mean[:3]).max())
+            if not (np.all(np.isfinite(geo)) and spread <= MAX_EXTENT):
+                raise BitstreamError("decoding produced non-finite or out-of-range values: the "
+                                     "file is damaged", path=path)
+            return geo, None
+        cscales = wavelets.level_norms(header.color_level, lifted=header.lifted)[ico.level_of]
+        if field is not None:
+            cscales = cscales * density.vertex_scales(*field, rl)
         cc = wavelets.inverse(w[:, 3:] / cscales[:, None], rl, lifted=header.lifted)
         geo = (cg @ basis[:3, :3] + mean[:3]) / unit[:3]
         col = (cc @ basis[3:, 3:] + mean[3:]) / unit[3:]

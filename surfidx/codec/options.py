@@ -80,10 +80,12 @@ class CodecOptions:
     level_hints : bool
         Measure, on prefixes of the coded stream, the grid level that gives the best PSNR_D2
         against the input and store where the default output level steps down
-        (:func:`surfidx.codec.encoder.level_hints`; a few decodings of the stream, and up to
-        :data:`~surfidx.codec.container.MAX_LEVEL_HINTS` + 1 header bytes when a coarser
-        level wins). Off by default: the decodings cost about 1 s of CPU on a 10k-surfel model
-        and tens of seconds on a level-8 grid, for up to about 1 dB at rates below 2 b/s.
+        (:func:`surfidx.codec.encoder.level_hints`; a few decodings of the stream, and an
+        output-level section of :data:`~surfidx.codec.container.HINT_SECTION_BYTES` bytes, so
+        container format 6). On by default; False writes the stream without the section
+        (format 5, 4 or 3, byte for byte as before format 6), which decodes at its own level at
+        every rate. The measurement's CPU time beside the encoding's:
+        ``benchmarks/output_level.py`` (``docs/benchmarks/output_level.md``).
     """
 
     bits_per_surfel: float = option(DEFAULT_BITS_PER_SURFEL, min=0, min_open=True)
@@ -96,7 +98,7 @@ class CodecOptions:
     color_level: int | None = option(None, max=MAX_LEVEL)
     tangent_weight: float | None = option(TANGENT_WEIGHT, min=0, min_open=True, max=1)
     density_weighting: bool | None = None
-    level_hints: bool = False
+    level_hints: bool = True
 
     def __post_init__(self):
         check_option_fields(self)

@@ -226,6 +226,24 @@ def _grid_normals_radii(p, f, ptr, nb):
     """Area-weighted vertex normals (outward by the sign of the enclosed volume) and the longest
     incident edge / √3 of a closed grid surface."""
     n = p.shape[0]
+    nrm = _grid_normals(p, f)
+    rad = np.zeros(n)
+    for v in range(n):
+        m = 0.0
+        for k in range(ptr[v], ptr[v + 1]):
+            w = nb[k]
+            d = ((p[w, 0] - p[v, 0]) ** 2 + (p[w, 1] - p[v, 1]) ** 2 + (p[w, 2] - p[v, 2]) ** 2)
+            if d > m:
+                m = d
+        rad[v] = np.sqrt(m / 3.0)
+    return nrm, rad
+
+
+@numba.njit(cache=True)
+def _grid_normals(p, f):
+    """Area-weighted vertex normals of a closed grid surface, outward by the sign of the
+    enclosed volume (not normalised)."""
+    n = p.shape[0]
     nrm = np.zeros((n, 3))
     vol = 0.0
     for t in range(f.shape[0]):
@@ -240,16 +258,7 @@ def _grid_normals_radii(p, f, ptr, nb):
             nrm[v, 2] += nz
     if vol < 0:
         nrm = -nrm
-    rad = np.zeros(n)
-    for v in range(n):
-        m = 0.0
-        for k in range(ptr[v], ptr[v + 1]):
-            w = nb[k]
-            d = ((p[w, 0] - p[v, 0]) ** 2 + (p[w, 1] - p[v, 1]) ** 2 + (p[w, 2] - p[v, 2]) ** 2)
-            if d > m:
-                m = d
-        rad[v] = np.sqrt(m / 3.0)
-    return nrm, rad
+    return nrm
 
 
 def neighbors(tri: np.ndarray) -> np.ndarray:
@@ -668,6 +677,29 @@ def grid_to_mesh(values, *, name=None) -> TriangleMesh:
     return TriangleMesh(vals[:, :3], np.array(grid.faces), vertex_colors=_colors(vals), name=name)
 
 
+def _unit_normals(p, nrm):
+    """The area-weighted normals ``nrm`` of grid positions ``p`` normalised, a collapsed spot's
+    (zero normal) the direction from the centroid (in place)."""
+    ln = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
+    bad = ln <= 0
+    if bad.any():  # collapsed spots: fall back to the direction from the centroid
+        d = p[bad] - p.mean(axis=0)
+        dl = np.linalg.norm(d, axis=1)
+        d[dl <= 0] = (0.0, 0.0, 1.0)
+        nrm[bad] = d
+        ln = np.linalg.norm(nrm, axis=1)
+    nrm /= ln[:, None]
+    return nrm
+
+
+def _grid_points(values):
+    """The positions and unit normals :func:`grid_to_surfels` gives grid values (no radii, no
+    colours, unchecked: values of the codec's decoder)."""
+    vals, level = _grid_level(values)
+    p = np.ascontiguousarray(vals[:, :3])
+    return p, _unit_normals(p, _grid_normals(p, np.asarray(icosphere(level).faces)))
+
+
 def grid_to_surfels(values, *, name=None) -> SurfelSet:
     """Surfels reconstructed from grid values.
 
@@ -690,15 +722,7 @@ def grid_to_surfels(values, *, name=None) -> SurfelSet:
     p = np.ascontiguousarray(vals[:, :3])
     f = np.asarray(grid.faces)
     nrm, rad = _grid_normals_radii(p, f, grid.neighbor_indptr, grid.neighbor_indices)
-    ln = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
-    bad = ln <= 0
-    if bad.any():  # collapsed spots: fall back to the direction from the centroid
-        d = p[bad] - p.mean(axis=0)
-        dl = np.linalg.norm(d, axis=1)
-        d[dl <= 0] = (0.0, 0.0, 1.0)
-        nrm[bad] = d
-        ln = np.linalg.norm(nrm, axis=1)
-    nrm /= ln[:, None]
+    nrm = _unit_normals(p, nrm)
     floor = max(rad.max(), 1e-300) * 1e-6
     rad = np.maximum(rad, floor)
     return SurfelSet(p, nrm, rad, _colors(vals), faces=f, name=name)

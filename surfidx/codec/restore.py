@@ -55,8 +55,8 @@ from ..errors import BitstreamError, InputError
 from ..geometry.icosphere import icosphere, vertex_count
 from ..jit import njit
 
-__all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "closed_surfels",
-           "RestoredMesh", "check_regions", "zip_loops"]
+__all__ = ["grid_regions", "mask_regions", "regions_at", "restore", "restored_vertices",
+           "closed_surfels", "RestoredMesh", "check_regions", "zip_loops"]
 
 _MAX_ROUNDS = 64   # clean-up rounds of the dropped regions (each round only grows them)
 
@@ -750,6 +750,30 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
     remap = np.full(n, -1, np.int64)
     remap[used] = np.arange(len(used))
     return RestoredMesh(used, remap[allf], zipped, unzipped)
+
+
+def restored_vertices(level: int, region, n_regions: int) -> np.ndarray:
+    """The grid vertices :func:`restore` keeps (its ``vertices``), without decoded positions:
+    those of the faces kept, since each zipped strip joins two boundary loops of kept faces and
+    adds no vertex. They depend on the regions only, so a caller that restores many decodings
+    of one stream (:func:`surfidx.codec.encoder.level_hints`) finds them once.
+
+    Parameters
+    ----------
+    level : int
+    region : (10·4^level + 2,) int64
+        Region of each grid vertex (-1 real): :func:`regions_at`.
+    n_regions : int
+        Number of regions (the region table's length).
+
+    Returns
+    -------
+    (k,) int64
+        Sorted grid vertex indices.
+    """
+    faces, _, _ = _grid_faces(level)
+    label = _clean(level, np.asarray(region, np.int64), int(n_regions))
+    return np.unique(faces[label < 0])
 
 
 # --------------------------------------------------------------------------- closed surfaces
