@@ -843,7 +843,9 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
     Between two neighbouring prefixes whose levels differ and where either
     level loses more than :data:`HINT_TOLERANCE`, their geometric mean is measured too, for
     :data:`HINT_ROUNDS` rounds; each step down is placed at the geometric mean of the two
-    prefix lengths it lies between, rounded to a code (:func:`surfidx.codec.container.hint_bytes`).
+    prefix lengths it lies between, rounded to a code (:func:`surfidx.codec.container.hint_bytes`),
+    and a step that the whole stream takes gets the smallest code above its container's size
+    (so that the later steps' codes can follow within the section's gaps).
 
     Each prefix is decoded once per grid level read, its geometry only, and each level is
     scored on the positions and normals that :func:`decode`'s surfels would have, to the bit,
@@ -935,7 +937,12 @@ def level_hints(blob: bytes, reference: SurfelSet) -> tuple:
             break
         k = coarse[0]
         if k == 0:
-            codes.append(255)
+            # the whole stream steps down: the smallest code above its container (255, always,
+            # would leave the next code no gap below HINT_GAPS, so no later step)
+            code = 1
+            while code < 255 and container.hint_bytes(code, header.n_surfels) <= len(blob):
+                code += 1
+            codes.append(code)
             continue
         # container sizes: coarser at `below`, finer at `above`
         below, above = sizes[k] + head, sizes[k - 1] + head
