@@ -159,6 +159,41 @@ class GridAtlas:
         weights : (k, 3) float64
             Its barycentric weights (non-negative, summing to 1).
         """
+        rows, cell, li, lj, w = self._texel_cells()
+        n = 2 ** self.level
+        uv = cell[0][:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
+        return rows, self.uv_vertex[uv], w
+
+    def texel_faces(self):
+        """Where each texel of a chart samples the grid, as :meth:`texel_points` but with the
+        grid face (of level ``level``, in the icosphere's face order) holding its chart point.
+
+        Returns
+        -------
+        rows : (k,) int64
+        faces : (k,) int64
+        vertices : (k, 3) int64
+        weights : (k, 3) float64
+            As :meth:`texel_points`; ``vertices`` are ``faces``' corners, though not always in
+            the face's corner order.
+        """
+        rows, cell, li, lj, w = self._texel_cells()
+        chart, ia, ib, down = cell
+        n = 2 ** self.level
+        lat = _lattice_corners(self.level)
+        lo = lat.min(axis=1)
+        # a lattice triangle pointing down has corner sums 3(i + j) + 4, one pointing up + 2
+        flip = (lat.sum(axis=(1, 2)) - 3 * lo.sum(axis=1)) == 4
+        base = np.arange(len(lat)) // 4 ** self.level
+        table = np.empty(20 * n * n * 2, np.int64)
+        table[((base * n + lo[:, 1]) * n + lo[:, 0]) * 2 + flip] = np.arange(len(lat))
+        per_chart = (n + 1) * (n + 2) // 2
+        uv = chart[:, None] * per_chart + _lattice_index(li, lj, n)
+        return rows, table[((chart * n + ib) * n + ia) * 2 + down], self.uv_vertex[uv], w
+
+    def _texel_cells(self):
+        """The chart texels' flat indices, their lattice cells ``(chart, i, j, down)``, the
+        cells' corner lattice coordinates and the texels' barycentric weights in them."""
         chart, s, t = self._texels()
         rows = np.flatnonzero(chart.ravel() >= 0)
         ch, s, t = chart.ravel()[rows], s.ravel()[rows], t.ravel()[rows]
@@ -168,7 +203,8 @@ class GridAtlas:
         ib = np.minimum(np.floor(b), n - 1).astype(np.int64)
         ia = np.minimum(ia, n - 1 - ib)
         fa, fb = a - ia, b - ib
-        down = fa + fb > 1.0
+        # a point on a chart's long edge can round beyond it: it stays in the upper triangle
+        down = (fa + fb > 1.0) & (ia + ib < n - 1)
         li = np.stack([np.where(down, ia + 1, ia), np.where(down, ia, ia + 1),
                        np.where(down, ia + 1, ia)], 1)
         lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
@@ -178,9 +214,7 @@ class GridAtlas:
                      np.stack([1.0 - fa - fb, fa, fb], 1))
         w = np.clip(w, 0.0, 1.0)
         w /= w.sum(axis=1, keepdims=True)
-        per_chart = (n + 1) * (n + 2) // 2
-        uv = ch[:, None] * per_chart + _lattice_index(li, lj, n)
-        return rows, self.uv_vertex[uv], w
+        return rows, (ch, ia, ib, down), li, lj, w
 
     def _texels(self):
         """Chart of each texel and its nearest chart point's lattice coordinates ``(s, t)``
@@ -284,23 +318,27 @@ def _det3(a0, a1, a2, b0, b1, b2, p0, p1, p2):
 
 
 @njit(cache=True)
-def _descend(p, verts, faces, offsets, level, face_out, w_out):
-    """Per point: the base face whose worst edge test is best, then at each level the child
-    beyond the inner triangle's most violated edge (or the inner one); barycentric weights by
-    Cramer's rule in the last face, clipped at 0 and normalised."""
+def _descend(p, verts, faces, offsets, level, start, start_level, face_out, w_out):
+    """Per point: the base face whose worst edge test is best (or ``start[q]``, a face of
+    level ``start_level``), then at each finer level the child beyond the inner triangle's
+    most violated edge (or the inner one); barycentric weights by Cramer's rule in the last
+    face, clipped at 0 and normalised."""
     for q in range(p.shape[0]):
         x, y, z = p[q, 0], p[q, 1], p[q, 2]
         best, face = -np.inf, 0
-        for f in range(20):
-            s = np.inf
-            for k in range(3):
-                a, b = faces[f, k], faces[f, (k + 1) % 3]
-                d = _det3(verts[a, 0], verts[a, 1], verts[a, 2],
-                          verts[b, 0], verts[b, 1], verts[b, 2], x, y, z)
-                s = min(s, d)
-            if s > best:
-                best, face = s, f
-        for j in range(1, level + 1):
+        if start_level > 0:
+            face = start[q]
+        else:
+            for f in range(20):
+                s = np.inf
+                for k in range(3):
+                    a, b = faces[f, k], faces[f, (k + 1) % 3]
+                    d = _det3(verts[a, 0], verts[a, 1], verts[a, 2],
+                              verts[b, 0], verts[b, 1], verts[b, 2], x, y, z)
+                    s = min(s, d)
+                if s > best:
+                    best, face = s, f
+        for j in range(start_level + 1, level + 1):
             inner = offsets[j] + 4 * face + 3
             worst, child, kk = np.inf, 3, 0
             for k in range(3):
@@ -338,7 +376,7 @@ def _level_faces(level: int):
     return np.ascontiguousarray(np.vstack(faces)), offsets
 
 
-def locate_on_grid(points, level: int):
+def locate_on_grid(points, level: int, *, within=None, within_level: int = 0):
     """The level-``level`` grid face holding each unit vector, by descending the faces'
     hierarchy from the icosahedron (each face's four children split it along great circles),
     and the point's barycentric weights in it (central projection onto the face's plane).
@@ -348,20 +386,44 @@ def locate_on_grid(points, level: int):
     points : (n, 3) float64
         Unit vectors (any non-zero vectors: their directions are used).
     level : int
+    within : (n,) int64, optional
+        A face of the level-``within_level`` grid known to hold each point (a texel's face on
+        an atlas, say): the descent starts there instead of at the icosahedron.
+    within_level : int
+        The level of ``within``, 1 … ``level`` (ignored without ``within``).
 
     Returns
     -------
     faces : (n,) int64
     weights : (n, 3) float64
         Non-negative, summing to 1, in the order of the face's corners.
+
+    Raises
+    ------
+    InputError
+        ``within`` of another length, a face out of range, or ``within_level`` outside
+        1 … ``level``.
     """
     lev = check_level(level)
     p = np.ascontiguousarray(as_array(points, "points", shape=(None, 3)))
+    start, start_level = np.zeros(0, np.int64), 0
+    if within is not None:
+        if (isinstance(within_level, bool) or not isinstance(within_level, (int, np.integer))
+                or not 1 <= within_level <= lev):
+            raise InputError(f"within_level must be an integer from 1 to level={lev}, got "
+                             f"{within_level!r}")
+        start = np.ascontiguousarray(as_array(within, "within", dtype=np.int64,
+                                              shape=(len(p),)))
+        if len(start) and (start.min() < 0 or start.max() >= 20 * 4 ** within_level):
+            raise InputError(f"within must hold faces of the level-{within_level} grid "
+                             f"(0 … {20 * 4 ** within_level - 1}), got values from "
+                             f"{start.min()} to {start.max()}")
+        start_level = int(within_level)
     faces, offsets = _level_faces(lev)
     verts = np.ascontiguousarray(icosphere(lev).vertices)
     face = np.empty(len(p), np.int64)
     w = np.empty((len(p), 3))
-    _descend(p, verts, faces, offsets, lev, face, w)
+    _descend(p, verts, faces, offsets, lev, start, start_level, face, w)
     return face, w
 
 
@@ -386,9 +448,11 @@ class GridColor:
                              f"L <= {MAX_LEVEL}), got {len(self.colors)}")
         self.level = level
 
-    def __call__(self, points) -> np.ndarray:
-        """(n, 3) float64 colours at unit vectors ``points`` (n, 3) float64."""
-        face, w = locate_on_grid(points, self.level)
+    def __call__(self, points, *, within=None, within_level: int = 0) -> np.ndarray:
+        """(n, 3) float64 colours at unit vectors ``points`` (n, 3) float64; ``within`` and
+        ``within_level`` as :func:`locate_on_grid` takes them (a coarser grid's faces known
+        to hold the points)."""
+        face, w = locate_on_grid(points, self.level, within=within, within_level=within_level)
         corners = np.asarray(icosphere(self.level).faces)[face]
         return np.einsum("ij,ijk->ik", w, self.colors[corners])
 
@@ -414,11 +478,15 @@ def bake_texture(atlas: GridAtlas, color) -> np.ndarray:
     InputError
         A colour source that does not return one finite RGB row per point.
     """
-    rows, verts, w = atlas.texel_points()
+    rows, faces, verts, w = atlas.texel_faces()
     sphere = np.asarray(icosphere(atlas.level).vertices)
     p = np.einsum("ij,ijk->ik", w, sphere[verts])
     p /= np.linalg.norm(p, axis=1, keepdims=True)
-    col = np.asarray(color(p), dtype=np.float64)
+    if isinstance(color, GridColor) and color.level >= atlas.level >= 1:
+        # the texel's atlas face holds its point: the colour grid's search starts there
+        col = color(p, within=faces, within_level=atlas.level)
+    else:
+        col = np.asarray(color(p), dtype=np.float64)
     if col.shape != (len(p), 3) or not np.all(np.isfinite(col)):
         raise InputError(f"the colour source must return ({len(p)}, 3) finite colours, got "
                          f"shape {col.shape}")
