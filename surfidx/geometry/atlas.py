@@ -144,7 +144,7 @@ class GridAtlas:
         """(size, size) int64: the chart each texel belongs to (-1 in the two empty cells and
         the leftover texels beyond the last full cell): the chart on the texel's side of its
         cell's diagonal."""
-        return self._texels()[0]
+        return self._texels()[0].reshape(self.size, self.size)
 
     def texel_points(self):
         """Where each texel of a chart samples the grid: the chart point nearest the texel's
@@ -194,53 +194,71 @@ class GridAtlas:
     def _texel_cells(self):
         """The chart texels' flat indices, their lattice cells ``(chart, i, j, down)``, the
         cells' corner lattice coordinates and the texels' barycentric weights in them."""
-        chart, s, t = self._texels()
-        rows = np.flatnonzero(chart.ravel() >= 0)
-        ch, s, t = chart.ravel()[rows], s.ravel()[rows], t.ravel()[rows]
-        n = 2 ** self.level
-        a, b = s * n, t * n
-        ia = np.minimum(np.floor(a), n - 1).astype(np.int64)
-        ib = np.minimum(np.floor(b), n - 1).astype(np.int64)
-        ia = np.minimum(ia, n - 1 - ib)
-        fa, fb = a - ia, b - ib
-        # a point on a chart's long edge can round beyond it: it stays in the upper triangle
-        down = (fa + fb > 1.0) & (ia + ib < n - 1)
+        chart, ia, ib, down, w = self._texels()
+        rows = np.flatnonzero(chart >= 0)
+        ch, ia, ib, down, w = chart[rows], ia[rows], ib[rows], down[rows], w[rows]
         li = np.stack([np.where(down, ia + 1, ia), np.where(down, ia, ia + 1),
                        np.where(down, ia + 1, ia)], 1)
         lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
                        np.where(down, ib, ib + 1)], 1)
-        w = np.where(down[:, None],
-                     np.stack([fa + fb - 1.0, 1.0 - fa, 1.0 - fb], 1),
-                     np.stack([1.0 - fa - fb, fa, fb], 1))
-        w = np.clip(w, 0.0, 1.0)
-        w /= w.sum(axis=1, keepdims=True)
         return rows, (ch, ia, ib, down), li, lj, w
 
     def _texels(self):
-        """Chart of each texel and its nearest chart point's lattice coordinates ``(s, t)``
-        (fractions of the base triangle's legs, ``s, t >= 0``, ``s + t <= 1``)."""
-        size = self.size
-        cw, ch = size // _COLUMNS, size // _ROWS
-        y, x = np.mgrid[0:size, 0:size]
-        col, row = x // cw, y // ch
-        cell = row * _COLUMNS + col
-        valid = (col < _COLUMNS) & (row < _ROWS) & (cell < 10)
-        px, py = x + 0.5, y + 0.5
-        # side of the cell's diagonal through its centre, parallel to the charts' long edges
-        lu, lv = (px - col * cw) / cw - 0.5, (py - row * ch) / ch - 0.5
-        upper = (lu * cw * (ch - 2 * GUTTER - _DIAGONAL - 1)
-                 + lv * ch * (cw - 2 * GUTTER - _DIAGONAL - 1)) > 0
-        chart = np.where(valid, 2 * cell + upper, -1)
-        c = self.corners[np.maximum(chart, 0)]
-        s = (px - c[..., 0, 0]) / (c[..., 1, 0] - c[..., 0, 0])
-        t = (py - c[..., 0, 1]) / (c[..., 2, 1] - c[..., 0, 1])
-        s, t = np.maximum(s, 0.0), np.maximum(t, 0.0)
-        over = s + t > 1.0
-        excess = np.where(over, (s + t - 1.0) / 2.0, 0.0)
-        s, t = s - excess, t - excess
-        s, t = np.clip(s, 0.0, 1.0), np.clip(t, 0.0, 1.0)
-        s = np.minimum(s, 1.0 - t)
-        return chart, s, t
+        """Per texel (flat, row by row): its chart (-1: none) and the lattice cell and
+        barycentric weights of its nearest chart point (:func:`_texel_kernel`)."""
+        m = self.size * self.size
+        chart, ia, ib = (np.empty(m, np.int64) for _ in range(3))
+        down, w = np.empty(m, np.bool_), np.empty((m, 3))
+        _texel_kernel(self.size, np.ascontiguousarray(self.corners), 2 ** self.level,
+                      chart, ia, ib, down, w)
+        return chart, ia, ib, down, w
+
+
+@njit(cache=True)
+def _texel_kernel(size, corners, n, chart_out, ia_out, ib_out, down_out, w_out):
+    """Each texel's chart: the one on its side of its cell's diagonal through the cell's
+    centre, parallel to the charts' long edges (-1 outside the 10 cells). Its chart point: the
+    texel centre's lattice coordinates ``(s, t)`` (fractions of the base triangle's legs),
+    clamped to ``s, t >= 0`` and moved back along the long edge's normal to ``s + t <= 1``.
+    Its lattice cell ``(i, j)`` and whether the point lies in the cell's downward triangle
+    (never beyond the chart's long edge, where rounding can put it), and the point's
+    barycentric weights in that triangle (clipped at 0, normalised)."""
+    cw, ch = size // _COLUMNS, size // _ROWS
+    ku, kv = ch - 2 * GUTTER - _DIAGONAL - 1, cw - 2 * GUTTER - _DIAGONAL - 1
+    for y in range(size):
+        for x in range(size):
+            q = y * size + x
+            col, row = x // cw, y // ch
+            cell = row * _COLUMNS + col
+            px, py = x + 0.5, y + 0.5
+            if col < _COLUMNS and row < _ROWS and cell < 10:
+                lu = (px - col * cw) / cw - 0.5
+                lv = (py - row * ch) / ch - 0.5
+                chart = 2 * cell + (1 if lu * cw * ku + lv * ch * kv > 0 else 0)
+            else:
+                chart = -1
+            chart_out[q] = chart
+            c = corners[max(chart, 0)]
+            s = max((px - c[0, 0]) / (c[1, 0] - c[0, 0]), 0.0)
+            t = max((py - c[0, 1]) / (c[2, 1] - c[0, 1]), 0.0)
+            if s + t > 1.0:
+                excess = (s + t - 1.0) / 2.0
+                s, t = s - excess, t - excess
+            s, t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+            s = min(s, 1.0 - t)
+            a, b = s * n, t * n
+            ib = min(np.floor(b), n - 1.0)
+            ia = min(min(np.floor(a), n - 1.0), n - 1.0 - ib)
+            fa, fb = a - ia, b - ib
+            down = fa + fb > 1.0 and ia + ib < n - 1.0
+            if down:
+                w0, w1, w2 = fa + fb - 1.0, 1.0 - fa, 1.0 - fb
+            else:
+                w0, w1, w2 = 1.0 - fa - fb, fa, fb
+            w0, w1, w2 = min(max(w0, 0.0), 1.0), min(max(w1, 0.0), 1.0), min(max(w2, 0.0), 1.0)
+            tot = w0 + w1 + w2
+            ia_out[q], ib_out[q], down_out[q] = np.int64(ia), np.int64(ib), down
+            w_out[q, 0], w_out[q, 1], w_out[q, 2] = w0 / tot, w1 / tot, w2 / tot
 
 
 def _chart_corners(size: int) -> np.ndarray:
