@@ -160,3 +160,37 @@ def test_bad_colour_source_is_refused():
         bake_texture(grid_atlas(1, size=64), lambda p: np.zeros((len(p), 2)))
     with pytest.raises(InputError, match="colors must have 10"):
         GridColor(np.zeros((13, 3)))
+
+
+@pytest.mark.parametrize("atlas_level, color_level", [(1, 1), (2, 4), (3, 3), (4, 5)])
+def test_bake_started_at_texel_faces_equals_full_descent(atlas_level, color_level):
+    atlas = grid_atlas(atlas_level, size=128)
+    rows, faces, verts, w = atlas.texel_faces()
+    grid = icosphere(atlas_level)
+    # each texel's face has the texel's triangle as its corners
+    np.testing.assert_array_equal(np.sort(np.asarray(grid.faces)[faces], 1), np.sort(verts, 1))
+    colours = np.random.default_rng(5).uniform(0, 255, (icosphere(color_level).n_vertices, 3))
+    source = GridColor(colours)
+    img = bake_texture(atlas, source)
+    p = np.einsum("ij,ijk->ik", w, grid.vertices[verts])
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    full = np.clip(np.round(source(p)), 0, 255).astype(np.uint8)   # descent from the base
+    np.testing.assert_array_equal(img.reshape(-1, 3)[rows], full)
+    # a point on an edge may land in either face; both give the same point and colour
+    fine = icosphere(color_level)
+    f1, w1 = locate_on_grid(p, color_level, within=faces, within_level=atlas_level)
+    assert np.all(w1 >= 0) and np.allclose(w1.sum(1), 1)
+    q = np.einsum("ij,ijk->ik", w1, fine.vertices[fine.faces[f1]])
+    np.testing.assert_allclose(q / np.linalg.norm(q, axis=1, keepdims=True), p, atol=1e-12)
+    np.testing.assert_allclose(source(p, within=faces, within_level=atlas_level), source(p),
+                               atol=1e-9)
+
+
+def test_bad_start_faces_are_refused():
+    pts = icosphere(2).vertices
+    with pytest.raises(InputError, match="within_level must be an integer from 1 to level=2"):
+        locate_on_grid(pts, 2, within=np.zeros(len(pts), np.int64), within_level=3)
+    with pytest.raises(InputError, match="within must hold faces of the level-1 grid"):
+        locate_on_grid(pts, 2, within=np.full(len(pts), 80), within_level=1)
+    with pytest.raises(InputError, match="within"):
+        locate_on_grid(pts, 2, within=np.zeros(3, np.int64), within_level=1)

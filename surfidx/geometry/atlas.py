@@ -144,7 +144,7 @@ class GridAtlas:
         """(size, size) int64: the chart each texel belongs to (-1 in the two empty cells and
         the leftover texels beyond the last full cell): the chart on the texel's side of its
         cell's diagonal."""
-        return self._texels()[0]
+        return self._texels()[0].reshape(self.size, self.size)
 
     def texel_points(self):
         """Where each texel of a chart samples the grid: the chart point nearest the texel's
@@ -159,54 +159,106 @@ class GridAtlas:
         weights : (k, 3) float64
             Its barycentric weights (non-negative, summing to 1).
         """
-        chart, s, t = self._texels()
-        rows = np.flatnonzero(chart.ravel() >= 0)
-        ch, s, t = chart.ravel()[rows], s.ravel()[rows], t.ravel()[rows]
+        rows, cell, li, lj, w = self._texel_cells()
         n = 2 ** self.level
-        a, b = s * n, t * n
-        ia = np.minimum(np.floor(a), n - 1).astype(np.int64)
-        ib = np.minimum(np.floor(b), n - 1).astype(np.int64)
-        ia = np.minimum(ia, n - 1 - ib)
-        fa, fb = a - ia, b - ib
-        down = fa + fb > 1.0
+        uv = cell[0][:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
+        return rows, self.uv_vertex[uv], w
+
+    def texel_faces(self):
+        """Where each texel of a chart samples the grid, as :meth:`texel_points` but with the
+        grid face (of level ``level``, in the icosphere's face order) holding its chart point.
+
+        Returns
+        -------
+        rows : (k,) int64
+        faces : (k,) int64
+        vertices : (k, 3) int64
+        weights : (k, 3) float64
+            As :meth:`texel_points`; ``vertices`` are ``faces``' corners, though not always in
+            the face's corner order.
+        """
+        rows, cell, li, lj, w = self._texel_cells()
+        chart, ia, ib, down = cell
+        n = 2 ** self.level
+        lat = _lattice_corners(self.level)
+        lo = lat.min(axis=1)
+        # a lattice triangle pointing down has corner sums 3(i + j) + 4, one pointing up + 2
+        flip = (lat.sum(axis=(1, 2)) - 3 * lo.sum(axis=1)) == 4
+        base = np.arange(len(lat)) // 4 ** self.level
+        table = np.empty(20 * n * n * 2, np.int64)
+        table[((base * n + lo[:, 1]) * n + lo[:, 0]) * 2 + flip] = np.arange(len(lat))
+        per_chart = (n + 1) * (n + 2) // 2
+        uv = chart[:, None] * per_chart + _lattice_index(li, lj, n)
+        return rows, table[((chart * n + ib) * n + ia) * 2 + down], self.uv_vertex[uv], w
+
+    def _texel_cells(self):
+        """The chart texels' flat indices, their lattice cells ``(chart, i, j, down)``, the
+        cells' corner lattice coordinates and the texels' barycentric weights in them."""
+        chart, ia, ib, down, w = self._texels()
+        rows = np.flatnonzero(chart >= 0)
+        ch, ia, ib, down, w = chart[rows], ia[rows], ib[rows], down[rows], w[rows]
         li = np.stack([np.where(down, ia + 1, ia), np.where(down, ia, ia + 1),
                        np.where(down, ia + 1, ia)], 1)
         lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
                        np.where(down, ib, ib + 1)], 1)
-        w = np.where(down[:, None],
-                     np.stack([fa + fb - 1.0, 1.0 - fa, 1.0 - fb], 1),
-                     np.stack([1.0 - fa - fb, fa, fb], 1))
-        w = np.clip(w, 0.0, 1.0)
-        w /= w.sum(axis=1, keepdims=True)
-        per_chart = (n + 1) * (n + 2) // 2
-        uv = ch[:, None] * per_chart + _lattice_index(li, lj, n)
-        return rows, self.uv_vertex[uv], w
+        return rows, (ch, ia, ib, down), li, lj, w
 
     def _texels(self):
-        """Chart of each texel and its nearest chart point's lattice coordinates ``(s, t)``
-        (fractions of the base triangle's legs, ``s, t >= 0``, ``s + t <= 1``)."""
-        size = self.size
-        cw, ch = size // _COLUMNS, size // _ROWS
-        y, x = np.mgrid[0:size, 0:size]
-        col, row = x // cw, y // ch
-        cell = row * _COLUMNS + col
-        valid = (col < _COLUMNS) & (row < _ROWS) & (cell < 10)
-        px, py = x + 0.5, y + 0.5
-        # side of the cell's diagonal through its centre, parallel to the charts' long edges
-        lu, lv = (px - col * cw) / cw - 0.5, (py - row * ch) / ch - 0.5
-        upper = (lu * cw * (ch - 2 * GUTTER - _DIAGONAL - 1)
-                 + lv * ch * (cw - 2 * GUTTER - _DIAGONAL - 1)) > 0
-        chart = np.where(valid, 2 * cell + upper, -1)
-        c = self.corners[np.maximum(chart, 0)]
-        s = (px - c[..., 0, 0]) / (c[..., 1, 0] - c[..., 0, 0])
-        t = (py - c[..., 0, 1]) / (c[..., 2, 1] - c[..., 0, 1])
-        s, t = np.maximum(s, 0.0), np.maximum(t, 0.0)
-        over = s + t > 1.0
-        excess = np.where(over, (s + t - 1.0) / 2.0, 0.0)
-        s, t = s - excess, t - excess
-        s, t = np.clip(s, 0.0, 1.0), np.clip(t, 0.0, 1.0)
-        s = np.minimum(s, 1.0 - t)
-        return chart, s, t
+        """Per texel (flat, row by row): its chart (-1: none) and the lattice cell and
+        barycentric weights of its nearest chart point (:func:`_texel_kernel`)."""
+        m = self.size * self.size
+        chart, ia, ib = (np.empty(m, np.int64) for _ in range(3))
+        down, w = np.empty(m, np.bool_), np.empty((m, 3))
+        _texel_kernel(self.size, np.ascontiguousarray(self.corners), 2 ** self.level,
+                      chart, ia, ib, down, w)
+        return chart, ia, ib, down, w
+
+
+@njit(cache=True)
+def _texel_kernel(size, corners, n, chart_out, ia_out, ib_out, down_out, w_out):
+    """Each texel's chart: the one on its side of its cell's diagonal through the cell's
+    centre, parallel to the charts' long edges (-1 outside the 10 cells). Its chart point: the
+    texel centre's lattice coordinates ``(s, t)`` (fractions of the base triangle's legs),
+    clamped to ``s, t >= 0`` and moved back along the long edge's normal to ``s + t <= 1``.
+    Its lattice cell ``(i, j)`` and whether the point lies in the cell's downward triangle
+    (never beyond the chart's long edge, where rounding can put it), and the point's
+    barycentric weights in that triangle (clipped at 0, normalised)."""
+    cw, ch = size // _COLUMNS, size // _ROWS
+    ku, kv = ch - 2 * GUTTER - _DIAGONAL - 1, cw - 2 * GUTTER - _DIAGONAL - 1
+    for y in range(size):
+        for x in range(size):
+            q = y * size + x
+            col, row = x // cw, y // ch
+            cell = row * _COLUMNS + col
+            px, py = x + 0.5, y + 0.5
+            if col < _COLUMNS and row < _ROWS and cell < 10:
+                lu = (px - col * cw) / cw - 0.5
+                lv = (py - row * ch) / ch - 0.5
+                chart = 2 * cell + (1 if lu * cw * ku + lv * ch * kv > 0 else 0)
+            else:
+                chart = -1
+            chart_out[q] = chart
+            c = corners[max(chart, 0)]
+            s = max((px - c[0, 0]) / (c[1, 0] - c[0, 0]), 0.0)
+            t = max((py - c[0, 1]) / (c[2, 1] - c[0, 1]), 0.0)
+            if s + t > 1.0:
+                excess = (s + t - 1.0) / 2.0
+                s, t = s - excess, t - excess
+            s, t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+            s = min(s, 1.0 - t)
+            a, b = s * n, t * n
+            ib = min(np.floor(b), n - 1.0)
+            ia = min(min(np.floor(a), n - 1.0), n - 1.0 - ib)
+            fa, fb = a - ia, b - ib
+            down = fa + fb > 1.0 and ia + ib < n - 1.0
+            if down:
+                w0, w1, w2 = fa + fb - 1.0, 1.0 - fa, 1.0 - fb
+            else:
+                w0, w1, w2 = 1.0 - fa - fb, fa, fb
+            w0, w1, w2 = min(max(w0, 0.0), 1.0), min(max(w1, 0.0), 1.0), min(max(w2, 0.0), 1.0)
+            tot = w0 + w1 + w2
+            ia_out[q], ib_out[q], down_out[q] = np.int64(ia), np.int64(ib), down
+            w_out[q, 0], w_out[q, 1], w_out[q, 2] = w0 / tot, w1 / tot, w2 / tot
 
 
 def _chart_corners(size: int) -> np.ndarray:
@@ -284,23 +336,27 @@ def _det3(a0, a1, a2, b0, b1, b2, p0, p1, p2):
 
 
 @njit(cache=True)
-def _descend(p, verts, faces, offsets, level, face_out, w_out):
-    """Per point: the base face whose worst edge test is best, then at each level the child
-    beyond the inner triangle's most violated edge (or the inner one); barycentric weights by
-    Cramer's rule in the last face, clipped at 0 and normalised."""
+def _descend(p, verts, faces, offsets, level, start, start_level, face_out, w_out):
+    """Per point: the base face whose worst edge test is best (or ``start[q]``, a face of
+    level ``start_level``), then at each finer level the child beyond the inner triangle's
+    most violated edge (or the inner one); barycentric weights by Cramer's rule in the last
+    face, clipped at 0 and normalised."""
     for q in range(p.shape[0]):
         x, y, z = p[q, 0], p[q, 1], p[q, 2]
         best, face = -np.inf, 0
-        for f in range(20):
-            s = np.inf
-            for k in range(3):
-                a, b = faces[f, k], faces[f, (k + 1) % 3]
-                d = _det3(verts[a, 0], verts[a, 1], verts[a, 2],
-                          verts[b, 0], verts[b, 1], verts[b, 2], x, y, z)
-                s = min(s, d)
-            if s > best:
-                best, face = s, f
-        for j in range(1, level + 1):
+        if start_level > 0:
+            face = start[q]
+        else:
+            for f in range(20):
+                s = np.inf
+                for k in range(3):
+                    a, b = faces[f, k], faces[f, (k + 1) % 3]
+                    d = _det3(verts[a, 0], verts[a, 1], verts[a, 2],
+                              verts[b, 0], verts[b, 1], verts[b, 2], x, y, z)
+                    s = min(s, d)
+                if s > best:
+                    best, face = s, f
+        for j in range(start_level + 1, level + 1):
             inner = offsets[j] + 4 * face + 3
             worst, child, kk = np.inf, 3, 0
             for k in range(3):
@@ -338,7 +394,7 @@ def _level_faces(level: int):
     return np.ascontiguousarray(np.vstack(faces)), offsets
 
 
-def locate_on_grid(points, level: int):
+def locate_on_grid(points, level: int, *, within=None, within_level: int = 0):
     """The level-``level`` grid face holding each unit vector, by descending the faces'
     hierarchy from the icosahedron (each face's four children split it along great circles),
     and the point's barycentric weights in it (central projection onto the face's plane).
@@ -348,20 +404,44 @@ def locate_on_grid(points, level: int):
     points : (n, 3) float64
         Unit vectors (any non-zero vectors: their directions are used).
     level : int
+    within : (n,) int64, optional
+        A face of the level-``within_level`` grid known to hold each point (a texel's face on
+        an atlas, say): the descent starts there instead of at the icosahedron.
+    within_level : int
+        The level of ``within``, 1 … ``level`` (ignored without ``within``).
 
     Returns
     -------
     faces : (n,) int64
     weights : (n, 3) float64
         Non-negative, summing to 1, in the order of the face's corners.
+
+    Raises
+    ------
+    InputError
+        ``within`` of another length, a face out of range, or ``within_level`` outside
+        1 … ``level``.
     """
     lev = check_level(level)
     p = np.ascontiguousarray(as_array(points, "points", shape=(None, 3)))
+    start, start_level = np.zeros(0, np.int64), 0
+    if within is not None:
+        if (isinstance(within_level, bool) or not isinstance(within_level, (int, np.integer))
+                or not 1 <= within_level <= lev):
+            raise InputError(f"within_level must be an integer from 1 to level={lev}, got "
+                             f"{within_level!r}")
+        start = np.ascontiguousarray(as_array(within, "within", dtype=np.int64,
+                                              shape=(len(p),)))
+        if len(start) and (start.min() < 0 or start.max() >= 20 * 4 ** within_level):
+            raise InputError(f"within must hold faces of the level-{within_level} grid "
+                             f"(0 … {20 * 4 ** within_level - 1}), got values from "
+                             f"{start.min()} to {start.max()}")
+        start_level = int(within_level)
     faces, offsets = _level_faces(lev)
     verts = np.ascontiguousarray(icosphere(lev).vertices)
     face = np.empty(len(p), np.int64)
     w = np.empty((len(p), 3))
-    _descend(p, verts, faces, offsets, lev, face, w)
+    _descend(p, verts, faces, offsets, lev, start, start_level, face, w)
     return face, w
 
 
@@ -386,9 +466,11 @@ class GridColor:
                              f"L <= {MAX_LEVEL}), got {len(self.colors)}")
         self.level = level
 
-    def __call__(self, points) -> np.ndarray:
-        """(n, 3) float64 colours at unit vectors ``points`` (n, 3) float64."""
-        face, w = locate_on_grid(points, self.level)
+    def __call__(self, points, *, within=None, within_level: int = 0) -> np.ndarray:
+        """(n, 3) float64 colours at unit vectors ``points`` (n, 3) float64; ``within`` and
+        ``within_level`` as :func:`locate_on_grid` takes them (a coarser grid's faces known
+        to hold the points)."""
+        face, w = locate_on_grid(points, self.level, within=within, within_level=within_level)
         corners = np.asarray(icosphere(self.level).faces)[face]
         return np.einsum("ij,ijk->ik", w, self.colors[corners])
 
@@ -414,11 +496,15 @@ def bake_texture(atlas: GridAtlas, color) -> np.ndarray:
     InputError
         A colour source that does not return one finite RGB row per point.
     """
-    rows, verts, w = atlas.texel_points()
+    rows, faces, verts, w = atlas.texel_faces()
     sphere = np.asarray(icosphere(atlas.level).vertices)
     p = np.einsum("ij,ijk->ik", w, sphere[verts])
     p /= np.linalg.norm(p, axis=1, keepdims=True)
-    col = np.asarray(color(p), dtype=np.float64)
+    if isinstance(color, GridColor) and color.level >= atlas.level >= 1:
+        # the texel's atlas face holds its point: the colour grid's search starts there
+        col = color(p, within=faces, within_level=atlas.level)
+    else:
+        col = np.asarray(color(p), dtype=np.float64)
     if col.shape != (len(p), 3) or not np.all(np.isfinite(col)):
         raise InputError(f"the colour source must return ({len(p)}, 3) finite colours, got "
                          f"shape {col.shape}")
