@@ -1,8 +1,9 @@
 """What ``get``/``decode`` write: PSNR_D2 of the default output level and of a vertex budget.
 
 For each model (a few shared models and retrieval meshes), the model is read and repaired
-as ingest does, coded once at the top rate with output-level hints (the default,
-``CodecOptions(level_hints=True)``), and the stream's prefixes at each rate are decoded:
+as ingest does, coded once at the top rate with output-level hints
+(``CodecOptions(level_hints=True)``; off by default, for their encoding cost, which the second
+table gives), and the stream's prefixes at each rate are decoded:
 
 * ``old``: at the level whose vertex count is closest to the input's surfel count (the former
   default, one level or more below the stream's own);

@@ -58,7 +58,7 @@ def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
     (``CodecOptions(level_hints=False)``) as version 3, byte for byte (hashes
     re-measured when the map that embeds every level, map version 2, its relaxation sweeps, map
     version 3, and their stop on the energy's fall, map version 4, changed every map); a coloured
-    stream without hints is version 5, and with hints (the default) a stream is version 6."""
+    stream without hints (the default) is version 5, and with hints a stream is version 6."""
     import hashlib
 
     from surfidx.codec import CodecOptions
@@ -70,7 +70,7 @@ def test_closed_genus_0_streams_are_unchanged_by_version_5(enc, blob):
     for rate, digest in want.items():
         data = plain.encode(rate)
         assert data[4] == 3 and hashlib.sha256(data).hexdigest() == digest
-        assert coloured.encode(rate)[4] == 5 and enc.encode(rate)[4] == 6
+        assert coloured.encode(rate)[4] == 5 and enc.encode(rate)[4] == 5
 
 
 def test_high_rate_reproduces_the_grid(blob):
@@ -278,7 +278,7 @@ def test_cli_info_of_a_stream(tmp_path, blob):
     assert r.exit_code == 0, r.output
     info = json.loads(r.output)
     assert info["bytes"] == len(data) and info["input_surfels"] == len(blob)
-    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 6   # hinted
+    assert info["grid_level"] == 4 and info["color"] and info["format_version"] == 5
     assert info["color_level"] >= 4
     assert info["local_frames"] and info["tangent_weight"] == 0.5
     assert len(info["frame_anchors"]) == 4 and info["density_weighted"]

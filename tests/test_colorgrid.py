@@ -36,8 +36,7 @@ def test_checkerboard_decodes_above_a_luma_floor_and_beats_vertex_colours(checke
     mesh, surfels, enc = checker
     data = enc.encode(64.0)
     header, _ = container.unpack(data)
-    # a colour grid (version 5) with output-level hints (the default): version 6
-    assert header.version == 6 and header.color_level == enc.prepared.color_level
+    assert header.version == 5 and header.color_level == enc.prepared.color_level
     textured = decode(data, mesh=True, texture=True)
     luma = psnr_luma_surface(mesh, textured, samples=20000)
     assert luma > 24.0      # measured 25.0 dB; vertex colours on the geometry's grid 14.5

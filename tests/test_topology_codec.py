@@ -74,8 +74,7 @@ def test_mask_is_in_the_header_and_counted(holes3):
         data = holes3.encode(rate)
         assert len(data) <= max_file_bytes(rate, holes3.n_surfels)
         h, _ = container.unpack(data)
-        # a mask (version 4) with output-level hints (the default): version 6
-        assert h.version == 6 and h.mask == holes3.mask and h.regions == holes3.regions
+        assert h.version == 4 and h.mask == holes3.mask and h.regions == holes3.regions
     full = holes3.encode(4.0)
     cut = container.truncate(full, max_file_bytes(1.0, holes3.n_surfels))
     assert container.unpack(cut)[0].mask == holes3.mask      # the mask is kept whole
@@ -448,7 +447,7 @@ def test_stream_summary(two, holes3, ball):
     assert s["mask_bytes"][0] == 6 + len(holes3.mask) + 2 * 3 and s["mask_bytes"][1] == 0
     assert 0 < s["mask_share"] < 0.2 and s["virtual_share"][0] == holes3.virtual_share
     one = stream_summary(ball.encode(4.0))
-    assert one["parts"] == 1 and one["version"] == 6 and one["mask_share"] == 0   # hinted
+    assert one["parts"] == 1 and one["version"] == 3 and one["mask_share"] == 0
 
 
 def test_parts_encoder_errors(two):
@@ -627,7 +626,7 @@ def test_more_new_errors(holes3):
         stream_summary(_rewrite(data, mask=b"\xff\xff\xff\xff"), path="m.sfz")
     big = bytearray(data)
     big[6] = 10                                          # a grid finer than the format's
-    with pytest.raises(BitstreamError, match="grid level 10; format version 6 allows 0 … 9"):
+    with pytest.raises(BitstreamError, match="grid level 10; format version 4 allows 0 … 9"):
         stream_summary(bytes(big))
 
     class Huge(bytes):

@@ -82,10 +82,10 @@ class CodecOptions:
         against the input and store where the default output level steps down
         (:func:`surfidx.codec.encoder.level_hints`; a few decodings of the stream, and an
         output-level section of :data:`~surfidx.codec.container.HINT_SECTION_BYTES` bytes, so
-        container format 6). On by default; False writes the stream without the section
-        (format 5, 4 or 3, byte for byte as before format 6), which decodes at its own level at
-        every rate. The measurement's CPU time beside the encoding's:
-        ``benchmarks/output_level.py`` (``docs/benchmarks/output_level.md``).
+        container format 6). Off by default: the measurement adds a fifth to a half to the
+        encoding's CPU time (``benchmarks/output_level.py``,
+        ``docs/benchmarks/output_level.md``) for gains mostly below 1.5 bits per surfel;
+        without it a stream (format 5, 4 or 3) decodes at its own level at every rate.
     """
 
     bits_per_surfel: float = option(DEFAULT_BITS_PER_SURFEL, min=0, min_open=True)
@@ -98,7 +98,7 @@ class CodecOptions:
     color_level: int | None = option(None, max=MAX_LEVEL)
     tangent_weight: float | None = option(TANGENT_WEIGHT, min=0, min_open=True, max=1)
     density_weighting: bool | None = None
-    level_hints: bool = True
+    level_hints: bool = False
 
     def __post_init__(self):
         check_option_fields(self)
