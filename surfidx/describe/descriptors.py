@@ -97,12 +97,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
-from ..geometry.sparse import SPDSolver
 from ..tolerance import TOL
 from ..validate import as_array
 from ..geometry.icosphere import icosphere, vertex_count
 from ..geometry.mesh import cotangent_laplacian, vertex_area_shares
 from ..codec.klt import KLT
+from .gridorder import grid_solver
 from .harmonics import degree_spectrum, expand_dh
 from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
 from .views import model_views, view_params
@@ -395,13 +395,6 @@ def _shape_vector(parts: dict) -> np.ndarray:
     return np.concatenate([s * parts[name] for name, s in zip(SHAPE_PARTS, SHAPE_PART_SCALES)])
 
 
-@functools.lru_cache(maxsize=4)
-def _grid_solver(level: int) -> SPDSolver:
-    """The factoriser of the level-``level`` grid's Laplacians: every model's has the grid's
-    connectivity, so its nested-dissection order is computed once per level."""
-    return SPDSolver()
-
-
 def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
     """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator
     (:func:`laplacian_eigenpairs`, eigenvalues only)."""
@@ -425,7 +418,8 @@ def laplacian_eigenpairs(x: np.ndarray, level: int, *, max_level: int = SPECTRAL
     degenerate triangles are clipped at ±``1/TOL.degenerate_angle`` and vertex masses floored, so
     a squeezed map gives a finite spectrum. Dense solve up to 700 vertices; beyond, shift-invert
     Lanczos on the standard form ``M^-½ K M^-½`` (one operator solve per Lanczos step, none with
-    ``M``) with one LU factor in the grid's nested-dissection order.
+    ``M``) with one LU factor in the grid's nested-dissection order (stored with the package:
+    :mod:`surfidx.describe.gridorder`).
 
     Returns
     -------
@@ -466,7 +460,7 @@ def laplacian_eigenpairs(x: np.ndarray, level: int, *, max_level: int = SPECTRAL
         # the standard form C = M^-1/2 K M^-1/2 shifted below 0, so that K - sigma M is
         # positive definite (a plain LU works); (C - sigma)^-1 y = M^1/2 (K - sigma M)^-1 M^1/2 y
         sigma = -0.1 * 4.0 * np.pi / total
-        lu = _grid_solver(lev).factor(stiff + sp.diags(-sigma * mass))
+        lu = grid_solver(lev).factor(stiff + sp.diags(-sigma * mass))
         root = np.sqrt(mass)
 
         def solve(y):
