@@ -4,10 +4,10 @@ compiled Fortran transform without the rest of pyshtools.
 ``import pyshtools`` loads matplotlib, xarray, astropy and pandas for its classes, more CPU than
 a whole query by example; the descriptors need one routine of its compiled extension
 (``SHExpandDH``) and a per-degree sum of squares. The extension module is loaded from
-pyshtools' folder on its own, once per process (it enters ``sys.modules`` under its own name,
-``pyshtools._SHTOOLS``, where a later ``import pyshtools`` finds it); when that fails (another
-package layout),
-pyshtools' own Fortran backend is imported instead. Either way the routine is SHTOOLS' Fortran
+pyshtools' folder on its own, once per process (:func:`surfidx.extmodules.load_extension`: it
+enters ``sys.modules`` under its own name, ``pyshtools._SHTOOLS``, where a later
+``import pyshtools`` finds it); when that fails (another package layout), pyshtools' own Fortran
+backend is imported instead. Either way the routine is SHTOOLS' Fortran
 one, never the ducc0 backend pyshtools prefers when it is installed, so the descriptors' bytes do
 not depend on what else is installed.
 """
@@ -23,37 +23,13 @@ from ..errors import InputError
 __all__ = ["expand_dh", "degree_spectrum"]
 
 
-def _load_extension():
-    """pyshtools' ``_SHTOOLS`` extension module, loaded without running pyshtools' ``__init__``
-    (None when the package's folder holds no such extension)."""
-    import importlib.machinery
-    import importlib.util
-    import os
-    import sys
-
-    if "pyshtools._SHTOOLS" in sys.modules:            # pyshtools (or this) loaded it already
-        return sys.modules["pyshtools._SHTOOLS"]
-    spec = importlib.util.find_spec("pyshtools")   # finds the package, does not import it
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    for folder in spec.submodule_search_locations:
-        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-            path = os.path.join(folder, "_SHTOOLS" + suffix)
-            if os.path.isfile(path):
-                loader = importlib.machinery.ExtensionFileLoader("pyshtools._SHTOOLS", path)
-                ext_spec = importlib.util.spec_from_file_location("pyshtools._SHTOOLS", path,
-                                                                  loader=loader)
-                module = importlib.util.module_from_spec(ext_spec)
-                loader.exec_module(module)
-                return module
-    return None
-
-
 @functools.lru_cache(maxsize=1)
 def _shexpanddh():
     """SHTOOLS' Fortran ``SHExpandDH`` returning ``(exitstatus, cilm)``."""
+    from ..extmodules import load_extension
+
     try:
-        ext = _load_extension()
+        ext = load_extension("pyshtools", "_SHTOOLS")
     except ImportError:
         ext = None
     if ext is not None and hasattr(ext, "SHExpandDH"):
