@@ -397,3 +397,19 @@ def test_spectrum_is_the_same_with_the_stored_order_and_with_metis(monkeypatch):
     ordered = descriptors.laplacian_eigenpairs(x, 4, vectors=True)
     for a, b in zip(stored, ordered):
         np.testing.assert_array_equal(a, b)
+
+
+def test_harmonic_transform_is_planned_without_timing():
+    """The descriptors' transform (100 longitudes) is planned from the stored FFTW wisdom, not
+    by timing candidate plans: the same bytes in every fresh process, whatever the load (a
+    timed plan could round differently)."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, numpy as np\n"
+            "from surfidx.describe.harmonics import expand_dh\n"
+            "g = np.random.default_rng(0).random((50, 100))\n"
+            "print(hashlib.sha256(expand_dh(g, 24).tobytes()).hexdigest())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout.split()
+    assert out[-1] == "b4ab1a33fa3aa981d5f56537bcaf55158c75aadacf4d1da55f2026b83d3a60e8"

@@ -239,9 +239,11 @@ def _measure_energies(u: np.ndarray, w: np.ndarray, group: np.ndarray, groups: i
     Point ``i`` of direction ``u[i]`` (not necessarily unit) and weight ``w[i]`` belongs to the
     measure ``group[i]``; the energy of degree ``l`` is ``Σ_m |Σ_i w_i Y_lm(u_i)|²`` over the
     orthonormal real harmonics, computed with the complex ones, so it is exact and invariant
-    under any orthogonal map of the directions.
+    under any orthogonal map of the directions. ``Y_lm(θ, φ)`` is the spherical Legendre
+    function of ``θ`` (``sph_legendre_p``, the value ``sph_harm_y(l, m, θ, 0)`` has, bit for bit)
+    times ``exp(imφ)``, whose real and imaginary parts are the ``cos`` and ``sin`` terms.
     """
-    from scipy.special import sph_harm_y
+    from scipy.special import sph_legendre_p
 
     r = np.linalg.norm(u, axis=1)
     theta = np.arccos(np.clip(u[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
@@ -251,7 +253,7 @@ def _measure_energies(u: np.ndarray, w: np.ndarray, group: np.ndarray, groups: i
     sin = [np.sin(m * phi) for m in range(lmax + 1)]
     for l in range(lmax + 1):
         for m in range(l + 1):
-            wy = w * sph_harm_y(l, m, theta, 0.0).real
+            wy = w * sph_legendre_p(l, m, theta)[0]
             c = np.bincount(group, weights=wy * cos[m], minlength=groups)
             c2 = c ** 2
             if m:
