@@ -349,3 +349,67 @@ def test_describing_loads_no_plotting_or_table_library():
                          timeout=300, check=True).stdout.strip().splitlines()
     assert json.loads(out[-2]) == []
     assert out[-1] == "True"
+
+
+def test_stored_grid_orders_are_metis_orders():
+    """The grid Laplacians' nested-dissection orders shipped with the package are METIS's
+    (``python -m surfidx.describe.gridorder`` writes them), one for every grid level the
+    spectral part factors (more than 700 vertices, up to its level)."""
+    from surfidx.describe.descriptors import SPECTRAL_LEVEL
+    from surfidx.describe.gridorder import ORDER_LEVELS, grid_order, stored_grid_order
+    from surfidx.geometry.icosphere import vertex_count
+
+    assert ORDER_LEVELS == tuple(lev for lev in range(SPECTRAL_LEVEL + 1)
+                                 if vertex_count(lev) > 700)
+    for level in ORDER_LEVELS:
+        np.testing.assert_array_equal(stored_grid_order(level), grid_order(level))
+    assert stored_grid_order(SPECTRAL_LEVEL + 1) is None
+
+
+def test_grid_solver_factors_the_grid_pattern_without_metis(monkeypatch):
+    import scipy.sparse as sp
+
+    import surfidx.geometry.sparse as sparse
+    from surfidx.describe.gridorder import ORDER_LEVELS, grid_pattern, grid_solver
+
+    def no_metis(a):
+        raise AssertionError("METIS asked for a stored order")
+
+    monkeypatch.setattr(sparse, "nested_dissection", no_metis)
+    for level in ORDER_LEVELS:
+        indptr, indices = grid_pattern(level)
+        n = len(indptr) - 1
+        a = sp.csr_matrix((-np.ones(len(indices)), indices, indptr), shape=(n, n))
+        a.setdiag(8.0)                       # diagonally dominant: positive definite
+        b = np.ones(n)
+        np.testing.assert_allclose(a @ grid_solver(level).factor(a).solve(b), b, atol=1e-10)
+
+
+def test_spectrum_is_the_same_with_the_stored_order_and_with_metis(monkeypatch):
+    """The grid Laplacian factored in the stored order gives the eigenpairs that a solver
+    asking METIS gives, bit for bit."""
+    import surfidx.describe.descriptors as descriptors
+    from surfidx.geometry.sparse import SPDSolver
+
+    x = _shape(icosphere(4).vertices)
+    stored = descriptors.laplacian_eigenpairs(x, 4, vectors=True)
+    monkeypatch.setattr(descriptors, "grid_solver", lambda level: SPDSolver())
+    ordered = descriptors.laplacian_eigenpairs(x, 4, vectors=True)
+    for a, b in zip(stored, ordered):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_harmonic_transform_is_planned_without_timing():
+    """The descriptors' transform (100 longitudes) is planned from the stored FFTW wisdom, not
+    by timing candidate plans: the same bytes in every fresh process, whatever the load (a
+    timed plan could round differently)."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, numpy as np\n"
+            "from surfidx.describe.harmonics import expand_dh\n"
+            "g = np.random.default_rng(0).random((50, 100))\n"
+            "print(hashlib.sha256(expand_dh(g, 24).tobytes()).hexdigest())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True).stdout.split()
+    assert out[-1] == "b4ab1a33fa3aa981d5f56537bcaf55158c75aadacf4d1da55f2026b83d3a60e8"

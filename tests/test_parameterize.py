@@ -167,6 +167,12 @@ def test_hull_triangles_are_ccw(sphere_surfels):
     assert np.all(np.einsum("ij,ij->i", np.cross(b - a, c - a), a) > 0)
 
 
+def test_hull_of_points_on_one_great_circle_raises():
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    with pytest.raises(InputError, match="the sphere points span no volume"):
+        hull_triangles(np.c_[np.cos(t), np.sin(t), np.zeros_like(t)])
+
+
 def test_disconnected_raises(sphere_surfels):
     v, f = icosphere_mesh(2)
     two = TriangleMesh(np.vstack([v, v + 5]), np.vstack([f, f + len(v)])).to_surfels()

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from surfidx import InputError
 from surfidx.geometry.sparse import SPDSolver, spd_factor
 
 
@@ -87,3 +88,32 @@ def test_order_cuts_the_fill_of_a_mesh_laplacian():
     lap = (sp.diags(np.asarray(adj.sum(axis=1)).ravel() + 0.1) - adj).tocsr()
     theirs = splu(lap.tocsc(), permc_spec="COLAMD")
     assert spd_factor(lap).nnz < 0.6 * (theirs.L.nnz + theirs.U.nnz)
+
+
+def test_a_known_pattern_is_factored_in_its_given_order():
+    """A solver handed a pattern and its order factors a matrix of that pattern in that order
+    (the same solution, bit for bit, as one that asks METIS) and orders another pattern
+    itself."""
+    from surfidx.geometry.sparse import nested_dissection
+
+    rng = np.random.default_rng(4)
+    m = 500
+    i, j = _graph(rng, m, 2000)
+    a = sp.csr_matrix(_laplacian(rng, i, j, m))
+    a.sort_indices()
+    order = nested_dissection(a)
+    b = rng.normal(size=m)
+    given = SPDSolver(pattern=(a.indptr, a.indices), order=order)
+    np.testing.assert_array_equal(given.factor(a).solve(b), SPDSolver().factor(a).solve(b))
+    other = _laplacian(rng, i, j, m, extra=0.5)          # another pattern: ordered afresh
+    np.testing.assert_array_equal(given.factor(other).solve(b), spd_factor(other).solve(b))
+    np.testing.assert_allclose(other @ given.factor(other).solve(b), b, atol=1e-10)
+    np.testing.assert_array_equal(given.factor(a).solve(b), SPDSolver().factor(a).solve(b))
+
+
+def test_a_given_order_needs_its_pattern():
+    a = sp.csr_matrix(sp.eye(4))
+    with pytest.raises(InputError, match="a pattern and its order together"):
+        SPDSolver(order=np.arange(4))
+    with pytest.raises(InputError, match="the order has 3 entries for a pattern of 4 rows"):
+        SPDSolver(pattern=(a.indptr, a.indices), order=np.arange(3))

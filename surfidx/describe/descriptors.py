@@ -97,12 +97,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import InputError
-from ..geometry.sparse import SPDSolver
 from ..tolerance import TOL
 from ..validate import as_array
 from ..geometry.icosphere import icosphere, vertex_count
 from ..geometry.mesh import cotangent_laplacian, vertex_area_shares
 from ..codec.klt import KLT
+from .gridorder import grid_solver
 from .harmonics import degree_spectrum, expand_dh
 from .distance import DEFAULT_KINDS, DEFAULT_SHAPE_WEIGHT, check_shape_weight, weighted_l2
 from .views import model_views, view_params
@@ -239,9 +239,11 @@ def _measure_energies(u: np.ndarray, w: np.ndarray, group: np.ndarray, groups: i
     Point ``i`` of direction ``u[i]`` (not necessarily unit) and weight ``w[i]`` belongs to the
     measure ``group[i]``; the energy of degree ``l`` is ``Σ_m |Σ_i w_i Y_lm(u_i)|²`` over the
     orthonormal real harmonics, computed with the complex ones, so it is exact and invariant
-    under any orthogonal map of the directions.
+    under any orthogonal map of the directions. ``Y_lm(θ, φ)`` is the spherical Legendre
+    function of ``θ`` (``sph_legendre_p``, the value ``sph_harm_y(l, m, θ, 0)`` has, bit for bit)
+    times ``exp(imφ)``, whose real and imaginary parts are the ``cos`` and ``sin`` terms.
     """
-    from scipy.special import sph_harm_y
+    from scipy.special import sph_legendre_p
 
     r = np.linalg.norm(u, axis=1)
     theta = np.arccos(np.clip(u[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
@@ -251,7 +253,7 @@ def _measure_energies(u: np.ndarray, w: np.ndarray, group: np.ndarray, groups: i
     sin = [np.sin(m * phi) for m in range(lmax + 1)]
     for l in range(lmax + 1):
         for m in range(l + 1):
-            wy = w * sph_harm_y(l, m, theta, 0.0).real
+            wy = w * sph_legendre_p(l, m, theta)[0]
             c = np.bincount(group, weights=wy * cos[m], minlength=groups)
             c2 = c ** 2
             if m:
@@ -395,13 +397,6 @@ def _shape_vector(parts: dict) -> np.ndarray:
     return np.concatenate([s * parts[name] for name, s in zip(SHAPE_PARTS, SHAPE_PART_SCALES)])
 
 
-@functools.lru_cache(maxsize=4)
-def _grid_solver(level: int) -> SPDSolver:
-    """The factoriser of the level-``level`` grid's Laplacians: every model's has the grid's
-    connectivity, so its nested-dissection order is computed once per level."""
-    return SPDSolver()
-
-
 def log_spectrum(x: np.ndarray, level: int, *, max_level: int = SPECTRAL_LEVEL) -> np.ndarray:
     """(SPECTRAL_K,) ``log(λ_i A / (4π i))`` of the grid surface's Laplace–Beltrami operator
     (:func:`laplacian_eigenpairs`, eigenvalues only)."""
@@ -425,7 +420,8 @@ def laplacian_eigenpairs(x: np.ndarray, level: int, *, max_level: int = SPECTRAL
     degenerate triangles are clipped at ±``1/TOL.degenerate_angle`` and vertex masses floored, so
     a squeezed map gives a finite spectrum. Dense solve up to 700 vertices; beyond, shift-invert
     Lanczos on the standard form ``M^-½ K M^-½`` (one operator solve per Lanczos step, none with
-    ``M``) with one LU factor in the grid's nested-dissection order.
+    ``M``) with one LU factor in the grid's nested-dissection order (stored with the package:
+    :mod:`surfidx.describe.gridorder`).
 
     Returns
     -------
@@ -466,7 +462,7 @@ def laplacian_eigenpairs(x: np.ndarray, level: int, *, max_level: int = SPECTRAL
         # the standard form C = M^-1/2 K M^-1/2 shifted below 0, so that K - sigma M is
         # positive definite (a plain LU works); (C - sigma)^-1 y = M^1/2 (K - sigma M)^-1 M^1/2 y
         sigma = -0.1 * 4.0 * np.pi / total
-        lu = _grid_solver(lev).factor(stiff + sp.diags(-sigma * mass))
+        lu = grid_solver(lev).factor(stiff + sp.diags(-sigma * mass))
         root = np.sqrt(mass)
 
         def solve(y):

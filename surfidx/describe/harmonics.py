@@ -4,12 +4,21 @@ compiled Fortran transform without the rest of pyshtools.
 ``import pyshtools`` loads matplotlib, xarray, astropy and pandas for its classes, more CPU than
 a whole query by example; the descriptors need one routine of its compiled extension
 (``SHExpandDH``) and a per-degree sum of squares. The extension module is loaded from
-pyshtools' folder on its own, once per process (it enters ``sys.modules`` under its own name,
-``pyshtools._SHTOOLS``, where a later ``import pyshtools`` finds it); when that fails (another
-package layout),
-pyshtools' own Fortran backend is imported instead. Either way the routine is SHTOOLS' Fortran
-one, never the ducc0 backend pyshtools prefers when it is installed, so the descriptors' bytes do
-not depend on what else is installed.
+pyshtools' folder on its own, once per process (:func:`surfidx.extmodules.load_extension`: it
+enters ``sys.modules`` under its own name, ``pyshtools._SHTOOLS``, where a later
+``import pyshtools`` finds it); when that fails (another package layout), pyshtools' own Fortran
+backend is imported instead. Either way the routine is SHTOOLS' Fortran one, never the ducc0
+backend pyshtools prefers when it is installed, so the descriptors' bytes do not depend on what
+else is installed.
+
+``SHExpandDH`` plans its longitude FFTs with FFTW in ``FFTW_MEASURE`` mode: FFTW times several
+ways of computing a transform of that length and keeps the fastest, which made the first
+transform of a process cost about 0.04 s and its result depend on the timings (another split
+of the FFT rounds differently in the last bits, so the same model could get ``layers`` and
+``shape`` vectors differing in their last bits under load). Before the first transform the
+plan of the descriptors' grid (:data:`FFTW_WISDOM`, 100 longitudes) is handed to the FFTW
+library SHTOOLS uses, as FFTW *wisdom*: FFTW then builds that plan without timing anything, the
+same on every machine whose CPU has AVX. Other grid lengths are planned as FFTW chooses.
 """
 
 from __future__ import annotations
@@ -20,46 +29,66 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["expand_dh", "degree_spectrum"]
+__all__ = ["expand_dh", "degree_spectrum", "FFTW_WISDOM"]
+
+#: FFTW 3.3.5 wisdom for the real-to-complex FFT of 100 samples (the longitudes of the
+#: Driscoll–Healy grid of degree 24 that the descriptors expand): the plan FFTW measures fastest
+#: on an idle x86-64 machine (``fftw_export_wisdom_to_string`` after one transform), whose
+#: results are the descriptors the store holds.
+FFTW_WISDOM = """(fftw-3.3.5 fftw_wisdom #x458a31c8 #x92381c4c #x4f974889 #xcd46f97e
+ (fftw_rdft2_nop_register 0 #x11bdd #x11bdd #x0 #x0b76a560 #x305657d8 #xb2a3b66d #x059ea246)
+ (fftw_codelet_hc2cfdftv_20_avx 0 #x11bdd #x11bdd #x0 #x965c9b24 #xf9ae20e8 #xca421317 #xec7f0e52)
+ (fftw_codelet_n1fv_5_avx 0 #x11bdd #x11bdd #x0 #x01bb24a1 #xc238ea53 #x5da887ba #xe86c2204)
+ (fftw_codelet_r2cf_20 2 #x11bdd #x11bdd #x0 #x64d5a0ba #x9aaad0ed #x51ff6a92 #x2785f7ef)
+)
+"""
 
 
-def _load_extension():
-    """pyshtools' ``_SHTOOLS`` extension module, loaded without running pyshtools' ``__init__``
-    (None when the package's folder holds no such extension)."""
-    import importlib.machinery
-    import importlib.util
+def _fftw_library():
+    """The double-precision FFTW library loaded in this process (``ctypes.CDLL``), found among
+    the process's mapped files (Linux), or None."""
+    import ctypes
     import os
-    import sys
 
-    if "pyshtools._SHTOOLS" in sys.modules:            # pyshtools (or this) loaded it already
-        return sys.modules["pyshtools._SHTOOLS"]
-    spec = importlib.util.find_spec("pyshtools")   # finds the package, does not import it
-    if spec is None or not spec.submodule_search_locations:
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
+            paths = {line.split(None, 5)[-1].strip() for line in f if "libfftw3" in line}
+    except OSError:
         return None
-    for folder in spec.submodule_search_locations:
-        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-            path = os.path.join(folder, "_SHTOOLS" + suffix)
-            if os.path.isfile(path):
-                loader = importlib.machinery.ExtensionFileLoader("pyshtools._SHTOOLS", path)
-                ext_spec = importlib.util.spec_from_file_location("pyshtools._SHTOOLS", path,
-                                                                  loader=loader)
-                module = importlib.util.module_from_spec(ext_spec)
-                loader.exec_module(module)
-                return module
+    for path in sorted(paths):
+        name = os.path.basename(path)
+        if name.startswith("libfftw3") and not name.startswith(("libfftw3f", "libfftw3l",
+                                                                 "libfftw3q", "libfftw3_")):
+            try:
+                return ctypes.CDLL(path)
+            except OSError:
+                continue
     return None
+
+
+def _use_wisdom() -> bool:
+    """Hand :data:`FFTW_WISDOM` to the FFTW library SHTOOLS loaded; whether FFTW took it."""
+    lib = _fftw_library()
+    if lib is None or not hasattr(lib, "fftw_import_wisdom_from_string"):
+        return False
+    return bool(lib.fftw_import_wisdom_from_string(FFTW_WISDOM.encode("ascii")))
 
 
 @functools.lru_cache(maxsize=1)
 def _shexpanddh():
     """SHTOOLS' Fortran ``SHExpandDH`` returning ``(exitstatus, cilm)``."""
+    from ..extmodules import load_extension
+
     try:
-        ext = _load_extension()
+        ext = load_extension("pyshtools", "_SHTOOLS")
     except ImportError:
         ext = None
     if ext is not None and hasattr(ext, "SHExpandDH"):
+        _use_wisdom()
         return ext.SHExpandDH
     from pyshtools.backends import shtools
 
+    _use_wisdom()
     return lambda *args, **kwargs: (0, shtools.SHExpandDH(*args, **kwargs))
 
 

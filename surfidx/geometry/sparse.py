@@ -7,19 +7,22 @@ is permuted symmetrically by that order and factored with diagonal pivots, which
 definite matrix needs no more than.
 
 The order depends on the sparsity pattern alone: :class:`SPDSolver` computes it once per
-pattern, so the factorisations of one mesh's matrices (Newton's Jacobians) share it;
-:func:`spd_factor` is the one-call form. METIS orders with its fixed default seed, so the same
-matrix gives the same factors and solutions on every run.
+pattern, so the factorisations of one mesh's matrices (Newton's Jacobians) share it, or is
+handed the order of a pattern known in advance (the icosahedral grid's, which every model's
+grid Laplacian has); :func:`spd_factor` is the one-call form. METIS orders with its fixed default
+seed (:func:`nested_dissection`), so the same matrix gives the same factors and solutions on
+every run.
 """
 
 from __future__ import annotations
 
+from ..errors import InputError
 from ..jit import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-__all__ = ["SPDSolver", "SPDFactor", "spd_factor"]
+__all__ = ["SPDSolver", "SPDFactor", "spd_factor", "nested_dissection"]
 
 
 @numba.njit(cache=True)
@@ -64,14 +67,33 @@ class SPDFactor:
 class SPDSolver:
     """Factors symmetric positive definite matrices, ordering each new sparsity pattern once.
 
+    Parameters
+    ----------
+    pattern : tuple of two int arrays, optional
+        ``(indptr, indices)`` of a sparsity pattern (CSR, sorted indices) whose order is known:
+        a matrix of exactly this pattern is factored in ``order`` without asking METIS (other
+        patterns are ordered as they come, the last one remembered beside this one).
+    order : (n,) int64, optional
+        :func:`nested_dissection` of ``pattern`` (with it only).
+
     Examples
     --------
     >>> solver = SPDSolver()
     >>> x = solver.factor(a).solve(b)       # doctest: +SKIP
     """
 
-    def __init__(self):
+    def __init__(self, *, pattern=None, order=None):
         self._ordered = None    # (indptr, indices, order), replaced in one step (threads)
+        self._given = None      # the pattern handed in and its order, kept
+        if (pattern is None) != (order is None):
+            raise InputError("SPDSolver takes a pattern and its order together, or neither")
+        if pattern is not None:
+            indptr, indices = (np.asarray(a) for a in pattern)
+            order = np.asarray(order, dtype=np.int64)
+            if len(order) != len(indptr) - 1:
+                raise InputError(f"the order has {len(order)} entries for a pattern of "
+                                 f"{len(indptr) - 1} rows; pass the pattern's own order")
+            self._given = (indptr, indices, order)
 
     def factor(self, a) -> SPDFactor:
         """Factor ``a``, an ``(n, n)`` sparse symmetric (Hermitian) positive definite matrix.
@@ -83,10 +105,12 @@ class SPDSolver:
         """
         a = sp.csr_matrix(a)
         a.sort_indices()
-        ordered = self._ordered
-        if ordered is None or not (np.array_equal(a.indptr, ordered[0])
-                                   and np.array_equal(a.indices, ordered[1])):
-            ordered = (a.indptr.copy(), a.indices.copy(), _nested_dissection(a))
+        for ordered in (self._given, self._ordered):
+            if ordered is not None and np.array_equal(a.indptr, ordered[0]) \
+                    and np.array_equal(a.indices, ordered[1]):
+                break
+        else:
+            ordered = (a.indptr.copy(), a.indices.copy(), nested_dissection(a))
             self._ordered = ordered
         perm = ordered[2]
         lu = splu(a[perm][:, perm].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
@@ -99,10 +123,22 @@ def spd_factor(a) -> SPDFactor:
     return SPDSolver().factor(a)
 
 
-def _nested_dissection(a) -> np.ndarray:
-    """METIS's nested-dissection order ``(n,)`` of the graph of ``a``'s off-diagonal pattern."""
+def nested_dissection(a) -> np.ndarray:
+    """METIS's nested-dissection order of the graph of a square sparse matrix's off-diagonal
+    pattern (the values do not count).
+
+    Parameters
+    ----------
+    a : (n, n) scipy.sparse matrix
+
+    Returns
+    -------
+    (n,) int64
+        The order in which :meth:`SPDSolver.factor` permutes ``a``'s rows and columns.
+    """
     import pymetis
 
+    a = sp.csr_matrix(a)
     n = a.shape[0]
     if n < 3:
         return np.arange(n)
