@@ -1,13 +1,11 @@
 """Compiled extension modules of other packages, loaded without their package's ``__init__``.
 
-A query by example needs a few compiled routines of packages whose ``__init__`` imports much
-more than them: SHTOOLS' ``SHExpandDH`` (``pyshtools``' ``__init__`` loads matplotlib, xarray,
-astropy and pandas), qhull's convex hull and the k-d tree (``scipy.spatial``'s ``__init__``
-loads its distance metrics, rotations, constants and Voronoi code, about as much CPU as the
-hull of a small map). :func:`load_extension` loads one extension module from its package's
-folder on its own, once per process: it enters ``sys.modules`` under its full name, where a
-later import of the package (which imports it) finds it, so there is only ever one copy.
-Where the package has another layout it returns None, and the callers import the package.
+A query by example needs one compiled routine of a package whose ``__init__`` imports much more
+than it: SHTOOLS' ``SHExpandDH`` (``pyshtools``' ``__init__`` loads matplotlib, xarray, astropy
+and pandas). :func:`load_extension` loads one extension module from its package's folder on its
+own, once per process: it enters ``sys.modules`` under its full name, where a later import of
+the package (which imports it) finds it, so there is only ever one copy. Where the package has
+another layout it returns None, and the caller imports the package.
 """
 
 from __future__ import annotations
@@ -19,7 +17,7 @@ import os
 import sys
 import threading
 
-__all__ = ["load_extension", "scipy_spatial"]
+__all__ = ["load_extension"]
 
 _LOCK = threading.Lock()   # one load of a module at a time (threads of one process)
 
@@ -67,14 +65,3 @@ def load_extension(package: str, name: str):
                     raise
                 return module
     return None
-
-
-def scipy_spatial(name: str):
-    """``scipy.spatial``'s compiled module ``name`` (``"_qhull"``: ``ConvexHull`` and
-    ``QhullError``; ``"_ckdtree"``: ``cKDTree``) by :func:`load_extension`, or
-    ``scipy.spatial`` itself where it cannot be loaded alone (it exports the same names)."""
-    try:
-        module = load_extension("scipy.spatial", name)
-    except ImportError:
-        module = None
-    return module if module is not None else importlib.import_module("scipy.spatial")

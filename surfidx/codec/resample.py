@@ -183,9 +183,9 @@ class _Sites:
 
     @cached_property
     def tree(self):
-        from ..extmodules import scipy_spatial
+        from scipy.spatial import cKDTree
 
-        return scipy_spatial("_ckdtree").cKDTree(self.pts)
+        return cKDTree(self.pts)
 
 
 def _settle(queries, sites, idx, bary, eps=1e-12):
@@ -367,11 +367,11 @@ def locate(sphere_points, queries, *, triangles=None, start=None):
 
 def _nearest_starts(pts, tri, qs):
     """A triangle incident to the site nearest each query."""
-    from ..extmodules import scipy_spatial     # the k-d tree without scipy.spatial's package
+    from scipy.spatial import cKDTree
 
     inc = np.full(len(pts), -1, np.int64)
     inc[tri.ravel()] = np.repeat(np.arange(len(tri)), 3)
-    _, near = scipy_spatial("_ckdtree").cKDTree(pts).query(qs)
+    _, near = cKDTree(pts).query(qs)
     start = inc[near]
     start[start < 0] = 0
     return start

@@ -91,9 +91,8 @@ def hull_triangles(sphere_points) -> np.ndarray:
     InputError
         When the points span no volume (all on one plane).
     """
-    from ..extmodules import scipy_spatial
+    from scipy.spatial import ConvexHull, QhullError
 
-    qhull = scipy_spatial("_qhull")      # without scipy.spatial's distances, rotations, ...
     pts = np.ascontiguousarray(as_array(sphere_points, "sphere_points", shape=(None, 3),
                                         min_len=4))
     key = None
@@ -104,8 +103,8 @@ def hull_triangles(sphere_points) -> np.ndarray:
         if known is not None:
             return known.copy()
     try:
-        hull = qhull.ConvexHull(pts)
-    except qhull.QhullError as exc:
+        hull = ConvexHull(pts)
+    except QhullError as exc:
         raise InputError(f"the sphere points span no volume ({str(exc).splitlines()[0]})") from exc
     tri = np.ascontiguousarray(hull.simplices, dtype=np.int64)
     a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
