@@ -257,6 +257,21 @@ def test_subdivided_half_edges_match_a_sort(level):
     assert np.array_equal(he.edges[he.edge], np.sort(np.column_stack([he.tail, he.head]), axis=1))
 
 
+
+@pytest.mark.parametrize("level", [0, 1, 4])
+def test_face_neighbors_share_the_edge_opposite_each_corner(level):
+    """``face_neighbors[f, j]`` is the face that holds the edge opposite corner ``j`` of face
+    ``f`` reversed (the grid is closed and every face counter-clockwise)."""
+    ico = icosphere(level)
+    f, nbr = np.asarray(ico.faces), ico.face_neighbors
+    assert nbr.shape == f.shape and nbr.dtype == np.int64 and not nbr.flags.writeable
+    directed = {(int(a), int(b)): k for k, row in enumerate(f)
+                for a, b in ((row[0], row[1]), (row[1], row[2]), (row[2], row[0]))}
+    for k, row in enumerate(f):
+        for j in range(3):
+            a, b = int(row[(j + 1) % 3]), int(row[(j + 2) % 3])
+            assert nbr[k, j] == directed[(b, a)] != k
+
 def test_spherical_triangle_areas_of_a_grid_are_blocked_without_changing_a_bit():
     """Over more triangles than one block, ``triangle_areas`` gives each triangle the value of
     the whole-array formula to the bit; a grid's areas are positive and sum to 4π, and its

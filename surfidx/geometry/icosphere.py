@@ -162,16 +162,12 @@ class _HalfEdges:
     in lexicographic ``(lo, hi)`` order.
     """
 
-    def __init__(self, faces: np.ndarray, n_vertices: int, *,
-                 coarse: "_HalfEdges | None" = None):
+    def __init__(self, faces: np.ndarray, n_vertices: int, twin: np.ndarray):
         tail = faces.ravel()
         head = faces[:, [1, 2, 0]].ravel()
         self.tail, self.head = tail, head
         self.opp = faces[:, [2, 0, 1]].ravel()
-        if coarse is None:
-            self.twin = twins_by_sorting(tail, head, n_vertices)
-        else:
-            self.twin = _subdivided_twins(coarse.twin)
+        self.twin = twin
         # the half-edge of each edge that runs lo -> hi, edges in lexicographic (lo, hi) order
         forward = np.flatnonzero(tail < head)
         key = tail[forward] * np.int64(n_vertices) + head[forward]
@@ -382,9 +378,26 @@ class Icosphere:
         np.cumsum(np.bincount(parent[kids], minlength=n), out=self.children_indptr[1:])
 
     @functools.cached_property
+    def _twins(self) -> np.ndarray:
+        """(3·m,) int64: the reversed half-edge of each half-edge ``3f + p`` (see
+        :class:`_HalfEdges`), from the coarser level's without a sort."""
+        if self.level == 0:
+            return twins_by_sorting(self.faces.ravel(), self.faces[:, [1, 2, 0]].ravel(),
+                                    len(self.vertices))
+        return _subdivided_twins(icosphere(self.level - 1)._twins)
+
+    @functools.cached_property
     def _half_edges(self) -> _HalfEdges:
-        coarse = icosphere(self.level - 1)._half_edges if self.level else None
-        return _HalfEdges(self.faces, len(self.vertices), coarse=coarse)
+        return _HalfEdges(self.faces, len(self.vertices), self._twins)
+
+    @functools.cached_property
+    def face_neighbors(self) -> np.ndarray:
+        """(20·4^L, 3) int64: the face across the edge opposite each corner of each face
+        (``face_neighbors[f, j]`` shares the edge ``faces[f, j+1], faces[f, j+2]``, corners
+        modulo 3), read only."""
+        out = np.ascontiguousarray(self._twins.reshape(-1, 3)[:, [1, 2, 0]]) // 3
+        _readonly(out)
+        return out
 
     # ------------------------------------------------------------------ queries
     @property
