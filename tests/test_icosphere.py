@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.geometry.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, Icosphere, choose_level, icosphere,
-                               vertex_count)
+from surfidx.geometry.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, SPARSE_MAX_LEVEL, Icosphere,
+                                        choose_level, icosphere, vertex_count)
 
 LEVELS = range(0, 6)
 
@@ -211,6 +211,11 @@ def test_choose_level():
     assert choose_level(6002, sparse_sampling=1e-6) == 7
     assert choose_level(6002, sparse_sampling=0.0) == 7     # squeezed to nothing
     assert choose_level(10 ** 9, sparse_sampling=1e-6) == MAX_LEVEL
+    # ... nor beyond SPARSE_MAX_LEVEL (scorpion: 50,653 surfels, level 8 by the count, sparse
+    # sampling ~0.035); the count alone still reaches level 9
+    assert choose_level(50_653, sparse_sampling=0.035) == SPARSE_MAX_LEVEL == 8
+    assert choose_level(15_496, sparse_sampling=0.03) == 8      # d019: 7 by the count
+    assert choose_level(170_000, sparse_sampling=0.035) == 9
     with pytest.raises(InputError, match="sparse_sampling must lie in"):
         choose_level(10, sparse_sampling=-0.1)
     with pytest.raises(InputError, match="n_surfels must be at least 1"):
