@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.geometry.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, Icosphere, choose_level, icosphere,
-                               vertex_count)
+from surfidx.geometry.icosphere import (BUTTERFLY_WEIGHTS, MAX_LEVEL, SPARSE_MAX_LEVEL, Icosphere,
+                                        choose_level, icosphere, vertex_count)
 
 LEVELS = range(0, 6)
 
@@ -211,6 +211,11 @@ def test_choose_level():
     assert choose_level(6002, sparse_sampling=1e-6) == 7
     assert choose_level(6002, sparse_sampling=0.0) == 7     # squeezed to nothing
     assert choose_level(10 ** 9, sparse_sampling=1e-6) == MAX_LEVEL
+    # ... nor beyond SPARSE_MAX_LEVEL (scorpion: 50,653 surfels, level 8 by the count, sparse
+    # sampling ~0.035); the count alone still reaches level 9
+    assert choose_level(50_653, sparse_sampling=0.035) == SPARSE_MAX_LEVEL == 8
+    assert choose_level(15_496, sparse_sampling=0.03) == 8      # d019: 7 by the count
+    assert choose_level(170_000, sparse_sampling=0.035) == 9
     with pytest.raises(InputError, match="sparse_sampling must lie in"):
         choose_level(10, sparse_sampling=-0.1)
     with pytest.raises(InputError, match="n_surfels must be at least 1"):
@@ -256,6 +261,21 @@ def test_subdivided_half_edges_match_a_sort(level):
     assert (he.edges[:, 0] < he.edges[:, 1]).all() and (np.diff(key) > 0).all()
     assert np.array_equal(he.edges[he.edge], np.sort(np.column_stack([he.tail, he.head]), axis=1))
 
+
+
+@pytest.mark.parametrize("level", [0, 1, 4])
+def test_face_neighbors_share_the_edge_opposite_each_corner(level):
+    """``face_neighbors[f, j]`` is the face that holds the edge opposite corner ``j`` of face
+    ``f`` reversed (the grid is closed and every face counter-clockwise)."""
+    ico = icosphere(level)
+    f, nbr = np.asarray(ico.faces), ico.face_neighbors
+    assert nbr.shape == f.shape and nbr.dtype == np.int64 and not nbr.flags.writeable
+    directed = {(int(a), int(b)): k for k, row in enumerate(f)
+                for a, b in ((row[0], row[1]), (row[1], row[2]), (row[2], row[0]))}
+    for k, row in enumerate(f):
+        for j in range(3):
+            a, b = int(row[(j + 1) % 3]), int(row[(j + 2) % 3])
+            assert nbr[k, j] == directed[(b, a)] != k
 
 def test_spherical_triangle_areas_of_a_grid_are_blocked_without_changing_a_bit():
     """Over more triangles than one block, ``triangle_areas`` gives each triangle the value of

@@ -21,7 +21,7 @@ from ..jit import njit
 
 from ..errors import BitstreamError, InputError
 from .entropy import dec_bit, dec_init, enc_bit, enc_flush, new_encoder, new_models
-from ..geometry.icosphere import Icosphere, check_level, icosphere, vertex_count
+from ..geometry.icosphere import check_level, icosphere, vertex_count
 
 __all__ = ["encode_mask", "decode_mask", "N_CONTEXTS"]
 
@@ -58,7 +58,7 @@ def _decode(data, level_of, parents, butterfly, n, models):
 
 
 def _tables(level: int):
-    g = icosphere(level)   # the process's cached grid, as the decoder uses
+    g = icosphere(level)
     return (np.ascontiguousarray(g.level_of), np.ascontiguousarray(g.edge_parents),
             np.ascontiguousarray(g.butterfly))
 
@@ -155,7 +155,7 @@ def grid_mask(surfels, sphere_map, closed, level: int) -> np.ndarray:
     if len(surfels) > k:
         _, near = cKDTree(surfels.positions[:k]).query(surfels.positions[k:])
         flag[k:] = flag[near]
-    g = Icosphere(level)
+    g = icosphere(level)
     _, idx = cKDTree(sphere_map.points).query(g.vertices)
     return flag[idx]
 

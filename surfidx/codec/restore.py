@@ -66,9 +66,8 @@ def _grid_graph(level: int):
     """The grid's vertex adjacency (read only: callers derive new matrices from it)."""
     g = icosphere(level)
     n = g.n_vertices
-    ptr, nb = np.asarray(g.neighbor_indptr), np.asarray(g.neighbor_indices)
-    rows = np.repeat(np.arange(n), np.diff(ptr))
-    return sp.csr_matrix((np.ones(len(nb), np.int8), (rows, nb)), shape=(n, n))
+    ptr, nb = np.array(g.neighbor_indptr), np.array(g.neighbor_indices)
+    return sp.csr_matrix((np.ones(len(nb), np.int8), nb, ptr), shape=(n, n))
 
 
 def grid_regions(bits, level: int) -> tuple[int, np.ndarray]:
@@ -177,10 +176,15 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None, centres=None):
             count, region = grid_regions(on, level)
             if count <= 1:
                 break
-            graph = _grid_graph(level).astype(np.float64) if graph is None else graph
+            graph = _grid_graph(level) if graph is None else graph
             free = ((lab < 0) & ~fenced) | on
-            w = graph.multiply(free[None, :].astype(np.float64)).tocsr()
-            w.eliminate_zeros()
+            # the grid's edges into free vertices, weight 1 (its own index arrays: the cached
+            # graph's stay as they are)
+            keep = free[graph.indices]
+            indptr = np.zeros(len(graph.indptr), np.int64)
+            np.cumsum(np.add.reduceat(keep, graph.indptr[:-1], dtype=np.int64), out=indptr[1:])
+            w = sp.csr_matrix((np.ones(int(indptr[-1])), graph.indices[keep], indptr),
+                              shape=graph.shape)
             src = np.flatnonzero(region == 0)
             dist, pred, _ = dijkstra(w, indices=src, min_only=True, return_predecessors=True)
             others = np.flatnonzero(region > 0)
@@ -472,7 +476,8 @@ def _face_regions(faces, region):
 
 @lru_cache(maxsize=2)
 def _grid_faces(level: int):
-    """The grid's faces, their adjacency (:func:`_face_adjacency`) and each vertex's faces
+    """The grid's faces, their adjacency (:attr:`Icosphere.face_neighbors`, as
+    :func:`_face_adjacency` finds it) and each vertex's faces
     (a vertex-by-face CSR matrix); read only."""
     g = icosphere(level)
     faces = np.asarray(g.faces, np.int64)
@@ -480,13 +485,7 @@ def _grid_faces(level: int):
     rows = np.repeat(np.arange(len(faces)), 3)
     star = sp.csr_matrix((np.ones(3 * len(faces), bool), (faces.ravel(), rows)),
                          shape=(n, len(faces)))
-    # the grid is closed: the i-th smallest half-edge key is the twin of the i-th smallest twin
-    m = len(faces)
-    a = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
-    b = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
-    nbr = np.empty(3 * m, np.int64)
-    nbr[np.argsort(b * n + a, kind="stable")] = np.argsort(a * n + b, kind="stable") % m
-    return faces, nbr.reshape(3, m).T.copy(), star
+    return faces, g.face_neighbors, star
 
 
 def _clean(level, region, n_regions):

@@ -68,12 +68,15 @@ if TYPE_CHECKING:                     # trimesh is imported by :meth:`Icosphere.
     import trimesh
 
 __all__ = ["Icosphere", "icosphere", "vertex_count", "level_of_count", "choose_level", "MAX_LEVEL",
-           "SPARSE_MIN", "BUTTERFLY_WEIGHTS"]
+           "SPARSE_MIN", "SPARSE_MAX_LEVEL", "BUTTERFLY_WEIGHTS"]
 
 MAX_LEVEL = 9
 """Finest grid level supported (2,621,442 vertices)."""
 SPARSE_MIN = 0.5
 """Grid points (at least) per surfel for a map's sparsest-mapped surfels (see choose_level)."""
+SPARSE_MAX_LEVEL = 8
+"""Finest level the sampling condition of :func:`choose_level` raises a grid to (the surfel
+count alone still reaches :data:`MAX_LEVEL`)."""
 
 BUTTERFLY_WEIGHTS = np.array([0.5, 0.5, 0.125, 0.125, -0.0625, -0.0625, -0.0625, -0.0625])
 """(8,) float64: weights of the columns of :attr:`Icosphere.butterfly`."""
@@ -162,16 +165,12 @@ class _HalfEdges:
     in lexicographic ``(lo, hi)`` order.
     """
 
-    def __init__(self, faces: np.ndarray, n_vertices: int, *,
-                 coarse: "_HalfEdges | None" = None):
+    def __init__(self, faces: np.ndarray, n_vertices: int, twin: np.ndarray):
         tail = faces.ravel()
         head = faces[:, [1, 2, 0]].ravel()
         self.tail, self.head = tail, head
         self.opp = faces[:, [2, 0, 1]].ravel()
-        if coarse is None:
-            self.twin = twins_by_sorting(tail, head, n_vertices)
-        else:
-            self.twin = _subdivided_twins(coarse.twin)
+        self.twin = twin
         # the half-edge of each edge that runs lo -> hi, edges in lexicographic (lo, hi) order
         forward = np.flatnonzero(tail < head)
         key = tail[forward] * np.int64(n_vertices) + head[forward]
@@ -382,9 +381,26 @@ class Icosphere:
         np.cumsum(np.bincount(parent[kids], minlength=n), out=self.children_indptr[1:])
 
     @functools.cached_property
+    def _twins(self) -> np.ndarray:
+        """(3·m,) int64: the reversed half-edge of each half-edge ``3f + p`` (see
+        :class:`_HalfEdges`), from the coarser level's without a sort."""
+        if self.level == 0:
+            return twins_by_sorting(self.faces.ravel(), self.faces[:, [1, 2, 0]].ravel(),
+                                    len(self.vertices))
+        return _subdivided_twins(icosphere(self.level - 1)._twins)
+
+    @functools.cached_property
     def _half_edges(self) -> _HalfEdges:
-        coarse = icosphere(self.level - 1)._half_edges if self.level else None
-        return _HalfEdges(self.faces, len(self.vertices), coarse=coarse)
+        return _HalfEdges(self.faces, len(self.vertices), self._twins)
+
+    @functools.cached_property
+    def face_neighbors(self) -> np.ndarray:
+        """(20·4^L, 3) int64: the face across the edge opposite each corner of each face
+        (``face_neighbors[f, j]`` shares the edge ``faces[f, j+1], faces[f, j+2]``, corners
+        modulo 3), read only."""
+        out = np.ascontiguousarray(self._twins.reshape(-1, 3)[:, [1, 2, 0]]) // 3
+        _readonly(out)
+        return out
 
     # ------------------------------------------------------------------ queries
     @property
@@ -525,7 +541,8 @@ def choose_level(n_surfels: int, *, oversampling: float = 4.0, sparse_sampling: 
     """The grid level for a model of ``n_surfels`` surfels.
 
     Rule: the smallest ``L`` with ``N = 10·4^L + 2 ≥ oversampling · n_surfels`` and
-    ``N · sparse_sampling ≥ SPARSE_MIN · n_surfels``, capped at ``max_level``.
+    ``N · sparse_sampling ≥ SPARSE_MIN · n_surfels``, capped at ``max_level``; the second
+    condition raises the level by one at most, and to :data:`SPARSE_MAX_LEVEL` at most.
 
     Why: the grid samples the smooth (Phong-lifted) surface between the surfels, so it needs
     several samples per surfel (the default ``oversampling=4`` gives 4–16); and it must still
@@ -534,8 +551,12 @@ def choose_level(n_surfels: int, *, oversampling: float = 4.0, sparse_sampling: 
     map's ``SphericalMap.sparse_sampling``) at least ``SPARSE_MIN`` grid points each. That
     condition raises the level by one at most, on maps that squeeze parts of the surface hard;
     each level costs four times the grid, and the coder pays little for a finer grid at a given
-    rate. ``benchmarks/parameterization.py`` prints the sparse sampling and the chosen level of
-    the benchmark models.
+    rate. It raises no grid beyond :data:`SPARSE_MAX_LEVEL`: level 9 (2.6 million points)
+    makes every stage that works on the grid four times as long as level 8, whose grid already
+    has 4 to 16 points per surfel of a model the count puts there, so one model's ingest
+    would take several times the others' (``benchmarks/profile.py``).
+    ``benchmarks/parameterization.py`` prints the sparse sampling and the chosen level of the
+    benchmark models.
 
     Parameters
     ----------
@@ -570,7 +591,8 @@ def choose_level(n_surfels: int, *, oversampling: float = 4.0, sparse_sampling: 
     if not (0.0 <= sparse <= 1.0 + 1e-9):   # 0: a map that squeezes some surfels to nothing
         raise InputError(f"sparse_sampling must lie in [0, 1], got {sparse_sampling!r}")
     count = next((lev for lev in range(cap + 1) if vertex_count(lev) >= ov * n), cap)
-    # the sampling condition raises the level by one at most (each level costs 4x)
-    if count < cap and vertex_count(count) * sparse < SPARSE_MIN * n:
+    # the sampling condition raises the level by one at most (each level costs 4x), and not
+    # beyond SPARSE_MAX_LEVEL
+    if count < min(cap, SPARSE_MAX_LEVEL) and vertex_count(count) * sparse < SPARSE_MIN * n:
         return count + 1
     return count

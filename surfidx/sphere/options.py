@@ -21,12 +21,14 @@ the default), by the codec and by the CLI."""
 STAGES = ("multilevel", "proxy", "mds")
 """Names of the stage records of a :class:`surfidx.sphere.SphericalMap`, in the order they run."""
 
-MAP_VERSION = 4
+MAP_VERSION = 5
 """Version of the map's construction, stored with the data it produced (the codec's report):
 2 is the map that embeds every level by construction (no fold repair), 3 the same map balanced
 by vertex relaxation sweeps between runs of fewer L-BFGS steps, 4 the same with each batch of
 sweeps stopped after one that gains less than ``sweep_tol`` and no sweeps in the balancing
-after each round of a level prolonged round by round (``round_sweeps``)."""
+after each round of a level prolonged round by round (``round_sweeps``), 5 the same map whose
+grid level (:attr:`surfidx.sphere.SphericalMap.grid_level`) the sparse sampling raises to
+level 8 at most (``SPARSE_MAX_LEVEL`` of :func:`surfidx.geometry.icosphere.choose_level`)."""
 
 
 @dataclass(frozen=True)
