@@ -1158,7 +1158,7 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                     mapped[(i, seed)] = (np.full(len(paths), np.inf) if q is None else
                                          np.where(dpresent["shape"],
                                                   weighted_l2(q, dstored, dpresent), np.inf))
-    rows, results, study_names = [], {}, []
+    rows, results, study_names, miss_inputs, miss_own = [], {}, [], {}, {}
     complete = complete_dist(base, lmax)    # what a query reads from the database, untimed
     for noisy in ([False, True] if args.noise else [False]):
         sel = [(i, k) for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1196,6 +1196,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
             for name, dv in study.items():
                 variants[name] = expanded(dv, complete)
             study_names.extend(n for n in study if n not in study_names)
+            miss_inputs[label] = variants["surfidx views, views alone"]
+            miss_own[label] = own
         variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
@@ -1247,6 +1249,46 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                               int(np.sum(pq["own"] < ref["own"]))])
         print_table(["scans", "candidate", "NN gained", "NN lost", "own gained", "own lost"],
                     srows)
+        REPORT.print("\nThe library's misses (surfidx views, views alone): the queries whose "
+                     "first result is of another class, the median rank of their own model, the "
+                     "share of all queries with a model of their class among the first 2, 3 and "
+                     "5 (what a perfect re-choice of the first among them would score), and the "
+                     "median relative gap between the first and second distances of the misses "
+                     "and of the hits\n")
+        mrows = []
+        for label in dict.fromkeys(a for a, _ in results):
+            dv = miss_inputs[label]
+            order = np.argsort(dv, axis=1, kind="stable")
+            qc = classes[miss_own[label]]
+            wrong = classes[order[:, 0]] != qc
+            own_rank = np.array([np.flatnonzero(o == i)[0] + 1
+                                 for o, i in zip(order, miss_own[label])])
+            top = [np.mean([c in classes[o[:n]] for o, c in zip(order, qc)]) for n in (2, 3, 5)]
+            srt = np.sort(dv, axis=1)
+            gap = (srt[:, 1] - srt[:, 0]) / np.maximum(srt[:, 0], 1e-12)
+            mrows.append([label, int(wrong.sum()), f"{np.median(own_rank[wrong]):.0f}"]
+                         + [f"{100 * t:.1f}" for t in top]
+                         + [f"{np.median(gap[wrong]):.3f}", f"{np.median(gap[~wrong]):.3f}"])
+        print_table(["scans", "misses", "own rank of misses (median)", "class in top 2 %",
+                     "class in top 3 %", "class in top 5 %", "gap of misses", "gap of hits"],
+                    mrows)
+        extent = view_scan_extents(args, paths, recs)
+        REPORT.print("\nBy the extent of the scan (its bounding-box diagonal over its model's: "
+                     "the largest connected piece of what the camera sees may be a part of the "
+                     "object), the library's ranking (surfidx views)\n")
+        erows = []
+        for label in dict.fromkeys(a for a, _ in results):
+            noisy = label != "view"
+            ext = np.array([extent[i][k] for i, r in enumerate(recs)
+                            for k in range(len(r["seed"])) if bool(r["noisy"][k]) == noisy])
+            pq = results[(label, "surfidx views")]["per_query"]
+            for lo, hi in EXTENT_BINS:
+                m = (ext >= lo) & (ext < hi)
+                erows.append([label, f"{lo:g}-{hi:g}" if hi < np.inf else f">= {lo:g}",
+                              int(m.sum()), f"{100 * pq['own'][m].mean():.1f}",
+                              f"{100 * pq['nn'][m].mean():.1f}",
+                              f"{100 * pq['map'][m].mean():.1f}"])
+        print_table(["scans", "scan extent", "queries", "own first %", "NN %", "mAP"], erows)
     if args.confusion:
         st = results[("view", "surfidx views")]
         sel_own = np.array([i for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1346,6 +1388,24 @@ def expanded(dv, dc, weight=None):
     w = EXPANSION_WEIGHT if weight is None else weight
     first = [int(np.lexsort((np.arange(len(r)), r))[0]) for r in dv]
     return np.stack([expand_by_first(r, dc[f], weight=w) for r, f in zip(dv, first)])
+
+
+EXTENT_BINS = ((0.0, 0.5), (0.5, 0.8), (0.8, np.inf))
+"""``--view-study``: bins of a scan's bounding-box diagonal over its model's."""
+
+
+def view_scan_extents(args, paths, recs):
+    """Per model, per scan of its :func:`compute_view_scan` record: the scan's bounding-box
+    diagonal over the model's."""
+    import surfidx
+
+    out = []
+    for p, r in zip(paths, recs):
+        v = np.asarray(surfidx.read_mesh(args.data / p).vertices, float)
+        diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+        out.append([float(np.linalg.norm(r[f"v{n}"].max(axis=0) - r[f"v{n}"].min(axis=0)))
+                    / diag for n in range(len(r["seed"]))])
+    return out
 
 
 VIEW_STUDY_HARMONICS = (5, 6, 7, 8)
