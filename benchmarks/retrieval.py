@@ -64,12 +64,16 @@ scored on the others). Scans and their grids are cached beside the maps (``parti
 descriptors in ``/tmp/partial-cache/descriptors``. ``--view-descriptors`` ranks the single views
 as a query does (their views against the stored models', :func:`surfidx.describe.views.
 partial_view_l2`, expanded by the first match's complete model, :func:`surfidx.describe.views.
-expand_by_first`), beside the views alone; ``--expansion`` adds the expansion's weights.
+expand_by_first`), beside the views alone; ``--expansion`` adds the expansion's weights;
+``--view-study`` adds candidate rankings of the first result (other aggregations of the view
+pairs, distance-time weights of the view vector's angular degrees and depth block, fixed and
+chosen by cross-validation, levels 1 and 2 fused), each expanded as the library's, with the
+queries each turns right or wrong against the library's ranking.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
 [--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json] [--confusion] [--cv out.json]
 [--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
-L,L] [--expansion]]]``
+L,L] [--expansion] [--view-study]]]``
 """
 
 from __future__ import annotations
@@ -107,10 +111,12 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "retrieval"
 CACHE = Path("/tmp/surfidx_retrieval_cache")
 SPLIT_FRACTION = 0.3
-_CODE_MODULES = ("sphere", "spherical.py", "resample.py", "io.py", "mesh.py", "icosphere.py",
-                 "surfels.py", "graph.py", "_tolerance.py")
-"""Files and folders of ``surfidx/`` whose code determines the cache (a folder: all of its
-``.py`` files, in sorted order, with their paths)."""
+_CODE_MODULES = ("sphere", "geometry", "topology", "io", "codec/resample.py", "tolerance.py",
+                 "numerics.py", "jit.py", "validate.py", "options.py")
+"""Files and folders of ``surfidx/`` whose code determines the cache: reading (``io/``), the
+topology repair, the map, the geometry they use, the resampling on the grid, the tolerances, the
+numerics profile and the numba switch (a folder: all of its ``.py`` files, in sorted order, with
+their paths). A name that is missing stops the run (the list must follow the package's layout)."""
 TARGET = {"nn": 0.80, "map": 0.72}
 """Targets on the genus-0 models (issue 29)."""
 TARGET_ALL = {"nn": 0.80, "map": 0.65}
@@ -118,18 +124,30 @@ TARGET_ALL = {"nn": 0.80, "map": 0.65}
 REFERENCE = {"D2 (issue)": {"nn": 0.62, "map": 0.53}, "Kazhdan SH (issue)": {"nn": 0.68,
                                                                                "map": 0.53},
              "Kazhdan SHD all 95 (issue 24)": {"nn": 0.70, "map": 0.52}}
-_REPAIR_MODULES = ("__init__.py", "_analyse.py", "_handles.py", "_holes.py", "_options.py",
-                   "_pieces.py", "_pinch.py", "_surfels.py")
-"""Files of ``surfidx/topology`` whose code determines a repaired model's cached map."""
+_REPAIR_MODULES = ("topology",)
+"""Folders of ``surfidx/`` whose code determines a repaired model's cached map (all of their
+``.py`` files)."""
+
+
+def _source_files(names) -> list[Path]:
+    """The ``.py`` files of the named files and folders of ``surfidx/`` (a folder: all of its
+    ``.py`` files, in sorted order); a name that does not exist raises ``SystemExit``."""
+    files = []
+    for name in names:
+        p = ROOT / "surfidx" / name
+        if not p.exists():
+            raise SystemExit(f"benchmarks/retrieval.py: surfidx/{name} of the cache key does not "
+                             "exist; update _CODE_MODULES / _REPAIR_MODULES to the package layout")
+        files.extend(sorted(p.rglob("*.py")) if p.is_dir() else [p])
+    return files
 
 
 def repair_version() -> str:
     """Hash of the topology repair's sources (the name of a repaired model's cache file)."""
     h = hashlib.sha256()
-    for name in _REPAIR_MODULES:
-        p = ROOT / "surfidx" / "topology" / name
-        h.update(name.encode())
-        h.update(p.read_bytes() if p.exists() else b"")
+    for f in _source_files(_REPAIR_MODULES):
+        h.update(str(f.relative_to(ROOT)).encode())
+        h.update(f.read_bytes())
     return h.hexdigest()[:12]
 
 
@@ -139,11 +157,9 @@ def code_version(method: str) -> str:
     import surfidx
 
     h.update(surfidx.__version__.encode())
-    for name in _CODE_MODULES:
-        p = ROOT / "surfidx" / name
-        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p] if p.exists() else []:
-            h.update(str(f.relative_to(ROOT)).encode())
-            h.update(f.read_bytes())
+    for f in _source_files(_CODE_MODULES):
+        h.update(str(f.relative_to(ROOT)).encode())
+        h.update(f.read_bytes())
     h.update((Path(__file__).resolve().parent / "_shape_baselines.py").read_bytes())
     h.update(json.dumps({"method": method, "d2": sb.D2_PARAMS, "split": SPLIT_FRACTION},
                         sort_keys=True).encode())
@@ -1142,7 +1158,7 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                     mapped[(i, seed)] = (np.full(len(paths), np.inf) if q is None else
                                          np.where(dpresent["shape"],
                                                   weighted_l2(q, dstored, dpresent), np.inf))
-    rows, results = [], {}
+    rows, results, study_names, miss_inputs, miss_own = [], {}, [], {}, {}
     complete = complete_dist(base, lmax)    # what a query reads from the database, untimed
     for noisy in ([False, True] if args.noise else [False]):
         sel = [(i, k) for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1169,6 +1185,19 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
             dv = variants["surfidx views, views alone"]
             for name, dx in expansion_variants(dv, complete).items():
                 variants[name] = dx
+        if args.view_study:
+            queries = [recs[i]["views"][k] for i, k in sel]
+            alone2 = None
+            if 2 in stored and VIEW_LEVEL != 2:
+                alone2 = variants["surfidx views, level 2, views alone"]
+            study = view_study_variants(queries, stored[VIEW_LEVEL], present,
+                                        variants["surfidx views, views alone"], alone2, qcls,
+                                        classes, own)
+            for name, dv in study.items():
+                variants[name] = expanded(dv, complete)
+            study_names.extend(n for n in study if n not in study_names)
+            miss_inputs[label] = variants["surfidx views, views alone"]
+            miss_own[label] = own
         variants |= {
             "SH (Kazhdan)": sb.l2_distances(np.stack([recs[i]["sh"][k] for i, k in sel]),
                                             sh_base),
@@ -1205,6 +1234,61 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                  f"{len(paths)} models, per query of {recs[0]['views'][0].shape[0]} views)\n")
     print_table(["level", "directions", "KiB per model (float32)", "model views CPU s",
                  "search CPU ms per query"], cost_rows)
+    if study_names:
+        REPORT.print("\nView study: per query, the class of the first result against the "
+                     "library's (surfidx views): queries it turns right / wrong, and the same "
+                     "for the own model first\n")
+        srows = []
+        for label in dict.fromkeys(a for a, _ in results):
+            ref = results[(label, "surfidx views")]["per_query"]
+            for name in study_names:
+                pq = results[(label, name)]["per_query"]
+                srows.append([label, name, int(np.sum((pq["nn"] > ref["nn"]))),
+                              int(np.sum(pq["nn"] < ref["nn"])),
+                              int(np.sum(pq["own"] > ref["own"])),
+                              int(np.sum(pq["own"] < ref["own"]))])
+        print_table(["scans", "candidate", "NN gained", "NN lost", "own gained", "own lost"],
+                    srows)
+        REPORT.print("\nThe library's misses (surfidx views, views alone): the queries whose "
+                     "first result is of another class, the median rank of their own model, the "
+                     "share of all queries with a model of their class among the first 2, 3 and "
+                     "5 (what a perfect re-choice of the first among them would score), and the "
+                     "median relative gap between the first and second distances of the misses "
+                     "and of the hits\n")
+        mrows = []
+        for label in dict.fromkeys(a for a, _ in results):
+            dv = miss_inputs[label]
+            order = np.argsort(dv, axis=1, kind="stable")
+            qc = classes[miss_own[label]]
+            wrong = classes[order[:, 0]] != qc
+            own_rank = np.array([np.flatnonzero(o == i)[0] + 1
+                                 for o, i in zip(order, miss_own[label])])
+            top = [np.mean([c in classes[o[:n]] for o, c in zip(order, qc)]) for n in (2, 3, 5)]
+            srt = np.sort(dv, axis=1)
+            gap = (srt[:, 1] - srt[:, 0]) / np.maximum(srt[:, 0], 1e-12)
+            mrows.append([label, int(wrong.sum()), f"{np.median(own_rank[wrong]):.0f}"]
+                         + [f"{100 * t:.1f}" for t in top]
+                         + [f"{np.median(gap[wrong]):.3f}", f"{np.median(gap[~wrong]):.3f}"])
+        print_table(["scans", "misses", "own rank of misses (median)", "class in top 2 %",
+                     "class in top 3 %", "class in top 5 %", "gap of misses", "gap of hits"],
+                    mrows)
+        extent = view_scan_extents(args, paths, recs)
+        REPORT.print("\nBy the extent of the scan (its bounding-box diagonal over its model's: "
+                     "the largest connected piece of what the camera sees may be a part of the "
+                     "object), the library's ranking (surfidx views)\n")
+        erows = []
+        for label in dict.fromkeys(a for a, _ in results):
+            noisy = label != "view"
+            ext = np.array([extent[i][k] for i, r in enumerate(recs)
+                            for k in range(len(r["seed"])) if bool(r["noisy"][k]) == noisy])
+            pq = results[(label, "surfidx views")]["per_query"]
+            for lo, hi in EXTENT_BINS:
+                m = (ext >= lo) & (ext < hi)
+                erows.append([label, f"{lo:g}-{hi:g}" if hi < np.inf else f">= {lo:g}",
+                              int(m.sum()), f"{100 * pq['own'][m].mean():.1f}",
+                              f"{100 * pq['nn'][m].mean():.1f}",
+                              f"{100 * pq['map'][m].mean():.1f}"])
+        print_table(["scans", "scan extent", "queries", "own first %", "NN %", "mAP"], erows)
     if args.confusion:
         st = results[("view", "surfidx views")]
         sel_own = np.array([i for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1304,6 +1388,108 @@ def expanded(dv, dc, weight=None):
     w = EXPANSION_WEIGHT if weight is None else weight
     first = [int(np.lexsort((np.arange(len(r)), r))[0]) for r in dv]
     return np.stack([expand_by_first(r, dc[f], weight=w) for r, f in zip(dv, first)])
+
+
+EXTENT_BINS = ((0.0, 0.5), (0.5, 0.8), (0.8, np.inf))
+"""``--view-study``: bins of a scan's bounding-box diagonal over its model's."""
+
+
+def view_scan_extents(args, paths, recs):
+    """Per model, per scan of its :func:`compute_view_scan` record: the scan's bounding-box
+    diagonal over the model's."""
+    import surfidx
+
+    out = []
+    for p, r in zip(paths, recs):
+        v = np.asarray(surfidx.read_mesh(args.data / p).vertices, float)
+        diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+        out.append([float(np.linalg.norm(r[f"v{n}"].max(axis=0) - r[f"v{n}"].min(axis=0)))
+                    / diag for n in range(len(r["seed"]))])
+    return out
+
+
+VIEW_STUDY_HARMONICS = (5, 6, 7, 8)
+"""``--view-study``: angular degrees kept (``0..h-1``) by the distance-time feature weights."""
+VIEW_STUDY_DEPTH = (0.5, 0.75, 1.0, 1.25)
+"""``--view-study``: factors of the depth block by the distance-time feature weights."""
+
+
+def _view_pairs(queries, stored_views, weights=None):
+    """(q, m, k·s) float64 distances between every view of each query (``queries``: list of
+    (s, d)) and every stored view of each model (``stored_views``: (m, k, d)), the view vectors
+    multiplied by ``weights`` (d,) first."""
+    s = np.asarray(stored_views, np.float64)
+    if weights is not None:
+        s = s * weights
+    s2 = np.einsum("mkd,mkd->mk", s, s)
+    out = []
+    for q in queries:
+        q = np.asarray(q, np.float64) if weights is None else np.asarray(q, np.float64) * weights
+        sq = s2[:, :, None] - 2.0 * np.einsum("mkd,id->mki", s, q) + np.einsum(
+            "id,id->i", q, q)[None, None, :]
+        out.append(np.sqrt(np.maximum(sq, 0.0)).reshape(len(s), -1))
+    return np.stack(out)
+
+
+def view_study_variants(queries, stored, present, alone, alone2, qcls, classes, own):
+    """``--view-study``: candidate rankings of single-view queries by their views (each row is
+    then expanded by its first match as the library's): other aggregations of the view pairs
+    than the smallest distance, distance-time weights of the view vector's angular degrees and
+    depth block (each fixed, and chosen by cross-validation on the queries: five folds of one
+    model per class, and leave one class out, the choice maximising NN + own first + mAP/2 of
+    the views alone on the other folds' queries), and the level-1 and level-2 views fused
+    (each over its median, when ``alone2`` is given)."""
+    from surfidx.describe.views import VIEW_HARMONICS, VIEW_RINGS, view_dim
+
+    dim = view_dim()
+    sv = np.asarray(stored["views"], np.float32).reshape(len(stored["views"]), -1, dim)
+    miss = ~np.asarray(present["views"], bool)
+
+    def finish(d):
+        d = np.asarray(d, np.float64)
+        d[:, miss] = np.inf
+        return d
+
+    pairs = np.sort(_view_pairs(queries, sv), axis=-1)
+    out = {"views, mean of the 2 smallest view pairs": finish(pairs[:, :, :2].mean(-1)),
+           "views, mean of the 5 smallest view pairs": finish(pairs[:, :, :5].mean(-1))}
+    per_view = np.sort(_view_pairs(queries, sv).reshape(len(queries), len(sv), sv.shape[1],
+                                                          -1).min(axis=2), axis=-1)
+    out["views, mean over the 3 nearest query views"] = finish(per_view[:, :, :3].mean(-1))
+    del pairs, per_view
+    k = np.tile(np.arange(VIEW_HARMONICS), 2 * VIEW_RINGS)
+    depth = np.arange(dim) >= dim // 2
+    weighted = {}
+    for h in VIEW_STUDY_HARMONICS:
+        for w in VIEW_STUDY_DEPTH:
+            wt = (k < h) * np.where(depth, w, 1.0)
+            weighted[(h, w)] = finish(_view_pairs(queries, sv, wt).min(-1))
+    for key in ((6, 1.0), (8, 0.75), (7, 0.5)):
+        out[f"views, degrees 0-{key[0] - 1}, depth x{key[1]:g}"] = weighted[key]
+    rank = np.zeros(len(classes), int)
+    for c in dict.fromkeys(classes):
+        idx = np.flatnonzero(classes == c)
+        rank[idx] = np.arange(len(idx))
+    schemes = {"5 folds": rank[own] % 5,
+               "leave one class out": np.unique(classes, return_inverse=True)[1][own]}
+
+    def score(d, qs):
+        st = sb.query_statistics(d[qs], qcls[qs], classes, own[qs])
+        return st["nn"] + st["own"] + 0.5 * st["map"]
+
+    for scheme, folds in schemes.items():
+        cv = np.empty_like(alone)
+        for f in np.unique(folds):
+            train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
+            best = max(weighted, key=lambda key: score(weighted[key], train))
+            cv[test] = weighted[best][test]
+        out[f"views, degrees and depth weight chosen by CV ({scheme})"] = cv
+    if alone2 is not None:
+        def scaled(d):
+            return d / np.nanmedian(np.where(np.isfinite(d), d, np.nan), axis=1, keepdims=True)
+
+        out["views, levels 1 and 2 fused (each over its median)"] = scaled(alone) + scaled(alone2)
+    return out
 
 
 def expansion_variants(dv, dc):
@@ -1664,6 +1850,11 @@ def main(argv=None) -> int:
     ap.add_argument("--expansion", action="store_true",
                     help="with --view-descriptors: also the weights of the expansion by the "
                     "first match's complete descriptors, and expansions by the top 2 or 3")
+    ap.add_argument("--view-study", action="store_true",
+                    help="with --view-descriptors: also candidate rankings of the first result "
+                         "(other aggregations of the view pairs, distance-time weights of the "
+                         "angular degrees and depth block, fixed and cross-validated, levels 1 "
+                         "and 2 fused) and the queries each turns right or wrong")
     ap.add_argument("--view-descriptors", action="store_true",
                     help="with --partial view: query the scans by their views (no spherical "
                          "map of the scans) against the stored models' views")
