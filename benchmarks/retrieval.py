@@ -68,12 +68,17 @@ expand_by_first`), beside the views alone; ``--expansion`` adds the expansion's 
 ``--view-study`` adds candidate rankings of the first result (other aggregations of the view
 pairs, distance-time weights of the view vector's angular degrees and depth block, fixed and
 chosen by cross-validation, levels 1 and 2 fused), each expanded as the library's, with the
-queries each turns right or wrong against the library's ranking.
+queries each turns right or wrong against the library's ranking; with ``--with-default`` also the
+view distance fused with the capped scan's complete-descriptor distance (the scan closed by the
+repair, mapped and described as any model; each distance over its median, weights fixed and
+chosen by cross-validation). ``--with-default`` reads the scans' maps a ``--partial view`` run
+with the same ``--views`` and ``--seed`` computed and cached; a query whose scan has no map keeps
+its view distance.
 
 Run: ``python benchmarks/retrieval.py [--workers 2] [--invariance 19|all|0] [--no-cache]
 [--cache-key KEY] [--verify-cache N] [--lmax L] [--json out.json] [--confusion] [--cv out.json]
 [--partial view|base [--views N] [--noise] [--partial-study] [--view-descriptors [--view-levels
-L,L] [--expansion] [--view-study]]]``
+L,L] [--expansion] [--view-study] [--with-default]]]``
 """
 
 from __future__ import annotations
@@ -959,6 +964,19 @@ def compute_scan(job: dict) -> dict:
     return rec
 
 
+def failed_scan(job, exc):
+    """The record of a scan whose map raised ``exc`` outside the library's errors (a singular
+    system, a division by zero), as :func:`compute_scan` records a failure, with the scan's
+    baselines."""
+    v, f = make_scan(job)
+    rec = {"path": job["path"], "kind": job["kind"], "seed": job.get("seed"), "cached": False,
+           "error": f"{type(exc).__name__}: {exc}", "vertices": int(len(v)),
+           "arrays": {"d2": sb.d2_histogram(v, f), "sh": sb.sh_descriptor(v, f)}}
+    print(f"  failed: {Path(job['path']).name} {job['kind']}{job.get('seed')}: "
+          f"{rec['error']}", file=sys.stderr, flush=True)
+    return rec
+
+
 def run_scan_jobs(jobs, workers):
     """Run :func:`compute_scan` over ``jobs`` (cached ones in this process), in job order."""
     out = [None] * len(jobs)
@@ -973,7 +991,10 @@ def run_scan_jobs(jobs, workers):
     t0 = time.perf_counter()
     if workers <= 1:
         for n, k in enumerate(todo):
-            out[k] = compute_scan(jobs[k])
+            try:
+                out[k] = compute_scan(jobs[k])
+            except (ArithmeticError, np.linalg.LinAlgError) as exc:
+                out[k] = failed_scan(jobs[k], exc)
             print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
                   f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
                   flush=True)
@@ -984,7 +1005,12 @@ def run_scan_jobs(jobs, workers):
             futs = {ex.submit(compute_scan, jobs[k]): k for k in todo}
             for n, fut in enumerate(as_completed(futs)):
                 k = futs[fut]
-                out[k] = fut.result()
+                try:
+                    out[k] = fut.result()
+                except (ArithmeticError, np.linalg.LinAlgError) as exc:
+                    # the map's own failure on a scan (a singular system, a division by zero;
+                    # not cached: recomputed by the next run)
+                    out[k] = failed_scan(jobs[k], exc)
                 print(f"  [{n + 1}/{len(todo)}] {Path(jobs[k]['path']).name} "
                       f"{jobs[k]['kind']} ({time.perf_counter() - t0:.0f}s)", file=sys.stderr,
                       flush=True)
@@ -1141,7 +1167,7 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         args.workers)
     sh_base = np.stack([r["arrays"]["sh"] for r in sh_recs])
     d2_base = np.stack([r["d2"] for r in base])
-    mapped = {}
+    mapped, map_cost = {}, []
     if args.with_default:
         from surfidx.describe.distance import weighted_l2
 
@@ -1154,11 +1180,14 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                 f = cache_dir / f"partial-{pver}" / f"{file_hash(args.data / p)}-view{seed}.npz"
                 if f.exists():
                     rec = compute_scan({"cache_file": str(f)})
+                    if rec["error"] is None:
+                        map_cost.append((rec["vertices"], rec["cpu_seconds"]))
                     q = scan_descriptors(rec, lmax)
                     mapped[(i, seed)] = (np.full(len(paths), np.inf) if q is None else
                                          np.where(dpresent["shape"],
                                                   weighted_l2(q, dstored, dpresent), np.inf))
     rows, results, study_names, miss_inputs, miss_own = [], {}, [], {}, {}
+    fusion_choice, fusion_note = {}, {}
     complete = complete_dist(base, lmax)    # what a query reads from the database, untimed
     for noisy in ([False, True] if args.noise else [False]):
         sel = [(i, k) for i, r in enumerate(recs) for k in range(len(r["seed"]))
@@ -1196,6 +1225,15 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
             for name, dv in study.items():
                 variants[name] = expanded(dv, complete)
             study_names.extend(n for n in study if n not in study_names)
+            if mapped and not noisy:
+                dm = np.stack([mapped.get((i, int(recs[i]["seed"][k])),
+                                          np.full(len(paths), np.inf)) for i, k in sel])
+                fusion, chosen = view_fusion_variants(variants["surfidx views, views alone"],
+                                                      dm, qcls, classes, own)
+                for name, dv in fusion.items():
+                    variants[name] = expanded(dv, complete)
+                study_names.extend(n for n in fusion if n not in study_names)
+                fusion_choice[label] = chosen
             miss_inputs[label] = variants["surfidx views, views alone"]
             miss_own[label] = own
         variants |= {
@@ -1213,6 +1251,22 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                 dist, qcls[keep], classes, own[keep])
             results[(label, "surfidx views, same scans")] = sb.query_statistics(
                 variants["surfidx views"][keep], qcls[keep], classes, own[keep])
+            a = results[(label, "surfidx views, same scans")]["per_query"]["nn"] > 0
+            b = (results[(label, "surfidx default (mapped scans)")]["per_query"]["nn"] > 0) \
+                & np.isfinite(dist).any(axis=1)
+            vert, sec = np.array(map_cost, float).reshape(-1, 2).T
+            big = vert >= 5000
+            fusion_note[label] = (
+                f"{label}: class of the first result on the {len(keep)} scans with a cached "
+                f"record (of {len(sel)}; {len(keep) - len(map_cost)} of them failed to map, the "
+                f"capped scan counted wrong): views and capped scan both right "
+                f"{int(np.sum(a & b))}, views "
+                f"only {int(np.sum(a & ~b))}, capped scan only {int(np.sum(~a & b))}, neither "
+                f"{int(np.sum(~a & ~b))}; the capped scan's map and resampling (cached record, "
+                f"not its description) CPU s median {np.median(sec):.2f}, max {sec.max():.2f} "
+                f"over {len(sec)} mapped scans of median {np.median(vert):.0f} vertices; "
+                f"median {np.median(sec[big]) if big.any() else np.nan:.2f} on the "
+                f"{int(big.sum())} of 5,000 vertices or more")
         ang = np.array([recs[i]["angle"][k] for i, k in sel])
         cpu = np.array([recs[i]["cpu"][k] for i, k in sel])
         REPORT.print(f"{label}: camera direction error median {np.median(ang):.1f}°, q3 "
@@ -1242,6 +1296,8 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
         for label in dict.fromkeys(a for a, _ in results):
             ref = results[(label, "surfidx views")]["per_query"]
             for name in study_names:
+                if (label, name) not in results:
+                    continue
                 pq = results[(label, name)]["per_query"]
                 srows.append([label, name, int(np.sum((pq["nn"] > ref["nn"]))),
                               int(np.sum(pq["nn"] < ref["nn"])),
@@ -1249,6 +1305,13 @@ def views_table(args, paths, classes, base_jobs, lmax, cache_dir):
                               int(np.sum(pq["own"] < ref["own"]))])
         print_table(["scans", "candidate", "NN gained", "NN lost", "own gained", "own lost"],
                     srows)
+        for label, chosen in fusion_choice.items():
+            REPORT.print(f"\n{label}: weights of the capped scan's distance chosen by the "
+                         "cross-validation, per fold: " + "; ".join(
+                             f"{scheme}: {', '.join(f'{w:g}' for w in ws)}"
+                             for scheme, ws in chosen.items()))
+        for note in fusion_note.values():
+            REPORT.print(f"\n{note}")
         REPORT.print("\nThe library's misses (surfidx views, views alone): the queries whose "
                      "first result is of another class, the median rank of their own model, the "
                      "share of all queries with a model of their class among the first 2, 3 and "
@@ -1490,6 +1553,58 @@ def view_study_variants(queries, stored, present, alone, alone2, qcls, classes, 
 
         out["views, levels 1 and 2 fused (each over its median)"] = scaled(alone) + scaled(alone2)
     return out
+
+
+VIEW_FUSION_WEIGHTS = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
+"""``--view-study --with-default``: weights of the capped scan's complete-descriptor distance
+fused with the view distance."""
+
+
+def view_fusion_variants(alone, capped, qcls, classes, own):
+    """``--view-study --with-default``: the view distance fused with the distance between the
+    complete-model descriptors of the capped scan (the scan closed by the repair, mapped and
+    described as any model, :func:`surfidx.describe.weighted_l2` to every stored model), each
+    over its median: ``alone / med + w · capped / med`` for every ``w`` of
+    :data:`VIEW_FUSION_WEIGHTS`, fixed and chosen by cross-validation on the queries (five folds
+    of one model per class, and leave one class out; the choice maximising NN + own first +
+    mAP/2 of the fused distance on the other folds' queries). A query whose scan failed to map
+    (a row of ``inf``) keeps its view distance. Returns the (q, n) distances by name and the
+    weight each scheme chose per fold."""
+    def scaled(d):
+        d = np.asarray(d, np.float64)
+        fin = np.isfinite(d)
+        med = np.array([np.median(r[m]) if m.any() else 1.0 for r, m in zip(d, fin)])
+        return d / np.maximum(med, 1e-300)[:, None]
+
+    v = scaled(alone)
+    c = scaled(capped)
+    failed = ~np.isfinite(c).any(axis=1)
+    c[failed] = 0.0
+    fused = {w: v + w * c for w in VIEW_FUSION_WEIGHTS}
+    out = {f"views + capped scan's complete descriptors, weight {w:g}": d
+           for w, d in fused.items()}
+    rank = np.zeros(len(classes), int)
+    for cl in dict.fromkeys(classes):
+        idx = np.flatnonzero(classes == cl)
+        rank[idx] = np.arange(len(idx))
+    schemes = {"5 folds": rank[own] % 5,
+               "leave one class out": np.unique(classes, return_inverse=True)[1][own]}
+
+    def score(d, qs):
+        st = sb.query_statistics(d[qs], qcls[qs], classes, own[qs])
+        return st["nn"] + st["own"] + 0.5 * st["map"]
+
+    chosen = {}
+    for scheme, folds in schemes.items():
+        cv = np.empty_like(v)
+        chosen[scheme] = []
+        for f in np.unique(folds):
+            train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
+            best = max(VIEW_FUSION_WEIGHTS, key=lambda w: score(fused[w], train))
+            cv[test] = fused[best][test]
+            chosen[scheme].append(best)
+        out[f"views + capped scan, weight chosen by CV ({scheme})"] = cv
+    return out, chosen
 
 
 def expansion_variants(dv, dc):
@@ -1854,7 +1969,9 @@ def main(argv=None) -> int:
                     help="with --view-descriptors: also candidate rankings of the first result "
                          "(other aggregations of the view pairs, distance-time weights of the "
                          "angular degrees and depth block, fixed and cross-validated, levels 1 "
-                         "and 2 fused) and the queries each turns right or wrong")
+                         "and 2 fused; with --with-default, the view distance fused with the "
+                         "capped scan's complete-descriptor distance) and the queries each turns "
+                         "right or wrong")
     ap.add_argument("--view-descriptors", action="store_true",
                     help="with --partial view: query the scans by their views (no spherical "
                          "map of the scans) against the stored models' views")
