@@ -421,3 +421,25 @@ def test_method_names_and_options_import_without_the_stages():
     import surfidx.sphere as S
     with pytest.raises(AttributeError, match="nothing"):
         S.nothing
+
+
+def test_scan_with_coincident_points_maps():
+    """A single-view scan (retrieval model d029 seen from one camera, as
+    ``benchmarks/retrieval.py --partial view`` makes it, seed 102900) whose coincident points
+    give zero-length edges: the prolongation's ring weights overflowed there, a vertex came back
+    at the origin and the balancing divided by zero. It maps, every input triangle kept
+    counter-clockwise."""
+    import warnings
+    from pathlib import Path
+
+    import trimesh
+
+    from surfidx import read_model
+
+    z = np.load(Path(__file__).parent / "data" / "d029_view.npz")
+    mesh = trimesh.Trimesh(z["vertices"], z["faces"], process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # the repair's notes on the scan's holes
+        model = read_model(mesh)
+    m = parameterize(model.parts[0], stress=False)
+    assert np.isfinite(m.points).all() and m.info["mesh_folds"] == 0
