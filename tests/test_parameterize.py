@@ -423,12 +423,14 @@ def test_method_names_and_options_import_without_the_stages():
         S.nothing
 
 
-def test_scan_with_coincident_points_maps():
-    """A single-view scan (retrieval model d029 seen from one camera, as
-    ``benchmarks/retrieval.py --partial view`` makes it, seed 102900) whose coincident points
-    give zero-length edges: the prolongation's ring weights overflowed there, a vertex came back
-    at the origin and the balancing divided by zero. It maps, every input triangle kept
-    counter-clockwise."""
+@pytest.mark.parametrize("scan", ["d029_view", "d006_view"])
+def test_scan_with_coincident_points_maps(scan):
+    """Single-view scans (retrieval models d029 and d006 seen from one camera, as
+    ``benchmarks/retrieval.py --partial view`` makes them, seeds 102900 and 100602) with
+    coincident points. d029: a zero-length edge made the prolongation's ring weights overflow,
+    a vertex came back at the origin and the balancing divided by zero. d006: decimated to a
+    tetrahedron with two corners at one point, whose Tutte circle put them at one place, and
+    the whole map collapsed to five points. Both map, every input triangle counter-clockwise."""
     import warnings
     from pathlib import Path
 
@@ -436,7 +438,7 @@ def test_scan_with_coincident_points_maps():
 
     from surfidx import read_model
 
-    z = np.load(Path(__file__).parent / "data" / "d029_view.npz")
+    z = np.load(Path(__file__).parent / "data" / f"{scan}.npz")
     mesh = trimesh.Trimesh(z["vertices"], z["faces"], process=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")          # the repair's notes on the scan's holes

@@ -100,13 +100,15 @@ def _ring(f, v):
 
 class _TutteSystem:
     """Tutte's linear system of the mesh punctured at one vertex, its 1-ring fixed on the unit
-    circle (spaced by edge length); the punctured vertex goes to infinity (the north pole)."""
+    circle (spaced by edge length, each at least 1 % of their mean); the punctured vertex goes to infinity (the north pole)."""
 
     def __init__(self, p, f, vertex, ring):
         n = len(p)
         self.n, self.vertex, self.ring = n, vertex, ring
         self.inner = np.setdiff1d(np.arange(n), np.concatenate([[vertex], ring]))
         el = np.linalg.norm(p[ring] - p[np.roll(ring, -1)], axis=1)
+        # coincident ring vertices (repeated scan points) would share a place on the circle
+        el = np.maximum(el, 0.01 * el.mean()) if el.sum() > 0 else np.ones(len(ring))
         ang = np.concatenate([[0.0], np.cumsum(el)[:-1]]) / el.sum() * 2 * np.pi
         self.ub = np.column_stack([np.cos(ang), np.sin(ang)])
         self.mirror = None
