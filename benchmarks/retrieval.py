@@ -1529,23 +1529,7 @@ def view_study_variants(queries, stored, present, alone, alone2, qcls, classes, 
             weighted[(h, w)] = finish(_view_pairs(queries, sv, wt).min(-1))
     for key in ((6, 1.0), (8, 0.75), (7, 0.5)):
         out[f"views, degrees 0-{key[0] - 1}, depth x{key[1]:g}"] = weighted[key]
-    rank = np.zeros(len(classes), int)
-    for c in dict.fromkeys(classes):
-        idx = np.flatnonzero(classes == c)
-        rank[idx] = np.arange(len(idx))
-    schemes = {"5 folds": rank[own] % 5,
-               "leave one class out": np.unique(classes, return_inverse=True)[1][own]}
-
-    def score(d, qs):
-        st = sb.query_statistics(d[qs], qcls[qs], classes, own[qs])
-        return st["nn"] + st["own"] + 0.5 * st["map"]
-
-    for scheme, folds in schemes.items():
-        cv = np.empty_like(alone)
-        for f in np.unique(folds):
-            train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
-            best = max(weighted, key=lambda key: score(weighted[key], train))
-            cv[test] = weighted[best][test]
+    for scheme, (cv, _) in _cross_validated(weighted, qcls, classes, own).items():
         out[f"views, degrees and depth weight chosen by CV ({scheme})"] = cv
     if alone2 is not None:
         def scaled(d):
@@ -1583,6 +1567,18 @@ def view_fusion_variants(alone, capped, qcls, classes, own):
     fused = {w: v + w * c for w in VIEW_FUSION_WEIGHTS}
     out = {f"views + capped scan's complete descriptors, weight {w:g}": d
            for w, d in fused.items()}
+    chosen = {}
+    for scheme, (cv, picks) in _cross_validated(fused, qcls, classes, own).items():
+        out[f"views + capped scan, weight chosen by CV ({scheme})"] = cv
+        chosen[scheme] = picks
+    return out, chosen
+
+
+def _cross_validated(candidates, qcls, classes, own):
+    """Each candidate ranking ``candidates[key]`` (q, n) chosen per fold on the other folds'
+    queries (the key maximising NN + own first + mAP/2; five folds of one model per class, and
+    leave one class out). Returns, per scheme, the (q, n) distances of the chosen keys and the
+    key chosen for each fold."""
     rank = np.zeros(len(classes), int)
     for cl in dict.fromkeys(classes):
         idx = np.flatnonzero(classes == cl)
@@ -1594,17 +1590,17 @@ def view_fusion_variants(alone, capped, qcls, classes, own):
         st = sb.query_statistics(d[qs], qcls[qs], classes, own[qs])
         return st["nn"] + st["own"] + 0.5 * st["map"]
 
-    chosen = {}
+    out = {}
     for scheme, folds in schemes.items():
-        cv = np.empty_like(v)
-        chosen[scheme] = []
+        cv = np.empty_like(next(iter(candidates.values())))
+        picks = []
         for f in np.unique(folds):
             train, test = np.flatnonzero(folds != f), np.flatnonzero(folds == f)
-            best = max(VIEW_FUSION_WEIGHTS, key=lambda w: score(fused[w], train))
-            cv[test] = fused[best][test]
-            chosen[scheme].append(best)
-        out[f"views + capped scan, weight chosen by CV ({scheme})"] = cv
-    return out, chosen
+            best = max(candidates, key=lambda key: score(candidates[key], train))
+            cv[test] = candidates[best][test]
+            picks.append(best)
+        out[scheme] = (cv, picks)
+    return out
 
 
 def expansion_variants(dv, dc):
