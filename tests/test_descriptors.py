@@ -295,6 +295,27 @@ def test_d2_draws_and_distances_are_numpys():
     assert np.array_equal(pair_distances(y, i, j), np.linalg.norm(y[i] - y[j], axis=1))
 
 
+def test_sh_expansion_loads_shtools_alone_and_pyshtools_reuses_it():
+    """expand_dh loads SHTOOLS' extension without pyshtools' ``__init__``; a later import of
+    pyshtools uses that same module (one copy in the process)."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import sys, json\n"
+            "import numpy as np\n"
+            "from surfidx.describe.harmonics import expand_dh\n"
+            "expand_dh(np.ones((8, 16)), 3)\n"
+            "alone = 'pyshtools' not in sys.modules\n"
+            "ext = sys.modules.get('pyshtools._SHTOOLS')\n"
+            "import pyshtools.backends.shtools\n"
+            "same = ext is not None and sys.modules['pyshtools._SHTOOLS'] is ext\n"
+            "print(json.dumps([alone, same]))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    assert json.loads(out.splitlines()[-1]) == [True, True]
+
+
 def test_sh_expansion_is_pyshtools_fortran_bit_for_bit():
     """expand_dh and degree_spectrum give what pyshtools' Fortran SHExpandDH and its
     ``spectrum`` give, to the bit, on grids of the sizes the descriptors use and others."""

@@ -4,9 +4,8 @@ compiled Fortran transform without the rest of pyshtools.
 ``import pyshtools`` loads matplotlib, xarray, astropy and pandas for its classes, more CPU than
 a whole query by example; the descriptors need one routine of its compiled extension
 (``SHExpandDH``) and a per-degree sum of squares. The extension module is loaded from
-pyshtools' folder on its own, once per process (:func:`surfidx.extmodules.load_extension`: it
-enters ``sys.modules`` under its own name, ``pyshtools._SHTOOLS``, where a later
-``import pyshtools`` finds it); when that fails (another package layout), pyshtools' own Fortran
+pyshtools' folder on its own, once per process (it enters ``sys.modules`` under its own name,
+``pyshtools._SHTOOLS``, where a later ``import pyshtools`` finds it); when that fails (another package layout), pyshtools' own Fortran
 backend is imported instead. Either way the routine is SHTOOLS' Fortran one, never the ducc0
 backend pyshtools prefers when it is installed, so the descriptors' bytes do not depend on what
 else is installed.
@@ -74,13 +73,44 @@ def _use_wisdom() -> bool:
     return bool(lib.fftw_import_wisdom_from_string(FFTW_WISDOM.encode("ascii")))
 
 
+def _load_extension():
+    """pyshtools' ``_SHTOOLS`` extension module, loaded without running pyshtools' ``__init__``
+    and entered in ``sys.modules`` (the one already there, when pyshtools loaded it), or None
+    when the package's folder holds no such extension."""
+    import importlib.machinery
+    import importlib.util
+    import os
+    import sys
+
+    full = "pyshtools._SHTOOLS"
+    if full in sys.modules:
+        return sys.modules[full]
+    spec = importlib.util.find_spec("pyshtools")   # finds the package, does not import it
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    for folder in spec.submodule_search_locations:
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+            path = os.path.join(folder, "_SHTOOLS" + suffix)
+            if not os.path.isfile(path):
+                continue
+            loader = importlib.machinery.ExtensionFileLoader(full, path)
+            module = importlib.util.module_from_spec(
+                importlib.util.spec_from_file_location(full, path, loader=loader))
+            sys.modules[full] = module
+            try:
+                loader.exec_module(module)
+            except BaseException:
+                del sys.modules[full]
+                raise
+            return module
+    return None
+
+
 @functools.lru_cache(maxsize=1)
 def _shexpanddh():
     """SHTOOLS' Fortran ``SHExpandDH`` returning ``(exitstatus, cilm)``."""
-    from ..extmodules import load_extension
-
     try:
-        ext = load_extension("pyshtools", "_SHTOOLS")
+        ext = _load_extension()
     except ImportError:
         ext = None
     if ext is not None and hasattr(ext, "SHExpandDH"):
