@@ -1411,29 +1411,25 @@ def _decode_color_grid(header, stream, path, checked, level: int, geometry: bool
                                                                      layers=3))
         else:
             cg = wavelets.inverse(w[:ng, :3] / gscales[:, None], gl, lifted=header.lifted)
-        if geometry:
-            geo = (cg @ basis[:3, :3] + mean[:3]) / unit[:3]
-            spread = float(np.abs(geo * unit[:3] - mean[:3]).max())
-            if not (np.all(np.isfinite(geo)) and spread <= MAX_EXTENT):
-                raise BitstreamError("decoding produced non-finite or out-of-range values: the "
-                                     "file is damaged", path=path)
-            return geo, None
-        cscales = wavelets.level_norms(header.color_level, lifted=header.lifted)[ico.level_of]
-        if field is not None:
-            cscales = cscales * density.vertex_scales(*field, rl)
-        cc = wavelets.inverse(w[:, 3:] / cscales[:, None], rl, lifted=header.lifted)
         geo = (cg @ basis[:3, :3] + mean[:3]) / unit[:3]
-        col = (cc @ basis[3:, 3:] + mean[3:]) / unit[3:]
-        spread = max(float(np.abs(geo * unit[:3] - mean[:3]).max()),
-                     float(np.abs(col * unit[3:] - mean[3:]).max()))
-    if not (np.all(np.isfinite(geo)) and np.all(np.isfinite(col))):
+        spread = float(np.abs(geo * unit[:3] - mean[:3]).max())
+        col = None
+        if not geometry:
+            cscales = wavelets.level_norms(header.color_level,
+                                           lifted=header.lifted)[ico.level_of]
+            if field is not None:
+                cscales = cscales * density.vertex_scales(*field, rl)
+            cc = wavelets.inverse(w[:, 3:] / cscales[:, None], rl, lifted=header.lifted)
+            col = (cc @ basis[3:, 3:] + mean[3:]) / unit[3:]
+            spread = max(spread, float(np.abs(col * unit[3:] - mean[3:]).max()))
+    if not (np.all(np.isfinite(geo)) and (col is None or np.all(np.isfinite(col)))):
         raise BitstreamError("decoding produced non-finite values: the file is damaged",
                              path=path)
     if not spread <= MAX_EXTENT:
         raise BitstreamError(f"decoding produced values {spread:.3g} weighted units "
                              f"from the mean, beyond {MAX_EXTENT:g}: the file is damaged",
                              path=path)
-    return np.hstack([geo, col[:ng]]), col
+    return (geo, None) if geometry else (np.hstack([geo, col[:ng]]), col)
 
 
 def _stream_schedule(header, zh, path):
