@@ -159,10 +159,8 @@ class GridAtlas:
         weights : (k, 3) float64
             Its barycentric weights (non-negative, summing to 1).
         """
-        rows, cell, li, lj, w = self._texel_cells()
-        n = 2 ** self.level
-        uv = cell[0][:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
-        return rows, self.uv_vertex[uv], w
+        rows, _, vertices, w = self._texel_cells()
+        return rows, vertices, w
 
     def texel_faces(self):
         """Where each texel of a chart samples the grid, as :meth:`texel_points` but with the
@@ -177,8 +175,7 @@ class GridAtlas:
             As :meth:`texel_points`; ``vertices`` are ``faces``' corners, though not always in
             the face's corner order.
         """
-        rows, cell, li, lj, w = self._texel_cells()
-        chart, ia, ib, down = cell
+        rows, (chart, ia, ib, down), vertices, w = self._texel_cells()
         n = 2 ** self.level
         lat = _lattice_corners(self.level)
         lo = lat.min(axis=1)
@@ -187,13 +184,11 @@ class GridAtlas:
         base = np.arange(len(lat)) // 4 ** self.level
         table = np.empty(20 * n * n * 2, np.int64)
         table[((base * n + lo[:, 1]) * n + lo[:, 0]) * 2 + flip] = np.arange(len(lat))
-        per_chart = (n + 1) * (n + 2) // 2
-        uv = chart[:, None] * per_chart + _lattice_index(li, lj, n)
-        return rows, table[((chart * n + ib) * n + ia) * 2 + down], self.uv_vertex[uv], w
+        return rows, table[((chart * n + ib) * n + ia) * 2 + down], vertices, w
 
     def _texel_cells(self):
         """The chart texels' flat indices, their lattice cells ``(chart, i, j, down)``, the
-        cells' corner lattice coordinates and the texels' barycentric weights in them."""
+        grid vertices of the cells' triangles and the texels' barycentric weights in them."""
         chart, ia, ib, down, w = self._texels()
         rows = np.flatnonzero(chart >= 0)
         ch, ia, ib, down, w = chart[rows], ia[rows], ib[rows], down[rows], w[rows]
@@ -201,7 +196,9 @@ class GridAtlas:
                        np.where(down, ia + 1, ia)], 1)
         lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
                        np.where(down, ib, ib + 1)], 1)
-        return rows, (ch, ia, ib, down), li, lj, w
+        n = 2 ** self.level
+        uv = ch[:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
+        return rows, (ch, ia, ib, down), self.uv_vertex[uv], w
 
     def _texels(self):
         """Per texel (flat, row by row): its chart (-1: none) and the lattice cell and
