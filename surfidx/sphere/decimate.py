@@ -114,25 +114,22 @@ class Hierarchy:
         nxt = np.arange(len(ring)) + 1
         nxt[ptr[1:] - 1] = ptr[:-1]                  # the ring is cyclic
         e = positions[ring] - positions[removed][owner]
-        length = np.maximum(np.linalg.norm(e, axis=1), 1e-300)
+        length = np.linalg.norm(e, axis=1)
+        # a zero-length edge (coincident input points) would give a weight that overflows the
+        # ring's sum: lengths floored far below any real edge
+        length = np.maximum(length, max(1e-9 * float(np.median(length)), 1e-300)
+                            if len(length) else 1e-300)
         cos = np.einsum("ij,ij->i", e, e[nxt]) / (length * length[nxt])
         half = np.tan(0.5 * np.arccos(np.clip(cos, -1.0, 1.0)))   # angle at the vertex
         prv = np.empty_like(nxt)
         prv[nxt] = np.arange(len(ring))
         w = np.maximum((half + half[prv]) / length, 1e-300)
-        acc = _ring_means(w, out[ring], owner, len(removed), unit)
-        lost = ~np.isfinite(acc).all(axis=1)
+        acc = np.zeros((len(removed), out.shape[1]))
+        np.add.at(acc, owner, w[:, None] * out[ring])
         if unit:
-            lost |= ~(np.abs(acc).max(axis=1) > 0)
-        if lost.any():
-            # a zero-length edge (coincident input points) makes its weight overflow: those
-            # rings again, each weight over its ring's largest
-            top = np.zeros(len(removed))
-            np.maximum.at(top, owner, w)
-            sub = lost[owner]
-            acc[lost] = _ring_means(w[sub] / top[owner[sub]], out[ring[sub]],
-                                    np.searchsorted(np.flatnonzero(lost), owner[sub]),
-                                    int(lost.sum()), unit)
+            acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
+        else:
+            acc /= np.bincount(owner, w, minlength=len(removed))[:, None]
         if embed:
             acc, moved = _into_kernels(acc, out, kept, ptr, ring, owner, nxt, positions,
                                        removed)
@@ -156,19 +153,6 @@ class Hierarchy:
             out.append(np.ascontiguousarray(
                 f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]))
         return out
-
-
-def _ring_means(w, values, owner, count: int, unit: bool) -> np.ndarray:
-    """Per owner, the ``w``-weighted mean of its ring's ``values`` (``unit``: the weighted sum
-    normalised to unit length)."""
-    acc = np.zeros((count, values.shape[1]))
-    with np.errstate(over="ignore", invalid="ignore"):   # overflow: the caller's fallback
-        np.add.at(acc, owner, w[:, None] * values)
-        if unit:
-            acc /= np.maximum(np.linalg.norm(acc, axis=1), 1e-300)[:, None]
-        else:
-            acc /= np.bincount(owner, w, minlength=count)[:, None]
-    return acc
 
 
 def _star_folds(x, out, ring, owner, nxt):
