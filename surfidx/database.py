@@ -225,7 +225,9 @@ class Database(Catalog):
         :class:`surfidx.options.ProcessOptions`) to a processor or describer that takes it.
         ``partial=True`` describes a file or model in memory as a single-view scan, by
         :func:`surfidx.pipeline.describe_scan` (its views only, no spherical map), unless a
-        processor or describer is given."""
+        processor or describer is given; with ``partial=None`` a file the repair finds partial
+        is described so too when any stored model has views (what it is then compared with),
+        mapped otherwise."""
         ref = model
         if isinstance(model, str):
             text = model.strip()
@@ -264,8 +266,12 @@ class Database(Catalog):
 
             extra.pop("options", None)
             proc = functools.partial(describe_scan, options=options,
+                                     thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))
         else:
+            if partial is None and describer is None and self._has_views():
+                # a scan found partial is compared by its views: no map needed
+                extra["partial_by_views"] = True
             proc = functools.partial(unit_of_work(describer, "describe_model"),
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))
@@ -388,8 +394,7 @@ class Database(Catalog):
         if tag is not None or where is not None or older > _WIDEN_MAX:
             allowed = self.select_ids(tag=tag, where=where, all_versions=all_versions)
             older = 0
-        by_views = partial and "views" in descriptors and self.conn.execute(
-            "SELECT 1 FROM descriptors WHERE kind = 'views' LIMIT 1").fetchone() is not None
+        by_views = partial and "views" in descriptors and self._has_views()
         if partial and "shape" not in descriptors and not by_views:
             raise InputError("no stored model has views (descriptors made before version 8), "
                              "and a scan described by its views alone has nothing else to "
@@ -417,6 +422,11 @@ class Database(Catalog):
             rows.append({"id": int(i), "name": rec[0], "version": int(rec[1]), "source": rec[2],
                          "distance": float(d)})
         return rows
+
+    def _has_views(self) -> bool:
+        """Whether any stored model has ``views`` descriptors (what a partial query compares)."""
+        return self.conn.execute(
+            "SELECT 1 FROM descriptors WHERE kind = 'views' LIMIT 1").fetchone() is not None
 
     def _approximate(self) -> bool:
         """Whether :meth:`query` searches through the approximate index (the model count is at

@@ -398,7 +398,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
                    level: int | None = None, method: str | None = None,
                    lmax: int | None = None, allow_outside_textures: bool = False,
                    name: str | None = None, thumbnail_size: int | None = None,
-                   progress=None) -> DescribedModel:
+                   partial_by_views: bool = False, progress=None) -> DescribedModel:
     """Read, map, resample and describe one model: what a query by example computes, nothing
     else (no coding, decoding, quality figures).
 
@@ -423,6 +423,10 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     thumbnail_size : int, optional
         Also draw a thumbnail of the input surfels this many pixels wide and high, in the view
         of a stored model's (upright, ``options.up`` or the format's up axis up).
+    partial_by_views : bool
+        Describe a scan found partial after its repair by its views alone, as
+        :func:`describe_scan` does, without mapping it: what a partial query compares with a
+        database that holds views (the map of a 10k-vertex view costs ten times its read).
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
         (``map`` per level, ``figures``), ``resample``, ``describe`` and, with a
@@ -441,7 +445,6 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
 
     from .describe.descriptors import describe_grid
     from .describe.partial import is_partial
-    from .io import up_axis
     from .options import ProcessOptions
     from .codec.resample import resample
     from .sphere import parameterize
@@ -452,6 +455,10 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     timings = {}
     model = _read(timings, progress, path, texture, samples, allow_outside_textures,
                   opts.repair)
+    partial = model.repaired and is_partial(model.summary()["virtual_area_share"])
+    if partial and partial_by_views:
+        return _described_by_views(model, timings, progress, path=path, texture=texture,
+                                   name=name, options=opts, thumbnail_size=thumbnail_size)
     surfels = model.surfels
     sets, levels = [], []
     for part in model.parts:
@@ -465,20 +472,13 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         sets.append(d)
         levels.append(int(grid_level))
     desc = combine_descriptors(sets, [len(p) for p in model.parts])
-    if model.repaired and is_partial(model.summary()["virtual_area_share"]):
+    if partial:
         from .describe.views import scan_views
 
         v, f = scan_surface(model)      # a single view: its own views, not the capped model's
         desc.vectors["views"] = scan_views(v, f).ravel()
     grid_level = levels[0]
-    thumb = None
-    if thumbnail_size is not None:
-        from .render import THUMBNAIL, render
-
-        up = opts.up or up_axis(path)
-        thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-            render(surfels, width=thumbnail_size, height=thumbnail_size, view=THUMBNAIL,
-                   up=up)))
+    thumb = _input_thumbnail(timings, progress, surfels, path, opts, thumbnail_size)
     label, source, digest = _identity(path, surfels, texture, name)
     return DescribedModel(name=label, source=source, content_hash=digest,
                           n_surfels=len(surfels), has_color=surfels.has_color,
@@ -513,7 +513,7 @@ def scan_surface(model):
 
 def describe_scan(path, *, options=None, texture=None, samples: int | None = None,
                   allow_outside_textures: bool = False, name: str | None = None,
-                  progress=None) -> DescribedModel:
+                  thumbnail_size: int | None = None, progress=None) -> DescribedModel:
     """Read a single-view scan and describe what it holds as views: what a partial query
     compares with the stored models' ``views`` (:func:`surfidx.describe.views.partial_view_l2`).
 
@@ -525,7 +525,7 @@ def describe_scan(path, *, options=None, texture=None, samples: int | None = Non
 
     Parameters
     ----------
-    path, options, texture, samples, allow_outside_textures, name, progress
+    path, options, texture, samples, allow_outside_textures, name, thumbnail_size, progress
         As for :func:`describe_model` (only the read and repair settings of ``options``
         count).
 
@@ -541,23 +541,46 @@ def describe_scan(path, *, options=None, texture=None, samples: int | None = Non
     SurfidxError
         Unreadable file, a scan without faces or of zero area.
     """
-    from .describe.descriptors import DescriptorSet, descriptor_params
-    from .describe.views import scan_views
     from .options import ProcessOptions
 
     opts = ProcessOptions.resolve(options, samples=samples)
     timings = {}
     model = _read(timings, progress, path, texture, opts.samples, allow_outside_textures,
                   opts.repair)
+    return _described_by_views(model, timings, progress, path=path, texture=texture, name=name,
+                               options=opts, thumbnail_size=thumbnail_size)
+
+
+def _described_by_views(model, timings, progress, *, path, texture, name, options,
+                        thumbnail_size):
+    """The :class:`DescribedModel` of a read scan by its views alone (:func:`describe_scan`)."""
+    from .describe.descriptors import DescriptorSet, descriptor_params
+    from .describe.views import scan_views
+
     v, f = scan_surface(model)
     views = _timed(timings, "describe", progress, scan_views, v, f)
-    desc = DescriptorSet({"views": views.ravel()}, descriptor_params(lmax=opts.describe.lmax))
+    desc = DescriptorSet({"views": views.ravel()},
+                         descriptor_params(lmax=options.describe.lmax))
     surfels = model.surfels
+    thumb = _input_thumbnail(timings, progress, surfels, path, options, thumbnail_size)
     label, source, digest = _identity(path, surfels, texture, name)
     return DescribedModel(name=label, source=source, content_hash=digest,
                           n_surfels=len(surfels), has_color=surfels.has_color,
-                          descriptors=desc, grid_level=0, timings=timings,
+                          descriptors=desc, grid_level=0, thumbnail=thumb, timings=timings,
                           topology=model.summary() if model.repaired else None)
+
+
+def _input_thumbnail(timings, progress, surfels, path, options, size):
+    """PNG of the input surfels ``size`` pixels square in a stored model's view (upright:
+    ``options.up`` or the format's up axis up), timed as ``thumbnail``; None without a size."""
+    if size is None:
+        return None
+    from .io import up_axis
+    from .render import THUMBNAIL, render
+
+    up = options.up or up_axis(path)
+    return _timed(timings, "thumbnail", progress, lambda: _png_bytes(
+        render(surfels, width=size, height=size, view=THUMBNAIL, up=up)))
 
 
 def output_level(stream: bytes, *, bits_per_surfel: float | None = None,

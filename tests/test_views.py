@@ -218,7 +218,9 @@ def test_a_partial_query_compares_views_without_mapping_the_scan(shapes_db, monk
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with Database(db_path) as db:
-            auto = db.query(str(view), k=3)                   # detected: mapped, then views
+            auto = db.query(str(view), k=3)                   # detected after the read
+            detected = db.example(str(view))
+            whole = db.example(str(view), partial=False)      # --complete: mapped
             monkeypatch.setattr(pipeline, "describe_model", None)   # --partial never maps
             forced = db.query(str(view), k=3, partial=True)
             ex = db.example(str(view), partial=True)
@@ -226,6 +228,12 @@ def test_a_partial_query_compares_views_without_mapping_the_scan(shapes_db, monk
     assert [(r["name"], r["distance"]) for r in auto] == \
         [(r["name"], r["distance"]) for r in forced]
     assert set(ex.descriptors) == {"views"} and ex.virtual_share > 0.2
+    # found partial, it is described by its views alone, as --partial describes it: no map
+    assert set(detected.descriptors) == {"views"}
+    np.testing.assert_array_equal(detected.descriptors["views"], ex.descriptors["views"])
+    assert detected.virtual_share == ex.virtual_share and detected.thumbnail is not None
+    assert {"shape", "views"} <= set(whole.descriptors)
+    np.testing.assert_array_equal(whole.descriptors["views"], ex.descriptors["views"])
 
 
 def test_a_database_without_views_falls_back_or_says_to_redescribe(shapes_db, tmp_path):
@@ -244,6 +252,7 @@ def test_a_database_without_views_falls_back_or_says_to_redescribe(shapes_db, tm
         with Database(old) as db:
             rows = db.query(str(view), k=3)         # detected: the default descriptors
             assert len(rows) == 3
+            assert "shape" in db.example(str(view)).descriptors    # mapped: nothing else to compare
             with pytest.raises(InputError, match="no stored model has views"):
                 db.query(str(view), k=3, partial=True)
 
