@@ -231,7 +231,7 @@ def query(example, k, shape_weight, sheet, include_self, exact, tags, where, all
     the shape descriptor with the KLT spectrum appended). A partial scan (one view, a scan
     with holes: a large share of its closed surface added by the repair, or --partial) is
     compared by its views: what it holds seen from its camera, against each stored model's
-    views (--partial describes a file by its views alone, without the spherical map). A model file's stages are shown on stderr when it is a terminal (--quiet:
+    views (such a file is described by its views alone, without the spherical map, unless no stored model has views). A model file's stages are shown on stderr when it is a terminal (--quiet:
     never; --verbose: their times).
     """
     with _open(db_path, console) as db, console.progress() as progress:
