@@ -269,9 +269,11 @@ class Database(Catalog):
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))
         else:
-            if partial is None and describer is None and self._has_views():
-                # a scan found partial is compared by its views: no map needed
-                extra["partial_by_views"] = True
+            if describer is None:
+                extra["for_query"] = True       # the query's map (MapOptions.for_query)
+                if partial is None and self._has_views():
+                    # a scan found partial is compared by its views: no map needed
+                    extra["partial_by_views"] = True
             proc = functools.partial(unit_of_work(describer, "describe_model"),
                                      thumbnail_size=DEFAULT_THUMBNAIL_SIZE if thumbnail else None,
                                      **({"progress": progress} if progress is not None else {}))

@@ -398,7 +398,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
                    level: int | None = None, method: str | None = None,
                    lmax: int | None = None, allow_outside_textures: bool = False,
                    name: str | None = None, thumbnail_size: int | None = None,
-                   partial_by_views: bool = False, progress=None) -> DescribedModel:
+                   partial_by_views: bool = False, for_query: bool = False,
+                   progress=None) -> DescribedModel:
     """Read, map, resample and describe one model: what a query by example computes, nothing
     else (no coding, decoding, quality figures).
 
@@ -427,6 +428,10 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         Describe a scan found partial after its repair by its views alone, as
         :func:`describe_scan` does, without mapping it: what a partial query compares with a
         database that holds views (the map of a 10k-vertex view costs ten times its read).
+    for_query : bool
+        Map with a query's step counts (:meth:`surfidx.sphere.MapOptions.for_query`): the
+        descriptors find the stored models as well as an ingest's would, at about half the
+        map's CPU, but are no longer bit-equal to ``process_model``'s.
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
         (``map`` per level, ``figures``), ``resample``, ``describe`` and, with a
@@ -452,6 +457,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     opts = ProcessOptions.resolve(options, samples=samples, level=level, method=method,
                                   lmax=lmax)
     samples, level, lm = opts.samples, opts.codec.level, opts.describe.lmax
+    map_options = opts.map.for_query() if for_query else opts.map
     timings = {}
     model = _read(timings, progress, path, texture, samples, allow_outside_textures,
                   opts.repair)
@@ -463,7 +469,7 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
     sets, levels = [], []
     for part in model.parts:
         t0 = time.perf_counter()
-        sphere_map = parameterize(part, stress=False, options=opts.map, progress=progress)
+        sphere_map = parameterize(part, stress=False, options=map_options, progress=progress)
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,

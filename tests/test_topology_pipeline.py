@@ -265,6 +265,30 @@ def test_describe_model_equals_process_model(torus_processed):
         assert np.array_equal(d.descriptors.vectors[k], vec)
 
 
+def test_a_query_map_describes_the_model_near_its_stored_descriptors(torus_processed):
+    from surfidx.describe import weighted_l2
+    from surfidx.pipeline import describe_model
+    from surfidx.sphere import MapOptions
+
+    quick = describe_model(torus_mesh(nu=30, nv=12), name="ring", for_query=True)
+    other = describe_model(torus_mesh(nu=30, nv=12, r=0.15), name="thin", for_query=True)
+    stored = {k: np.asarray(v)[None] for k, v in torus_processed.descriptors.items()}
+    present = {k: np.ones(1, bool) for k in stored}
+
+    def dist(d):
+        return float(weighted_l2(dict(d.descriptors.vectors), stored, present)[0])
+
+    # fewer balancing steps: other bits, but far nearer its own stored model than another shape
+    assert not np.array_equal(quick.descriptors.vectors["shape"],
+                              torus_processed.descriptors["shape"])
+    assert dist(quick) < 0.1 * dist(other)
+    q = MapOptions(final_steps=7, query_final_steps=3).for_query()
+    assert (q.final_steps, q.final_steps_large) == (3, MapOptions().query_final_steps_large)
+    with pytest.raises(InputError,
+                       match=r"MapOptions\.query_final_steps must be an integer >= 0, got -1"):
+        MapOptions(query_final_steps=-1)
+
+
 def test_database_records_what_was_added(tmp_path, torus_processed):
     from surfidx.database import Database
 

@@ -7,7 +7,7 @@ depends on its input and these options only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from ..errors import InputError
 from ..validate import check_option_fields, option
@@ -80,6 +80,11 @@ class MapOptions:
         Most L-BFGS balancing steps at the finest level.
     final_steps_large : int
         ... at a finest level above ``large_level`` vertices, where a step costs far more.
+    query_final_steps, query_final_steps_large : int
+        The same two counts for the map of a query by example (:meth:`for_query`): its
+        descriptors are only compared with stored ones, and they find them as well after far
+        fewer steps at the finest level, which take most of a map's time
+        (``benchmarks/query_map.py``).
     final_rounds : int
         Runs the finest level's steps are split into, each after ``final_sweeps`` sweeps.
     final_sweeps : int
@@ -130,6 +135,8 @@ class MapOptions:
     round_sweeps: int = option(0, min=0)
     final_steps: int = 600
     final_steps_large: int = 150
+    query_final_steps: int = option(100, min=0)
+    query_final_steps_large: int = option(50, min=0)
     final_rounds: int = option(2, min=1)
     final_sweeps: int = option(10, min=0)
     large_level: int = 20000
@@ -151,6 +158,13 @@ class MapOptions:
         check_option_fields(self)
         if self.level_ratio < 2:
             raise InputError(f"MapOptions.level_ratio must be at least 2, got {self.level_ratio}")
+
+    def for_query(self) -> "MapOptions":
+        """These options with a query's finest-level step counts (``query_final_steps``,
+        ``query_final_steps_large``) in place of an ingest's: how a query by example is mapped
+        (:func:`surfidx.pipeline.describe_model` with ``for_query=True``)."""
+        return replace(self, final_steps=self.query_final_steps,
+                       final_steps_large=self.query_final_steps_large)
 
 
 DEFAULT_OPTIONS = MapOptions()
