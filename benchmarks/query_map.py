@@ -28,10 +28,10 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-import retrieval as R
+import retrieval as R       # first: it sets the numerics profile before numpy loads
 from _markdown import Report, add_markdown_option
+
+import numpy as np
 
 
 def stored_descriptors(paths, cache_dir):
