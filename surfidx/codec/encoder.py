@@ -39,7 +39,6 @@ across the parts in proportion to their input surfels (:func:`surfidx.codec.cont
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -148,14 +147,6 @@ input for every decoding, and as many of each decoding's points."""
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
 encoder's are below 1e8 (level norms up to 371 at level 9, density weights up to 64)."""
-
-
-@functools.lru_cache(maxsize=MAX_LEVEL + 1)
-def _grid_forest(level: int):
-    """The zerotree forest of the level-``level`` grid, checked once per process (as
-    :func:`surfidx.geometry.icosphere.icosphere` builds the grid once)."""
-    ico = icosphere(level)
-    return zerotree.forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
 
 
 _UNSET = object()
@@ -469,7 +460,7 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
         full[:len(coeffs), :3] = coeffs
         full[:, 3:] = cplain
         coeffs = full
-        quantised = zerotree.prepare(coeffs, _grid_forest(clevel), None, None, step=step,
+        quantised = zerotree.prepare(coeffs, zerotree.grid_forest(clevel), None, None, step=step,
                                      final_plane=0)
         color_top = int(np.max(quantised.magnitudes[3:])).bit_length() - 1
         schedule = _schedule(options, quantised, coeffs, step, color_top, level, clevel,
@@ -620,7 +611,7 @@ def quantise(prepared: Prepared):
     the part of coding shared by every rate."""
     if prepared.quantised is not None:
         return prepared.quantised
-    return zerotree.prepare(prepared.coeffs, _grid_forest(prepared.level), None, None,
+    return zerotree.prepare(prepared.coeffs, zerotree.grid_forest(prepared.level), None, None,
                             step=prepared.step, final_plane=0)
 
 
@@ -1283,8 +1274,8 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
     k = header.layers
     ico = icosphere(level)
     cut = (ico.level_of == level) if level < header.level else None
-    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(level), None, None,
-                                header=zh, planes=True, cut=cut)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, zerotree.grid_forest(level), None,
+                                None, header=zh, planes=True, cut=cut)
     # the stream's level norms: coarser levels' norms depend on the finest level too
     scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
     if field is not None:
@@ -1391,7 +1382,7 @@ def _decode_color_grid(header, stream, path, checked, level: int, geometry: bool
     cut = (ico.level_of == rl) if rl < header.color_level else None
     groups, limits = _layout(header.level, header.color_level)
     sched = _stream_schedule(header, zh, path)
-    w, planes = zerotree.decode(stream, ico.n_vertices, 6, _grid_forest(rl), None, None,
+    w, planes = zerotree.decode(stream, ico.n_vertices, 6, zerotree.grid_forest(rl), None, None,
                                 header=zh, planes=True, cut=cut, schedule=sched, groups=groups,
                                 depth_limits=limits)
     gl = min(level, header.level)

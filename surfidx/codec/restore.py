@@ -49,7 +49,6 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ..errors import BitstreamError, InputError
 from ..geometry.icosphere import icosphere, vertex_count
@@ -176,6 +175,8 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None, centres=None):
             count, region = grid_regions(on, level)
             if count <= 1:
                 break
+            from scipy.sparse.csgraph import dijkstra   # encoding only: not loaded to decode
+
             graph = _grid_graph(level) if graph is None else graph
             free = ((lab < 0) & ~fenced) | on
             # the grid's edges into free vertices, weight 1 (its own index arrays: the cached

@@ -22,15 +22,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
 from ..tolerance import TOL
 from ..validate import as_array
 from .surfels import SurfelSet, _rgba
 
-if TYPE_CHECKING:                     # trimesh is imported by :meth:`TriangleMesh.to_trimesh` only
+if TYPE_CHECKING:   # trimesh: by :meth:`TriangleMesh.to_trimesh` only; scipy: where a graph is
+    import scipy.sparse as sp          # built, not for the mesh a decoding returns
     import trimesh
 
 __all__ = ["TriangleMesh", "Topology", "MAX_EDGE_RATIO", "sample_texture", "spacing_radii",
@@ -304,6 +303,9 @@ class TriangleMesh:
         ekeys = np.column_stack([keys // base, keys % base])
         ne = len(ekeys)
         if nf:
+            import scipy.sparse as sp
+            from scipy.sparse.csgraph import connected_components
+
             adj = sp.coo_matrix((np.ones(len(ekeys)), (ekeys[:, 0], ekeys[:, 1])), shape=(n, n))
             ncomp, lab = connected_components(adj, directed=False)
             ncomp = len(np.unique(lab[used]))
@@ -338,6 +340,9 @@ class TriangleMesh:
         ks, cs = keys[order], cid[order]
         same = ks[1:] == ks[:-1]
         a, b = cs[:-1][same], cs[1:][same]
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import connected_components
+
         g = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * m, 3 * m))
         _, lab = connected_components(g, directed=False)
         fans = np.unique(corner_v * np.int64(3 * m) + lab)       # distinct (vertex, fan) pairs
@@ -860,6 +865,8 @@ def cotangent_laplacian(faces: np.ndarray, cot: np.ndarray, n: int) -> sp.csr_ma
         ``L_ij = -½ Σ cot`` of the angles opposite edge ``ij``, ``L_ii = -Σ_j L_ij``: symmetric,
         rows summing to 0.
     """
+    import scipy.sparse as sp
+
     rows = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
     cols = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
     w = 0.5 * np.concatenate([cot[:, 0], cot[:, 1], cot[:, 2]])

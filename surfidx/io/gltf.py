@@ -471,7 +471,8 @@ def textured_arrays(model):
         v upwards, as :attr:`surfidx.TriangleMesh.uv`.
     faces : (m, 3) int64
     """
-    positions, normals, _, faces = model_arrays(model)
+    # model_arrays' vertex colours (the texture sampled at each vertex) are not needed here
+    positions, normals, faces = model.vertices, model.vertex_normals(), model.faces
     key = faces.ravel() * np.int64(len(model.uv)) + model.uv_faces.ravel()
     _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")
