@@ -24,6 +24,8 @@ grid finer than the geometry's plugs into the same bake.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..errors import InputError
@@ -80,11 +82,13 @@ def check_texture_size(size) -> int:
     return int(size)
 
 
+@functools.lru_cache(maxsize=2)
 def _lattice_corners(level: int) -> np.ndarray:
     """(20·4^L, 3, 2) int64: the lattice coordinates ``(i, j)`` of each grid face's corners in
     its base triangle ``(a, b, c)`` (point ``a + i/N (b - a) + j/N (c - a)``, ``N = 2^L``),
     following the subdivision's face order (children ``(a, ab, ca), (b, bc, ab),
-    (c, ca, bc), (ab, bc, ca)``)."""
+    (c, ca, bc), (ab, bc, ca)``); cached (an atlas and its texels' faces both need it), read
+    only."""
     n = 2 ** level
     cur = np.broadcast_to(np.array([[0, 0], [n, 0], [0, n]], np.int64), (20, 3, 2)).copy()
     for _ in range(level):
@@ -92,6 +96,7 @@ def _lattice_corners(level: int) -> np.ndarray:
         ab, bc, ca = (a + b) // 2, (b + c) // 2, (c + a) // 2
         cur = np.stack([np.stack(t, 1) for t in ((a, ab, ca), (b, bc, ab), (c, ca, bc),
                                                  (ab, bc, ca))], 1).reshape(-1, 3, 2)
+    cur.flags.writeable = False
     return cur
 
 
@@ -528,6 +533,9 @@ def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
         Indices into ``atlas.uv``.
     """
     f = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
+    own = np.asarray(icosphere(atlas.level).faces)
+    if f.shape == own.shape and np.array_equal(f, own):
+        return np.array(atlas.uv_faces)       # the grid's faces themselves (no search)
     idx = grid_face_index(atlas.level, f)
     grid = idx >= 0
     out = np.empty_like(f)
@@ -536,6 +544,7 @@ def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
     for k in range(3):
         pick = np.argmax(owner == f[grid, k][:, None], axis=1)
         out[grid, k] = uvf[np.arange(len(uvf)), pick]
-    _, first = np.unique(atlas.uv_vertex, return_index=True)   # every grid vertex has one
-    out[~grid] = first[f[~grid, 0]][:, None]
+    if not grid.all():
+        _, first = np.unique(atlas.uv_vertex, return_index=True)   # every grid vertex has one
+        out[~grid] = first[f[~grid, 0]][:, None]
     return out
