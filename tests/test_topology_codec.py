@@ -319,6 +319,10 @@ def test_regions_two_hops_apart_decode_as_two_holes():
     r = restore(V, level, region, (0, 0))
     assert _topology(TriangleMesh(V[r.vertices], r.faces)) == dict(
         loops=2, genus=(0,), parts=1, manifold=True)
+    # the kept faces are the grid faces restore names, corners in their order; strips are -1
+    kept = r.grid_faces >= 0
+    assert len(r.grid_faces) == len(r.faces) and 0 < kept.sum() < len(kept)
+    np.testing.assert_array_equal(r.vertices[r.faces[kept]], F[r.grid_faces[kept]])
 
 
 def test_restored_vertices_are_those_of_any_decoding(holes3, torus):

@@ -1648,9 +1648,11 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
     return out
 
 
-def _textured(mesh, grid_vertex, values, level, tile):
+def _textured(mesh, grid_vertex, values, level, tile, grid_faces=None):
     """A decoded grid mesh with its colour as a texture: the image baked on the level's atlas,
-    the atlas's texture coordinates in tile ``part`` of a ``k × k`` layout."""
+    the atlas's texture coordinates in tile ``part`` of a ``k × k`` layout (``grid_faces``:
+    the grid face of each of the mesh's faces, where known, for
+    :func:`surfidx.geometry.atlas.atlas_uv_faces`)."""
     from ..geometry.atlas import GridColor, atlas_uv_faces, bake_texture, grid_atlas
     from ..geometry.mesh import TriangleMesh
 
@@ -1658,7 +1660,7 @@ def _textured(mesh, grid_vertex, values, level, tile):
     fine = tile.get("colors")
     image = bake_texture(atlas, GridColor(values[:vertex_count(level), 3:6] if fine is None
                                           else fine))
-    uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces])
+    uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces], grid_faces=grid_faces)
     k = tile["k"]
     col, row = tile["part"] % k, tile["part"] // k
     uv = np.stack([(col + atlas.uv[:, 0]) / k, (k - 1 - row + atlas.uv[:, 1]) / k], 1)
@@ -1707,7 +1709,7 @@ def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, t
         col = None if values.shape[1] < 6 else np.clip(
             np.round(values[r.vertices, 3:6]), 0, 255).astype(np.uint8)
         m = TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
-        return _textured(m, r.vertices, values, out_level, tile) if bake else m
+        return _textured(m, r.vertices, values, out_level, tile, r.grid_faces) if bake else m
     s = grid_to_surfels(values, name=name)
     v = r.vertices
     return SurfelSet(s.positions[v], s.normals[v], s.radii[v],

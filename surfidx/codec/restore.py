@@ -675,10 +675,14 @@ class RestoredMesh:
         Cuts whose two loops were zipped together.
     unzipped : int
         Cuts that could not be (not one loop on each side); they stay two holes.
+    grid_faces : (f,) int64
+        The grid face (of the level's icosphere, corners in its order) each kept face is;
+        -1 for a strip's faces.
     """
 
-    def __init__(self, vertices, faces, zipped, unzipped):
+    def __init__(self, vertices, faces, zipped, unzipped, grid_faces):
         self.vertices, self.faces, self.zipped, self.unzipped = vertices, faces, zipped, unzipped
+        self.grid_faces = grid_faces
 
 
 def restore(positions, level: int, region, codes) -> RestoredMesh:
@@ -749,7 +753,9 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
     used = np.unique(allf)
     remap = np.full(n, -1, np.int64)
     remap[used] = np.arange(len(used))
-    return RestoredMesh(used, remap[allf], zipped, unzipped)
+    grid_faces = np.concatenate([np.flatnonzero(label < 0), np.full(len(allf) - len(kept), -1,
+                                                                    np.int64)])
+    return RestoredMesh(used, remap[allf], zipped, unzipped, grid_faces)
 
 
 def restored_vertices(level: int, region, n_regions: int) -> np.ndarray:

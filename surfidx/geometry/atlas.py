@@ -515,7 +515,7 @@ def bake_texture(atlas: GridAtlas, color) -> np.ndarray:
     return img.reshape(atlas.size, atlas.size, 3)
 
 
-def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
+def atlas_uv_faces(atlas: GridAtlas, faces, *, grid_faces=None) -> np.ndarray:
     """The texture coordinates of the corners of triangles of grid vertices on an atlas: a
     grid face's own, in the triangle's corner order; a triangle that is no grid face (a strip
     that zips a cut) takes its first corner's texture coordinate at all three corners, so it
@@ -526,17 +526,37 @@ def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
     atlas : GridAtlas
     faces : (m, 3) int64
         Grid vertex ids of the level ``atlas.level``.
+    grid_faces : (m,) int64, optional
+        The grid face each triangle is, where the caller knows it (its corners in any
+        order), -1 where it does not: those triangles are looked up
+        (:func:`grid_face_index`), as all of them are without ``grid_faces``.
 
     Returns
     -------
     (m, 3) int64
         Indices into ``atlas.uv``.
+
+    Raises
+    ------
+    InputError
+        ``grid_faces`` of another length, or holding a value outside -1 … the grid's last face.
     """
     f = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
     own = np.asarray(icosphere(atlas.level).faces)
+    if grid_faces is not None:
+        idx = np.array(as_array(grid_faces, "grid_faces", dtype=np.int64, shape=(len(f),)))
+        if len(idx) and (idx.min() < -1 or idx.max() >= len(own)):
+            raise InputError(f"grid_faces must hold faces of the level-{atlas.level} grid "
+                             f"(0 … {len(own) - 1}) or -1, got values from {idx.min()} to "
+                             f"{idx.max()}")
     if f.shape == own.shape and np.array_equal(f, own):
         return np.array(atlas.uv_faces)       # the grid's faces themselves (no search)
-    idx = grid_face_index(atlas.level, f)
+    if grid_faces is None:
+        idx = grid_face_index(atlas.level, f)
+    else:
+        unknown = idx < 0
+        if unknown.any():
+            idx[unknown] = grid_face_index(atlas.level, f[unknown])
     grid = idx >= 0
     out = np.empty_like(f)
     uvf = atlas.uv_faces[idx[grid]]

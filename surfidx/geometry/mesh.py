@@ -195,7 +195,7 @@ class TriangleMesh:
             out = np.zeros((len(self.vertices), 3))
             out[:, 2] = 1.0
             return out
-        return self._vertex_normals(self.face_areas())
+        return self._vertex_normals()
 
     def signed_volume(self) -> float:
         """Signed enclosed volume (positive when faces wind counter-clockwise seen from outside)."""
@@ -251,7 +251,7 @@ class TriangleMesh:
         import trimesh
 
         vertex_colors = _rgba(self.vertex_colors)
-        normals = self._vertex_normals(self.face_areas())
+        normals = self._vertex_normals()
         meta = {"name": self.name}
         face_attrs, vertex_attrs = {}, {}
         if self.face_patch is not None:
@@ -416,7 +416,7 @@ class TriangleMesh:
             mesh = self.bisected(max_edge) if max_edge > 0 else self  # most edges degenerate
             if mesh is not self:
                 return mesh.to_surfels(max_edge_ratio=None, return_face_patch=return_face_patch)
-        vnormals = self._vertex_normals(areas)
+        vnormals = self._vertex_normals()
         if samples is not None:
             out = self._sample(int(samples), seed, areas, vnormals)
             return (out, None) if return_face_patch else out
@@ -569,7 +569,7 @@ class TriangleMesh:
             return 1.0
         return -1.0 if self.signed_volume() < 0 else 1.0
 
-    def _vertex_normals(self, areas: np.ndarray) -> np.ndarray:
+    def _vertex_normals(self) -> np.ndarray:
         fn = self.face_normals(unit=False) * self._orientation_sign()  # length = 2 * area
         n = len(self.vertices)
         acc = np.zeros((n, 3))
