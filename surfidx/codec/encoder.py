@@ -1694,7 +1694,6 @@ def _regions(header, out_level, read, path):
 def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, tile=None):
     from ..geometry.mesh import TriangleMesh
     from .resample import grid_to_mesh, grid_to_surfels
-    from .restore import restore
 
     values = values[:vertex_count(out_level)]
     bake = mesh and tile is not None and values.shape[1] == 6
@@ -1703,6 +1702,8 @@ def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, t
             return grid_to_surfels(values, name=name)
         m = grid_to_mesh(values, name=name)
         return _textured(m, np.arange(len(values)), values, out_level, tile) if bake else m
+    from .restore import restore     # a stream with a mask only
+
     region, codes = _regions(header, out_level, read, path)
     r = restore(values[:, :3], out_level, region, codes)
     if mesh:

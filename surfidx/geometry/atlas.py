@@ -197,12 +197,16 @@ class GridAtlas:
         chart, ia, ib, down, w = self._texels()
         rows = np.flatnonzero(chart >= 0)
         ch, ia, ib, down, w = chart[rows], ia[rows], ib[rows], down[rows], w[rows]
-        li = np.stack([np.where(down, ia + 1, ia), np.where(down, ia, ia + 1),
-                       np.where(down, ia + 1, ia)], 1)
-        lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
-                       np.where(down, ib, ib + 1)], 1)
         n = 2 ** self.level
-        uv = ch[:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
+        d = down.astype(np.int64)
+        # the cell's corners (i + d, j + d), (i + 1 - d, j + d), (i + d, j + 1 - d): two on
+        # lattice row j + d, one on row j + 1 - d
+        first = ch * ((n + 1) * (n + 2) // 2)
+        row = first + _lattice_index(0, ib + d, n)
+        uv = np.empty((len(rows), 3), np.int64)
+        uv[:, 0] = row + ia + d
+        uv[:, 1] = row + ia + 1 - d
+        uv[:, 2] = first + _lattice_index(ia + d, ib + 1 - d, n)
         return rows, (ch, ia, ib, down), self.uv_vertex[uv], w
 
     def _texels(self):
