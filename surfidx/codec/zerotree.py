@@ -208,7 +208,7 @@ def forest(parent, children_indptr, children_indices) -> Forest:
 def grid_forest(level: int) -> Forest:
     """The zerotree forest of the level-``level`` icosahedral grid, built once per process.
 
-    The grid's construction makes it a forest (:meth:`surfidx.geometry.icosphere.Icosphere`
+    The grid's construction makes it a forest (:class:`surfidx.geometry.icosphere.Icosphere`
     builds ``tree_parent`` and its CSR children together, a vertex's parent born one level
     above it), so it is not validated again as :func:`forest` validates foreign arrays: the
     depth of a vertex is its birth level, and the breadth-first order is that of
