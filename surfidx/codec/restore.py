@@ -750,7 +750,7 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
         missing = {region_cut(c)[0] for c in codes if region_cut(c)[0] >= 0} - set(by_side)
         unzipped += len(missing)
     allf = np.vstack([kept] + strips) if strips else kept
-    used = np.unique(allf)
+    used = _used_vertices(allf, n)
     remap = np.full(n, -1, np.int64)
     remap[used] = np.arange(len(used))
     grid_faces = np.concatenate([np.flatnonzero(label < 0), np.full(len(allf) - len(kept), -1,
@@ -777,9 +777,17 @@ def restored_vertices(level: int, region, n_regions: int) -> np.ndarray:
     (k,) int64
         Sorted grid vertex indices.
     """
-    faces, _, _ = _grid_faces(level)
+    faces, _, star = _grid_faces(level)
     label = _clean(level, np.asarray(region, np.int64), int(n_regions))
-    return np.unique(faces[label < 0])
+    return _used_vertices(faces[label < 0], star.shape[0])
+
+
+def _used_vertices(faces, n: int) -> np.ndarray:
+    """The sorted distinct vertices of ``faces`` (over ``n`` vertices), as ``np.unique`` gives
+    them, by marking instead of sorting."""
+    mark = np.zeros(n, bool)
+    mark[faces.ravel()] = True
+    return np.flatnonzero(mark)
 
 
 # --------------------------------------------------------------------------- closed surfaces
