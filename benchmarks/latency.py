@@ -25,10 +25,14 @@ Commands
 * ``surfidx query NAME`` and ``surfidx get NAME -o FILE.sfz`` / ``FILE.ply`` of a stored model
   (d045, in that database): a query by a stored model's descriptors, a copy of its stream and a
   decode of it;
+* ``surfidx decode FILE.sfz -o FILE.glb`` / ``FILE.ply`` of each of ``--decode`` textured
+  models (default the YCB banana; a folder of ``../shared/data/models`` holding
+  ``textured_simple_reoriented.obj``), encoded once per run at 8 bits/surfel (``encode``, not
+  measured): a textured GLB (the image baked on the grid's atlas, PNG) and the surfels;
 * ``surfidx ingest -j 1`` of each of ``--ingest`` retrieval models into a new database, one
   process per model (per-model CPU, and their mean).
 
-Run ``python benchmarks/latency.py [--tree /work/main] [--repeat 3] [--skip ingest view stored]
+Run ``python benchmarks/latency.py [--tree /work/main] [--repeat 3] [--skip ingest view stored decode]
 [--json out.json] [--markdown]``; two runs with different ``--tree`` and ``--json`` give the
 before/after table: ``python benchmarks/latency.py --compare before.json after.json
 [--markdown]``.
@@ -52,6 +56,9 @@ from _markdown import Report, add_markdown_option
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "retrieval"
+MODELS = ROOT.parent / "shared" / "data" / "models"
+DECODE_MODELS = ("ycb_banana",)
+DECODE_BITS = 8      # bits/surfel of the decoded streams
 DB_MODELS = ("d073", "d000", "d045", "d019", "d060")
 INGEST_MODELS = ("d073", "d019", "d045", "d087", "d060")
 STORED_MODEL = "d045"  # of DB_MODELS: the stored model that query NAME and get name
@@ -157,8 +164,11 @@ def main(argv=None) -> int:
     ap.add_argument("--query-models", nargs="*", default=None,
                     help="retrieval models queried by file (default the median-size one)")
     ap.add_argument("--view", default="d071", help="retrieval model whose single view is queried")
+    ap.add_argument("--decode", nargs="*", default=list(DECODE_MODELS),
+                    help="textured models (folders of ../shared/data/models) encoded at "
+                         f"{DECODE_BITS} bits/surfel, then decoded to GLB and PLY")
     ap.add_argument("--skip", nargs="*", default=[],
-                    choices=["query", "info", "ingest", "view", "stored"],
+                    choices=["query", "info", "ingest", "view", "stored", "decode"],
                     help="leave these commands out")
     ap.add_argument("--work", type=Path, default=None,
                     help="folder for the databases and generated files (default a temporary one)")
@@ -231,6 +241,16 @@ def main(argv=None) -> int:
             measure(f"get NAME -o {fmt.upper()} ({STORED_MODEL})",
                     cli + ["get", "-q", "--db", str(db), STORED_MODEL, "-o",
                            str(work / f"{STORED_MODEL}.{fmt}")])
+    if "decode" not in args.skip:
+        for m in args.decode or []:
+            sfz = work / f"{m}-{DECODE_BITS}.sfz"
+            if not sfz.exists():
+                cpu_run(cli + ["encode", "-q", str(MODELS / m / "textured_simple_reoriented.obj"),
+                               "-o", str(sfz), "--bits-per-surfel", str(DECODE_BITS)],
+                        env=env, cwd=work)
+            for fmt in ("glb", "ply"):
+                measure(f"decode -o {fmt.upper()} ({m}, {DECODE_BITS} b/s)",
+                        cli + ["decode", "-q", str(sfz), "-o", str(work / f"{m}.{fmt}")])
     if "view" not in args.skip:
         view, opened = work / f"{args.view}-view.off", work / "open642.off"
         n = write_view(args.view, view)

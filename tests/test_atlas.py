@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from surfidx import InputError
-from surfidx.geometry.atlas import (GridColor, bake_texture, default_texture_size, grid_atlas,
-                                    grid_face_index, locate_on_grid)
+from surfidx.geometry.atlas import (GridColor, atlas_uv_faces, bake_texture, default_texture_size,
+                                    grid_atlas, grid_face_index, locate_on_grid)
 from surfidx.geometry.icosphere import icosphere
 from surfidx.geometry.mesh import sample_texture
 
@@ -142,6 +142,29 @@ def test_grid_face_index_finds_faces_in_any_rotation():
     f = np.asarray(grid.faces)
     idx = grid_face_index(2, np.vstack([f[[5, 9]], f[[7]][:, [1, 2, 0]], [[0, 1, 2]]]))
     assert idx.tolist() == [5, 9, 7, -1]
+
+
+def test_uv_faces_of_known_grid_faces_are_those_found():
+    """Grid faces given (rotated or not, some left -1) give the coordinates a search gives,
+    as do the grid's own faces in order; a triangle that is no grid face takes its first
+    corner's coordinate."""
+    atlas = grid_atlas(2, size=128)
+    f = np.asarray(icosphere(2).faces)
+    tri = np.vstack([f[[5, 9]], f[[7]][:, [1, 2, 0]], [[0, 1, 2]], f[[3]]])
+    want = atlas_uv_faces(atlas, tri)
+    np.testing.assert_array_equal(atlas_uv_faces(atlas, tri, grid_faces=[5, 9, 7, -1, -1]), want)
+    np.testing.assert_array_equal(atlas_uv_faces(atlas, tri, grid_faces=[-1] * 5), want)
+    assert len(set(want[3].tolist())) == 1
+    np.testing.assert_array_equal(atlas_uv_faces(atlas, f), atlas.uv_faces)
+    np.testing.assert_array_equal(atlas_uv_faces(atlas, f[:, [2, 0, 1]])[:, [1, 2, 0]],
+                                  atlas.uv_faces)
+
+
+@pytest.mark.parametrize("grid_faces", [[0, 1], [0, 1, 2, 3, 320], [-2, 0, 0, 0, 0]])
+def test_bad_grid_faces_are_refused(grid_faces):
+    f = np.asarray(icosphere(2).faces)[:5]
+    with pytest.raises(InputError, match="grid_faces"):
+        atlas_uv_faces(grid_atlas(2, size=128), f, grid_faces=grid_faces)
 
 
 def test_default_size_grows_with_the_level():

@@ -185,3 +185,31 @@ def test_cli_refuses_bad_texture_options(coded, tmp_path):
     r = CliRunner().invoke(cli, ["decode", str(path), "-o", str(tmp_path / "a.glb"),
                                  "--image-quality", "80"])
     assert r.exit_code != 0 and "lossless" in r.output
+
+
+def test_textured_arrays_split_at_seams_in_order_of_first_use():
+    """One GLB vertex per distinct (vertex, texture coordinate) pair of the corners, in order
+    of first use, also where a texture coordinate is shared by several vertices (as a zipped
+    cut's strip shares its first corner's) and a vertex has several coordinates."""
+    from surfidx.geometry.mesh import TriangleMesh
+    from surfidx.io.gltf import textured_arrays
+
+    rng = np.random.default_rng(7)
+    verts = rng.standard_normal((9, 3))
+    faces = rng.integers(0, 9, (40, 3))
+    uv = rng.random((12, 2))
+    owner = rng.integers(0, 12, 9)
+    uv_faces = owner[faces]
+    uv_faces[::5] = uv_faces[::5, :1]            # strips: the first corner's coordinate
+    uv_faces[3] = rng.integers(0, 12, 3)
+    mesh = TriangleMesh(verts, faces, uv=uv, uv_faces=uv_faces,
+                        texture=np.zeros((4, 4, 3), np.uint8))
+    pairs, corner = {}, []
+    for v, t in zip(faces.ravel().tolist(), uv_faces.ravel().tolist()):
+        corner.append(pairs.setdefault((v, t), len(pairs)))
+    pos, nrm, tex, tri = textured_arrays(mesh)
+    want_v = [v for v, _ in pairs]
+    np.testing.assert_array_equal(tri.ravel(), corner)
+    np.testing.assert_array_equal(pos, verts[want_v])
+    np.testing.assert_array_equal(nrm, mesh.vertex_normals()[want_v])
+    np.testing.assert_array_equal(tex, uv[[t for _, t in pairs]])

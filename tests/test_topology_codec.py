@@ -326,7 +326,7 @@ def test_restored_vertices_are_those_of_any_decoding(holes3, torus):
     a stream (the output-level hints score each prefix with them), at its level and a coarser
     one."""
     from surfidx.codec.mask import decode_mask
-    from surfidx.geometry.icosphere import vertex_count
+    from surfidx.geometry.icosphere import icosphere, vertex_count
 
     for enc in (holes3, torus):
         data = enc.encode(8.0)
@@ -341,6 +341,16 @@ def test_restored_vertices_are_those_of_any_decoding(holes3, torus):
                 values, _ = decode_grid(data, bits_per_surfel=rate)
                 r = restore(values[:vertex_count(level), :3], level, region, codes)
                 assert np.array_equal(r.vertices, keep)
+                # the kept faces are the grid faces restore names, in their corner order; a
+                # strip zipping the torus's cut is none (-1)
+                kept = r.grid_faces >= 0
+                assert len(r.grid_faces) == len(r.faces)
+                assert (kept.sum() < len(kept)) == (r.zipped > 0)
+                np.testing.assert_array_equal(r.vertices[r.faces[kept]],
+                                              np.asarray(icosphere(level).faces)[
+                                                  r.grid_faces[kept]])
+            if enc is torus and level == L:
+                assert r.zipped == 1
 
 
 @pytest.mark.parametrize("kw", [{}, {"bits_per_surfel": 1.0}, {"level": 4}, {"level": 3}])

@@ -10,7 +10,7 @@ import pytest
 from surfidx import BitstreamError, InputError
 from surfidx.geometry.icosphere import icosphere
 from surfidx.codec.zerotree import (HEADER_SIZE, check_forest, decode, encode, encode_prepared, forest,
-                              pack_header, prepare, unpack_header)
+                              grid_forest, pack_header, prepare, unpack_header)
 
 
 def _csr(parent):
@@ -164,6 +164,21 @@ def test_a_checked_forest_codes_and_decodes_as_its_arrays():
         decode(stream, n, 2, f, tree[1], tree[2], header=header)
     with pytest.raises(InputError, match="does not match"):
         decode(stream, n + 1, 2, f, None, None, header=header)
+
+
+@pytest.mark.parametrize("level", range(0, 8))
+def test_grid_forest_is_the_checked_forest_of_the_grid(level):
+    """The grid's forest built without validation has check_forest's arrays (dtypes too)."""
+    ico = icosphere(level)
+    want = forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
+    got = grid_forest(level)
+    assert got is grid_forest(level)
+    for name in ("parent", "indptr", "indices", "order", "depth"):
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(InputError, match="level must be at most 9"):
+        grid_forest(10)
 
 
 def test_layers_interleaved_weak_layer_later():

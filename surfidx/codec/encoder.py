@@ -39,7 +39,6 @@ across the parts in proportion to their input surfels (:func:`surfidx.codec.cont
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass
@@ -148,14 +147,6 @@ input for every decoding, and as many of each decoding's points."""
 MAX_COEFFICIENT = 1e12
 """Largest coefficient a stream's coder header may announce (step · 2^(top plane + 1)); the
 encoder's are below 1e8 (level norms up to 371 at level 9, density weights up to 64)."""
-
-
-@functools.lru_cache(maxsize=MAX_LEVEL + 1)
-def _grid_forest(level: int):
-    """The zerotree forest of the level-``level`` grid, checked once per process (as
-    :func:`surfidx.geometry.icosphere.icosphere` builds the grid once)."""
-    ico = icosphere(level)
-    return zerotree.forest(ico.tree_parent, ico.children_indptr, ico.children_indices)
 
 
 _UNSET = object()
@@ -469,7 +460,7 @@ def prepare(surfels: SurfelSet, options=None, *, map_options=None, sphere_map=No
         full[:len(coeffs), :3] = coeffs
         full[:, 3:] = cplain
         coeffs = full
-        quantised = zerotree.prepare(coeffs, _grid_forest(clevel), None, None, step=step,
+        quantised = zerotree.prepare(coeffs, zerotree.grid_forest(clevel), None, None, step=step,
                                      final_plane=0)
         color_top = int(np.max(quantised.magnitudes[3:])).bit_length() - 1
         schedule = _schedule(options, quantised, coeffs, step, color_top, level, clevel,
@@ -620,7 +611,7 @@ def quantise(prepared: Prepared):
     the part of coding shared by every rate."""
     if prepared.quantised is not None:
         return prepared.quantised
-    return zerotree.prepare(prepared.coeffs, _grid_forest(prepared.level), None, None,
+    return zerotree.prepare(prepared.coeffs, zerotree.grid_forest(prepared.level), None, None,
                             step=prepared.step, final_plane=0)
 
 
@@ -1283,8 +1274,8 @@ def _decode_values(data, header, stream, bits_per_surfel, path, checked,
     k = header.layers
     ico = icosphere(level)
     cut = (ico.level_of == level) if level < header.level else None
-    w, planes = zerotree.decode(stream, ico.n_vertices, k, _grid_forest(level), None, None,
-                                header=zh, planes=True, cut=cut)
+    w, planes = zerotree.decode(stream, ico.n_vertices, k, zerotree.grid_forest(level), None,
+                                None, header=zh, planes=True, cut=cut)
     # the stream's level norms: coarser levels' norms depend on the finest level too
     scales = wavelets.level_norms(header.level, lifted=header.lifted)[ico.level_of]
     if field is not None:
@@ -1391,7 +1382,7 @@ def _decode_color_grid(header, stream, path, checked, level: int, geometry: bool
     cut = (ico.level_of == rl) if rl < header.color_level else None
     groups, limits = _layout(header.level, header.color_level)
     sched = _stream_schedule(header, zh, path)
-    w, planes = zerotree.decode(stream, ico.n_vertices, 6, _grid_forest(rl), None, None,
+    w, planes = zerotree.decode(stream, ico.n_vertices, 6, zerotree.grid_forest(rl), None, None,
                                 header=zh, planes=True, cut=cut, schedule=sched, groups=groups,
                                 depth_limits=limits)
     gl = min(level, header.level)
@@ -1657,9 +1648,11 @@ def decode_parts(data: bytes, *, bits_per_surfel: float | None = None, mesh: boo
     return out
 
 
-def _textured(mesh, grid_vertex, values, level, tile):
+def _textured(mesh, grid_vertex, values, level, tile, grid_faces=None):
     """A decoded grid mesh with its colour as a texture: the image baked on the level's atlas,
-    the atlas's texture coordinates in tile ``part`` of a ``k × k`` layout."""
+    the atlas's texture coordinates in tile ``part`` of a ``k × k`` layout (``grid_faces``:
+    the grid face of each of the mesh's faces, where known, for
+    :func:`surfidx.geometry.atlas.atlas_uv_faces`)."""
     from ..geometry.atlas import GridColor, atlas_uv_faces, bake_texture, grid_atlas
     from ..geometry.mesh import TriangleMesh
 
@@ -1667,7 +1660,7 @@ def _textured(mesh, grid_vertex, values, level, tile):
     fine = tile.get("colors")
     image = bake_texture(atlas, GridColor(values[:vertex_count(level), 3:6] if fine is None
                                           else fine))
-    uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces])
+    uv_faces = atlas_uv_faces(atlas, grid_vertex[mesh.faces], grid_faces=grid_faces)
     k = tile["k"]
     col, row = tile["part"] % k, tile["part"] // k
     uv = np.stack([(col + atlas.uv[:, 0]) / k, (k - 1 - row + atlas.uv[:, 1]) / k], 1)
@@ -1701,7 +1694,6 @@ def _regions(header, out_level, read, path):
 def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, tile=None):
     from ..geometry.mesh import TriangleMesh
     from .resample import grid_to_mesh, grid_to_surfels
-    from .restore import restore
 
     values = values[:vertex_count(out_level)]
     bake = mesh and tile is not None and values.shape[1] == 6
@@ -1710,13 +1702,15 @@ def _model(values, header, out_level, read, *, mesh, keep_virtual, name, path, t
             return grid_to_surfels(values, name=name)
         m = grid_to_mesh(values, name=name)
         return _textured(m, np.arange(len(values)), values, out_level, tile) if bake else m
+    from .restore import restore     # a stream with a mask only
+
     region, codes = _regions(header, out_level, read, path)
     r = restore(values[:, :3], out_level, region, codes)
     if mesh:
         col = None if values.shape[1] < 6 else np.clip(
             np.round(values[r.vertices, 3:6]), 0, 255).astype(np.uint8)
         m = TriangleMesh(values[r.vertices, :3], r.faces, vertex_colors=col, name=name)
-        return _textured(m, r.vertices, values, out_level, tile) if bake else m
+        return _textured(m, r.vertices, values, out_level, tile, r.grid_faces) if bake else m
     s = grid_to_surfels(values, name=name)
     v = r.vertices
     return SurfelSet(s.positions[v], s.normals[v], s.radii[v],

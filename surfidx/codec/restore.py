@@ -49,7 +49,6 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
 
 from ..errors import BitstreamError, InputError
 from ..geometry.icosphere import icosphere, vertex_count
@@ -176,6 +175,8 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None, centres=None):
             count, region = grid_regions(on, level)
             if count <= 1:
                 break
+            from scipy.sparse.csgraph import dijkstra   # encoding only: not loaded to decode
+
             graph = _grid_graph(level) if graph is None else graph
             free = ((lab < 0) & ~fenced) | on
             # the grid's edges into free vertices, weight 1 (its own index arrays: the cached
@@ -674,10 +675,14 @@ class RestoredMesh:
         Cuts whose two loops were zipped together.
     unzipped : int
         Cuts that could not be (not one loop on each side); they stay two holes.
+    grid_faces : (f,) int64
+        The grid face (of the level's icosphere, corners in its order) each kept face is;
+        -1 for a strip's faces.
     """
 
-    def __init__(self, vertices, faces, zipped, unzipped):
+    def __init__(self, vertices, faces, zipped, unzipped, grid_faces):
         self.vertices, self.faces, self.zipped, self.unzipped = vertices, faces, zipped, unzipped
+        self.grid_faces = grid_faces
 
 
 def restore(positions, level: int, region, codes) -> RestoredMesh:
@@ -745,10 +750,12 @@ def restore(positions, level: int, region, codes) -> RestoredMesh:
         missing = {region_cut(c)[0] for c in codes if region_cut(c)[0] >= 0} - set(by_side)
         unzipped += len(missing)
     allf = np.vstack([kept] + strips) if strips else kept
-    used = np.unique(allf)
+    used = _used_vertices(allf, n)
     remap = np.full(n, -1, np.int64)
     remap[used] = np.arange(len(used))
-    return RestoredMesh(used, remap[allf], zipped, unzipped)
+    grid_faces = np.concatenate([np.flatnonzero(label < 0), np.full(len(allf) - len(kept), -1,
+                                                                    np.int64)])
+    return RestoredMesh(used, remap[allf], zipped, unzipped, grid_faces)
 
 
 def restored_vertices(level: int, region, n_regions: int) -> np.ndarray:
@@ -770,9 +777,17 @@ def restored_vertices(level: int, region, n_regions: int) -> np.ndarray:
     (k,) int64
         Sorted grid vertex indices.
     """
-    faces, _, _ = _grid_faces(level)
+    faces, _, star = _grid_faces(level)
     label = _clean(level, np.asarray(region, np.int64), int(n_regions))
-    return np.unique(faces[label < 0])
+    return _used_vertices(faces[label < 0], star.shape[0])
+
+
+def _used_vertices(faces, n: int) -> np.ndarray:
+    """The sorted distinct vertices of ``faces`` (over ``n`` vertices), as ``np.unique`` gives
+    them, by marking instead of sorting."""
+    mark = np.zeros(n, bool)
+    mark[faces.ravel()] = True
+    return np.flatnonzero(mark)
 
 
 # --------------------------------------------------------------------------- closed surfaces

@@ -91,21 +91,16 @@ class _Operators:
         counts = ico.counts
         self.level = level
         self.counts = counts
-        self.predict = []   # predict[j]: (m_j, counts[j]) CSR, m_j = counts[j+1] - counts[j]
+        # predict[j]: (m_j, counts[j]) CSR, m_j = counts[j+1] - counts[j]; the same matrix at
+        # every level above j (:func:`_predict`)
+        self.predict = [_predict(j) for j in range(level)]
         self.update = []    # update[j]: (counts[j], m_j) CSR
         integrals = [None] * (level + 1)
         integrals[level] = np.asarray(level_vertex_areas(level))
         for j in range(level - 1, -1, -1):
             lo, hi = counts[j], counts[j + 1]
-            m = hi - lo
-            st = ico.butterfly[lo:hi]
-            rows = np.repeat(np.arange(m), 8)
-            P = sp.csr_matrix((np.tile(BUTTERFLY_WEIGHTS, m), (rows, st.ravel())),
-                              shape=(m, lo))
-            self.predict.append(P)
             fine = integrals[j + 1]
-            integrals[j] = fine[:lo] + P.T @ fine[lo:hi]
-        self.predict.reverse()
+            integrals[j] = fine[:lo] + self.predict[j].T @ fine[lo:hi]
         self.integrals = integrals
         for j in range(level):
             lo, hi = counts[j], counts[j + 1]
@@ -114,9 +109,39 @@ class _Operators:
             i_m = integrals[j + 1][lo:hi]
             coarse = integrals[j]
             vals = np.stack([i_m / (2 * coarse[par[:, 0]]), i_m / (2 * coarse[par[:, 1]])], 1)
-            U = sp.csr_matrix((vals.ravel(), (par.ravel(), np.repeat(np.arange(m), 2))),
-                              shape=(lo, m))
-            self.update.append(U)
+            # the CSR of entries (par[i, 0], i) and (par[i, 1], i), as scipy's COO conversion
+            # orders them (rows ascending, columns ascending in a row; an edge's two ends differ)
+            rows = par.ravel()
+            order = np.argsort(rows, kind="stable")
+            indptr = np.zeros(lo + 1, dtype=np.int64)
+            np.cumsum(np.bincount(rows, minlength=lo), out=indptr[1:])
+            self.update.append(_csr(vals.ravel()[order], order // 2, indptr, (lo, m)))
+
+
+def _csr(data, indices, indptr, shape):
+    """A CSR matrix from arrays already in canonical order (sorted, distinct columns in each
+    row), as scipy's COO conversion gives them (and with its index type)."""
+    return sp.csr_matrix((data, indices, indptr), shape=shape)
+
+
+@functools.lru_cache(maxsize=10)
+def _predict(j: int):
+    """The (m_j, counts[j]) CSR butterfly prediction of the vertices born at level ``j + 1``
+    from the level-``j`` ones (:data:`BUTTERFLY_WEIGHTS` on the stencil
+    ``icosphere(j + 1).butterfly``); weights of a column that appears twice in a stencil
+    summed, as scipy's COO conversion sums them."""
+    ico = icosphere(j + 1)
+    lo, hi = int(ico.counts[j]), int(ico.counts[j + 1])
+    m = hi - lo
+    st = ico.butterfly[lo:hi]
+    order = np.argsort(st, axis=1, kind="stable")
+    cols = np.take_along_axis(st, order, 1)
+    weights = np.asarray(BUTTERFLY_WEIGHTS, np.float64)[order]
+    if np.any(cols[:, 1:] == cols[:, :-1]):
+        rows = np.repeat(np.arange(m), 8)
+        return sp.csr_matrix((np.tile(BUTTERFLY_WEIGHTS, m), (rows, st.ravel())),
+                             shape=(m, lo))
+    return _csr(weights.ravel(), cols.ravel(), np.arange(0, 8 * m + 1, 8), (m, lo))
 
 
 @functools.lru_cache(maxsize=4)

@@ -49,6 +49,7 @@ step as float32 — :func:`encode` rounds the step to float32 first, so the stor
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass
 
@@ -58,11 +59,13 @@ from ..jit import njit
 from ..errors import BitstreamError, InputError
 from ..validate import as_array
 from .container import MAX_PLANE
+from ..geometry.icosphere import MAX_LEVEL, icosphere
 from .entropy import dec_bit, dec_fits, dec_init, enc_bit, enc_fits, enc_flush, new_encoder, \
     new_models
 
 __all__ = ["encode", "decode", "prepare", "encode_prepared", "Prepared", "Forest", "forest",
-           "pack_header", "unpack_header", "HEADER_SIZE", "VERSION", "check_forest",
+           "grid_forest", "pack_header", "unpack_header", "HEADER_SIZE", "VERSION",
+           "check_forest",
            "DecodedPlanes", "quantize_to_plane", "anchor_values", "plane_schedule",
            "group_schedule"]
 
@@ -199,6 +202,48 @@ class Forest:
 def forest(parent, children_indptr, children_indices) -> Forest:
     """:func:`check_forest`'s result as one :class:`Forest` (same parameters and errors)."""
     return Forest(*check_forest(parent, children_indptr, children_indices))
+
+
+@functools.lru_cache(maxsize=MAX_LEVEL + 1)
+def grid_forest(level: int) -> Forest:
+    """The zerotree forest of the level-``level`` icosahedral grid, built once per process.
+
+    The grid's construction makes it a forest (:class:`surfidx.geometry.icosphere.Icosphere`
+    builds ``tree_parent`` and its CSR children together, a vertex's parent born one level
+    above it), so it is not validated again as :func:`forest` validates foreign arrays: the
+    depth of a vertex is its birth level, and the breadth-first order is that of
+    :func:`check_forest`, the 12 roots, then level by level the children of each vertex in
+    the order of the level above (numpy, one step per level). ``tests/test_zerotree.py``
+    compares it with :func:`forest` of the same arrays.
+
+    Parameters
+    ----------
+    level : int
+        0 … :data:`surfidx.geometry.icosphere.MAX_LEVEL`.
+
+    Returns
+    -------
+    Forest
+
+    Raises
+    ------
+    InputError
+        If ``level`` is not a grid level.
+    """
+    ico = icosphere(level)
+    indptr, indices = ico.children_indptr, ico.children_indices
+    frontier = np.flatnonzero(ico.tree_parent < 0).astype(np.int64)
+    steps = [frontier]
+    while len(frontier):
+        start = indptr[frontier]
+        size = indptr[frontier + 1] - start
+        total = int(size.sum())
+        # the concatenated ranges indices[start[i]:start[i] + size[i]], in frontier order
+        first = np.cumsum(size) - size
+        frontier = indices[np.repeat(start - first, size) + np.arange(total, dtype=np.int64)]
+        steps.append(frontier)
+    order = np.concatenate(steps)
+    return Forest(ico.tree_parent, indptr, indices, order, ico.level_of)
 
 
 def _checked(parent, children_indptr, children_indices):

@@ -24,6 +24,8 @@ grid finer than the geometry's plugs into the same bake.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..errors import InputError
@@ -80,11 +82,13 @@ def check_texture_size(size) -> int:
     return int(size)
 
 
+@functools.lru_cache(maxsize=2)
 def _lattice_corners(level: int) -> np.ndarray:
     """(20·4^L, 3, 2) int64: the lattice coordinates ``(i, j)`` of each grid face's corners in
     its base triangle ``(a, b, c)`` (point ``a + i/N (b - a) + j/N (c - a)``, ``N = 2^L``),
     following the subdivision's face order (children ``(a, ab, ca), (b, bc, ab),
-    (c, ca, bc), (ab, bc, ca)``)."""
+    (c, ca, bc), (ab, bc, ca)``); cached (an atlas and its texels' faces both need it), read
+    only."""
     n = 2 ** level
     cur = np.broadcast_to(np.array([[0, 0], [n, 0], [0, n]], np.int64), (20, 3, 2)).copy()
     for _ in range(level):
@@ -92,6 +96,7 @@ def _lattice_corners(level: int) -> np.ndarray:
         ab, bc, ca = (a + b) // 2, (b + c) // 2, (c + a) // 2
         cur = np.stack([np.stack(t, 1) for t in ((a, ab, ca), (b, bc, ab), (c, ca, bc),
                                                  (ab, bc, ca))], 1).reshape(-1, 3, 2)
+    cur.flags.writeable = False
     return cur
 
 
@@ -192,12 +197,16 @@ class GridAtlas:
         chart, ia, ib, down, w = self._texels()
         rows = np.flatnonzero(chart >= 0)
         ch, ia, ib, down, w = chart[rows], ia[rows], ib[rows], down[rows], w[rows]
-        li = np.stack([np.where(down, ia + 1, ia), np.where(down, ia, ia + 1),
-                       np.where(down, ia + 1, ia)], 1)
-        lj = np.stack([np.where(down, ib + 1, ib), np.where(down, ib + 1, ib),
-                       np.where(down, ib, ib + 1)], 1)
         n = 2 ** self.level
-        uv = ch[:, None] * ((n + 1) * (n + 2) // 2) + _lattice_index(li, lj, n)
+        d = down.astype(np.int64)
+        # the cell's corners (i + d, j + d), (i + 1 - d, j + d), (i + d, j + 1 - d): two on
+        # lattice row j + d, one on row j + 1 - d
+        first = ch * ((n + 1) * (n + 2) // 2)
+        row = first + _lattice_index(0, ib + d, n)
+        uv = np.empty((len(rows), 3), np.int64)
+        uv[:, 0] = row + ia + d
+        uv[:, 1] = row + ia + 1 - d
+        uv[:, 2] = first + _lattice_index(ia + d, ib + 1 - d, n)
         return rows, (ch, ia, ib, down), self.uv_vertex[uv], w
 
     def _texels(self):
@@ -510,7 +519,7 @@ def bake_texture(atlas: GridAtlas, color) -> np.ndarray:
     return img.reshape(atlas.size, atlas.size, 3)
 
 
-def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
+def atlas_uv_faces(atlas: GridAtlas, faces, *, grid_faces=None) -> np.ndarray:
     """The texture coordinates of the corners of triangles of grid vertices on an atlas: a
     grid face's own, in the triangle's corner order; a triangle that is no grid face (a strip
     that zips a cut) takes its first corner's texture coordinate at all three corners, so it
@@ -521,14 +530,37 @@ def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
     atlas : GridAtlas
     faces : (m, 3) int64
         Grid vertex ids of the level ``atlas.level``.
+    grid_faces : (m,) int64, optional
+        The grid face each triangle is, where the caller knows it (its corners in any
+        order), -1 where it does not: those triangles are looked up
+        (:func:`grid_face_index`), as all of them are without ``grid_faces``.
 
     Returns
     -------
     (m, 3) int64
         Indices into ``atlas.uv``.
+
+    Raises
+    ------
+    InputError
+        ``grid_faces`` of another length, or holding a value outside -1 … the grid's last face.
     """
     f = as_array(faces, "faces", dtype=np.int64, shape=(None, 3))
-    idx = grid_face_index(atlas.level, f)
+    own = np.asarray(icosphere(atlas.level).faces)
+    if grid_faces is not None:
+        idx = np.array(as_array(grid_faces, "grid_faces", dtype=np.int64, shape=(len(f),)))
+        if len(idx) and (idx.min() < -1 or idx.max() >= len(own)):
+            raise InputError(f"grid_faces must hold faces of the level-{atlas.level} grid "
+                             f"(0 … {len(own) - 1}) or -1, got values from {idx.min()} to "
+                             f"{idx.max()}")
+    if f.shape == own.shape and np.array_equal(f, own):
+        return np.array(atlas.uv_faces)       # the grid's faces themselves (no search)
+    if grid_faces is None:
+        idx = grid_face_index(atlas.level, f)
+    else:
+        unknown = idx < 0
+        if unknown.any():
+            idx[unknown] = grid_face_index(atlas.level, f[unknown])
     grid = idx >= 0
     out = np.empty_like(f)
     uvf = atlas.uv_faces[idx[grid]]
@@ -536,6 +568,7 @@ def atlas_uv_faces(atlas: GridAtlas, faces) -> np.ndarray:
     for k in range(3):
         pick = np.argmax(owner == f[grid, k][:, None], axis=1)
         out[grid, k] = uvf[np.arange(len(uvf)), pick]
-    _, first = np.unique(atlas.uv_vertex, return_index=True)   # every grid vertex has one
-    out[~grid] = first[f[~grid, 0]][:, None]
+    if not grid.all():
+        _, first = np.unique(atlas.uv_vertex, return_index=True)   # every grid vertex has one
+        out[~grid] = first[f[~grid, 0]][:, None]
     return out

@@ -22,15 +22,14 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from ..errors import InputError
 from ..tolerance import TOL
 from ..validate import as_array
 from .surfels import SurfelSet, _rgba
 
-if TYPE_CHECKING:                     # trimesh is imported by :meth:`TriangleMesh.to_trimesh` only
+if TYPE_CHECKING:   # trimesh: by :meth:`TriangleMesh.to_trimesh` only; scipy: where a graph is
+    import scipy.sparse as sp          # built, not for the mesh a decoding returns
     import trimesh
 
 __all__ = ["TriangleMesh", "Topology", "MAX_EDGE_RATIO", "sample_texture", "spacing_radii",
@@ -196,7 +195,7 @@ class TriangleMesh:
             out = np.zeros((len(self.vertices), 3))
             out[:, 2] = 1.0
             return out
-        return self._vertex_normals(self.face_areas())
+        return self._vertex_normals()
 
     def signed_volume(self) -> float:
         """Signed enclosed volume (positive when faces wind counter-clockwise seen from outside)."""
@@ -252,7 +251,7 @@ class TriangleMesh:
         import trimesh
 
         vertex_colors = _rgba(self.vertex_colors)
-        normals = self._vertex_normals(self.face_areas())
+        normals = self._vertex_normals()
         meta = {"name": self.name}
         face_attrs, vertex_attrs = {}, {}
         if self.face_patch is not None:
@@ -304,6 +303,9 @@ class TriangleMesh:
         ekeys = np.column_stack([keys // base, keys % base])
         ne = len(ekeys)
         if nf:
+            import scipy.sparse as sp
+            from scipy.sparse.csgraph import connected_components
+
             adj = sp.coo_matrix((np.ones(len(ekeys)), (ekeys[:, 0], ekeys[:, 1])), shape=(n, n))
             ncomp, lab = connected_components(adj, directed=False)
             ncomp = len(np.unique(lab[used]))
@@ -338,6 +340,9 @@ class TriangleMesh:
         ks, cs = keys[order], cid[order]
         same = ks[1:] == ks[:-1]
         a, b = cs[:-1][same], cs[1:][same]
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import connected_components
+
         g = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(3 * m, 3 * m))
         _, lab = connected_components(g, directed=False)
         fans = np.unique(corner_v * np.int64(3 * m) + lab)       # distinct (vertex, fan) pairs
@@ -411,7 +416,7 @@ class TriangleMesh:
             mesh = self.bisected(max_edge) if max_edge > 0 else self  # most edges degenerate
             if mesh is not self:
                 return mesh.to_surfels(max_edge_ratio=None, return_face_patch=return_face_patch)
-        vnormals = self._vertex_normals(areas)
+        vnormals = self._vertex_normals()
         if samples is not None:
             out = self._sample(int(samples), seed, areas, vnormals)
             return (out, None) if return_face_patch else out
@@ -564,7 +569,7 @@ class TriangleMesh:
             return 1.0
         return -1.0 if self.signed_volume() < 0 else 1.0
 
-    def _vertex_normals(self, areas: np.ndarray) -> np.ndarray:
+    def _vertex_normals(self) -> np.ndarray:
         fn = self.face_normals(unit=False) * self._orientation_sign()  # length = 2 * area
         n = len(self.vertices)
         acc = np.zeros((n, 3))
@@ -860,6 +865,8 @@ def cotangent_laplacian(faces: np.ndarray, cot: np.ndarray, n: int) -> sp.csr_ma
         ``L_ij = -½ Σ cot`` of the angles opposite edge ``ij``, ``L_ii = -Σ_j L_ij``: symmetric,
         rows summing to 0.
     """
+    import scipy.sparse as sp
+
     rows = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0]])
     cols = np.concatenate([faces[:, 2], faces[:, 0], faces[:, 1]])
     w = 0.5 * np.concatenate([cot[:, 0], cot[:, 1], cot[:, 2]])

@@ -471,15 +471,47 @@ def textured_arrays(model):
         v upwards, as :attr:`surfidx.TriangleMesh.uv`.
     faces : (m, 3) int64
     """
-    positions, normals, _, faces = model_arrays(model)
-    key = faces.ravel() * np.int64(len(model.uv)) + model.uv_faces.ravel()
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")
+    # model_arrays' vertex colours (the texture sampled at each vertex) are not needed here
+    positions, normals, faces = model.vertices, model.vertex_normals(), model.faces
+    v, t, corner = _first_use_pairs(faces.ravel(), model.uv_faces.ravel(), len(model.uv))
+    return positions[v], normals[v], model.uv[t], corner.reshape(-1, 3)
+
+
+def _first_use_pairs(v, t, n_uv: int):
+    """The distinct pairs ``(v[c], t[c])`` in order of first use, and each corner's pair.
+
+    Most texture coordinates belong to one vertex, so the pairs are found per texture
+    coordinate (its first corner's vertex, a table of ``n_uv`` rows) and only the corners
+    whose vertex differs from it (a seam shared by several vertices) are sorted.
+
+    Returns
+    -------
+    pv, pt : (k,) int64
+        The pairs' vertex and texture coordinate, in order of first use.
+    corner : (len(v),) int64
+        Each corner's pair.
+    """
+    c = np.arange(len(t), dtype=np.int64)
+    first = np.full(n_uv, len(t), np.int64)
+    np.minimum.at(first, t, c)                 # each texture coordinate's first corner
+    used = np.flatnonzero(first < len(t))
+    owner = np.full(n_uv, -1, np.int64)
+    owner[used] = v[first[used]]
+    other = np.flatnonzero(v != owner[t])      # corners whose pair is not their t's first
+    key = v[other] * np.int64(n_uv) + t[other]
+    _, ofirst, oinv = np.unique(key, return_index=True, return_inverse=True)
+    # all pairs by their first corner: one per used texture coordinate, then the others
+    start = np.concatenate([first[used], other[ofirst]])
+    order = np.argsort(start, kind="stable")
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
-    pairs = key[first[order]]
-    v, t = pairs // len(model.uv), pairs % len(model.uv)
-    return positions[v], normals[v], model.uv[t], rank[np.asarray(inverse).ravel()].reshape(-1, 3)
+    slot = np.full(n_uv, -1, np.int64)
+    slot[used] = np.arange(len(used))
+    corner = rank[slot[t]]
+    corner[other] = rank[len(used) + np.asarray(oinv).ravel()]
+    pv = np.concatenate([owner[used], key[ofirst] // n_uv])[order]
+    pt = np.concatenate([used, key[ofirst] % n_uv])[order]
+    return pv, pt, corner
 
 
 def _textured_glb_bytes(model, image: bytes, image_format: str) -> bytes:
