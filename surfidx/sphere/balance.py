@@ -66,20 +66,37 @@ def _cotangents(p, f, *, max_cot: float = 4.0):
 
 
 @numba.njit(cache=True)
-def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cover - compiled
+def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound,
+                   hint):  # pragma: no cover - compiled
     """Energy and gradient, infinite when a triangle is not counter-clockwise. ``eps < 0``: the
     symmetric Dirichlet energy; ``eps >= 0``: ``A (‖J‖² / det + lam (det + 1 / det))``
     (Garanzha et al. 2021). ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge
     lengths / 2).
     Corners ``a, b, c`` of a triangle; its edge vectors ``w = c - b``, ``x = a - c``,
-    ``z = b - a`` lie opposite corners 0, 1, 2."""
+    ``z = b - a`` lie opposite corners 0, 1, 2.
+
+    Without ``grad``, the sum stops at the first partial sum above ``bound`` and returns it:
+    every term is positive, so the energy is above ``bound`` too. ``hint[0]``: the triangle
+    that last was not counter-clockwise, tested first (a line search's shortened trials
+    mostly fail at the same triangle), and set to the one found."""
     n = y.shape[0]
+    if not grad and 0 <= hint[0] < f.shape[0]:
+        t = hint[0]
+        qa = np.empty(9)
+        for k in range(3):
+            i = f[t, k]
+            r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
+            for c in range(3):
+                qa[3 * k + c] = radius * (y[i, c] / r)
+        if _projected_area(qa[0], qa[1], qa[2], qa[3], qa[4], qa[5], qa[6], qa[7],
+                           qa[8])[0] <= 0.0:
+            return np.inf, np.zeros((0, 3))
     q = np.empty((n, 3))
     for i in range(n):
         r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
         for c in range(3):
             q[i, c] = radius * (y[i, c] / r)
-    g = np.zeros((n, 3))
+    g = np.zeros((n if grad else 0, 3))
     e = 0.0
     for t in range(f.shape[0]):
         i0, i1, i2 = f[t, 0], f[t, 1], f[t, 2]
@@ -88,6 +105,7 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
         e0, e1, e2 = q[i2, 0], q[i2, 1], q[i2, 2]
         ar, c0, c1, c2, n0, n1, n2, sl = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)
         if ar <= 0.0:
+            hint[0] = t
             return np.inf, g
         w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
         x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
@@ -107,23 +125,26 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam):  # pragma: no cove
             e += et
             k1 = 1.0 / det
             k2 = 2.0 * lam - et / det / area3[t]
-        if grad:
-            # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|, (q_l - q_j) the
-            # edge opposite corner k; dD / d q_k: its two edges, weighted by the far cotangents
-            cu = c0 * n0 + c1 * n1 + c2 * n2
-            h0 = 0.5 * (c0 - cu * n0) / sl
-            h1 = 0.5 * (c1 - cu * n1) / sl
-            h2 = 0.5 * (c2 - cu * n2) / sl
-            rk1, rk2 = radius * k1, radius * k2
-            g[i0, 0] += rk1 * (ct1 * x0 - ct2 * z0) + rk2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
-            g[i0, 1] += rk1 * (ct1 * x1 - ct2 * z1) + rk2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
-            g[i0, 2] += rk1 * (ct1 * x2 - ct2 * z2) + rk2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
-            g[i1, 0] += rk1 * (ct2 * z0 - ct0 * w0) + rk2 * (0.5 * (n1 * x2 - n2 * x1) + h0)
-            g[i1, 1] += rk1 * (ct2 * z1 - ct0 * w1) + rk2 * (0.5 * (n2 * x0 - n0 * x2) + h1)
-            g[i1, 2] += rk1 * (ct2 * z2 - ct0 * w2) + rk2 * (0.5 * (n0 * x1 - n1 * x0) + h2)
-            g[i2, 0] += rk1 * (ct0 * w0 - ct1 * x0) + rk2 * (0.5 * (n1 * z2 - n2 * z1) + h0)
-            g[i2, 1] += rk1 * (ct0 * w1 - ct1 * x1) + rk2 * (0.5 * (n2 * z0 - n0 * z2) + h1)
-            g[i2, 2] += rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
+        if not grad:
+            if e > bound:
+                return e, g
+            continue
+        # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|, (q_l - q_j) the
+        # edge opposite corner k; dD / d q_k: its two edges, weighted by the far cotangents
+        cu = c0 * n0 + c1 * n1 + c2 * n2
+        h0 = 0.5 * (c0 - cu * n0) / sl
+        h1 = 0.5 * (c1 - cu * n1) / sl
+        h2 = 0.5 * (c2 - cu * n2) / sl
+        rk1, rk2 = radius * k1, radius * k2
+        g[i0, 0] += rk1 * (ct1 * x0 - ct2 * z0) + rk2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
+        g[i0, 1] += rk1 * (ct1 * x1 - ct2 * z1) + rk2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
+        g[i0, 2] += rk1 * (ct1 * x2 - ct2 * z2) + rk2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
+        g[i1, 0] += rk1 * (ct2 * z0 - ct0 * w0) + rk2 * (0.5 * (n1 * x2 - n2 * x1) + h0)
+        g[i1, 1] += rk1 * (ct2 * z1 - ct0 * w1) + rk2 * (0.5 * (n2 * x0 - n0 * x2) + h1)
+        g[i1, 2] += rk1 * (ct2 * z2 - ct0 * w2) + rk2 * (0.5 * (n0 * x1 - n1 * x0) + h2)
+        g[i2, 0] += rk1 * (ct0 * w0 - ct1 * x0) + rk2 * (0.5 * (n1 * z2 - n2 * z1) + h0)
+        g[i2, 1] += rk1 * (ct0 * w1 - ct1 * x1) + rk2 * (0.5 * (n2 * z0 - n0 * z2) + h1)
+        g[i2, 2] += rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
     if grad:        # the gradient with respect to y (x = y / |y|)
         for i in range(n):
             r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
@@ -162,6 +183,7 @@ class Energy:
         self.n = len(p)
         self.eps = -1.0     # < 0: symmetric Dirichlet; 0: conformal-plus-area (weight lam)
         self.lam = 0.5
+        self._hint = np.full(1, -1, dtype=np.int64)   # the last triangle found clockwise
 
     def dets(self, y):
         """Each triangle's ratio of image to 3D area (negative: inverted), ``(m,)``."""
@@ -200,9 +222,13 @@ class Energy:
 
         return solve, apply
 
-    def __call__(self, y, *, grad: bool = True):
+    def __call__(self, y, *, grad: bool = True, bound: float = np.inf):
+        """The energy at ``y`` ``(n, 3)`` and, with ``grad``, its gradient ``(n, 3)`` (None
+        without). Infinite (and no gradient) when a triangle is not counter-clockwise. Without
+        ``grad``, a value above ``bound`` is any number above it, not the energy: the sum
+        stops once it passes ``bound``."""
         e, g = _energy_kernel(np.ascontiguousarray(y), self.f, self.cot, self.area3,
-                              self.radius, grad, self.eps, self.lam)
+                              self.radius, grad, self.eps, self.lam, float(bound), self._hint)
         if not np.isfinite(e):
             return np.inf, None
         return e, (g if grad else None)
@@ -391,8 +417,9 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
         dd = d.reshape(-1, 3)
         while step > 1e-12:         # the gradient only where a point is accepted
             y2 = y + step * dd
-            e2, _ = energy(y2, grad=False)
-            if e2 <= e + 1e-4 * step * slope and segment_embedded(y, dd, energy.f, step):
+            bound = e + 1e-4 * step * slope
+            e2, _ = energy(y2, grad=False, bound=bound)
+            if e2 <= bound and segment_embedded(y, dd, energy.f, step):
                 e2, g2 = energy(y2)
                 break
             step *= 0.5
