@@ -326,43 +326,77 @@ def _identity(r):
 
 
 @numba.njit(cache=True)
-def _history_back(d, s, y, rho, order, alpha):  # pragma: no cover - compiled
-    """The two-loop recursion's first loop, newest pair first: ``alpha_k = rho_k s_kᵀd``,
-    ``d -= alpha_k y_k``, in place. ``order``: the rows of ``s``, ``y`` oldest first."""
-    for j in range(len(order) - 1, -1, -1):
-        k = order[j]
-        a = 0.0
-        for i in range(d.shape[0]):
+def _history_back(g, d, s, y, rho, order, alpha):  # pragma: no cover - compiled
+    """The two-loop recursion's first loop from ``d = -g``, newest pair first:
+    ``alpha_k = rho_k s_kᵀd``, ``d -= alpha_k y_k``, into ``d``. ``order``: the rows of ``s``,
+    ``y`` oldest first. One pass per pair: the update by one pair and the next pair's dot
+    product share it (each element is updated before its product is taken, as in two
+    passes)."""
+    m = len(order)
+    a = 0.0
+    k = order[m - 1] if m else 0
+    for i in range(d.shape[0]):
+        d[i] = -g[i]
+        if m:
             a += s[k, i] * d[i]
+    for j in range(m - 1, -1, -1):
+        k = order[j]
         a *= rho[k]
         alpha[k] = a
-        for i in range(d.shape[0]):
-            d[i] -= a * y[k, i]
+        if j:
+            kn = order[j - 1]
+            b = 0.0
+            for i in range(d.shape[0]):
+                d[i] -= a * y[k, i]
+                b += s[kn, i] * d[i]
+            a = b
+        else:
+            for i in range(d.shape[0]):
+                d[i] -= a * y[k, i]
 
 
 @numba.njit(cache=True)
-def _history_forth(d, s, y, rho, order, alpha):  # pragma: no cover - compiled
-    """The second loop, oldest pair first: ``d += s_k (alpha_k - rho_k y_kᵀd)``, in place."""
-    for j in range(len(order)):
-        k = order[j]
-        b = 0.0
-        for i in range(d.shape[0]):
+def _history_forth(d, scale, s, y, rho, order, alpha):  # pragma: no cover - compiled
+    """``d *= scale``, then the second loop, oldest pair first:
+    ``d += s_k (alpha_k - rho_k y_kᵀd)``, in place, one pass per pair as in
+    :func:`_history_back`."""
+    m = len(order)
+    b = 0.0
+    k = order[0] if m else 0
+    for i in range(d.shape[0]):
+        d[i] *= scale
+        if m:
             b += y[k, i] * d[i]
+    for j in range(m):
+        k = order[j]
         b = alpha[k] - rho[k] * b
-        for i in range(d.shape[0]):
-            d[i] += b * s[k, i]
+        if j < m - 1:
+            kn = order[j + 1]
+            c = 0.0
+            for i in range(d.shape[0]):
+                d[i] += b * s[k, i]
+                c += y[kn, i] * d[i]
+            b = c
+        else:
+            for i in range(d.shape[0]):
+                d[i] += b * s[k, i]
 
 
 class History:
-    """The last ``memory`` L-BFGS pairs ``(s, y)`` in two ring buffers, oldest first."""
+    """The last ``memory`` L-BFGS pairs ``(s, y)`` in ring buffers, oldest first, and one
+    spare row that the next pair is written into (:meth:`spare`) before it is kept
+    (:meth:`keep`) or dropped."""
 
     def __init__(self, memory: int, size: int):
-        self.s = np.empty((max(memory, 1), size))
-        self.y = np.empty((max(memory, 1), size))
-        self.rho = np.empty(max(memory, 1))
-        self.alpha = np.empty(max(memory, 1))
+        rows = max(memory, 0) + 1
+        self.s = np.empty((rows, size))
+        self.y = np.empty((rows, size))
+        self.rho = np.empty(rows)
+        self.sy = np.empty(rows)
+        self.alpha = np.empty(rows)
         self.order = np.empty(0, dtype=np.int64)
         self.memory = memory
+        self._spare = rows - 1
 
     def __len__(self):
         return len(self.order)
@@ -370,30 +404,65 @@ class History:
     def clear(self):
         self.order = np.empty(0, dtype=np.int64)
 
-    def push(self, s, y):
+    def spare(self):
+        """The rows ``(s, y)`` ``(size,)`` that the next pair is written into."""
+        return self.s[self._spare], self.y[self._spare]
+
+    def keep(self, sy: float):
+        """Keep the pair in the spare rows, ``sy`` its ``sᵀy``; the oldest pair is dropped
+        when ``memory`` pairs are kept."""
         if self.memory < 1:
             return
+        k = self._spare
         if len(self.order) < self.memory:
-            k = len(self.order)
             self.order = np.append(self.order, k)
+            self._spare = int(np.setdiff1d(np.arange(len(self.rho)), self.order)[0])
         else:
-            k = int(self.order[0])
+            self._spare = int(self.order[0])
             self.order = np.append(self.order[1:], k)
-        self.s[k], self.y[k] = s, y
-        self.rho[k] = 1.0 / _dot(y, s)
+        self.sy[k] = sy
+        self.rho[k] = 1.0 / sy
+
+    def push(self, s, y):
+        """Keep the pair ``(s, y)``."""
+        s_row, y_row = self.spare()
+        s_row[:], y_row[:] = s, y
+        self.keep(_dot(y_row, s_row))
 
     def direction(self, g, solve, apply):
         """``-H g``: the two-loop recursion with initial inverse Hessian ``γ P⁻¹``."""
-        d = -g
-        _history_back(d, self.s, self.y, self.rho, self.order, self.alpha)
+        d = np.empty_like(g)
+        _history_back(g, d, self.s, self.y, self.rho, self.order, self.alpha)
         d = solve(d)
         if len(self.order):
             k = int(self.order[-1])
-            d *= _dot(self.s[k], apply(self.s[k])) / _dot(self.s[k], self.y[k])
+            scale = _dot(self.s[k], apply(self.s[k])) / self.sy[k]
         else:
-            d *= 1e-3 / max(np.abs(d).max(), 1e-300)
-        _history_forth(d, self.s, self.y, self.rho, self.order, self.alpha)
+            scale = 1e-3 / max(np.abs(d).max(), 1e-300)
+        _history_forth(d, scale, self.s, self.y, self.rho, self.order, self.alpha)
         return d
+
+
+@numba.njit(cache=True)
+def _trial(y, d, step, out):  # pragma: no cover - compiled
+    """``out = y + step d``."""
+    for i in range(y.shape[0]):
+        for c in range(3):
+            out[i, c] = y[i, c] + step * d[i, c]
+
+
+@numba.njit(cache=True)
+def _advance(y, g, y2, g2, s, yk):  # pragma: no cover - compiled
+    """An accepted step from ``(y, g)`` to ``(y2, g2)``: ``s = y2 - y`` and ``yk = g2 - g``
+    (flat), then ``y = y2 / |y2|`` (row-wise) and ``g = g2 |y2|``, in place."""
+    for i in range(y.shape[0]):
+        for c in range(3):
+            s[3 * i + c] = y2[i, c] - y[i, c]
+            yk[3 * i + c] = g2[i, c] - g[i, c]
+        r = np.sqrt(y2[i, 0] * y2[i, 0] + y2[i, 1] * y2[i, 1] + y2[i, 2] * y2[i, 2])
+        for c in range(3):
+            y[i, c] = y2[i, c] / r
+            g[i, c] = g2[i, c] * r
 
 
 def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
@@ -401,8 +470,10 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
     ``apply`` applies ``P``; ``γ = sᵀPs / sᵀy`` needs no second solve), with a backtracking
     line search that takes only steps along which no triangle degenerates
     (:func:`segment_embedded`)."""
+    y = np.array(y, dtype=np.float64, order="C")
     e, g = energy(y)
     hist = History(memory, g.size)
+    y2 = np.empty_like(y)
     steps = 0
     last = 1.0
     stalls = 0
@@ -416,7 +487,7 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
         step = min(1.0, 4.0 * last)
         dd = d.reshape(-1, 3)
         while step > 1e-12:         # the gradient only where a point is accepted
-            y2 = y + step * dd
+            _trial(y, dd, step, y2)
             bound = e + 1e-4 * step * slope
             e2, _ = energy(y2, grad=False, bound=bound)
             if e2 <= bound and segment_embedded(y, dd, energy.f, step):
@@ -430,14 +501,16 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
             last = 1.0
             continue
         last = step
-        s = (y2 - y).ravel()
-        yk = (g2 - g).ravel()
+        s, yk = hist.spare()
         rel = (e - e2) / e
-        r = np.linalg.norm(y2, axis=1)[:, None]   # stay on the sphere: the energy is invariant
-        y, e, g = y2 / r, e2, g2 * r               # along the radius, its gradient scales by r
+        # stay on the sphere: the energy is invariant along the radius, its gradient scales
+        # by the radius
+        _advance(y, g, y2, g2, s, yk)
+        e = e2
         steps += 1
-        if _dot(s, yk) > 1e-12 * _dot(s, s):
-            hist.push(s, yk)
+        sy = _dot(s, yk)
+        if sy > 1e-12 * _dot(s, s):
+            hist.keep(sy)
         stalls = stalls + 1 if rel < tol else 0
         if stalls >= patience:
             break
