@@ -197,22 +197,24 @@ class Energy:
         """Smallest ratio of image to 3D area over the triangles (negative: inverted)."""
         return float(self.dets(y).min())
 
-    def preconditioner(self, *, shift: float):
+    def preconditioner(self, *, shift: float, solver=None):
         """Solve and product with ``P = L + shift·mean(diag L)·I``, L the cotangent Laplacian of the 3D
         mesh (the Hessian of the energy's Dirichlet part at an isometry: the accelerated
         quadratic proxy of Kovalsky et al. 2016). Updates spread over whole limbs instead of
         creeping one ring per step. It depends on the 3D mesh alone: a proxy weighted by the
         start map's area ratios reaches the stop in fewer steps, but where it stops then depends
-        on the start, and copies of a model get less alike descriptors."""
+        on the start, and copies of a model get less alike descriptors. ``solver``
+        (:class:`surfidx.geometry.sparse.SPDSolver`) factors ``P``: one shared by the
+        balancings of one mesh reuses its order, and its factors with ``keep``."""
         import scipy.sparse as sp
 
-        from ..geometry.sparse import spd_factor
+        from ..geometry.sparse import SPDSolver
         from ..geometry.mesh import cotangent_laplacian
 
         lap = cotangent_laplacian(self.f, self.cot, self.n)
         lap = lap + sp.diags(np.full(self.n, shift * float(np.abs(lap.diagonal()).mean())))
         lap = lap.tocsr()
-        lu = spd_factor(lap)
+        lu = (SPDSolver() if solver is None else solver).factor(lap)
 
         def solve(r):
             return lu.solve(r.reshape(-1, 3)).ravel(order="C")
@@ -237,7 +239,7 @@ class Energy:
 def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
             memory: int = 8, tol: float = 1e-7, precondition: bool = True,
             shift: float = 1e-3, lam: float | None = None, max_cot: float = 4.0,
-            patience: int = 20, sweep_tol: float = 0.0):
+            patience: int = 20, sweep_tol: float = 0.0, solver=None):
     """Lower the distortion (symmetric Dirichlet, or conformal-plus-area) of a fold-free
     spherical embedding.
 
@@ -278,6 +280,9 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
     max_cot : float
         3D triangles with a cotangent beyond this are treated as fatter (see ``_cotangents``);
         ``inf`` keeps every triangle's shape.
+    solver : surfidx.geometry.sparse.SPDSolver, optional
+        Factors the preconditioner (a new one by default); balancings of the same mesh that
+        share one made with ``keep=True`` factor an equal preconditioner once.
 
     Returns
     -------
@@ -301,7 +306,7 @@ def balance(x, p, f, *, iterations: int = 500, sweeps: int = 0, rounds: int = 1,
                        energy.n) if sweeps > 0 and lam is not None else None
     solve = apply = _identity
     if precondition and iterations:
-        solve, apply = energy.preconditioner(shift=shift)
+        solve, apply = energy.preconditioner(shift=shift, solver=solver)
     e, steps, moves = e0, 0, 0
     for r in range(rounds):
         if relax is not None:
