@@ -66,8 +66,8 @@ def _cotangents(p, f, *, max_cot: float = 4.0):
 
 
 @numba.njit(cache=True)
-def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound,
-                   hint):  # pragma: no cover - compiled
+def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, rr,
+                   fresh):  # pragma: no cover - compiled
     """Energy and gradient, infinite when a triangle is not counter-clockwise. ``eps < 0``: the
     symmetric Dirichlet energy; ``eps >= 0``: ``A (‖J‖² / det + lam (det + 1 / det))``
     (Garanzha et al. 2021). ``D = A ‖J‖²`` (sum of cotangent-weighted squared image edge
@@ -78,9 +78,11 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound,
     Without ``grad``, the sum stops at the first partial sum above ``bound`` and returns it:
     every term is positive, so the energy is above ``bound`` too. ``hint[0]``: the triangle
     that last was not counter-clockwise, tested first (a line search's shortened trials
-    mostly fail at the same triangle), and set to the one found."""
+    mostly fail at the same triangle), and set to the one found. ``q``, ``u`` ``(n, 3)`` and
+    ``rr`` ``(n,)``: the image points ``radius y / |y|``, the unit vectors ``y / |y|`` and the
+    lengths ``|y|``, computed into them when ``fresh``, else read (those of the last call)."""
     n = y.shape[0]
-    if not grad and 0 <= hint[0] < f.shape[0]:
+    if fresh and not grad and 0 <= hint[0] < f.shape[0]:
         t = hint[0]
         qa = np.empty(9)
         for k in range(3):
@@ -91,11 +93,14 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound,
         if _projected_area(qa[0], qa[1], qa[2], qa[3], qa[4], qa[5], qa[6], qa[7],
                            qa[8])[0] <= 0.0:
             return np.inf, np.zeros((0, 3))
-    q = np.empty((n, 3))
-    for i in range(n):
-        r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
-        for c in range(3):
-            q[i, c] = radius * (y[i, c] / r)
+    if fresh:
+        for i in range(n):
+            r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
+            rr[i] = r
+            for c in range(3):
+                uc = y[i, c] / r
+                u[i, c] = uc
+                q[i, c] = radius * uc
     g = np.zeros((n if grad else 0, 3))
     e = 0.0
     for t in range(f.shape[0]):
@@ -147,8 +152,8 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound,
         g[i2, 2] += rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
     if grad:        # the gradient with respect to y (x = y / |y|)
         for i in range(n):
-            r = np.sqrt(y[i, 0] ** 2 + y[i, 1] ** 2 + y[i, 2] ** 2)
-            x0, x1, x2 = y[i, 0] / r, y[i, 1] / r, y[i, 2] / r
+            r = rr[i]
+            x0, x1, x2 = u[i, 0], u[i, 1], u[i, 2]
             dot = g[i, 0] * x0 + g[i, 1] * x1 + g[i, 2] * x2
             g[i, 0] = (g[i, 0] - dot * x0) / r
             g[i, 1] = (g[i, 1] - dot * x1) / r
@@ -184,6 +189,7 @@ class Energy:
         self.eps = -1.0     # < 0: symmetric Dirichlet; 0: conformal-plus-area (weight lam)
         self.lam = 0.5
         self._hint = np.full(1, -1, dtype=np.int64)   # the last triangle found clockwise
+        self._scratch = None    # the kernel's normalisation of the last point
 
     def dets(self, y):
         """Each triangle's ratio of image to 3D area (negative: inverted), ``(m,)``."""
@@ -224,13 +230,18 @@ class Energy:
 
         return solve, apply
 
-    def __call__(self, y, *, grad: bool = True, bound: float = np.inf):
+    def __call__(self, y, *, grad: bool = True, bound: float = np.inf, again: bool = False):
         """The energy at ``y`` ``(n, 3)`` and, with ``grad``, its gradient ``(n, 3)`` (None
         without). Infinite (and no gradient) when a triangle is not counter-clockwise. Without
         ``grad``, a value above ``bound`` is any number above it, not the energy: the sum
-        stops once it passes ``bound``."""
+        stops once it passes ``bound``. ``again``: ``y`` is the point of the last call,
+        unchanged (its normalisation is reused)."""
+        if self._scratch is None:
+            self._scratch = (np.empty((self.n, 3)), np.empty((self.n, 3)), np.empty(self.n))
+        q, u, rr = self._scratch
         e, g = _energy_kernel(np.ascontiguousarray(y), self.f, self.cot, self.area3,
-                              self.radius, grad, self.eps, self.lam, float(bound), self._hint)
+                              self.radius, grad, self.eps, self.lam, float(bound), self._hint,
+                              q, u, rr, not again)
         if not np.isfinite(e):
             return np.inf, None
         return e, (g if grad else None)
@@ -496,7 +507,7 @@ def _lbfgs(energy, y, solve, apply, iterations, memory, tol, patience=20):
             bound = e + 1e-4 * step * slope
             e2, _ = energy(y2, grad=False, bound=bound)
             if e2 <= bound and segment_embedded(y, dd, energy.f, step):
-                e2, g2 = energy(y2)
+                e2, g2 = energy(y2, again=True)
                 break
             step *= 0.5
         else:
