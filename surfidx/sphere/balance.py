@@ -65,6 +65,133 @@ def _cotangents(p, f, *, max_cot: float = 4.0):
     return cot, np.maximum(area, 0.01 * float(np.median(area)))
 
 
+_BLOCK = 256          # triangles whose terms one vectorised pass computes
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _term(a0, a1, a2, b0, b1, b2, e0, e1, e2, ct0, ct1, ct2, area3, eps,
+          lam):  # pragma: no cover - compiled
+    """One triangle's projected area, energy term, gradient factors ``k1``, ``k2``, cross
+    product ``c``, centroid direction ``n`` and centroid sum length ``sl`` (the operations of
+    :func:`surfidx.sphere.relax._projected_area` and of the energy, in their order)."""
+    u0, u1, u2 = b0 - a0, b1 - a1, b2 - a2
+    v0, v1, v2 = e0 - a0, e1 - a1, e2 - a2
+    c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    s0, s1, s2 = a0 + b0 + e0, a1 + b1 + e1, a2 + b2 + e2
+    sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
+    ar = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+    w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
+    x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
+    z0, z1, z2 = b0 - a0, b1 - a1, b2 - a2
+    d = 0.5 * ct0 * (w0 * w0 + w1 * w1 + w2 * w2)
+    d += 0.5 * ct1 * (x0 * x0 + x1 * x1 + x2 * x2)
+    d += 0.5 * ct2 * (z0 * z0 + z1 * z1 + z2 * z2)
+    if eps < 0.0:
+        r2 = (area3 / ar) ** 2
+        et = d * (1.0 + r2)
+        k1 = 1.0 + r2
+        k2 = -2.0 * d * r2 / ar
+    else:
+        det = ar / area3
+        et = (d + lam * area3 * (det * det + 1.0)) / det
+        k1 = 1.0 / det
+        k2 = 2.0 * lam - et / det / area3
+    return ar, et, k1, k2, c0, c1, c2, n0, n1, n2, sl
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _block_terms(p, ct, area3, eps, lam, nb, grad, ar_, et_, k1_, k2_, c_, n_,
+                 sl_):  # pragma: no cover - compiled
+    """The terms of ``nb`` triangles, their corners ``a, b, e`` in the rows of ``p`` (a's x,
+    y, z, then b's, e's) and corner cotangents in those of ``ct``: projected area ``ar_`` and
+    energy ``et_``; with ``grad``, the factors ``k1_``, ``k2_`` of its gradient, the cross
+    product ``c_`` (3 rows), centroid direction ``n_`` (3 rows) and centroid sum length
+    ``sl_`` too. Loops without branches over contiguous arrays, which the compiler vectorises:
+    each triangle's operations are those of :func:`_term`, so every term has the same bits
+    as one computed alone."""
+    a0, a1, a2, b0, b1, b2, e0, e1, e2 = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8]
+    ct0, ct1, ct2 = ct[0], ct[1], ct[2]
+    if grad:        # the geometry, then the energy: two loops vectorise where one did not
+        for j in range(nb):
+            u0, u1, u2 = b0[j] - a0[j], b1[j] - a1[j], b2[j] - a2[j]
+            v0, v1, v2 = e0[j] - a0[j], e1[j] - a1[j], e2[j] - a2[j]
+            c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+            s0, s1, s2 = a0[j] + b0[j] + e0[j], a1[j] + b1[j] + e1[j], a2[j] + b2[j] + e2[j]
+            sl = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+            n0, n1, n2 = s0 / sl, s1 / sl, s2 / sl
+            ar_[j] = 0.5 * (c0 * n0 + c1 * n1 + c2 * n2)
+            c_[0, j], c_[1, j], c_[2, j] = c0, c1, c2
+            n_[0, j], n_[1, j], n_[2, j] = n0, n1, n2
+            sl_[j] = sl
+        if eps < 0.0:
+            for j in range(nb):
+                ar = ar_[j]
+                w0, w1, w2 = e0[j] - b0[j], e1[j] - b1[j], e2[j] - b2[j]
+                x0, x1, x2 = a0[j] - e0[j], a1[j] - e1[j], a2[j] - e2[j]
+                z0, z1, z2 = b0[j] - a0[j], b1[j] - a1[j], b2[j] - a2[j]
+                d = 0.5 * ct0[j] * (w0 * w0 + w1 * w1 + w2 * w2)
+                d += 0.5 * ct1[j] * (x0 * x0 + x1 * x1 + x2 * x2)
+                d += 0.5 * ct2[j] * (z0 * z0 + z1 * z1 + z2 * z2)
+                r2 = (area3[j] / ar) ** 2
+                et_[j] = d * (1.0 + r2)
+                k1_[j] = 1.0 + r2
+                k2_[j] = -2.0 * d * r2 / ar
+        else:
+            for j in range(nb):
+                ar = ar_[j]
+                w0, w1, w2 = e0[j] - b0[j], e1[j] - b1[j], e2[j] - b2[j]
+                x0, x1, x2 = a0[j] - e0[j], a1[j] - e1[j], a2[j] - e2[j]
+                z0, z1, z2 = b0[j] - a0[j], b1[j] - a1[j], b2[j] - a2[j]
+                d = 0.5 * ct0[j] * (w0 * w0 + w1 * w1 + w2 * w2)
+                d += 0.5 * ct1[j] * (x0 * x0 + x1 * x1 + x2 * x2)
+                d += 0.5 * ct2[j] * (z0 * z0 + z1 * z1 + z2 * z2)
+                det = ar / area3[j]
+                et = (d + lam * area3[j] * (det * det + 1.0)) / det
+                et_[j] = et
+                k1_[j] = 1.0 / det
+                k2_[j] = 2.0 * lam - et / det / area3[j]
+    elif eps < 0.0:
+        for j in range(nb):
+            ar_[j], et_[j] = _term(a0[j], a1[j], a2[j], b0[j], b1[j], b2[j], e0[j], e1[j],
+                                   e2[j], ct0[j], ct1[j], ct2[j], area3[j], -1.0, lam)[:2]
+    else:
+        for j in range(nb):
+            ar_[j], et_[j] = _term(a0[j], a1[j], a2[j], b0[j], b1[j], b2[j], e0[j], e1[j],
+                                   e2[j], ct0[j], ct1[j], ct2[j], area3[j], 0.0, lam)[:2]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _block_gradient(a0, a1, a2, b0, b1, b2, e0, e1, e2, cta, ctb, ctc, radius, nb, k1_, k2_,
+                    c_, n_, sl_, g_):  # pragma: no cover - compiled
+    """Each triangle's gradient terms at its corners ``g_`` (9 rows: corner 0's x, y, z, then
+    corner 1's, corner 2's) from :func:`_block_terms`' figures, vectorised as it is.
+    ``d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|``, ``(q_l - q_j)`` the edge
+    opposite corner k; ``dD / d q_k``: its two edges, weighted by the far cotangents."""
+    for j in range(nb):
+        w0, w1, w2 = e0[j] - b0[j], e1[j] - b1[j], e2[j] - b2[j]
+        x0, x1, x2 = a0[j] - e0[j], a1[j] - e1[j], a2[j] - e2[j]
+        z0, z1, z2 = b0[j] - a0[j], b1[j] - a1[j], b2[j] - a2[j]
+        c0, c1, c2 = c_[0, j], c_[1, j], c_[2, j]
+        n0, n1, n2 = n_[0, j], n_[1, j], n_[2, j]
+        sl = sl_[j]
+        ct0, ct1, ct2 = cta[j], ctb[j], ctc[j]
+        cu = c0 * n0 + c1 * n1 + c2 * n2
+        h0 = 0.5 * (c0 - cu * n0) / sl
+        h1 = 0.5 * (c1 - cu * n1) / sl
+        h2 = 0.5 * (c2 - cu * n2) / sl
+        rk1, rk2 = radius * k1_[j], radius * k2_[j]
+        g_[0, j] = rk1 * (ct1 * x0 - ct2 * z0) + rk2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
+        g_[1, j] = rk1 * (ct1 * x1 - ct2 * z1) + rk2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
+        g_[2, j] = rk1 * (ct1 * x2 - ct2 * z2) + rk2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
+        g_[3, j] = rk1 * (ct2 * z0 - ct0 * w0) + rk2 * (0.5 * (n1 * x2 - n2 * x1) + h0)
+        g_[4, j] = rk1 * (ct2 * z1 - ct0 * w1) + rk2 * (0.5 * (n2 * x0 - n0 * x2) + h1)
+        g_[5, j] = rk1 * (ct2 * z2 - ct0 * w2) + rk2 * (0.5 * (n0 * x1 - n1 * x0) + h2)
+        g_[6, j] = rk1 * (ct0 * w0 - ct1 * x0) + rk2 * (0.5 * (n1 * z2 - n2 * z1) + h0)
+        g_[7, j] = rk1 * (ct0 * w1 - ct1 * x1) + rk2 * (0.5 * (n2 * z0 - n0 * z2) + h1)
+        g_[8, j] = rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
+
+
 @numba.njit(cache=True)
 def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, rr,
                    fresh):  # pragma: no cover - compiled
@@ -75,6 +202,10 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, 
     Corners ``a, b, c`` of a triangle; its edge vectors ``w = c - b``, ``x = a - c``,
     ``z = b - a`` lie opposite corners 0, 1, 2.
 
+    The triangles go in blocks: their corners are gathered, their terms computed by the
+    vectorised :func:`_block_terms` (and :func:`_block_gradient`), then summed (and the
+    gradient terms added to the corners) one by one in triangle order.
+
     Without ``grad``, the sum stops at the first partial sum above ``bound`` and returns it:
     every term is positive, so the energy is above ``bound`` too. ``hint[0]``: the triangle
     that last was not counter-clockwise, tested first (a line search's shortened trials
@@ -82,7 +213,8 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, 
     ``rr`` ``(n,)``: the image points ``radius y / |y|``, the unit vectors ``y / |y|`` and the
     lengths ``|y|``, computed into them when ``fresh``, else read (those of the last call)."""
     n = y.shape[0]
-    if fresh and not grad and 0 <= hint[0] < f.shape[0]:
+    m = f.shape[0]
+    if fresh and not grad and 0 <= hint[0] < m:
         t = hint[0]
         qa = np.empty(9)
         for k in range(3):
@@ -102,54 +234,44 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, 
                 u[i, c] = uc
                 q[i, c] = radius * uc
     g = np.zeros((n if grad else 0, 3))
+    bs = _BLOCK
+    corners = np.empty((9, bs))
+    cots = np.empty((3, bs))
+    ar_, et_, k1_, k2_, sl_ = (np.empty(bs), np.empty(bs), np.empty(bs), np.empty(bs),
+                               np.empty(bs))
+    c_, n_ = np.empty((3, bs)), np.empty((3, bs))
+    g_ = np.empty((9, bs))
     e = 0.0
-    for t in range(f.shape[0]):
-        i0, i1, i2 = f[t, 0], f[t, 1], f[t, 2]
-        a0, a1, a2 = q[i0, 0], q[i0, 1], q[i0, 2]
-        b0, b1, b2 = q[i1, 0], q[i1, 1], q[i1, 2]
-        e0, e1, e2 = q[i2, 0], q[i2, 1], q[i2, 2]
-        ar, c0, c1, c2, n0, n1, n2, sl = _projected_area(a0, a1, a2, b0, b1, b2, e0, e1, e2)
-        if ar <= 0.0:
-            hint[0] = t
-            return np.inf, g
-        w0, w1, w2 = e0 - b0, e1 - b1, e2 - b2
-        x0, x1, x2 = a0 - e0, a1 - e1, a2 - e2
-        z0, z1, z2 = b0 - a0, b1 - a1, b2 - a2
-        ct0, ct1, ct2 = cot[t, 0], cot[t, 1], cot[t, 2]   # cotangents at corners 0, 1, 2
-        d = 0.5 * ct0 * (w0 * w0 + w1 * w1 + w2 * w2)
-        d += 0.5 * ct1 * (x0 * x0 + x1 * x1 + x2 * x2)
-        d += 0.5 * ct2 * (z0 * z0 + z1 * z1 + z2 * z2)
-        if eps < 0.0:
-            r2 = (area3[t] / ar) ** 2
-            e += d * (1.0 + r2)
-            k1 = 1.0 + r2
-            k2 = -2.0 * d * r2 / ar
-        else:
-            det = ar / area3[t]
-            et = (d + lam * area3[t] * (det * det + 1.0)) / det
-            e += et
-            k1 = 1.0 / det
-            k2 = 2.0 * lam - et / det / area3[t]
-        if not grad:
-            if e > bound:
+    for t0 in range(0, m, bs):
+        nb = min(bs, m - t0)
+        for j in range(nb):
+            t = t0 + j
+            for k in range(3):
+                i = f[t, k]
+                corners[3 * k, j] = q[i, 0]
+                corners[3 * k + 1, j] = q[i, 1]
+                corners[3 * k + 2, j] = q[i, 2]
+                cots[k, j] = cot[t, k]
+        _block_terms(corners, cots, area3[t0:t0 + nb], eps, lam, nb, grad, ar_, et_, k1_, k2_,
+                     c_, n_, sl_)
+        for j in range(nb):
+            if ar_[j] <= 0.0:
+                hint[0] = t0 + j
+                return np.inf, g
+            e += et_[j]
+            if not grad and e > bound:
                 return e, g
-            continue
-        # d ar / d q_k = 1/2 u x (q_l - q_j) + 1/2 (c - (c.u) u) / |s|, (q_l - q_j) the
-        # edge opposite corner k; dD / d q_k: its two edges, weighted by the far cotangents
-        cu = c0 * n0 + c1 * n1 + c2 * n2
-        h0 = 0.5 * (c0 - cu * n0) / sl
-        h1 = 0.5 * (c1 - cu * n1) / sl
-        h2 = 0.5 * (c2 - cu * n2) / sl
-        rk1, rk2 = radius * k1, radius * k2
-        g[i0, 0] += rk1 * (ct1 * x0 - ct2 * z0) + rk2 * (0.5 * (n1 * w2 - n2 * w1) + h0)
-        g[i0, 1] += rk1 * (ct1 * x1 - ct2 * z1) + rk2 * (0.5 * (n2 * w0 - n0 * w2) + h1)
-        g[i0, 2] += rk1 * (ct1 * x2 - ct2 * z2) + rk2 * (0.5 * (n0 * w1 - n1 * w0) + h2)
-        g[i1, 0] += rk1 * (ct2 * z0 - ct0 * w0) + rk2 * (0.5 * (n1 * x2 - n2 * x1) + h0)
-        g[i1, 1] += rk1 * (ct2 * z1 - ct0 * w1) + rk2 * (0.5 * (n2 * x0 - n0 * x2) + h1)
-        g[i1, 2] += rk1 * (ct2 * z2 - ct0 * w2) + rk2 * (0.5 * (n0 * x1 - n1 * x0) + h2)
-        g[i2, 0] += rk1 * (ct0 * w0 - ct1 * x0) + rk2 * (0.5 * (n1 * z2 - n2 * z1) + h0)
-        g[i2, 1] += rk1 * (ct0 * w1 - ct1 * x1) + rk2 * (0.5 * (n2 * z0 - n0 * z2) + h1)
-        g[i2, 2] += rk1 * (ct0 * w2 - ct1 * x2) + rk2 * (0.5 * (n0 * z1 - n1 * z0) + h2)
+        if grad:
+            _block_gradient(corners[0], corners[1], corners[2], corners[3], corners[4],
+                            corners[5], corners[6], corners[7], corners[8], cots[0], cots[1],
+                            cots[2], radius, nb, k1_, k2_, c_, n_, sl_, g_)
+            for j in range(nb):
+                t = t0 + j
+                for k in range(3):
+                    i = f[t, k]
+                    g[i, 0] += g_[3 * k, j]
+                    g[i, 1] += g_[3 * k + 1, j]
+                    g[i, 2] += g_[3 * k + 2, j]
     if grad:        # the gradient with respect to y (x = y / |y|)
         for i in range(n):
             r = rr[i]
