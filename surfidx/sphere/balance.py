@@ -675,30 +675,67 @@ def _det(a, b, c):  # pragma: no cover - compiled
             + a[2] * (b[0] * c[1] - b[1] * c[0]))
 
 
+@numba.njit(inline="always")
+def _det9(a0, a1, a2, b0, b1, b2, c0, c1, c2):  # pragma: no cover - compiled
+    """:func:`_det` of three vectors given by their coordinates."""
+    return (a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0)
+            + a2 * (b0 * c1 - b1 * c0))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _block_turns(p, step, nb, out):  # pragma: no cover - compiled
+    """Whether each of ``nb`` triangles turns over along the segment, ``out[j]``: its
+    corners ``a, b, c`` and their directions ``da, db, dc`` in the 18 rows of ``p`` (x, y,
+    z of a, b, c, then of da, db, dc). The tests of :func:`_segment_embedded`'s loop, each
+    with the same operations, without branches (the compiler vectorises the loop)."""
+    for j in range(nb):
+        a0, a1, a2, b0, b1, b2 = p[0, j], p[1, j], p[2, j], p[3, j], p[4, j], p[5, j]
+        e0, e1, e2, u0, u1, u2 = p[6, j], p[7, j], p[8, j], p[9, j], p[10, j], p[11, j]
+        v0, v1, v2, w0, w1, w2 = p[12, j], p[13, j], p[14, j], p[15, j], p[16, j], p[17, j]
+        # a = (a0, a1, a2), b, c = e; da = u, db = v, dc = w
+        c0 = _det9(a0, a1, a2, b0, b1, b2, e0, e1, e2)
+        c1 = (_det9(u0, u1, u2, b0, b1, b2, e0, e1, e2)
+              + _det9(a0, a1, a2, v0, v1, v2, e0, e1, e2)
+              + _det9(a0, a1, a2, b0, b1, b2, w0, w1, w2))
+        c2 = (_det9(a0, a1, a2, v0, v1, v2, w0, w1, w2)
+              + _det9(u0, u1, u2, b0, b1, b2, w0, w1, w2)
+              + _det9(u0, u1, u2, v0, v1, v2, e0, e1, e2))
+        c3 = _det9(u0, u1, u2, v0, v1, v2, w0, w1, w2)
+        bad = (c0 <= 0.0) | (c0 + step * (c1 + step * (c2 + step * c3)) <= 0.0)
+        qa, qb, qc = 3.0 * c3, 2.0 * c2, c1
+        lin = qa == 0.0
+        disc = qb * qb - 4.0 * qa * qc
+        r = np.sqrt(disc)
+        s1 = ((-qc / qb) if qb != 0.0 else -1.0) if lin else (-qb - r) / (2.0 * qa)
+        s2 = -1.0 if lin else (-qb + r) / (2.0 * qa)
+        real = lin | (disc >= 0.0)
+        bad |= real & (0.0 < s1) & (s1 < step) & (c0 + s1 * (c1 + s1 * (c2 + s1 * c3)) <= 0.0)
+        bad |= real & (0.0 < s2) & (s2 < step) & (c0 + s2 * (c1 + s2 * (c2 + s2 * c3)) <= 0.0)
+        out[j] = bad
+
+
 @numba.njit(cache=True)
 def _segment_embedded(y, d, f, step):  # pragma: no cover - compiled
-    for t in range(f.shape[0]):
-        a, b, c = y[f[t, 0]], y[f[t, 1]], y[f[t, 2]]
-        da, db, dc = d[f[t, 0]], d[f[t, 1]], d[f[t, 2]]
-        # det[a + s da, b + s db, c + s dc] = c0 + c1 s + c2 s² + c3 s³ (multilinear)
-        c0 = _det(a, b, c)
-        c1 = _det(da, b, c) + _det(a, db, c) + _det(a, b, dc)
-        c2 = _det(a, db, dc) + _det(da, b, dc) + _det(da, db, c)
-        c3 = _det(da, db, dc)
-        if c0 <= 0.0 or c0 + step * (c1 + step * (c2 + step * c3)) <= 0.0:
-            return False
-        # the critical points inside (0, step): roots of c1 + 2 c2 s + 3 c3 s²
-        qa, qb, qc = 3.0 * c3, 2.0 * c2, c1
-        if qa == 0.0:
-            roots = (-qc / qb if qb != 0.0 else -1.0, -1.0)
-        else:
-            disc = qb * qb - 4.0 * qa * qc
-            if disc < 0.0:
-                continue
-            r = np.sqrt(disc)
-            roots = ((-qb - r) / (2.0 * qa), (-qb + r) / (2.0 * qa))
-        for s in roots:
-            if 0.0 < s < step and c0 + s * (c1 + s * (c2 + s * c3)) <= 0.0:
+    """Whether no triangle turns over along the segment. A triangle's orientation
+    ``det[a + s da, b + s db, c + s dc] = c0 + c1 s + c2 s² + c3 s³`` (multilinear) must be
+    positive at ``s = 0``, at ``s = step`` and at the critical points inside (the roots of
+    ``c1 + 2 c2 s + 3 c3 s²``); the triangles go in blocks through :func:`_block_turns`."""
+    m = f.shape[0]
+    bs = _BLOCK
+    p = np.empty((18, bs))
+    out = np.empty(bs, dtype=np.bool_)
+    for t0 in range(0, m, bs):
+        nb = min(bs, m - t0)
+        for j in range(nb):
+            t = t0 + j
+            for k in range(3):
+                i = f[t, k]
+                for c in range(3):
+                    p[3 * k + c, j] = y[i, c]
+                    p[9 + 3 * k + c, j] = d[i, c]
+        _block_turns(p, step, nb, out)
+        for j in range(nb):
+            if out[j]:
                 return False
     return True
 
