@@ -283,6 +283,21 @@ def _energy_kernel(y, f, cot, area3, radius, grad, eps, lam, bound, hint, q, u, 
     return e, g
 
 
+@numba.njit(cache=True)
+def _csr_apply(indptr, indices, data, x, out):  # pragma: no cover - compiled
+    """``out = A x`` for the CSR matrix ``(indptr, indices, data)`` and ``x`` ``(n, k)``, each
+    row's products added in the order of its entries (as scipy's ``csr_matvecs`` adds them),
+    without scipy's per-call overhead."""
+    for i in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            out[i, c] = 0.0
+        for jj in range(indptr[i], indptr[i + 1]):
+            j = indices[jj]
+            a = data[jj]
+            for c in range(out.shape[1]):
+                out[i, c] += a * x[j, c]
+
+
 def _dot(a, b):
     """Dot product of two long vectors without BLAS (threaded BLAS dot products of this size
     are far slower on a loaded machine)."""
@@ -347,8 +362,12 @@ class Energy:
         def solve(r):
             return lu.solve(r.reshape(-1, 3)).ravel(order="C")
 
+        indptr, indices, data = lap.indptr, lap.indices, lap.data
+
         def apply(r):
-            return np.asarray(lap @ r.reshape(-1, 3)).ravel()
+            out = np.empty((self.n, 3))
+            _csr_apply(indptr, indices, data, r.reshape(-1, 3), out)
+            return out.ravel()
 
         return solve, apply
 
@@ -360,6 +379,7 @@ class Energy:
         unchanged (its normalisation is reused)."""
         if self._scratch is None:
             self._scratch = (np.empty((self.n, 3)), np.empty((self.n, 3)), np.empty(self.n))
+            again = False
         q, u, rr = self._scratch
         e, g = _energy_kernel(np.ascontiguousarray(y), self.f, self.cot, self.area3,
                               self.radius, grad, self.eps, self.lam, float(bound), self._hint,
@@ -554,7 +574,8 @@ class History:
         k = self._spare
         if len(self.order) < self.memory:
             self.order = np.append(self.order, k)
-            self._spare = int(np.setdiff1d(np.arange(len(self.rho)), self.order)[0])
+            used = set(self.order.tolist())
+            self._spare = next(r for r in range(len(self.rho)) if r not in used)
         else:
             self._spare = int(self.order[0])
             self.order = np.append(self.order[1:], k)
