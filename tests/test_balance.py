@@ -161,3 +161,34 @@ def test_balance_keeps_every_iterate_embedded(monkeypatch):
     monkeypatch.setattr(B, "segment_embedded", watch)
     balance(x, p, f, iterations=40)
     assert taken and all(taken)
+
+
+@pytest.mark.parametrize("eps", [-1.0, 0.0], ids=["symmetric-dirichlet", "conformal-area"])
+def test_energy_bound_and_reuse_give_the_same_numbers(eps):
+    """The blocked energy equals a plain sum of its triangle terms; with a ``bound`` below it,
+    a trial stops with some value above the bound; at or above it, the energy itself; and
+    ``again`` (the same point) gives the same energy and gradient bit for bit."""
+    p, f, x = _start()
+    energy = Energy(p, f)
+    energy.eps, energy.lam = eps, 0.5
+    e, g = energy(x)
+    assert len(f) > 256          # more than one block of triangles
+    q = x * energy.radius
+    a, b, c = q[f[:, 0]], q[f[:, 1]], q[f[:, 2]]
+    s = a + b + c
+    ar = 0.5 * np.einsum("ij,ij->i", np.cross(b - a, c - a), s) / np.linalg.norm(s, axis=1)
+    ct = energy.cot
+    d = 0.5 * (ct[:, 0] * ((c - b) ** 2).sum(1) + ct[:, 1] * ((a - c) ** 2).sum(1)
+               + ct[:, 2] * ((b - a) ** 2).sum(1))
+    if eps < 0:
+        terms = d * (1 + (energy.area3 / ar) ** 2)
+    else:
+        det = ar / energy.area3
+        terms = (d + 0.5 * energy.area3 * (det ** 2 + 1)) / det
+    assert e == pytest.approx(terms.sum(), rel=1e-12)
+    below, _ = energy(x, grad=False, bound=0.5 * e)
+    assert below > 0.5 * e
+    assert energy(x, grad=False, bound=e)[0] == e
+    assert energy(x, grad=False)[0] == e
+    e2, g2 = energy(x, again=True)
+    assert e2 == e and np.array_equal(g2, g)

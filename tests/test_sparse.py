@@ -67,6 +67,27 @@ def test_same_matrix_same_bits():
     np.testing.assert_array_equal(spd_factor(a).solve(b), spd_factor(a.copy()).solve(b))
 
 
+def test_kept_factors_serve_an_equal_matrix_only():
+    """``keep``: an equal matrix (another copy, another format) gets the last factors back,
+    a matrix of other values is factored anew; both solve their own system."""
+    rng = np.random.default_rng(4)
+    m = 300
+    i, j = _graph(rng, m, 1000)
+    a = _laplacian(rng, i, j, m)
+    solver = SPDSolver(keep=True)
+    first = solver.factor(a)
+    assert solver.factor(a.tocsr().copy()) is first
+    b = rng.normal(size=m)
+    np.testing.assert_array_equal(first.solve(b), spd_factor(a).solve(b))
+    a2 = a.copy()
+    a2.data = a2.data * 2.0
+    second = solver.factor(a2)
+    assert second is not first
+    np.testing.assert_allclose(a2 @ second.solve(b), b, atol=1e-10)
+    plain = SPDSolver()
+    assert plain.factor(a) is not plain.factor(a)      # without keep: factored each time
+
+
 def test_tiny_and_singular():
     np.testing.assert_allclose(spd_factor(sp.csc_matrix([[2.0]])).solve(np.array([4.0])), [2.0])
     a = sp.csc_matrix(np.array([[1.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]]))

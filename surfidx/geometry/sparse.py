@@ -75,6 +75,9 @@ class SPDSolver:
         patterns are ordered as they come, the last one remembered beside this one).
     order : (n,) int64, optional
         :func:`nested_dissection` of ``pattern`` (with it only).
+    keep : bool
+        Remember the last factors too: a matrix equal to the last one factored (pattern and
+        values) gets those factors back without a new factorisation.
 
     Examples
     --------
@@ -82,8 +85,10 @@ class SPDSolver:
     >>> x = solver.factor(a).solve(b)       # doctest: +SKIP
     """
 
-    def __init__(self, *, pattern=None, order=None):
+    def __init__(self, *, pattern=None, order=None, keep: bool = False):
         self._ordered = None    # (indptr, indices, order), replaced in one step (threads)
+        self._keep = bool(keep)
+        self._last = None       # with keep: (matrix, factors) of the last factorisation
         self._given = None      # the pattern handed in and its order, kept
         if (pattern is None) != (order is None):
             raise InputError("SPDSolver takes a pattern and its order together, or neither")
@@ -105,6 +110,12 @@ class SPDSolver:
         """
         a = sp.csr_matrix(a)
         a.sort_indices()
+        last = self._last
+        if last is not None and last[0].shape == a.shape \
+                and np.array_equal(a.indptr, last[0].indptr) \
+                and np.array_equal(a.indices, last[0].indices) \
+                and np.array_equal(a.data, last[0].data):
+            return last[1]
         for ordered in (self._given, self._ordered):
             if ordered is not None and np.array_equal(a.indptr, ordered[0]) \
                     and np.array_equal(a.indices, ordered[1]):
@@ -115,7 +126,10 @@ class SPDSolver:
         perm = ordered[2]
         lu = splu(a[perm][:, perm].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                   options={"SymmetricMode": True})
-        return SPDFactor(lu, perm)
+        factors = SPDFactor(lu, perm)
+        if self._keep:
+            self._last = (a.copy(), factors)
+        return factors
 
 
 def spd_factor(a) -> SPDFactor:

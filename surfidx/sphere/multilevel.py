@@ -71,11 +71,15 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
     x = np.zeros((n, 3))
     x[kept] = xc
     start = h.prolong(x, p, unit=True, embed=True)
+    from ..geometry.sparse import SPDSolver
+
     settled = 0
+    # the last round's mesh is this level's: its preconditioner is factored once
+    solver = SPDSolver(keep=True)
     if balance and not _balanced_start(start, p, f, options):
         # the kernels of many rounds nested in thin wedges: balance after every round
         start = h.prolong(x, p, unit=True, embed=True,
-                          settle=_settle(h.round_faces(f), p, options))
+                          settle=_settle(h.round_faces(f), p, options, solver))
         settled = 1
     x = start
     large = n > options.large_level
@@ -89,7 +93,8 @@ def mesh_map(surfels: SurfelSet, *, options: MapOptions, iterations: int, gamma:
                            sweep_tol=options.sweep_tol, lam=options.energy_lambda,
                            max_cot=np.inf,
                            tol=options.loose_tol if large else options.strict_tol,
-                           patience=options.loose_patience if large else options.strict_patience)
+                           patience=options.loose_patience if large else options.strict_patience,
+                           solver=solver)
     x = centre(x, vertex_areas(f, areas3(p, f), n), f, iterations=options.centre_iterations)
     if progress is not None:
         progress("map", info["levels"] + 1, info["levels"] + 1 + _depth)
@@ -111,10 +116,11 @@ def _balanced_start(x, p, f, options: MapOptions) -> bool:
     return bool(e <= options.settle_energy * energy.area3.sum())
 
 
-def _settle(round_faces, p, options: MapOptions):
+def _settle(round_faces, p, options: MapOptions, solver):
     """The ``settle`` of :meth:`surfidx.sphere.decimate.Hierarchy.prolong` that balances the
     mesh of each round (``round_faces``) for ``options.round_steps`` steps, with
-    ``options.round_sweeps`` relaxation sweeps before and after them."""
+    ``options.round_sweeps`` relaxation sweeps before and after them, its preconditioners
+    factored by ``solver``."""
     def settle(x, r):
         f = round_faces[r]
         verts = np.unique(f)
@@ -122,7 +128,7 @@ def _settle(round_faces, p, options: MapOptions):
         local[verts] = np.arange(len(verts))
         y, _ = balance_map(x[verts], p[verts], local[f], iterations=options.round_steps,
                            sweeps=options.round_sweeps, sweep_tol=options.sweep_tol,
-                           lam=options.energy_lambda, max_cot=np.inf)
+                           lam=options.energy_lambda, max_cot=np.inf, solver=solver)
         x[verts] = y
         return x
     return settle
