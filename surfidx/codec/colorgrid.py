@@ -198,16 +198,19 @@ def pass_distortions(coeffs, step: float, top: int, final: int, weights) -> np.n
     q = np.floor(a / step + 0.5).astype(np.int64)
     w = np.asarray(weights, np.float64)
     out = [float((c * c).sum(axis=0) @ w)]
-    for p in range(int(top), int(final) - 1, -1):
-        frac = (2.0 ** (p - 1) - 0.5) if p > 0 else 0.0
-        out.append(float(_squared_errors(a, q, p, frac, float(step)).sum(axis=0) @ w))
+    planes = np.arange(int(top), int(final) - 1, -1, dtype=np.int64)
+    fracs = np.array([(2.0 ** (p - 1) - 0.5) if p > 0 else 0.0 for p in planes.tolist()])
+    sums = _plane_squared_errors(np.ascontiguousarray(a), np.ascontiguousarray(q), planes,
+                                 fracs, float(step))
+    out += [float(row @ w) for row in sums]
     return np.array(out)
 
 
 @njit(cache=True)
-def _squared_errors(a, q, p, frac, step):
-    """``(|c| - r)**2`` of each coefficient, ``r`` its reconstruction once plane ``p`` is
-    coded: ``(kept + frac) · step`` for ``kept = (q >> p) << p > 0``, else 0.
+def _plane_squared_errors(a, q, planes, fracs, step):
+    """Per plane and layer, the sum over coefficients of ``(|c| - r)**2``, ``r`` the
+    reconstruction once plane ``p`` is coded: ``(kept + frac) · step`` for
+    ``kept = (q >> p) << p > 0``, else 0.
 
     Parameters
     ----------
@@ -215,23 +218,32 @@ def _squared_errors(a, q, p, frac, step):
         ``|c|``.
     q : (n, k) int64
         Quantised magnitudes.
-    p : int
-    frac, step : float
+    planes : (m,) int64
+    fracs : (m,) float64
+        ``frac`` of each plane.
+    step : float
 
     Returns
     -------
-    (n, k) float64
-        The same operations as the array expression, element by element (so the sums the
-        caller takes are bit-identical).
+    (m, k) float64
+        The same operations as the array expression ``(err * err).sum(axis=0)``, element by
+        element and summed over the coefficients in order, as numpy sums the rows of a
+        C-contiguous array along axis 0 (so the caller's figures are bit-identical), in one
+        pass over the coefficients for all planes.
     """
     n, k = a.shape
-    out = np.empty((n, k), dtype=np.float64)
+    m = planes.shape[0]
+    out = np.zeros((m, k), dtype=np.float64)
     for i in range(n):
         for j in range(k):
-            kept = (q[i, j] >> p) << p
-            r = (np.float64(kept) + frac) * step if kept > 0 else 0.0
-            e = a[i, j] - r
-            out[i, j] = e * e
+            qi = q[i, j]
+            ai = a[i, j]
+            for t in range(m):
+                p = planes[t]
+                kept = (qi >> p) << p
+                r = (np.float64(kept) + fracs[t]) * step if kept > 0 else 0.0
+                e = ai - r
+                out[t, j] += e * e
     return out
 
 

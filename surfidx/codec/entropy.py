@@ -105,7 +105,7 @@ def new_encoder() -> np.ndarray:
     return st
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _p0(models, ctx):
     p = (np.int64(models[ctx, 0]) + np.int64(models[ctx, 1])) >> (_STATE_BITS + 1 - PROB_BITS)
     if p < 1:
@@ -115,7 +115,7 @@ def _p0(models, ctx):
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _update(models, ctx, bit):
     c = models[ctx, 2]
     w = _WARM[c]
@@ -133,7 +133,7 @@ def _update(models, ctx, bit):
         models[ctx, 2] = c + 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _shift_low(st, buf):
     low = st[_LOW]
     if low < 0xFF000000 or low >= 0x100000000:
@@ -157,7 +157,7 @@ def _shift_low(st, buf):
     st[_SHIFTS] += 1
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def enc_bit(st, buf, models, ctx, bit):
     """Code one binary decision.
 
@@ -187,7 +187,7 @@ def enc_bit(st, buf, models, ctx, bit):
         _shift_low(st, buf)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def enc_fits(st, budget):
     """True while a decision may still be coded within ``budget`` bytes (see module notes)."""
     return st[_SHIFTS] + FLUSH_BYTES <= budget
@@ -207,7 +207,7 @@ def enc_size(st):
     return st[_SHIFTS] + FLUSH_BYTES
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _byte(data, pos):
     if pos < data.shape[0]:
         return np.int64(data[pos])
@@ -228,7 +228,7 @@ def dec_init(st, data):
     return code < st[_DRANGE]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def dec_bit(st, data, models, ctx):
     """Decode one binary decision coded with :func:`enc_bit` in context ``ctx``; returns 0 or 1."""
     rng = st[_DRANGE]
@@ -252,7 +252,7 @@ def dec_bit(st, data, models, ctx):
     return bit
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def dec_fits(st, budget):
     """True while the next decision is determined by the first ``budget`` bytes."""
     return st[_DSHIFTS] + FLUSH_BYTES <= budget

@@ -182,8 +182,9 @@ def mask_regions(patches, level: int, patch_cut, *, anchors=None, centres=None):
             # the grid's edges into free vertices, weight 1 (its own index arrays: the cached
             # graph's stay as they are)
             keep = free[graph.indices]
-            indptr = np.zeros(len(graph.indptr), np.int64)
-            np.cumsum(np.add.reduceat(keep, graph.indptr[:-1], dtype=np.int64), out=indptr[1:])
+            kept = np.zeros(len(keep) + 1, graph.indptr.dtype)   # kept entries before each
+            np.cumsum(keep, dtype=kept.dtype, out=kept[1:])
+            indptr = kept[graph.indptr]
             w = sp.csr_matrix((np.ones(int(indptr[-1])), graph.indices[keep], indptr),
                               shape=graph.shape)
             src = np.flatnonzero(region == 0)
@@ -334,7 +335,9 @@ def _part(lab, level: int, P: int, centres=None) -> None:
     while True:
         count, region = grid_regions(lab >= 0, level)
         on = np.flatnonzero(lab >= 0)
-        pairs = np.unique(np.stack([region[on], lab[on]], axis=1), axis=0)
+        # the distinct (region, patch) pairs in lexicographic order: one integer key each
+        key = np.unique(region[on] * np.int64(P) + lab[on])
+        pairs = np.stack([key // P, key % P], axis=1)
         shared = np.flatnonzero(np.bincount(pairs[:, 0], minlength=count) > 1) \
             if len(pairs) else np.zeros(0, np.int64)
         size = np.bincount(lab[on], minlength=P)
@@ -537,10 +540,11 @@ def _clean(level, region, n_regions):
         kept = label < 0
         kf = np.flatnonzero(kept)
         edge_free = (nbr[kf] < 0) | ~kept[np.maximum(nbr[kf], 0)]
-        # boundary edge opposite corner j: vertices (j+1, j+2)
-        ends = np.stack([faces[kf][:, [1, 2, 0]], faces[kf][:, [2, 0, 1]]], axis=2)
-        bverts = ends[edge_free].ravel()
-        deg = np.bincount(bverts, minlength=n)
+        # boundary edge opposite corner j: vertices (j+1, j+2); each end counts once
+        bf, bj = np.nonzero(edge_free)
+        bf = kf[bf]
+        deg = np.bincount(faces[bf, (bj + 1) % 3], minlength=n) \
+            + np.bincount(faces[bf, (bj + 2) % 3], minlength=n)
         for v in np.flatnonzero(deg > 2):
             s = star[v].indices
             held = label[s][label[s] >= 0]

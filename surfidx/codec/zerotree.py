@@ -256,7 +256,7 @@ def _checked(parent, children_indptr, children_indices):
     return check_forest(parent, children_indptr, children_indices)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def top_bit(m):
     """Index of the highest set bit of ``m >= 0`` (-1 for 0), by halving the width."""
     if m <= 0:
@@ -298,7 +298,7 @@ def _set_tops(mag, order, indptr, indices):
 
 # ---------------------------------------------------------------- the coder
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _code(mode, est, dst, buf, models, ctx, bit, budget):
     """Encode ``bit`` (mode 0) or decode a bit (mode 1); -1 when the budget is exhausted."""
     if mode == 0:
@@ -311,7 +311,7 @@ def _code(mode, est, dst, buf, models, ctx, bit, budget):
     return dec_bit(dst, buf, models, ctx)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sig_ctx(l, i, p, depth, parent, sigp, nsc, nsl, group, src):
     """Context of the significance test of coefficient ``i`` of layer ``l`` at plane ``p``.
 
@@ -338,7 +338,7 @@ def _sig_ctx(l, i, p, depth, parent, sigp, nsc, nsl, group, src):
     return _B_SIG + ((((lc * _ND + d) * 4 + ps) * 3 + oth) * 3 + sib) * 2 + src
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sign_ctx(l, i, parent, sigp, neg):
     lc = l if l < _NL - 1 else _NL - 1
     par = parent[i]
@@ -348,7 +348,7 @@ def _sign_ctx(l, i, parent, sigp, neg):
     return _B_SIGN + lc * 3 + s
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _newly_significant(mode, est, dst, buf, models, budget, l, i, p, parent, depth, sigp, neg,
                        mag, sgn, lsp, lsp_len, lsp_rows, lsp_mag, nsc, nsl, group):
     """Code the sign of a coefficient found significant at plane ``p``, append it to the LSP

@@ -19,7 +19,7 @@ from ..validate import as_array, check_positive_int
 __all__ = ["closest_points", "closest_on_triangle", "project_to_candidates"]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _closest_on_segment(p, a, b):  # pragma: no cover - compiled
     """Parameter t in [0, 1] of the point of segment ab closest to p, and its squared
     distance (t = 0 where a and b coincide)."""
@@ -33,7 +33,7 @@ def _closest_on_segment(p, a, b):  # pragma: no cover - compiled
     return t, dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _closest_on_edges(p, a, b, c):  # pragma: no cover - compiled
     """Barycentric coordinates of the point of a flat (zero-area) triangle abc closest to p:
     the best of its three edges."""
@@ -47,7 +47,7 @@ def _closest_on_edges(p, a, b, c):  # pragma: no cover - compiled
     return 0.0, 1.0 - t3, t3
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def closest_on_triangle(p, a, b, c):  # pragma: no cover - compiled
     """Barycentric coordinates (u, v, w) of the point of triangle abc closest to p (Ericson,
     Real-Time Collision Detection, 5.1.5). A flat triangle (coincident or collinear corners, as
@@ -112,15 +112,23 @@ def project_to_candidates(points, cand, vertices, faces):  # pragma: no cover - 
     best_f = np.full(n, -1, np.int64)
     best_b = np.zeros((n, 3))
     best_d = np.full(n, np.inf)
+    # the point and corners copied into arrays made once (a row view per candidate would
+    # cost a reference count each)
+    p = np.empty(3)
+    a = np.empty(3)
+    b = np.empty(3)
+    c = np.empty(3)
     for i in range(n):
-        p = points[i]
+        for x in range(3):
+            p[x] = points[i, x]
         for j in range(k):
             t = cand[i, j]
             if t < 0:
                 break
-            a = vertices[faces[t, 0]]
-            b = vertices[faces[t, 1]]
-            c = vertices[faces[t, 2]]
+            for x in range(3):
+                a[x] = vertices[faces[t, 0], x]
+                b[x] = vertices[faces[t, 1], x]
+                c[x] = vertices[faces[t, 2], x]
             u, v, w = closest_on_triangle(p, a, b, c)
             dx = u * a[0] + v * b[0] + w * c[0] - p[0]
             dy = u * a[1] + v * b[1] + w * c[1] - p[1]

@@ -286,7 +286,7 @@ def _cot(u, v, w):
     return np.clip(np.einsum("ij,ij->i", e1, e2) / np.maximum(cross, 1e-300), -1e3, 1e3)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _neighbours(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
     """Neighbours of ``v`` (unordered, each once) into ``out``; returns their count."""
     m = 0
@@ -307,31 +307,29 @@ def _neighbours(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
     return m
 
 
-@numba.njit(cache=True)
-def _cyclic_ring(v, vf_ptr, vf_idx, faces, out):  # pragma: no cover - compiled
+@numba.njit(cache=True, _nrt=False)
+def _cyclic_ring(v, vf_ptr, vf_idx, faces, out, at, a, b):  # pragma: no cover - compiled
     """Neighbours of ``v`` in counter-clockwise order (closed manifold: one cycle) into
-    ``out``; returns their count."""
+    ``out[at:]``; returns their count. ``a``, ``b``: scratch of at least its degree."""
     m = vf_ptr[v + 1] - vf_ptr[v]
-    a = np.empty(m, np.int64)
-    b = np.empty(m, np.int64)
     for i in range(m):
         t = vf_idx[vf_ptr[v] + i]
         for c in range(3):
             if faces[t, c] == v:
                 a[i] = faces[t, (c + 1) % 3]
                 b[i] = faces[t, (c + 2) % 3]
-    out[0] = a[0]
+    out[at] = a[0]
     for s in range(1, m):
         nxt = -1
         for i in range(m):
-            if a[i] == out[s - 1]:
+            if a[i] == out[at + s - 1]:
                 nxt = b[i]
                 break
-        out[s] = nxt
+        out[at + s] = nxt
     return m
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
 def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, cos_turn, sliver):  # pragma: no cover
     """Geometric checks of merging ``r`` into ``k``: no face around ``r`` turns over or thins."""
     for q in range(vf_ptr[r], vf_ptr[r + 1]):
@@ -339,44 +337,50 @@ def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, cos_turn, sliver):  # pragma:
         a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
         if a == k or b == k or c == k:
             continue
-        na = np.empty(3)
-        nb = np.empty(3)
-        for step in range(2):
-            x0, x1, x2 = a, b, c
-            if step == 1:
-                if x0 == r:
-                    x0 = k
-                elif x1 == r:
-                    x1 = k
-                else:
-                    x2 = k
-            u0 = pos[x1, 0] - pos[x0, 0]
-            u1 = pos[x1, 1] - pos[x0, 1]
-            u2 = pos[x1, 2] - pos[x0, 2]
-            v0 = pos[x2, 0] - pos[x0, 0]
-            v1 = pos[x2, 1] - pos[x0, 1]
-            v2 = pos[x2, 2] - pos[x0, 2]
-            out = na if step == 0 else nb
-            out[0] = u1 * v2 - u2 * v1
-            out[1] = u2 * v0 - u0 * v2
-            out[2] = u0 * v1 - u1 * v0
-            if step == 1:
-                w0 = pos[x2, 0] - pos[x1, 0]
-                w1 = pos[x2, 1] - pos[x1, 1]
-                w2 = pos[x2, 2] - pos[x1, 2]
-                longest = max(u0 * u0 + u1 * u1 + u2 * u2, v0 * v0 + v1 * v1 + v2 * v2,
-                              w0 * w0 + w1 * w1 + w2 * w2)
-                area2 = np.sqrt(out[0] ** 2 + out[1] ** 2 + out[2] ** 2)
-                if area2 < 2.0 * sliver * longest:
-                    return False
-        la = np.sqrt(na[0] ** 2 + na[1] ** 2 + na[2] ** 2)
-        lb = np.sqrt(nb[0] ** 2 + nb[1] ** 2 + nb[2] ** 2)
-        if na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2] < cos_turn * la * lb:
+        # the face's normal before (a) and after (b) the merge
+        a0, a1, a2 = _normal(pos, a, b, c)
+        x0, x1, x2 = a, b, c
+        if x0 == r:
+            x0 = k
+        elif x1 == r:
+            x1 = k
+        else:
+            x2 = k
+        b0, b1, b2 = _normal(pos, x0, x1, x2)
+        u0 = pos[x1, 0] - pos[x0, 0]
+        u1 = pos[x1, 1] - pos[x0, 1]
+        u2 = pos[x1, 2] - pos[x0, 2]
+        v0 = pos[x2, 0] - pos[x0, 0]
+        v1 = pos[x2, 1] - pos[x0, 1]
+        v2 = pos[x2, 2] - pos[x0, 2]
+        w0 = pos[x2, 0] - pos[x1, 0]
+        w1 = pos[x2, 1] - pos[x1, 1]
+        w2 = pos[x2, 2] - pos[x1, 2]
+        longest = max(u0 * u0 + u1 * u1 + u2 * u2, v0 * v0 + v1 * v1 + v2 * v2,
+                      w0 * w0 + w1 * w1 + w2 * w2)
+        area2 = np.sqrt(b0 ** 2 + b1 ** 2 + b2 ** 2)
+        if area2 < 2.0 * sliver * longest:
+            return False
+        la = np.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
+        lb = np.sqrt(b0 ** 2 + b1 ** 2 + b2 ** 2)
+        if a0 * b0 + a1 * b1 + a2 * b2 < cos_turn * la * lb:
             return False
     return True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
+def _normal(pos, x0, x1, x2):  # pragma: no cover - compiled
+    """``(p1 - p0) × (p2 - p0)`` of the triangle ``x0, x1, x2``, as three scalars."""
+    u0 = pos[x1, 0] - pos[x0, 0]
+    u1 = pos[x1, 1] - pos[x0, 1]
+    u2 = pos[x1, 2] - pos[x0, 2]
+    v0 = pos[x2, 0] - pos[x0, 0]
+    v1 = pos[x2, 1] - pos[x0, 1]
+    v2 = pos[x2, 2] - pos[x0, 2]
+    return u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+
+
+@numba.njit(cache=True, _nrt=False)
 def _lock(w, locked, near, vf_ptr, vf_idx, faces):  # pragma: no cover - compiled
     """Lock ``w`` and mark its neighbours ``near`` a locked vertex (so an edge whose 1-ring
     holds a locked vertex is refused without listing its neighbours)."""
@@ -406,6 +410,8 @@ def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn
     ring = np.empty(budget * (max_degree + 2), np.int64)
     nu = np.empty(_MAX_SCAN, np.int64)
     nv = np.empty(_MAX_SCAN, np.int64)
+    nu_r = np.empty(_MAX_SCAN, np.int64)     # _cyclic_ring's scratch
+    nv_r = np.empty(_MAX_SCAN, np.int64)
     count = 0
     stamp = 0
     for e in range(edges.shape[0]):
@@ -440,7 +446,7 @@ def _select(edges, pos, vf_ptr, vf_idx, faces, deg, budget, max_degree, cos_turn
                 removed[count] = r
                 kept[count] = k
                 start = ring_ptr[count]
-                nr = _cyclic_ring(r, vf_ptr, vf_idx, faces, ring[start:start + max_degree + 2])
+                nr = _cyclic_ring(r, vf_ptr, vf_idx, faces, ring, start, nu_r, nv_r)
                 ring_ptr[count + 1] = start + nr
                 count += 1
                 done = True

@@ -128,7 +128,15 @@ def _dp_triangulate(P, rim_n, forbidden):
     return tris[:t]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, _nrt=False)
+def _cross(V, i, j, k, m):
+    """``(V[i] - V[j]) × (V[k] - V[m])`` as three scalars, as ``np.cross`` computes it."""
+    a0, a1, a2 = V[i, 0] - V[j, 0], V[i, 1] - V[j, 1], V[i, 2] - V[j, 2]
+    b0, b1, b2 = V[k, 0] - V[m, 0], V[k, 1] - V[m, 1], V[k, 2] - V[m, 2]
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@numba.njit(cache=True, _nrt=False)
 def _has_edge(F, twin, h0, d):
     """Whether the start vertex of half-edge ``h0`` has an edge to ``d`` (rotation about it)."""
     h = h0
@@ -164,21 +172,32 @@ def _flip_rounds(V, F, twin, flippable, rounds):
                 d = F[g, (jj + 2) % 3]
                 if d == c:
                     continue
-                u1, v1 = V[a] - V[c], V[b] - V[c]
-                u2, v2 = V[a] - V[d], V[b] - V[d]
-                n1 = np.sqrt((u1 ** 2).sum() * (v1 ** 2).sum())
-                n2 = np.sqrt((u2 ** 2).sum() * (v2 ** 2).sum())
+                # the angles at c and d (coordinates as scalars: the same operations, in
+                # the same order, as the 3-vectors' expressions, without an array each)
+                u10, u11, u12 = V[a, 0] - V[c, 0], V[a, 1] - V[c, 1], V[a, 2] - V[c, 2]
+                v10, v11, v12 = V[b, 0] - V[c, 0], V[b, 1] - V[c, 1], V[b, 2] - V[c, 2]
+                u20, u21, u22 = V[a, 0] - V[d, 0], V[a, 1] - V[d, 1], V[a, 2] - V[d, 2]
+                v20, v21, v22 = V[b, 0] - V[d, 0], V[b, 1] - V[d, 1], V[b, 2] - V[d, 2]
+                n1 = np.sqrt((0.0 + u10 ** 2 + u11 ** 2 + u12 ** 2)
+                             * (0.0 + v10 ** 2 + v11 ** 2 + v12 ** 2))
+                n2 = np.sqrt((0.0 + u20 ** 2 + u21 ** 2 + u22 ** 2)
+                             * (0.0 + v20 ** 2 + v21 ** 2 + v22 ** 2))
                 if n1 <= 0 or n2 <= 0:
                     continue
-                ac = np.arccos(min(1.0, max(-1.0, (u1 * v1).sum() / n1)))
-                ad = np.arccos(min(1.0, max(-1.0, (u2 * v2).sum() / n2)))
+                d1 = 0.0 + u10 * v10 + u11 * v11 + u12 * v12
+                d2 = 0.0 + u20 * v20 + u21 * v21 + u22 * v22
+                ac = np.arccos(min(1.0, max(-1.0, d1 / n1)))
+                ad = np.arccos(min(1.0, max(-1.0, d2 / n2)))
                 if ac + ad <= np.pi + 1e-9:
                     continue
                 # keep the orientation: the new faces must not turn over the old pair
-                nold = np.cross(V[b] - V[a], V[c] - V[a]) + np.cross(V[a] - V[b], V[d] - V[b])
-                nf1 = np.cross(V[d] - V[a], V[c] - V[a])
-                nf2 = np.cross(V[b] - V[d], V[c] - V[d])
-                if (nf1 * nold).sum() <= 0 or (nf2 * nold).sum() <= 0:
+                p0, p1, p2 = _cross(V, b, a, c, a)
+                q0, q1, q2 = _cross(V, a, b, d, b)
+                o0, o1, o2 = p0 + q0, p1 + q1, p2 + q2
+                f0, f1, f2 = _cross(V, d, a, c, a)
+                g0, g1, g2 = _cross(V, b, d, c, d)
+                if (0.0 + f0 * o0 + f1 * o1 + f2 * o2 <= 0
+                        or 0.0 + g0 * o0 + g1 * o1 + g2 * o2 <= 0):
                     continue
                 # the new edge c-d must not exist already (rotate about c)
                 if _has_edge(F, twin, 3 * r + (j + 2) % 3, d):

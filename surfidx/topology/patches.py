@@ -57,7 +57,9 @@ def _harmonic_fill(values, known, faces):
     if not unknown.any():
         return values
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = np.sort(e, axis=1)
+    key = np.unique(e[:, 0] * np.int64(n) + e[:, 1])    # the distinct edges, (lo, hi) order
+    e = np.stack([key // n, key % n], axis=1)
     w = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
                       shape=(n, n)).tocsr()
     deg = np.asarray(w.sum(axis=1)).ravel()
