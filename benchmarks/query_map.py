@@ -2,7 +2,8 @@
 
 A query's descriptors are only compared with stored ones, so its spherical map may stop sooner
 than an ingest's (:meth:`surfidx.sphere.MapOptions.for_query`: fewer balancing steps at the finest
-level, which take most of a map's time). For every labelled model of ``../shared/data/retrieval``
+level, which take most of a map's time) and its grid may be coarser
+(:attr:`surfidx.describe.DescribeOptions.query_level`). For every labelled model of ``../shared/data/retrieval``
 this script describes the model file as ``surfidx query FILE`` does
 (:func:`surfidx.pipeline.describe_model` with ``for_query=True``) and ranks the other models by
 their stored descriptors (those of the ingest's map: the grids ``benchmarks/retrieval.py``
@@ -111,6 +112,7 @@ def main(argv=None) -> int:
     add_markdown_option(ap, "query_map")
     args = ap.parse_args(argv)
 
+    from surfidx.describe import DescribeOptions
     from surfidx.options import ProcessOptions
     from surfidx.sphere import MapOptions
 
@@ -122,8 +124,10 @@ def main(argv=None) -> int:
     key = args.cache_key or R.code_version("tutte")
     stored = stored_descriptors(paths, args.cache / key)
     base = MapOptions()
-    rows = [("library query map", base.for_query(), True,
-             f"final steps {base.query_final_steps} ({base.query_final_steps_large} large)")]
+    level = DescribeOptions().query_level
+    rows = [("library query", base.for_query(), True,
+             f"final steps {base.query_final_steps} ({base.query_final_steps_large} large), "
+             f"grid level <= {level}")]
     if args.with_ingest_map:
         rows.insert(0, ("ingest map", base, False,
                         f"final steps {base.final_steps} ({base.final_steps_large} large)"))

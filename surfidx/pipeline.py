@@ -429,9 +429,10 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         :func:`describe_scan` does, without mapping it: what a partial query compares with a
         database that holds views (the map of a 10k-vertex view costs ten times its read).
     for_query : bool
-        Map with a query's step counts (:meth:`surfidx.sphere.MapOptions.for_query`): the
-        descriptors find the stored models as well as an ingest's would, at about half the
-        map's CPU, but are no longer bit-equal to ``process_model``'s.
+        Map with a query's step counts (:meth:`surfidx.sphere.MapOptions.for_query`) and
+        resample on a grid of level at most ``options.describe.query_level`` (unless ``level``
+        is given): the descriptors find the stored models as well as an ingest's would, at
+        about half the CPU, but are no longer bit-equal to ``process_model``'s.
     progress : callable, optional
         ``progress(stage, done, total)`` (:mod:`surfidx.progress`): ``read``, the map's
         (``map`` per level, ``figures``), ``resample``, ``describe`` and, with a
@@ -472,6 +473,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         sphere_map = parameterize(part, stress=False, options=map_options, progress=progress)
         timings["map"] = timings.get("map", 0.0) + time.perf_counter() - t0
         grid_level = sphere_map.grid_level if level is None else level
+        if for_query and level is None:
+            grid_level = min(grid_level, opts.describe.query_level)
         grid = _timed(timings, "resample", progress, resample, part, sphere_map.points,
                       grid_level, color=part.has_color)
         d = _timed(timings, "describe", progress, describe_grid, grid, grid_level, lmax=lm)

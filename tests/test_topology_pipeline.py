@@ -11,6 +11,8 @@ import pytest
 
 from conftest import icosphere_mesh, torus_mesh
 from surfidx import InputError, TopologyError, TriangleMesh, read_surfels
+from surfidx.describe import DescribeOptions
+from surfidx.options import ProcessOptions
 from surfidx.io import model_hash
 from surfidx.topology import Model, join_surfels, read_model
 from surfidx.topology import RepairOptions, close_surface, closed_mesh, patch_cuts
@@ -282,6 +284,15 @@ def test_a_query_map_describes_the_model_near_its_stored_descriptors(torus_proce
     assert not np.array_equal(quick.descriptors.vectors["shape"],
                               torus_processed.descriptors["shape"])
     assert dist(quick) < 0.1 * dist(other)
+    # a query's grid is at most DescribeOptions.query_level, unless a level is asked for
+    assert describe_model(torus_mesh(nu=30, nv=12), for_query=True,
+                          options=ProcessOptions(describe=DescribeOptions(query_level=2))
+                          ).grid_level == 2
+    assert describe_model(torus_mesh(nu=30, nv=12), for_query=True, level=3,
+                          options=ProcessOptions(describe=DescribeOptions(query_level=2))
+                          ).grid_level == 3
+    with pytest.raises(InputError, match=r"DescribeOptions\.query_level must be"):
+        DescribeOptions(query_level=10)
     q = MapOptions(final_steps=7, query_final_steps=3).for_query()
     assert (q.final_steps, q.final_steps_large) == (3, MapOptions().query_final_steps_large)
     with pytest.raises(InputError,
