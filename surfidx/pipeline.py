@@ -311,7 +311,6 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
     from .io import up_axis
     from .numerics import provenance
     from .options import ProcessOptions
-    from .render import THUMBNAIL, render
 
     opts = ProcessOptions.resolve(options, bits_per_surfel=bits_per_surfel, samples=samples,
                                   level=level, method=method, thumbnail_size=thumbnail_size,
@@ -340,8 +339,7 @@ def process_model(path, *, options=None, bits_per_surfel: float | None = None, t
         [describe_grid(e.grid, e.level, lmax=opts.describe.lmax) for e in encoders],
         [len(p) for p in model.parts]))
     up = opts.up or up_axis(path)
-    thumb = _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-        render(decoded, width=size, height=size, view=THUMBNAIL, up=up)))
+    thumb = _thumbnail(timings, progress, decoded, up, size)
     reports = [e.prepared.report() for e in encoders]
     from_mesh = surfels.faces is not None and len(surfels.faces) > 0 and samples is None
     params = {**opts.to_dict(), "up": up, **reports[0],
@@ -481,11 +479,8 @@ def describe_model(path, *, options=None, texture=None, samples: int | None = No
         sets.append(d)
         levels.append(int(grid_level))
     desc = combine_descriptors(sets, [len(p) for p in model.parts])
-    if partial:
-        from .describe.views import scan_views
-
-        v, f = scan_surface(model)      # a single view: its own views, not the capped model's
-        desc.vectors["views"] = scan_views(v, f).ravel()
+    if partial:     # a single view: its own views, not the capped model's
+        desc.vectors["views"] = _scan_view_vector(model)
     grid_level = levels[0]
     thumb = _input_thumbnail(timings, progress, surfels, path, opts, thumbnail_size)
     label, source, digest = _identity(path, surfels, texture, name)
@@ -564,12 +559,9 @@ def _described_by_views(model, timings, progress, *, path, texture, name, option
                         thumbnail_size):
     """The :class:`DescribedModel` of a read scan by its views alone (:func:`describe_scan`)."""
     from .describe.descriptors import DescriptorSet, descriptor_params
-    from .describe.views import scan_views
 
-    v, f = scan_surface(model)
-    views = _timed(timings, "describe", progress, scan_views, v, f)
-    desc = DescriptorSet({"views": views.ravel()},
-                         descriptor_params(lmax=options.describe.lmax))
+    views = _timed(timings, "describe", progress, _scan_view_vector, model)
+    desc = DescriptorSet({"views": views}, descriptor_params(lmax=options.describe.lmax))
     surfels = model.surfels
     thumb = _input_thumbnail(timings, progress, surfels, path, options, thumbnail_size)
     label, source, digest = _identity(path, surfels, texture, name)
@@ -579,17 +571,31 @@ def _described_by_views(model, timings, progress, *, path, texture, name, option
                           topology=model.summary() if model.repaired else None)
 
 
+def _thumbnail(timings, progress, surfels, up, size):
+    """PNG of ``surfels`` ``size`` pixels square in a stored model's view with the axis ``up``
+    upwards, timed as ``thumbnail``."""
+    from .render import THUMBNAIL, render
+
+    return _timed(timings, "thumbnail", progress, lambda: _png_bytes(
+        render(surfels, width=size, height=size, view=THUMBNAIL, up=up)))
+
+
 def _input_thumbnail(timings, progress, surfels, path, options, size):
-    """PNG of the input surfels ``size`` pixels square in a stored model's view (upright:
-    ``options.up`` or the format's up axis up), timed as ``thumbnail``; None without a size."""
+    """:func:`_thumbnail` of a query's input surfels, upright as an ingest of ``path`` would
+    draw it (``options.up`` or the format's up axis); None without a size."""
     if size is None:
         return None
     from .io import up_axis
-    from .render import THUMBNAIL, render
 
-    up = options.up or up_axis(path)
-    return _timed(timings, "thumbnail", progress, lambda: _png_bytes(
-        render(surfels, width=size, height=size, view=THUMBNAIL, up=up)))
+    return _thumbnail(timings, progress, surfels, options.up or up_axis(path), size)
+
+
+def _scan_view_vector(model):
+    """The views of what a read scan really holds (:func:`scan_surface`), flattened: the
+    ``views`` descriptor of a partial query."""
+    from .describe.views import scan_views
+
+    return scan_views(*scan_surface(model)).ravel()
 
 
 def output_level(stream: bytes, *, bits_per_surfel: float | None = None,

@@ -346,13 +346,13 @@ def _collapse_ok(r, k, pos, vf_ptr, vf_idx, faces, cos_turn, sliver):  # pragma:
             x1 = k
         else:
             x2 = k
-        b0, b1, b2 = _normal(pos, x0, x1, x2)
         u0 = pos[x1, 0] - pos[x0, 0]
         u1 = pos[x1, 1] - pos[x0, 1]
         u2 = pos[x1, 2] - pos[x0, 2]
         v0 = pos[x2, 0] - pos[x0, 0]
         v1 = pos[x2, 1] - pos[x0, 1]
         v2 = pos[x2, 2] - pos[x0, 2]
+        b0, b1, b2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0   # _normal's
         w0 = pos[x2, 0] - pos[x1, 0]
         w1 = pos[x2, 1] - pos[x1, 1]
         w2 = pos[x2, 2] - pos[x1, 2]
